@@ -1,0 +1,223 @@
+"""The ``swarm-env`` command line: ``list``, ``validate``, ``run``, ``bench``.
+
+Exit codes: 0 success, 2 bad input (unknown scenario or policy, invalid
+scenario file, bad option), 1 anything else.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+from swarm_env.policies import UnknownPolicyError
+from swarm_env.scenario import ScenarioError
+
+
+def _table(rows: list[list[str]], header: list[str]) -> str:
+    widths = [max(len(str(x)) for x in col) for col in zip(header, *rows)]
+    line = "  ".join(h.ljust(w) for h, w in zip(header, widths))
+    sep = "  ".join("-" * w for w in widths)
+    body = ["  ".join(str(x).rjust(w) if i else str(x).ljust(w) for i, (x, w) in enumerate(zip(r, widths))) for r in rows]
+    return "\n".join([line, sep, *body])
+
+
+def _fmt(x: Any, digits: int = 3) -> str:
+    if x is None:
+        return "-"
+    if isinstance(x, float):
+        return f"{x:.{digits}f}"
+    return str(x)
+
+
+def format_per_robot(episode: dict[str, Any]) -> str:
+    """Paper-003-style per-robot table (Tables II-IV) of one episode's metrics."""
+    header = ["robot", "avg v (m/s)", "avg w (rad/s)", "distance (m)", "time to target (s)", "formation err (m)", "collisions"]
+    rows = [
+        [
+            r["robot"],
+            _fmt(r["avg_linear_velocity"]),
+            _fmt(r["avg_angular_velocity"]),
+            _fmt(r["distance"]),
+            _fmt(r["time_to_target"], 1),
+            _fmt(r["formation_error"]),
+            _fmt(r["collisions"]),
+        ]
+        for r in episode["per_robot"]
+    ]
+    return _table(rows, header)
+
+
+def format_episode(episode: dict[str, Any]) -> str:
+    c = episode["collisions"]
+    settle = ", ".join(
+        f"t={s['at']:g}s {s['shape']}: {_fmt(s['settle_time'], 1)}" for s in episode["settle_times"]
+    ) or "-"
+    return (
+        f"seed {episode['seed']}: success={episode['success']} steps={episode['steps']} "
+        f"sim_time={episode['sim_time']:.1f}s wall={episode['wall_time']:.2f}s  "
+        f"collisions={c['total']} (robot {c['robot_robot']}, obstacle {c['robot_obstacle']}, "
+        f"human {c['robot_human']}, wall {c['robot_wall']})  "
+        f"formation error mean={episode['formation_error']['mean']:.3f} m max={episode['formation_error']['max']:.3f} m  "
+        f"min separation={_fmt(episode['min_separation'])} m  settle: {settle}"
+    )
+
+
+def cmd_list(args: argparse.Namespace) -> int:
+    from swarm_env.policies import registered_policies
+    from swarm_env.scenario_io import list_scenarios, load_scenario
+
+    print("scenarios:")
+    for name in list_scenarios():
+        if name == "random":
+            desc = "procedural generator seeded by reset(seed); knobs as parallel_env keyword arguments"
+        else:
+            desc = (load_scenario(name).description.strip().splitlines() or [""])[0]
+        print(f"  {name:<18} {desc}")
+    print("policies:")
+    for name, target in registered_policies().items():
+        print(f"  {name:<18} {target}")
+    return 0
+
+
+def cmd_validate(args: argparse.Namespace) -> int:
+    from swarm_env.scenario_io import load_scenario
+
+    status = 0
+    for spec in args.files:
+        try:
+            scn = load_scenario(spec)
+        except ScenarioError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            status = 2
+            continue
+        print(
+            f"ok: {scn.name} ({scn.robots.count} followers, {scn.leader.kind} leader, {len(scn.obstacles)} obstacles, "
+            f"{len(scn.humans)} humans, {len(scn.formations)} formations, dt={scn.world.dt:g}s, max_time={scn.world.max_time:g}s)"
+        )
+    return status
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from swarm_env.evaluation import evaluate
+
+    env_kwargs: dict[str, Any] = {"action_type": args.action_type}
+    if args.render == "human":
+        env_kwargs["render_mode"] = "human"
+    writer = None
+    on_frame = None
+    if args.video:
+        from swarm_env.video import VideoWriter
+
+        writer = VideoWriter(args.video, fps=args.fps)
+        on_frame = writer.append
+    try:
+        report = evaluate(
+            args.scenario,
+            args.policy,
+            args.episodes,
+            args.seed,
+            env_kwargs=env_kwargs,
+            on_frame=on_frame,
+            progress=args.episodes > 1 and sys.stderr.isatty(),
+        )
+    finally:
+        if writer is not None:
+            writer.close()
+    for ep in report["episodes"]:
+        print(format_episode(ep))
+        print(format_per_robot(ep))
+        if "policy_stats" in ep:
+            print(f"policy_stats: {json.dumps(ep['policy_stats'])}")
+        print()
+    s = report["summary"]
+    print(
+        f"summary over {s['episodes']} episode(s) of {report['policy']} on {report['scenario']}: "
+        f"success rate {s['success_rate']['mean']:.2f}, collisions/episode {s['collisions']['mean']:.2f}, "
+        f"formation error {s['formation_error']['mean']:.3f} m"
+    )
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=2))
+        print(f"wrote {args.json}")
+    if args.video:
+        print(f"wrote {args.video}")
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from swarm_env.bench import run_bench
+
+    results = run_bench(
+        args.scenario,
+        steps=args.steps,
+        repeats=args.repeats,
+        seed=args.seed,
+        peer=args.vs,
+        progress=(lambda msg: print(msg, file=sys.stderr)) if not args.quiet else None,
+    )
+    rows = [
+        [r.name, str(r.agents), f"{r.median:,.0f}", f"{r.agent_steps_per_s:,.0f}", f"{min(r.env_steps_per_s):,.0f}-{max(r.env_steps_per_s):,.0f}"]
+        for r in results
+    ]
+    print(_table(rows, ["env", "agents", "env-steps/s (median)", "agent-steps/s", "range"]))
+    if len(results) == 2:
+        print(f"ratio swarm_env / {results[1].name}: {results[0].median / results[1].median:.2f}x")
+    if args.json:
+        doc = [{"name": r.name, "agents": r.agents, "env_steps_per_s": r.env_steps_per_s, "median": r.median} for r in results]
+        Path(args.json).write_text(json.dumps(doc, indent=2))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="swarm-env", description="Leader-follower swarm environment (PettingZoo + pymunk).")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    sub.add_parser("list", help="list built-in scenarios and registered policies").set_defaults(func=cmd_list)
+
+    v = sub.add_parser("validate", help="check scenario files; exit 2 on the first kind of error")
+    v.add_argument("files", nargs="+", help="YAML files or built-in scenario names")
+    v.set_defaults(func=cmd_validate)
+
+    r = sub.add_parser("run", help="run a policy on a scenario and report metrics")
+    r.add_argument("--scenario", default="paper_vo_0", help="built-in name, 'random', or a YAML path")
+    r.add_argument("--policy", default="random", help="registered policy name, optionally name:ARG")
+    r.add_argument("--episodes", type=int, default=1)
+    r.add_argument("--seed", type=int, default=0, help="seed of the first episode; episode k uses seed+k")
+    r.add_argument("--action-type", choices=["continuous", "discrete"], default="continuous")
+    r.add_argument("--json", help="write {scenario, policy, episodes, summary} to this file")
+    r.add_argument("--video", help="write an .mp4 (or .gif) of all episodes to this file")
+    r.add_argument("--fps", type=float, default=20.0, help="video frames per second")
+    r.add_argument("--render", choices=["human"], help="show a pygame window")
+    r.set_defaults(func=cmd_run)
+
+    b = sub.add_parser("bench", help="env throughput with random actions (median of repeats)")
+    b.add_argument("--scenario", default="paper_cbs_switch")
+    b.add_argument("--steps", type=int, default=2000, help="env steps per repeat")
+    b.add_argument("--repeats", type=int, default=5)
+    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--vs", choices=["mpe2"], help="also run a peer env in the same process and print the ratio")
+    b.add_argument("--json", help="write the raw figures to this file")
+    b.add_argument("--quiet", action="store_true", help="no per-repeat progress on stderr")
+    b.set_defaults(func=cmd_bench)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    if getattr(args, "episodes", 1) < 1:
+        print("error: --episodes must be >= 1", file=sys.stderr)
+        return 2
+    try:
+        return int(args.func(args))
+    except ScenarioError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except UnknownPolicyError as exc:
+        print(f"error: {exc.args[0] if exc.args else exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,383 @@
+"""The PettingZoo parallel environment (see :class:`SwarmEnv`'s docstring: it is the spec)."""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+import warnings
+from typing import Any
+
+import gymnasium
+import numpy as np
+from pettingzoo import ParallelEnv
+
+from swarm_env.geometry import StaticMap
+from swarm_env.metrics import EpisodeMetrics
+from swarm_env.observations import STATE_LIMIT, Capacity, ObservationBuilder
+from swarm_env.random_scenario import RandomScenarioConfig, config_from_kwargs, random_scenario
+from swarm_env.rewards import REWARD_TERMS, compute_rewards, slot_distance
+from swarm_env.scenario import Scenario
+from swarm_env.scenario_io import load_scenario
+from swarm_env.state import WorldState
+from swarm_env.world import World
+
+#: Turn angles (degrees) of the discrete motion primitives (paper 000), after action 0 = stop.
+PRIMITIVE_ANGLES_DEG = (0.0, 12.0, -12.0, 24.0, -24.0, 36.0, -36.0, 48.0, -48.0)
+ACTION_TYPES = ("continuous", "discrete")
+
+
+class SwarmEnv(ParallelEnv):
+    """A leader-follower robot swarm in formation, simulated with pymunk.
+
+    ## Description
+
+    ``N`` differential-drive followers (the agents ``follower_0 ... follower_{N-1}``)
+    must hold the slots of a formation defined in the frame of a leader that
+    moves along a predefined path, while static obstacles and walking humans
+    get in the way. The formation switches shape on a schedule. The leader is
+    either *virtual* (a point moving exactly along its path, paper 000) or a
+    *robot* that tracks its path with pure pursuit and avoids humans and
+    obstacles with a velocity-obstacle rule (paper 003); it is part of the
+    world, not an agent. Each follower's slot target is moved out of
+    obstacles to the nearest free point (paper 000, sec. III-D d).
+
+    ## Action space
+
+    ``action_type="continuous"`` (default): ``Box(-1, 1, (2,), float32)``,
+    mapped linearly to ``v = a[0] * max_speed`` (m/s, reversing allowed) and
+    ``omega = a[1] * max_turn_rate`` (rad/s, counter-clockwise positive).
+    Values outside ``[-1, 1]`` are clipped (with a one-time warning); NaN or
+    infinite values, wrong shapes and unknown agents raise ``ValueError``.
+
+    ``action_type="discrete"``: ``Discrete(10)``, paper 000's motion
+    primitives: ``0`` = stop; ``1..9`` = drive forward at ``max_speed``
+    while turning by ``PRIMITIVE_ANGLES_DEG[k-1]`` = 0, +12, -12, +24, -24,
+    +36, -36, +48, -48 degrees over one primitive duration
+    ``T_p = 48 deg / max_turn_rate`` (so the sharpest primitive turns at the
+    robot's turn-rate limit; a primitive spans several steps).
+
+    In every physics substep the command is limited to the robot's speed,
+    turn-rate and (optional) acceleration limits.
+
+    ## Observation space
+
+    One ``Box`` (float32) per agent, in the agent's own frame, of length
+    ``11 + 5 * neighbors + 5 * humans + lidar_rays`` (69 for the default
+    sensors): own twist, vector to its slot, leader relative pose and
+    velocity, time to the next formation switch, the ``neighbors`` nearest
+    followers and ``humans`` nearest humans (relative position and velocity,
+    plus a presence mask), and a lidar. See
+    :mod:`swarm_env.observations` for the exact layout; the named slices are
+    ``OBS_OWN_TWIST``, ``OBS_SLOT``, ``OBS_LEADER``, ``OBS_SWITCH`` and
+    ``observation_layout(sensors)`` (also ``env.obs_layout``).
+
+    ``state()`` returns a global state vector (``state_space``, float32 in
+    ``[-2, 2]``) for centralised critics: every follower's normalised pose,
+    twist and slot, the leader, the humans, the time.
+
+    ## Rewards
+
+    Per agent, the paper-000 cost shape ``-w_f * slot distance (m) - w_c *
+    new collisions`` plus optional clearance, smoothness and progress terms
+    (weights in the scenario's ``reward`` section; see
+    :mod:`swarm_env.rewards`). Each weighted term is reported in
+    ``infos[agent]["reward_terms"]``; rewards are Python floats.
+
+    ## Starting state
+
+    The leader at the first waypoint of its path, facing the second; the
+    followers on their first formation slots facing the leader's heading
+    (``robots.start: formation``) or at the poses the scenario lists; humans on
+    their first waypoints. Fixed scenarios are deterministic; ``random`` draws
+    a new map from the generator seeded by ``reset(seed)``.
+
+    ## Episode end
+
+    All agents end together. ``terminations`` are ``True`` when the leader has
+    reached the end of its path and every follower is within
+    ``world.settle_tolerance`` of its slot; ``truncations`` are ``True`` when
+    ``world.max_time`` (or ``max_cycles`` steps) is reached. Finished agents
+    leave ``env.agents``. ``episode_metrics()`` then reports the metrics of
+    :mod:`swarm_env.metrics`.
+
+    ## Arguments
+
+    * ``scenario``: a built-in name (``swarm_env.list_scenarios()``), a path to
+      a YAML file, a :class:`~swarm_env.scenario.Scenario`, or ``"random"``.
+    * ``render_mode``: ``None``, ``"human"`` (pygame window) or ``"rgb_array"``.
+    * ``action_type``: ``"continuous"`` or ``"discrete"``.
+    * ``max_cycles``: optional step limit on top of ``world.max_time``.
+    * ``**knobs``: for ``scenario="random"`` only, the fields of
+      :class:`~swarm_env.random_scenario.RandomScenarioConfig`
+      (``n_followers``, ``n_obstacles``, ``n_humans``, ...).
+
+    ## Version history
+
+    * v0: initial release.
+    """
+
+    metadata = {
+        "name": "swarm_env_v0",
+        "render_modes": ["human", "rgb_array"],
+        "render_fps": 10,
+        "is_parallelizable": True,
+    }
+
+    def __init__(
+        self,
+        scenario: str | os.PathLike[str] | Scenario = "paper_vo_0",
+        *,
+        render_mode: str | None = None,
+        action_type: str = "continuous",
+        max_cycles: int | None = None,
+        **knobs: Any,
+    ) -> None:
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
+        if action_type not in ACTION_TYPES:
+            raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
+        if max_cycles is not None and (not isinstance(max_cycles, int) or max_cycles < 1):
+            raise ValueError(f"max_cycles must be a positive int, got {max_cycles!r}")
+        self._random: RandomScenarioConfig | None = None
+        if isinstance(scenario, str) and scenario == "random":
+            self._random = config_from_kwargs(**knobs)
+            template = random_scenario(np.random.default_rng(0), self._random)
+        else:
+            if knobs:
+                raise TypeError(f"unexpected keyword arguments {sorted(knobs)}: generator knobs apply to 'random' only")
+            template = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+        self._fixed = template if self._random is None else None
+        self.render_mode = render_mode
+        self.action_type = action_type
+        self.max_cycles = max_cycles
+        self.capacity = self._capacity(template)
+        self.sensors = template.sensors
+        self.scenario_name = "random" if self._random else template.name
+        self._obs = ObservationBuilder(self.sensors, self.capacity)
+        self.obs_layout = self._obs.layout
+
+        self.possible_agents = [f"follower_{i}" for i in range(self.capacity.max_followers)]
+        self._agent_index = {a: i for i, a in enumerate(self.possible_agents)}
+        obs_space = gymnasium.spaces.Box(self._obs.low, self._obs.high, dtype=np.float32)
+        self.observation_spaces = {a: _clone_space(obs_space) for a in self.possible_agents}
+        self.action_spaces = {a: self._make_action_space() for a in self.possible_agents}
+        self.state_space = gymnasium.spaces.Box(
+            -STATE_LIMIT, STATE_LIMIT, (self._obs.state_size,), dtype=np.float32
+        )
+        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / template.world.dt))}
+
+        self.agents: list[str] = []
+        self._rng: np.random.Generator | None = None
+        self._world: World | None = None
+        self._state: WorldState | None = None
+        self._metrics = EpisodeMetrics()
+        self._renderer: Any = None
+        self._warned_clip = False
+        self._static_cache: dict[int, StaticMap] = {}
+
+    # ------------------------------------------------------------------ spaces
+    def observation_space(self, agent: str) -> gymnasium.spaces.Space:
+        return self.observation_spaces[agent]
+
+    def action_space(self, agent: str) -> gymnasium.spaces.Space:
+        return self.action_spaces[agent]
+
+    def _make_action_space(self) -> gymnasium.spaces.Space:
+        if self.action_type == "discrete":
+            return gymnasium.spaces.Discrete(1 + len(PRIMITIVE_ANGLES_DEG))
+        return gymnasium.spaces.Box(-1.0, 1.0, (2,), dtype=np.float32)
+
+    def _capacity(self, template: Scenario) -> Capacity:
+        if self._random is None:
+            scn = template
+            return Capacity(
+                max_followers=scn.robots.count,
+                max_humans=len(scn.humans),
+                world_size=scn.world.size,
+                max_time=scn.world.max_time,
+                speed_limit=max([scn.robots.max_speed, scn.leader.speed, *(h.speed for h in scn.humans)]),
+            )
+        cfg = self._random
+        return Capacity(
+            max_followers=cfg.n_followers[1],
+            max_humans=cfg.n_humans[1],
+            world_size=cfg.world_size,
+            max_time=cfg.max_time,
+            speed_limit=max(cfg.max_speed, cfg.leader_speed, cfg.human_speed[1]),
+        )
+
+    # ------------------------------------------------------------------ episode
+    @property
+    def scenario(self) -> Scenario:
+        """The scenario of the current episode (the template before the first reset)."""
+        if self._world is not None:
+            return self._world.scenario
+        assert self._fixed is not None or self._random is not None
+        return self._fixed if self._fixed is not None else random_scenario(np.random.default_rng(0), self._random)
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        if seed is not None or self._rng is None:
+            seq = np.random.SeedSequence(seed)
+            env_seq, space_seq = seq.spawn(2)
+            self._rng = np.random.default_rng(env_seq)
+            space_seeds = space_seq.generate_state(len(self.possible_agents))
+            for agent, s in zip(self.possible_agents, space_seeds):
+                self.action_spaces[agent].seed(int(s))
+        scn = random_scenario(self._rng, self._random) if self._random is not None else self._fixed
+        assert scn is not None
+        self._world = World(scn, self._static_for(scn))
+        self.agents = self.possible_agents[: scn.robots.count]
+        self._n = scn.robots.count
+        dt = scn.world.dt
+        steps_limit = int(math.floor(scn.world.max_time / dt + 1e-9))
+        self._max_steps = steps_limit if self.max_cycles is None else min(steps_limit, self.max_cycles)
+        self._speed = np.array([scn.robots.max_speed, scn.robots.max_turn_rate])
+        self._prim_duration = math.radians(max(abs(a) for a in PRIMITIVE_ANGLES_DEG)) / scn.robots.max_turn_rate
+        self._state = self._world.snapshot()
+        self._prev_dist = slot_distance(self._state)
+        self._prev_action = np.zeros((self._n, 2))
+        self._metrics = EpisodeMetrics()
+        self._metrics.start(self._state)
+        if self._renderer is not None:
+            self._renderer.reset()
+            self._renderer.record(self._state)
+        obs = self._obs.build(self._state)
+        observations = {a: obs[i] for i, a in enumerate(self.agents)}
+        infos: dict[str, dict] = {a: {} for a in self.agents}
+        if self.render_mode == "human":
+            self.render()
+        return observations, infos
+
+    def _static_for(self, scn: Scenario) -> StaticMap:
+        if self._fixed is not None:  # one map for every episode of a fixed scenario
+            key = 0
+            if key not in self._static_cache:
+                self._static_cache[key] = StaticMap.from_obstacles(scn.world.size, scn.obstacles)
+            return self._static_cache[key]
+        return StaticMap.from_obstacles(scn.world.size, scn.obstacles)
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        if self._world is None or self._state is None:
+            raise RuntimeError("call reset() before step()")
+        if not self.agents:
+            raise RuntimeError("the episode is over: call reset() before step()")
+        norm = self._normalised_actions(actions)
+        command = norm * self._speed
+        t0 = time.perf_counter()
+        self._world.step(command)
+        state = self._world.snapshot()
+        self._state = state
+        obs = self._obs.build(state)
+        dist = slot_distance(state)
+        reward, terms = compute_rewards(state, state.scenario.reward, dist, self._prev_dist, norm, self._prev_action)
+        self._prev_dist, self._prev_action = dist, norm
+        settled = bool(np.all(dist <= state.scenario.world.settle_tolerance))
+        terminated = bool(state.leader_done and settled)
+        truncated = bool(not terminated and state.step >= self._max_steps)
+        self._metrics.update(state, time.perf_counter() - t0)
+        self._metrics.terminated = terminated
+
+        agents = self.agents
+        observations = {a: obs[i] for i, a in enumerate(agents)}
+        rewards = {a: float(reward[i]) for i, a in enumerate(agents)}
+        terminations = {a: terminated for a in agents}
+        truncations = {a: truncated for a in agents}
+        infos = {
+            a: {"reward_terms": {t: float(terms[t][i]) for t in REWARD_TERMS}, "slot_distance": float(dist[i])}
+            for i, a in enumerate(agents)
+        }
+        if terminated or truncated:
+            self.agents = []
+        if self._renderer is not None:
+            self._renderer.record(state)
+        if self.render_mode == "human":
+            self.render()
+        return observations, rewards, terminations, truncations, infos
+
+    def _normalised_actions(self, actions: dict[str, Any]) -> np.ndarray:
+        """Validate the action dict and return (N, 2) normalised (v, omega) in [-1, 1]."""
+        if not isinstance(actions, dict):
+            raise ValueError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
+        unknown = set(actions) - set(self.agents)
+        if unknown:
+            raise ValueError(f"actions for agents not in env.agents: {sorted(unknown)}")
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise ValueError(f"missing actions for agents {missing}")
+        out = np.zeros((self._n, 2))
+        if self.action_type == "discrete":
+            for i, a in enumerate(self.agents):
+                k = actions[a]
+                if isinstance(k, np.ndarray) and k.size == 1:
+                    k = k.item()
+                if isinstance(k, (bool, np.bool_)) or not isinstance(k, (int, np.integer)) or not 0 <= k <= len(
+                    PRIMITIVE_ANGLES_DEG
+                ):
+                    raise ValueError(f"{a}: discrete action must be an int in [0, {len(PRIMITIVE_ANGLES_DEG)}], got {k!r}")
+                if k > 0:
+                    omega = math.radians(PRIMITIVE_ANGLES_DEG[k - 1]) / self._prim_duration
+                    out[i] = (1.0, omega / self._speed[1])
+            return out
+        for i, a in enumerate(self.agents):
+            try:
+                arr = np.asarray(actions[a], dtype=np.float64)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"{a}: action must be 2 numbers (v, omega) in [-1, 1], got {actions[a]!r}") from exc
+            if arr.shape != (2,):
+                raise ValueError(f"{a}: action must have shape (2,), got shape {arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"{a}: action must be finite, got {arr.tolist()}")
+            out[i] = arr
+        if np.any(np.abs(out) > 1.0):
+            if not self._warned_clip:
+                warnings.warn("actions outside [-1, 1] are clipped to the action space", stacklevel=3)
+                self._warned_clip = True
+            np.clip(out, -1.0, 1.0, out=out)
+        return out
+
+    # ------------------------------------------------------------------ extras
+    def state(self) -> np.ndarray:
+        if self._state is None:
+            raise RuntimeError("call reset() before state()")
+        return self._obs.state_vector(self._state)
+
+    def world_state(self) -> WorldState:
+        """The current privileged :class:`~swarm_env.state.WorldState` (for scripted experts)."""
+        if self._state is None:
+            raise RuntimeError("call reset() before world_state()")
+        return self._state
+
+    def episode_metrics(self) -> dict[str, Any]:
+        """Metrics of the current (or just finished) episode; see :mod:`swarm_env.metrics`."""
+        if self._state is None:
+            raise RuntimeError("call reset() before episode_metrics()")
+        return {"scenario": self._state.scenario.name, **self._metrics.result()}
+
+    def render(self) -> np.ndarray | None:
+        if self.render_mode is None:
+            gymnasium.logger.warn("render() called with render_mode=None; pass render_mode to the constructor")
+            return None
+        if self._state is None:
+            raise RuntimeError("call reset() before render()")
+        if self._renderer is None:
+            from swarm_env.render import Renderer
+
+            self._renderer = Renderer(self.render_mode, self._state.scenario)
+            self._renderer.record(self._state)
+        elif self._renderer.scenario is not self._state.scenario:
+            self._renderer.close()
+            from swarm_env.render import Renderer
+
+            self._renderer = Renderer(self.render_mode, self._state.scenario)
+            self._renderer.record(self._state)
+        return self._renderer.render(self._state)
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def _clone_space(space: gymnasium.spaces.Box) -> gymnasium.spaces.Box:
+    return gymnasium.spaces.Box(space.low.copy(), space.high.copy(), dtype=space.dtype)

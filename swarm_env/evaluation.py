@@ -1,0 +1,112 @@
+"""One evaluation path for every policy (scripted experts, RL models, random).
+
+:func:`run_episode` plays one seeded episode and returns its metrics;
+:func:`evaluate` runs several and aggregates them into the JSON document that
+``swarm-env run --json`` writes::
+
+    {"scenario": str, "policy": str, "episodes": [per-episode metrics], "summary": {...}}
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import numpy as np
+
+from swarm_env.env import SwarmEnv
+from swarm_env.policies import Policy, load_policy
+
+
+def run_episode(
+    env: SwarmEnv,
+    policy: Policy,
+    seed: int | None,
+    on_frame: Callable[[np.ndarray], None] | None = None,
+) -> dict[str, Any]:
+    """Play one episode of ``policy`` in ``env`` from ``reset(seed)``.
+
+    ``on_frame`` (if given, and the env renders ``rgb_array``) receives every
+    frame, the initial one included. Returns ``env.episode_metrics()`` plus
+    ``seed``, ``policy_time`` (s spent in ``policy.act``) and, if the policy
+    has ``stats()``, ``policy_stats``.
+    """
+    obs, _ = env.reset(seed=seed)
+    policy.reset(env, seed)
+    policy_time = 0.0
+
+    def emit() -> None:
+        if on_frame is not None:
+            frame = env.render()
+            if frame is not None:
+                on_frame(frame)
+
+    emit()
+    while env.agents:
+        t0 = time.perf_counter()
+        actions = policy.act(obs, env.world_state())
+        policy_time += time.perf_counter() - t0
+        obs, _, _, _, _ = env.step(actions)
+        emit()
+    result = {"seed": seed, **env.episode_metrics(), "policy_time": policy_time}
+    stats = getattr(policy, "stats", None)
+    if callable(stats):
+        result["policy_stats"] = stats()
+    return result
+
+
+def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    """Means (and 95 % normal-approximation half-widths) of the headline metrics."""
+
+    def stat(values: Iterable[float | None]) -> dict[str, float | None]:
+        arr = np.array([v for v in values if v is not None], dtype=float)
+        if arr.size == 0:
+            return {"mean": None, "ci95": None, "n": 0}
+        half = float(1.96 * arr.std(ddof=1) / np.sqrt(arr.size)) if arr.size > 1 else 0.0
+        return {"mean": float(arr.mean()), "ci95": half, "n": int(arr.size)}
+
+    settle = [s["settle_time"] for e in episodes for s in e["settle_times"]]
+    return {
+        "episodes": len(episodes),
+        "success_rate": stat(float(e["success"]) for e in episodes),
+        "collision_free_rate": stat(float(e["collisions"]["total"] == 0) for e in episodes),
+        "collisions": stat(e["collisions"]["total"] for e in episodes),
+        "formation_error": stat(e["formation_error"]["mean"] for e in episodes),
+        "settle_time": stat(settle),
+        "sim_time": stat(e["sim_time"] for e in episodes),
+        "min_separation": stat(e["min_separation"] for e in episodes),
+    }
+
+
+def evaluate(
+    scenario: str,
+    policy_spec: str,
+    episodes: int = 1,
+    seed: int = 0,
+    *,
+    env_kwargs: dict[str, Any] | None = None,
+    on_frame: Callable[[np.ndarray], None] | None = None,
+    progress: bool = False,
+) -> dict[str, Any]:
+    """Run ``episodes`` episodes (seeds ``seed, seed+1, ...``) and aggregate them.
+
+    ``on_frame`` receives the frames of every episode in order (the env is
+    made with ``render_mode="rgb_array"`` when it is given, unless
+    ``env_kwargs`` sets a render mode).
+    """
+    kwargs = dict(env_kwargs or {})
+    if on_frame is not None:
+        kwargs.setdefault("render_mode", "rgb_array")
+    env = SwarmEnv(scenario, **kwargs)
+    try:
+        policy = load_policy(policy_spec, env)
+        seeds = range(seed, seed + episodes)
+        if progress:
+            from tqdm.auto import tqdm
+
+            seeds = tqdm(seeds, desc=f"{policy_spec} on {scenario}", unit="ep")
+        results = [run_episode(env, policy, s, on_frame) for s in seeds]
+    finally:
+        env.close()
+    return {"scenario": env.scenario_name, "policy": policy_spec, "episodes": results, "summary": summarize(results)}

@@ -1,0 +1,145 @@
+"""The policy protocol and the policy registry.
+
+A *policy* controls every follower of a :class:`~swarm_env.env.SwarmEnv`:
+
+.. code-block:: python
+
+    class Policy(Protocol):
+        def reset(self, env: SwarmEnv, seed: int | None) -> None: ...
+        def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]: ...
+
+``act`` receives the agents' observations and the privileged
+:class:`~swarm_env.state.WorldState` (scripted experts use the latter, learned
+policies the former) and returns one action per agent in ``env.agents``. A
+policy may also define ``stats() -> dict`` (telemetry that lands in the metrics
+JSON under ``policy_stats``).
+
+Anything with SB3's ``predict(observation, state=None, episode_start=None,
+deterministic=False)`` method is wrapped by :class:`PredictPolicy` (the agents'
+observations are stacked into one batch, parameter sharing style), so expert
+policies and RL models are scored by one evaluation path.
+
+Policies are found by name in the Python entry-point group
+``swarm_env.policies``. An entry point names a factory
+``factory(env: SwarmEnv, arg: str | None) -> Policy``; the spec string
+``"name:arg"`` (e.g. ``ppo:runs/best.zip``) passes ``arg`` to it. This package
+registers ``random`` and ``zero``; the experts (``vo``, ``cbs_rrt``) and RL
+loaders register themselves from their own packages.
+"""
+
+from __future__ import annotations
+
+from importlib.metadata import entry_points
+from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
+
+import numpy as np
+
+from swarm_env.state import WorldState
+
+if TYPE_CHECKING:
+    from swarm_env.env import SwarmEnv
+
+ENTRY_POINT_GROUP = "swarm_env.policies"
+
+
+class UnknownPolicyError(KeyError):
+    """No policy of that name is registered."""
+
+
+@runtime_checkable
+class Policy(Protocol):
+    def reset(self, env: "SwarmEnv", seed: int | None) -> None: ...
+
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]: ...
+
+
+class RandomPolicy:
+    """Uniformly random actions from each agent's action space (seeded by ``reset``)."""
+
+    def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
+        if arg:
+            raise ValueError(f"policy 'random' takes no argument, got {arg!r}")
+        self._spaces: dict[str, Any] = {}
+
+    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+        self._spaces = {a: env.action_space(a) for a in env.possible_agents}
+        seq = np.random.SeedSequence(seed)
+        for a, s in zip(env.possible_agents, seq.generate_state(len(env.possible_agents))):
+            self._spaces[a].seed(int(s))
+
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
+        return {a: self._spaces[a].sample() for a in observations}
+
+
+class ZeroPolicy:
+    """Every follower stands still (continuous ``[0, 0]`` or the discrete stop primitive)."""
+
+    def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
+        if arg:
+            raise ValueError(f"policy 'zero' takes no argument, got {arg!r}")
+        self._discrete = env.action_type == "discrete"
+
+    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+        self._discrete = env.action_type == "discrete"
+
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
+        if self._discrete:
+            return {a: 0 for a in observations}
+        return {a: np.zeros(2, dtype=np.float32) for a in observations}
+
+
+class PredictPolicy:
+    """Adapts an SB3-style model (``predict(obs_batch, deterministic=...)``) to :class:`Policy`."""
+
+    def __init__(self, model: Any, deterministic: bool = True) -> None:
+        if not callable(getattr(model, "predict", None)):
+            raise TypeError(f"{type(model).__name__} has no predict() method")
+        self.model = model
+        self.deterministic = deterministic
+
+    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+        pass
+
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
+        agents = list(observations)
+        if not agents:
+            return {}
+        batch = np.stack([observations[a] for a in agents])
+        actions, _ = self.model.predict(batch, deterministic=self.deterministic)
+        return {a: actions[i] for i, a in enumerate(agents)}
+
+
+_BUILTIN: dict[str, Callable[..., Any]] = {"random": RandomPolicy, "zero": ZeroPolicy}
+
+
+def registered_policies() -> dict[str, str]:
+    """Name -> ``module:attr`` of every policy in the entry-point group (plus the built-ins)."""
+    found = {name: f"{fn.__module__}:{fn.__qualname__}" for name, fn in _BUILTIN.items()}
+    for ep in entry_points(group=ENTRY_POINT_GROUP):
+        found[ep.name] = ep.value
+    return dict(sorted(found.items()))
+
+
+def load_policy(spec: str | Any, env: "SwarmEnv") -> Policy:
+    """Build a policy from ``"name"`` / ``"name:arg"`` or wrap a model object.
+
+    Raises :class:`UnknownPolicyError` (a ``KeyError``) naming the known policies when ``name`` is unknown.
+    """
+    if not isinstance(spec, str):
+        if isinstance(spec, Policy):
+            return spec
+        return PredictPolicy(spec)
+    name, _, arg = spec.partition(":")
+    factory: Callable[..., Any] | None = None
+    for ep in entry_points(group=ENTRY_POINT_GROUP, name=name):
+        factory = ep.load()
+        break
+    if factory is None:
+        factory = _BUILTIN.get(name)
+    if factory is None:
+        known = ", ".join(registered_policies())
+        raise UnknownPolicyError(f"unknown policy {name!r}; registered policies: {known}")
+    policy = factory(env, arg or None)
+    if not isinstance(policy, Policy):
+        policy = PredictPolicy(policy)
+    return policy

@@ -1,0 +1,535 @@
+"""Procedural scenarios: a random world drawn from a :class:`numpy.random.Generator`.
+
+:func:`random_scenario` is what ``parallel_env("random", **knobs)`` uses (a fresh
+world per ``reset(seed)``); its knobs are the fields of
+:class:`RandomScenarioConfig`. The generator uses only the ``rng`` it is given, so
+the same generator state always gives the same :class:`~swarm_env.scenario.Scenario`.
+Every result passes :func:`swarm_env.scenario_io.scenario_from_dict` (it is built
+through it), and :func:`swarm_env.scenario_io.scenario_to_dict` turns it into a
+YAML file that loads back to the same scenario.
+
+What a generated world looks like (units m, s):
+
+* a leader (``leader_kind``) on a polyline of 2-4 waypoints with turns of at most
+  60 degrees, long enough to take about 70 % of ``max_time`` at ``leader_speed``
+  (shorter when the world is too small), kept away from the walls by about the
+  formation's radius so the formation fits beside it;
+* a formation schedule of ``1 + n_switches`` entries drawn from ``shapes``
+  (consecutive entries differ when there is a choice), switching at times spread
+  over the leader's travel;
+* humans that walk straight lines crossing the leader's path, timed (``start_delay``)
+  to reach the crossing point about when the leader does;
+* obstacles (circles, rectangles, convex polygons) placed by rejection sampling,
+  most of them beside the leader's path where the formation's slots will run into
+  them. They keep clear of the leader's path (0.5 m for a virtual leader, radius +
+  0.5 m for a robot leader), of the starting robots, of the humans' lines, of the
+  walls and of each other (by a robot diameter + 0.2 m, so robots can pass).
+  Sampling is bounded: when the world is too crowded fewer obstacles (or humans)
+  than drawn are placed, never an infinite loop.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+import numpy as np
+
+from swarm_env.formation import formation_offsets
+from swarm_env.geometry import StaticMap
+from swarm_env.paths import PolylinePath
+from swarm_env.scenario import (
+    FORMATION_SHAPES,
+    LEADER_KINDS,
+    CircleObstacle,
+    FormationSpec,
+    PolygonObstacle,
+    RectangleObstacle,
+    RewardSpec,
+    Scenario,
+    ScenarioError,
+    SensorSpec,
+)
+from swarm_env.scenario_io import _obstacle_to_dict, _parse_reward, _parse_sensors, scenario_from_dict
+
+__all__ = ["RandomScenarioConfig", "random_scenario", "config_from_kwargs", "OBSTACLE_TYPES"]
+
+SOURCE = "random"
+OBSTACLE_TYPES = ("circle", "rectangle", "polygon")
+IntRange = int | tuple[int, int]
+
+# Tunables of the layout that are not knobs (they shape "a sensible world", not its difficulty).
+_TRAVEL_FRACTION = 0.7  # the leader's path takes this share of max_time
+_MAX_TURN = math.radians(60.0)  # largest heading change at a waypoint
+_PATH_ATTEMPTS = 300
+_HUMAN_ATTEMPTS = 30
+_OBSTACLE_TRIES = 40  # candidates per requested obstacle
+_SAMPLE_STEP = 0.1  # m between the points that stand for a path in clearance tests
+
+
+# --------------------------------------------------------------------------- knob validation
+
+
+def _int_range(value: Any, name: str, minimum: int) -> tuple[int, int]:
+    def is_int(v: Any) -> bool:
+        return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
+
+    if is_int(value):
+        lo = hi = int(value)
+    elif isinstance(value, (tuple, list)) and len(value) == 2 and all(is_int(v) for v in value):
+        lo, hi = int(value[0]), int(value[1])
+    else:
+        raise ScenarioError(SOURCE, name, "an integer or an inclusive (lo, hi) pair of integers", value)
+    if lo < minimum or hi < lo:
+        raise ScenarioError(SOURCE, name, f"values >= {minimum} with lo <= hi", value)
+    return (lo, hi)
+
+
+def _float_range(value: Any, name: str, *, positive: bool, ordered: bool = True) -> tuple[float, float]:
+    ok = isinstance(value, (tuple, list)) and len(value) == 2
+    if ok:
+        ok = all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)) for v in value)
+    if not ok:
+        raise ScenarioError(SOURCE, name, "a pair of numbers", value)
+    lo, hi = float(value[0]), float(value[1])
+    if not (math.isfinite(lo) and math.isfinite(hi)) or (positive and min(lo, hi) <= 0) or (ordered and hi < lo):
+        raise ScenarioError(SOURCE, name, "a pair of finite positive numbers" + (" with lo <= hi" if ordered else ""), value)
+    return (lo, hi)
+
+
+def _names(value: Any, name: str, allowed: tuple[str, ...]) -> tuple[str, ...]:
+    if isinstance(value, str) or not isinstance(value, (tuple, list)) or not value:
+        raise ScenarioError(SOURCE, name, f"a non-empty list of: {', '.join(allowed)}", value)
+    for v in value:
+        if v not in allowed:
+            raise ScenarioError(SOURCE, name, f"names among: {', '.join(allowed)}", v)
+    return tuple(value)
+
+
+def _positive(value: Any, name: str) -> None:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+        raise ScenarioError(SOURCE, name, "a finite positive number", value)
+
+
+@dataclass(frozen=True)
+class RandomScenarioConfig:
+    """Knobs of :func:`random_scenario` (all keyword arguments of ``parallel_env("random", ...)``).
+
+    An ``int | (lo, hi)`` knob is a fixed value or an inclusive range drawn
+    uniformly; a ``(lo, hi)`` float knob is drawn uniformly in ``[lo, hi]``.
+
+    Attributes:
+        n_followers: number of followers.
+        n_obstacles: number of obstacles to place (fewer if the world is too crowded).
+        obstacle_size: range of an obstacle's size (m): a circle's diameter, a rectangle's
+            diagonal, the diameter of a polygon's circumscribed circle.
+        obstacle_types: which of ``circle``, ``rectangle``, ``polygon`` to draw from.
+        n_humans: number of humans (fewer if their lines do not fit).
+        human_speed: range of human walking speeds (m/s).
+        human_radius: human disc radius (m).
+        shapes: formation shapes to draw from (any of
+            :data:`swarm_env.scenario.FORMATION_SHAPES` except ``custom``).
+        spacing: range of the formation spacing (m); raised to ``2 * radius + 0.1``.
+        angle: range of the ``v``/``wedge`` arm half-opening (degrees).
+        n_switches: number of formation switches after the first formation.
+        world_size: ``(W, H)`` (m).
+        leader_kind: ``virtual`` or ``robot``.
+        leader_speed: leader speed (m/s), at most ``max_speed``.
+        max_time, dt, substeps: episode length and time stepping (see ``WorldSpec``).
+        radius, max_speed, max_turn_rate: follower (and robot leader) disc radius,
+            speed and turn-rate limits. ``max_speed`` defaults to paper 003's 0.65 m/s
+            (its Table I prints 6.5 m/s, read as 0.65).
+        sensors, reward: ``SensorSpec`` / ``RewardSpec`` or a mapping of their fields.
+    """
+
+    n_followers: IntRange = (2, 8)
+    n_obstacles: IntRange = (3, 10)
+    obstacle_size: tuple[float, float] = (0.3, 1.2)
+    obstacle_types: tuple[str, ...] = OBSTACLE_TYPES
+    n_humans: IntRange = (0, 3)
+    human_speed: tuple[float, float] = (0.3, 0.6)
+    human_radius: float = 0.3
+    shapes: tuple[str, ...] = ("v", "line", "column", "wedge", "diamond", "circle", "grid")
+    spacing: tuple[float, float] = (0.9, 1.3)
+    angle: tuple[float, float] = (30.0, 60.0)
+    n_switches: IntRange = (0, 2)
+    world_size: tuple[float, float] = (20.0, 20.0)
+    leader_kind: str = "virtual"
+    leader_speed: float = 0.4
+    max_time: float = 60.0
+    dt: float = 0.1
+    substeps: int = 4
+    radius: float = 0.25
+    max_speed: float = 0.65
+    max_turn_rate: float = 1.0
+    sensors: SensorSpec = field(default_factory=SensorSpec)
+    reward: RewardSpec = field(default_factory=RewardSpec)
+
+    def __post_init__(self) -> None:
+        put = object.__setattr__  # frozen: normalise lists to tuples once, here
+        put(self, "n_followers", _int_range(self.n_followers, "n_followers", 1))
+        put(self, "n_obstacles", _int_range(self.n_obstacles, "n_obstacles", 0))
+        put(self, "n_humans", _int_range(self.n_humans, "n_humans", 0))
+        put(self, "n_switches", _int_range(self.n_switches, "n_switches", 0))
+        put(self, "obstacle_size", _float_range(self.obstacle_size, "obstacle_size", positive=True))
+        put(self, "human_speed", _float_range(self.human_speed, "human_speed", positive=True))
+        put(self, "spacing", _float_range(self.spacing, "spacing", positive=True))
+        put(self, "angle", _float_range(self.angle, "angle", positive=True))
+        if not self.angle[1] < 180.0:
+            raise ScenarioError(SOURCE, "angle", "a range of degrees within (0, 180)", self.angle)
+        put(self, "world_size", _float_range(self.world_size, "world_size", positive=True, ordered=False))
+        put(self, "obstacle_types", _names(self.obstacle_types, "obstacle_types", OBSTACLE_TYPES))
+        put(self, "shapes", _names(self.shapes, "shapes", tuple(s for s in FORMATION_SHAPES if s != "custom")))
+        if self.leader_kind not in LEADER_KINDS:
+            raise ScenarioError(SOURCE, "leader_kind", f"one of {', '.join(LEADER_KINDS)}", self.leader_kind)
+        for name in ("human_radius", "leader_speed", "max_time", "dt", "radius", "max_speed", "max_turn_rate"):
+            _positive(getattr(self, name), name)
+        if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or self.substeps < 1:
+            raise ScenarioError(SOURCE, "substeps", "an integer >= 1", self.substeps)
+        if self.leader_speed > self.max_speed:
+            raise ScenarioError(SOURCE, "leader_speed", f"at most max_speed = {self.max_speed}", self.leader_speed)
+        if not isinstance(self.sensors, SensorSpec):
+            put(self, "sensors", _parse_sensors(SOURCE, self.sensors))
+        if not isinstance(self.reward, RewardSpec):
+            put(self, "reward", _parse_reward(SOURCE, self.reward))
+        # The anti-tunnelling rule of scenario_io, for the fastest humans this config can draw.
+        v_rel = 2.0 * max(self.max_speed, self.leader_speed) + (self.human_speed[1] if self.n_humans[1] else 0.0)
+        r_min = min(self.radius, self.human_radius) if self.n_humans[1] else self.radius
+        need = max(1, math.ceil(v_rel * self.dt / r_min - 1e-9))
+        if self.substeps < need:
+            raise ScenarioError(
+                SOURCE, "substeps", f"at least {need} (v_rel * dt / substeps <= r_min, v_rel = {v_rel:g} m/s)", self.substeps
+            )
+
+
+def config_from_kwargs(**kwargs: Any) -> RandomScenarioConfig:
+    """A :class:`RandomScenarioConfig` from keyword knobs; an unknown knob raises
+    :class:`ScenarioError` (a ``ValueError``) that lists the known ones."""
+    known = [f.name for f in fields(RandomScenarioConfig)]
+    for k in kwargs:
+        if k not in known:
+            raise ScenarioError(SOURCE, k, "a knob of the random scenario: " + ", ".join(known), k)
+    return RandomScenarioConfig(**kwargs)
+
+
+def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = RandomScenarioConfig()) -> Scenario:
+    """Draw a valid random :class:`Scenario` using only ``rng`` (see the module docstring).
+
+    Same ``rng`` state and ``config`` -> an identical scenario. Raises
+    :class:`ScenarioError` only when ``config`` makes a scenario impossible (a world
+    too small for the formation's starting slots).
+    """
+    cfg = config
+    W, H = cfg.world_size
+    r = cfg.radius
+    n = _draw_int(rng, cfg.n_followers)
+    n_obs = _draw_int(rng, cfg.n_obstacles)
+    n_hum = _draw_int(rng, cfg.n_humans)
+    n_sw = _draw_int(rng, cfg.n_switches)
+
+    travel = _TRAVEL_FRACTION * cfg.max_time
+    formations = _draw_formations(rng, cfg, n, n_sw, travel)
+    offsets = [formation_offsets(f, n) for f in formations]
+    extent = max(float(np.max(np.linalg.norm(o, axis=1))) for o in offsets) + r
+
+    path, start_xy = _draw_path(rng, cfg, offsets[0], extent)
+    line = PolylinePath(path)
+    leader_clear = (r + 0.5) if cfg.leader_kind == "robot" else 0.5
+    # Discs present at t = 0 (followers, and the robot leader) with their radii.
+    start_discs = [(p, r) for p in start_xy]
+    if cfg.leader_kind == "robot":
+        start_discs.append((np.asarray(path[0]), r))
+
+    humans = _draw_humans(rng, cfg, line, n_hum, start_discs)
+
+    # Clearance constraints for obstacles: sample points with the clearance each needs.
+    pts = [_samples(line), np.array([p for p, _ in start_discs])]
+    need = [np.full(len(pts[0]), leader_clear), np.array([rad + 0.3 for _, rad in start_discs])]
+    for h in humans:
+        hp = _samples(PolylinePath(h["path"]))
+        pts.append(hp)
+        need.append(np.full(len(hp), cfg.human_radius + 0.2))
+    obstacles = _draw_obstacles(rng, cfg, n_obs, line, extent, np.vstack(pts), np.concatenate(need))
+
+    shapes = " -> ".join(f"{f.shape}@{f.at:g}s" for f in formations)
+    data = {
+        "name": "random",
+        "description": (
+            f"random: {n} followers behind a {cfg.leader_kind} leader ({line.length:.1f} m at "
+            f"{cfg.leader_speed:g} m/s), {len(obstacles)} obstacles, {len(humans)} humans; formations {shapes}"
+        ),
+        "world": {"size": [W, H], "dt": cfg.dt, "substeps": cfg.substeps, "max_time": cfg.max_time},
+        "robots": {"count": n, "radius": r, "max_speed": cfg.max_speed, "max_turn_rate": cfg.max_turn_rate},
+        "leader": {
+            "kind": cfg.leader_kind,
+            "path": [list(p) for p in path],
+            "speed": cfg.leader_speed,
+            "radius": r,
+            "max_turn_rate": cfg.max_turn_rate,
+        },
+        "formations": [_formation_dict(f) for f in formations],
+        "obstacles": obstacles,
+        "humans": humans,
+        "sensors": {f.name: getattr(cfg.sensors, f.name) for f in fields(SensorSpec)},
+        "reward": {f.name: getattr(cfg.reward, f.name) for f in fields(RewardSpec)},
+    }
+    return scenario_from_dict(data, source=SOURCE)
+
+
+# --------------------------------------------------------------------------- drawing
+
+
+def _draw_formations(
+    rng: np.random.Generator, cfg: RandomScenarioConfig, n: int, n_sw: int, travel: float
+) -> list[FormationSpec]:
+    spacing_min = 2.0 * cfg.radius + 0.1
+    out: list[FormationSpec] = []
+    prev = ""
+    for i in range(n_sw + 1):
+        choices = [s for s in cfg.shapes if s != prev] or list(cfg.shapes)
+        shape = choices[int(rng.integers(len(choices)))]
+        prev = shape
+        # Switches are spread over the leader's travel, one per stratum, so they are
+        # strictly increasing and at least ~0.4 * travel / (n_sw + 1) apart.
+        at = 0.0 if i == 0 else round(travel * (i + float(rng.uniform(-0.3, 0.3))) / (n_sw + 1), 1)
+        spacing = round(max(spacing_min, float(rng.uniform(*cfg.spacing))), 2)
+        angle = round(float(rng.uniform(*cfg.angle)), 1)
+        if shape == "wedge" and angle == 90.0:  # a wedge's rows coincide at exactly 90 degrees
+            angle = 89.0
+        out.append(FormationSpec(at=at, shape=shape, spacing=spacing, angle=angle))
+    return out
+
+
+def _draw_path(
+    rng: np.random.Generator, cfg: RandomScenarioConfig, offsets0: np.ndarray, extent: float
+) -> tuple[list[tuple[float, float]], np.ndarray]:
+    """Leader waypoints (2-4, rounded to mm) and the followers' starting slot positions.
+
+    The first heading is drawn first; the start point is then drawn where every
+    starting slot fits in the world, and the later waypoints must stay ``margin``
+    (about the formation's radius) from the walls.
+    """
+    W, H = cfg.world_size
+    r = cfg.radius
+    # Keep the path about a formation radius from the walls, but never more than a
+    # fifth of the world (small worlds: slots near walls are projected inside).
+    margin = max(min(extent + 0.3, 0.2 * min(W, H)), r + 0.1)
+    lo = np.array([margin, margin])
+    hi = np.array([W - margin, H - margin])
+    length = cfg.leader_speed * _TRAVEL_FRACTION * cfg.max_time
+    k = int(rng.integers(2, 5))
+    for attempt in range(_PATH_ATTEMPTS):
+        if attempt and attempt % 75 == 0:
+            length *= 0.8  # the world is too small for this path: shorten it
+        # Draw the path's shape (first heading, turns); it then fixes the path up to a
+        # translation, and the start points that keep every starting slot in the world
+        # and every later waypoint in the margin box form a box: draw the start there.
+        heading = float(rng.uniform(-math.pi, math.pi))
+        box = _start_box(heading, offsets0, r + 0.05, W, H)
+        turns = rng.uniform(-_MAX_TURN, _MAX_TURN, size=k - 2)
+        if box is None:
+            continue
+        heads = heading + np.concatenate([[0.0], np.cumsum(turns)])
+        disp = np.cumsum((length / (k - 1)) * np.column_stack([np.cos(heads), np.sin(heads)]), axis=0)
+        p_lo = np.maximum(box[0], (lo - disp).max(axis=0))
+        p_hi = np.minimum(box[1], (hi - disp).min(axis=0))
+        if np.any(p_hi < p_lo):
+            continue
+        p0 = rng.uniform(p_lo, p_hi)
+        arr = np.round(np.vstack([p0, p0 + disp]), 3)
+        start = _start_slots(arr, offsets0)
+        if _discs_inside(start, r, W, H) and _discs_inside(arr[1:], margin - 1e-3, W, H):
+            return [(float(x), float(y)) for x, y in arr], start
+    # Fallback (cramped worlds only): the straightest path that fits, along an axis or diagonal.
+    best: tuple[float, np.ndarray] | None = None
+    for heading in np.arange(8) * (math.pi / 4):
+        box = _start_box(float(heading), offsets0, r + 0.05, W, H)
+        if box is None:
+            continue
+        d = np.array([math.cos(heading), math.sin(heading)])
+        p0 = np.clip(np.where(d > 1e-9, box[0], np.where(d < -1e-9, box[1], (box[0] + box[1]) / 2)), box[0], box[1])
+        room = _ray_room(p0, d, length, margin, W, H)
+        if room > 0.5 and (best is None or room > best[0]):
+            best = (room, np.round(np.array([p0, p0 + room * d]), 3))
+    if best is None:
+        raise ScenarioError(
+            SOURCE, "world_size", f"a world large enough for the formation's starting slots (radius {extent:.3g} m)", (W, H)
+        )
+    arr = best[1]
+    return [(float(x), float(y)) for x, y in arr], _start_slots(arr, offsets0)
+
+
+def _start_box(heading: float, offsets0: np.ndarray, rad: float, W: float, H: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Where the leader may start with ``heading`` so that every starting slot disc fits in the world."""
+    c, s = math.cos(heading), math.sin(heading)
+    rot = offsets0 @ np.array([[c, s], [-s, c]])
+    ext_lo = np.minimum(rot.min(axis=0), 0.0)
+    ext_hi = np.maximum(rot.max(axis=0), 0.0)
+    lo = np.array([rad, rad]) - ext_lo
+    hi = np.array([W - rad, H - rad]) - ext_hi
+    if np.any(hi - lo < 1e-6):
+        return None
+    return lo, hi
+
+
+def _draw_humans(
+    rng: np.random.Generator,
+    cfg: RandomScenarioConfig,
+    line: PolylinePath,
+    n_hum: int,
+    start_discs: list[tuple[np.ndarray, float]],
+) -> list[dict]:
+    """Humans walking straight lines that cross the leader's path, timed to meet the leader there."""
+    W, H = cfg.world_size
+    hr = cfg.human_radius
+    out: list[dict] = []
+    starts: list[np.ndarray] = []
+    for _ in range(n_hum):
+        for _attempt in range(_HUMAN_ATTEMPTS):
+            s_c = float(rng.uniform(0.3, 0.8)) * line.length
+            c = line.point_at(s_c)
+            # Any direction but roughly along the leader: 0 = head-on, +-120 deg = overtaking at 60 deg.
+            psi = line.heading_at(s_c) + math.pi + float(rng.uniform(-2.0 * math.pi / 3, 2.0 * math.pi / 3))
+            u = np.array([math.cos(psi), math.sin(psi)])
+            speed = round(float(rng.uniform(*cfg.human_speed)), 2)
+            before = _ray_room(c, -u, float(rng.uniform(3.0, 6.0)), hr + 0.1, W, H)
+            after = _ray_room(c, u, float(rng.uniform(2.0, 5.0)), hr + 0.1, W, H)
+            if before < 1.0 or after < 1.0:
+                continue
+            a, b = np.round(c - before * u, 3), np.round(c + after * u, 3)
+            if not (_discs_inside(a[None], hr, W, H) and _discs_inside(b[None], hr, W, H)):
+                continue
+            if any(np.linalg.norm(a - p) < rad + hr + 0.3 for p, rad in start_discs):
+                continue
+            if any(np.linalg.norm(a - q) < 2 * hr + 0.1 for q in starts):
+                continue
+            t_meet = s_c / cfg.leader_speed
+            delay = round(max(0.0, t_meet - before / speed), 1)
+            starts.append(a)
+            out.append(
+                {"path": [a.tolist(), b.tolist()], "speed": speed, "radius": hr, "mode": "once", "start_delay": delay}
+            )
+            break
+    return out
+
+
+def _draw_obstacles(
+    rng: np.random.Generator,
+    cfg: RandomScenarioConfig,
+    n_obs: int,
+    line: PolylinePath,
+    extent: float,
+    keep_pts: np.ndarray,
+    keep_clear: np.ndarray,
+) -> list[dict]:
+    """Rejection-sample up to ``n_obs`` obstacles, at most ``_OBSTACLE_TRIES * n_obs`` candidates.
+
+    A candidate must keep ``keep_clear[i]`` from each ``keep_pts[i]``: accepted at
+    once when its bounding circle does, refused when its centre does not, and
+    otherwise measured exactly with :class:`StaticMap` (thin rectangles and
+    polygons may come closer than their bounding circle).
+    """
+    W, H = cfg.world_size
+    gap = 2.0 * cfg.radius + 0.2  # a robot fits between two obstacles and between an obstacle and a wall
+    accepted: list[tuple[dict, np.ndarray, float]] = []  # (yaml dict, centre, bounding radius)
+    for _ in range(_OBSTACLE_TRIES * n_obs):
+        if len(accepted) == n_obs:
+            break
+        obj, centre, rho = _draw_obstacle(rng, cfg, line, extent)
+        if not (rho + gap <= centre[0] <= W - rho - gap and rho + gap <= centre[1] <= H - rho - gap):
+            continue
+        if any(math.dist(centre, c2) < rho + rho2 + gap for _, c2, rho2 in accepted):
+            continue
+        slack = float(np.min(np.hypot(keep_pts[:, 0] - centre[0], keep_pts[:, 1] - centre[1]) - keep_clear))
+        if slack < rho:
+            if slack <= 0.0 or isinstance(obj, CircleObstacle):
+                continue
+            dist = StaticMap.from_obstacles((W, H), [obj]).obstacle_distances(keep_pts)[:, 0]
+            if np.any(dist < keep_clear):
+                continue
+        accepted.append((_obstacle_to_dict(obj), centre, rho))
+    return [a[0] for a in accepted]
+
+
+def _draw_obstacle(
+    rng: np.random.Generator, cfg: RandomScenarioConfig, line: PolylinePath, extent: float
+) -> tuple[CircleObstacle | RectangleObstacle | PolygonObstacle, np.ndarray, float]:
+    """One candidate: ``(obstacle, centre, bounding radius)``, coordinates rounded to mm."""
+    W, H = cfg.world_size
+    size = float(rng.uniform(*cfg.obstacle_size))
+    rho = size / 2.0
+    if float(rng.uniform()) < 0.7:
+        # Beside the path, within the band the formation's slots sweep.
+        s = float(rng.uniform(0.0, line.length))
+        p = line.point_at(s)
+        h = line.heading_at(s)
+        side = 1.0 if float(rng.uniform()) < 0.5 else -1.0
+        lateral = side * float(rng.uniform(0.5 + rho, 0.5 + rho + extent + 1.0))
+        centre = p + lateral * np.array([-math.sin(h), math.cos(h)])
+    else:
+        centre = rng.uniform([rho, rho], [W - rho, H - rho])
+    centre = np.round(centre, 3)
+    kind = cfg.obstacle_types[int(rng.integers(len(cfg.obstacle_types)))]
+    cx, cy = float(centre[0]), float(centre[1])
+    if kind == "circle":
+        obj: Any = CircleObstacle(center=(cx, cy), radius=round(rho, 3))
+    elif kind == "rectangle":
+        alpha = float(rng.uniform(math.radians(20.0), math.radians(70.0)))
+        obj = RectangleObstacle(
+            center=(cx, cy),
+            size=(round(size * math.cos(alpha), 3), round(size * math.sin(alpha), 3)),
+            angle=round(float(rng.uniform(0.0, 180.0)), 1),
+        )
+    else:
+        m = int(rng.integers(3, 7))
+        # Vertices on the circumscribed circle in angular order (gaps < pi) form a convex polygon.
+        base = 2.0 * math.pi * np.arange(m) / m + float(rng.uniform(0.0, 2.0 * math.pi))
+        ang = base + rng.uniform(-0.3, 0.3, size=m) * (math.pi / m)
+        verts = np.round(centre + rho * np.column_stack([np.cos(ang), np.sin(ang)]), 3)
+        obj = PolygonObstacle(points=tuple((float(x), float(y)) for x, y in verts))
+    return obj, centre, rho
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _start_slots(path: np.ndarray, offsets0: np.ndarray) -> np.ndarray:
+    """World positions of the first formation's slots around a leader on ``path[0]`` facing ``path[1]``."""
+    d = path[1] - path[0]
+    h = math.atan2(d[1], d[0])
+    c, s = math.cos(h), math.sin(h)
+    return path[0] + offsets0 @ np.array([[c, s], [-s, c]])
+
+
+def _discs_inside(xy: np.ndarray, rad: float, W: float, H: float) -> bool:
+    return bool(np.all(xy >= rad) and np.all(xy[:, 0] <= W - rad) and np.all(xy[:, 1] <= H - rad))
+
+
+def _ray_room(p: np.ndarray, u: np.ndarray, want: float, margin: float, W: float, H: float) -> float:
+    """How far (<= ``want``) one can go from ``p`` along unit ``u`` staying ``margin`` inside the world."""
+    t = want
+    for k, size in ((0, W), (1, H)):
+        if u[k] > 1e-12:
+            t = min(t, (size - margin - p[k]) / u[k])
+        elif u[k] < -1e-12:
+            t = min(t, (margin - p[k]) / u[k])
+    return max(t, 0.0)
+
+
+def _samples(line: PolylinePath) -> np.ndarray:
+    k = max(2, int(math.ceil(line.length / _SAMPLE_STEP)) + 1)
+    return line.points_at(np.linspace(0.0, line.length, k))
+
+
+def _formation_dict(f: FormationSpec) -> dict:
+    d: dict[str, Any] = {"at": f.at, "shape": f.shape, "spacing": f.spacing}
+    if f.shape in ("v", "wedge"):
+        d["angle"] = f.angle
+    return d
+
+
+def _draw_int(rng: np.random.Generator, spec: tuple[int, int]) -> int:
+    lo, hi = spec
+    return lo if lo == hi else int(rng.integers(lo, hi + 1))

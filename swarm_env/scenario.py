@@ -1,0 +1,212 @@
+"""The scenario: an immutable description of one swarm-env world.
+
+A :class:`Scenario` is what a YAML file (see :mod:`swarm_env.scenario_io`) or the
+procedural generator (:mod:`swarm_env.random_scenario`) produces and what
+:class:`swarm_env.world.World` consumes. Every field is a frozen dataclass or a
+tuple, so a scenario can be hashed, shared between envs and pickled.
+
+Units: metres, seconds, radians, except where a field says degrees (formation
+``angle`` and rectangle ``angle`` are degrees because people write them so in
+files).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Literal, Union
+
+Point = tuple[float, float]
+Pose = tuple[float, float, float]
+
+LEADER_KINDS = ("virtual", "robot")
+HUMAN_MODES = ("once", "loop", "pingpong")
+FORMATION_SHAPES = ("v", "line", "column", "wedge", "diamond", "circle", "grid", "custom")
+
+
+class ScenarioError(ValueError):
+    """A scenario file or dict is malformed.
+
+    The message names the source (file path or ``<dict>``), the key path
+    (e.g. ``robots.max_speed``) and what was expected.
+    """
+
+    def __init__(self, source: str, key: str, expected: str, got: object = None) -> None:
+        self.source = source
+        self.key = key
+        self.expected = expected
+        self.got = got
+        got_txt = "" if got is None else f", got {got!r}"
+        super().__init__(f"{source}: {key}: expected {expected}{got_txt}")
+
+
+@dataclass(frozen=True)
+class WorldSpec:
+    """The world rectangle ``[0, W] x [0, H]`` (closed by walls) and time stepping.
+
+    ``dt`` is the control period (one ``env.step``); the physics runs
+    ``substeps`` steps of ``dt / substeps``. ``settle_tolerance`` is the slot
+    distance (m) under which every follower must be for the formation to count
+    as settled (termination and ``settle_times``).
+    """
+
+    size: Point
+    dt: float = 0.1
+    substeps: int = 4
+    max_time: float = 60.0
+    settle_tolerance: float = 0.3
+
+
+@dataclass(frozen=True)
+class RobotSpec:
+    """The followers: ``count`` identical differential-drive discs.
+
+    ``max_accel`` (m/s^2) and ``max_turn_accel`` (rad/s^2) are optional rate
+    limits applied in every physics substep; ``None`` means unlimited.
+    ``start`` is ``"formation"`` (each follower starts on its first slot,
+    facing the leader's heading) or one ``(x, y, theta)`` pose per follower.
+    """
+
+    count: int
+    radius: float = 0.25
+    max_speed: float = 0.65
+    max_turn_rate: float = 1.0
+    max_accel: float | None = None
+    max_turn_accel: float | None = None
+    wheelbase: float = 0.5
+    start: Literal["formation"] | tuple[Pose, ...] = "formation"
+
+
+@dataclass(frozen=True)
+class LeaderSpec:
+    """The leader, moving along the polyline ``path`` at ``speed``.
+
+    ``kind="virtual"``: a point that moves exactly along the path (paper 000);
+    it collides with nothing. ``kind="robot"``: a physical differential-drive
+    disc of ``radius`` that tracks the path with pure pursuit (``lookahead``
+    metres ahead) and avoids obstacles and humans with a velocity-obstacle
+    rule (paper 003); ``max_turn_rate`` bounds its turn rate.
+    ``start_delay`` seconds pass before the leader starts moving.
+    """
+
+    kind: Literal["virtual", "robot"]
+    path: tuple[Point, ...]
+    speed: float
+    radius: float = 0.25
+    max_turn_rate: float = 1.0
+    lookahead: float = 1.0
+    start_delay: float = 0.0
+
+
+@dataclass(frozen=True)
+class FormationSpec:
+    """One entry of the formation schedule, active from time ``at`` (s).
+
+    Slot offsets live in the leader frame (x forward, y left). ``spacing`` is
+    the distance between neighbouring slots (m); ``angle`` (degrees) is the
+    half-opening of the ``v`` and ``wedge`` arms measured from the leader's
+    backward axis; ``offsets`` (one ``(x, y)`` per follower) is used by
+    ``shape="custom"`` only. ``columns`` is used by ``grid`` (0 = automatic).
+    """
+
+    at: float
+    shape: str
+    spacing: float = 1.0
+    angle: float = 45.0
+    offsets: tuple[Point, ...] | None = None
+    columns: int = 0
+
+
+@dataclass(frozen=True)
+class CircleObstacle:
+    center: Point
+    radius: float
+    type: Literal["circle"] = "circle"
+
+
+@dataclass(frozen=True)
+class RectangleObstacle:
+    """A rectangle of ``size = (width, height)`` centred on ``center``, rotated by ``angle`` degrees."""
+
+    center: Point
+    size: Point
+    angle: float = 0.0
+    type: Literal["rectangle"] = "rectangle"
+
+
+@dataclass(frozen=True)
+class PolygonObstacle:
+    """A convex polygon; ``points`` in either winding order (stored counter-clockwise)."""
+
+    points: tuple[Point, ...]
+    type: Literal["polygon"] = "polygon"
+
+
+Obstacle = Union[CircleObstacle, RectangleObstacle, PolygonObstacle]
+
+
+@dataclass(frozen=True)
+class HumanSpec:
+    """A walking human: a disc moved kinematically along ``path`` at ``speed``.
+
+    ``mode``: ``once`` stops at the last waypoint, ``loop`` jumps back along
+    the closing segment to the first, ``pingpong`` walks the path back and
+    forth. The human stands on the first waypoint for ``start_delay`` seconds.
+    Humans do not react to robots.
+    """
+
+    path: tuple[Point, ...]
+    speed: float = 0.5
+    radius: float = 0.3
+    mode: Literal["once", "loop", "pingpong"] = "once"
+    start_delay: float = 0.0
+
+
+@dataclass(frozen=True)
+class SensorSpec:
+    """What each follower observes: a ``lidar_rays``-ray lidar of ``lidar_range`` m,
+    the ``neighbors`` nearest other robots and the ``humans`` nearest humans."""
+
+    lidar_rays: int = 16
+    lidar_range: float = 5.0
+    neighbors: int = 3
+    humans: int = 2
+
+
+@dataclass(frozen=True)
+class RewardSpec:
+    """Weights of the per-agent reward terms (see ``SwarmEnv``'s docstring).
+
+    ``formation`` multiplies the distance to the slot target (m), ``collision``
+    the number of new collisions in the step (the two paper-000 terms);
+    ``clearance`` penalises intrusion below ``clearance_margin`` m of free
+    space; ``smoothness`` penalises the squared change of the normalised
+    action; ``progress`` rewards the decrease of the slot distance.
+    """
+
+    formation: float = 1.0
+    collision: float = 10.0
+    clearance: float = 0.0
+    clearance_margin: float = 0.2
+    smoothness: float = 0.0
+    progress: float = 0.0
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A whole world description. ``source`` is the file it came from (for messages)."""
+
+    name: str
+    world: WorldSpec
+    robots: RobotSpec
+    leader: LeaderSpec
+    formations: tuple[FormationSpec, ...]
+    obstacles: tuple[Obstacle, ...] = ()
+    humans: tuple[HumanSpec, ...] = ()
+    sensors: SensorSpec = field(default_factory=SensorSpec)
+    reward: RewardSpec = field(default_factory=RewardSpec)
+    description: str = ""
+    source: str = "<dict>"
+
+    @property
+    def n_followers(self) -> int:
+        return self.robots.count

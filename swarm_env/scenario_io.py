@@ -1,0 +1,871 @@
+"""Loading, validating and saving scenarios (YAML files <-> :class:`~swarm_env.scenario.Scenario`).
+
+A scenario file is YAML with the sections below. ``world``, ``robots``, ``leader``
+and ``formations`` are required; everything else is optional and takes the
+defaults of the dataclasses in :mod:`swarm_env.scenario`. Units are metres,
+seconds and radians, except the two ``angle`` fields, which are degrees.
+
+.. code-block:: yaml
+
+    name: paper_vo_0            # optional, defaults to the file stem
+    description: ...            # optional free text
+    world:                      # the rectangle [0, W] x [0, H], closed by walls
+      size: [20, 14]            # required: W, H (m)
+      dt: 0.1                   # control period: one env.step (s)
+      substeps: 4               # physics steps per env.step (int >= 1)
+      max_time: 60.0            # episode length (s)
+      settle_tolerance: 0.3     # formation counts as settled under this slot distance (m)
+    robots:                     # the followers
+      count: 2                  # required (int >= 1)
+      radius: 0.25
+      max_speed: 0.65           # m/s; paper 003's Table I prints "6.5 m/s", read as 0.65
+      max_turn_rate: 1.0        # rad/s
+      max_accel: null           # m/s^2, null = unlimited
+      max_turn_accel: null      # rad/s^2, null = unlimited
+      wheelbase: 0.5
+      start: formation          # or one [x, y, theta_rad] per follower
+    leader:
+      kind: robot               # required: virtual (a point, paper 000) or robot (a disc, paper 003)
+      path: [[2, 7], [17, 7]]   # required: >= 2 waypoints inside the world
+      speed: 0.5                # required (m/s), <= robots.max_speed
+      radius: 0.25              # robot leader only
+      max_turn_rate: 1.0        # robot leader only (rad/s)
+      lookahead: 1.0            # pure-pursuit look-ahead (m), robot leader only
+      start_delay: 0            # s before the leader starts moving
+    formations:                 # required, >= 1 entry; `at` strictly increasing, first at 0
+      - {at: 0.0, shape: v, spacing: 1.0, angle: 45}
+      - {at: 80.0, shape: custom, offsets: [[-1.0, 1.0], [-1.0, -1.0]]}
+    obstacles:                  # static
+      - {type: circle, center: [8, 11], radius: 0.5}
+      - {type: rectangle, center: [12, 8], size: [1, 2], angle: 30}
+      - {type: polygon, points: [[4, 4], [5, 4], [4.5, 5]]}   # convex, any winding
+    humans:                     # walk kinematically, ignore robots
+      - {path: [[14, 10], [4, 10]], speed: 0.5, radius: 0.3, mode: once, start_delay: 0}
+    sensors: {lidar_rays: 16, lidar_range: 5.0, neighbors: 3, humans: 2}
+    reward: {formation: 1.0, collision: 10.0, clearance: 0.0, clearance_margin: 0.2,
+             smoothness: 0.0, progress: 0.0}
+
+Formation shapes: ``v``, ``line``, ``column``, ``wedge``, ``diamond``, ``circle``,
+``grid`` (``columns``: int >= 0, 0 = automatic) and ``custom`` (``offsets``: one
+``[x, y]`` per follower in the leader frame, x forward, y left). ``spacing`` (m)
+is the distance between neighbouring slots, ``angle`` (degrees, in (0, 180)) the
+half-opening of the ``v``/``wedge`` arms from the leader's backward axis.
+
+Validation fails loudly: every problem raises :class:`~swarm_env.scenario.ScenarioError`
+naming the source (file path, or ``<dict>``), the key path (``robots.max_speed``,
+``formations[1].shape``, ``obstacles[2].points``; ``<file>`` for unreadable files and
+YAML syntax errors) and what was expected. Checked beyond types and ranges
+(``bool`` is not a number; numbers must be finite):
+
+* unknown keys (the message lists the allowed ones), duplicate YAML keys;
+* waypoints and start poses inside the world (discs by their radius);
+* consecutive waypoints distinct; polygons convex with non-zero area;
+* the formation schedule: first ``at`` is 0, strictly increasing; ``offsets`` only
+  and always for ``custom``, one per follower; ``columns`` only for ``grid``;
+  slots of every formation at least ``2 * robots.radius`` apart (and clear of a
+  robot leader's disc);
+* starting poses free of obstacles, of each other, of a robot leader and of the
+  humans' first waypoints;
+* ``leader.speed <= robots.max_speed`` (otherwise the followers can never keep up);
+* the anti-tunnelling rule (pymunk has no continuous collision detection): with
+  ``v_rel = 2 * max(robots.max_speed, leader.speed) + max(human speeds)`` and
+  ``r_min`` the smallest disc radius, ``v_rel * dt / substeps <= 0.5 * (2 * r_min)``;
+  the error names ``world.substeps`` and the smallest value that passes.
+
+Paper 003 (Table I) gives the followers' maximum linear velocity as "6.5 m/s" next to
+0.5 m/s for the leader and mean speeds around 0.45 m/s; we read it as a typo for
+0.65 m/s, which is the default of ``robots.max_speed`` and what the built-in
+``paper_vo_*`` scenarios use.
+
+The name ``random`` is not a file: random worlds come from
+:func:`swarm_env.random_scenario.random_scenario` (or ``parallel_env("random", ...)``).
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import numbers
+import os
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from swarm_env.scenario import (
+    FORMATION_SHAPES,
+    HUMAN_MODES,
+    LEADER_KINDS,
+    CircleObstacle,
+    FormationSpec,
+    HumanSpec,
+    LeaderSpec,
+    Obstacle,
+    Point,
+    PolygonObstacle,
+    RectangleObstacle,
+    RewardSpec,
+    RobotSpec,
+    Scenario,
+    ScenarioError,
+    SensorSpec,
+    WorldSpec,
+)
+
+__all__ = [
+    "BUILTIN_DIR",
+    "list_scenarios",
+    "load_scenario",
+    "scenario_from_dict",
+    "scenario_to_dict",
+    "min_substeps",
+    "start_poses",
+]
+
+#: Folder of the built-in scenario files (``<name>.yaml``).
+BUILTIN_DIR: Path = Path(__file__).resolve().parent / "scenarios"
+
+RANDOM_NAME = "random"
+
+# Allowed keys per section; the first tuple of each pair is the required subset.
+_TOP_KEYS = ("name", "description", "world", "robots", "leader", "formations", "obstacles", "humans", "sensors", "reward")
+_TOP_REQUIRED = ("world", "robots", "leader", "formations")
+_WORLD_KEYS = ("size", "dt", "substeps", "max_time", "settle_tolerance")
+_ROBOT_KEYS = ("count", "radius", "max_speed", "max_turn_rate", "max_accel", "max_turn_accel", "wheelbase", "start")
+_LEADER_KEYS = ("kind", "path", "speed", "radius", "max_turn_rate", "lookahead", "start_delay")
+_FORMATION_KEYS = ("at", "shape", "spacing", "angle", "offsets", "columns")
+_OBSTACLE_KEYS = {
+    "circle": ("type", "center", "radius"),
+    "rectangle": ("type", "center", "size", "angle"),
+    "polygon": ("type", "points"),
+}
+_HUMAN_KEYS = ("path", "speed", "radius", "mode", "start_delay")
+_SENSOR_KEYS = ("lidar_rays", "lidar_range", "neighbors", "humans")
+_REWARD_KEYS = ("formation", "collision", "clearance", "clearance_margin", "smoothness", "progress")
+
+# Slack for geometric comparisons of values people type with a few decimals.
+_EPS = 1e-9
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def list_scenarios() -> list[str]:
+    """Names accepted by :func:`swarm_env.parallel_env`: the built-in YAML stems plus ``"random"``, sorted."""
+    names = {p.stem for p in BUILTIN_DIR.glob("*.yaml")}
+    names.add(RANDOM_NAME)
+    return sorted(names)
+
+
+def load_scenario(spec: str | os.PathLike[str] | Mapping[str, Any] | Scenario) -> Scenario:
+    """Load and validate a scenario.
+
+    ``spec`` is a built-in name (see :func:`list_scenarios`), a path to a YAML file,
+    an already-parsed mapping (validated with source ``<dict>``) or a
+    :class:`Scenario` (returned unchanged). ``"random"`` is refused: random worlds
+    are drawn per episode by :func:`swarm_env.random_scenario.random_scenario`.
+
+    Raises :class:`ScenarioError` for anything invalid, including missing files and
+    YAML syntax errors (key ``<file>``).
+    """
+    if isinstance(spec, Scenario):
+        return spec
+    if isinstance(spec, Mapping):
+        return scenario_from_dict(spec)
+    if not isinstance(spec, (str, os.PathLike)):
+        raise ScenarioError("<argument>", "<file>", "a scenario name, a YAML path, a mapping or a Scenario", spec)
+    text = os.fspath(spec)
+    if text == RANDOM_NAME:
+        raise ScenarioError(
+            text,
+            "<file>",
+            "a scenario file; 'random' is generated per episode: use "
+            "swarm_env.random_scenario.random_scenario(rng, config) or parallel_env('random', **knobs)",
+        )
+    path = Path(text)
+    looks_like_name = isinstance(spec, str) and path.suffix == "" and len(path.parts) == 1
+    if looks_like_name:
+        builtin = BUILTIN_DIR / f"{text}.yaml"
+        if builtin.is_file():
+            path = builtin
+        elif not path.is_file():
+            raise ScenarioError(text, "<file>", f"a built-in scenario name (one of {list_scenarios()}) or a path to a YAML file")
+    return _load_file(path)
+
+
+def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scenario:
+    """Validate a parsed scenario mapping (the YAML format above) and build the :class:`Scenario`.
+
+    ``source`` names the origin in error messages and is stored in
+    ``Scenario.source``; when it is a file path, ``name`` defaults to its stem.
+    """
+    src = str(source)
+    if not isinstance(data, Mapping):
+        raise ScenarioError(src, "<top level>", "a mapping of sections", _short(data))
+    _check_keys(src, data, "", _TOP_KEYS, _TOP_REQUIRED)
+
+    default_name = Path(src).stem if src not in ("<dict>", "") and not src.startswith("<") else "custom"
+    name = _string(src, data.get("name", default_name), "name", nonempty=True)
+    description = _string(src, data.get("description", ""), "description")
+
+    world = _parse_world(src, data["world"])
+    robots = _parse_robots(src, data["robots"], world)
+    leader = _parse_leader(src, data["leader"], world)
+    formations = _parse_formations(src, data["formations"], robots)
+    obstacles = _parse_list(src, data.get("obstacles", []), "obstacles", lambda v, k: _parse_obstacle(src, v, k, world))
+    humans = _parse_list(src, data.get("humans", []), "humans", lambda v, k: _parse_human(src, v, k, world))
+    sensors = _parse_sensors(src, data.get("sensors", {}))
+    reward = _parse_reward(src, data.get("reward", {}))
+
+    scn = Scenario(
+        name=name,
+        world=world,
+        robots=robots,
+        leader=leader,
+        formations=formations,
+        obstacles=obstacles,
+        humans=humans,
+        sensors=sensors,
+        reward=reward,
+        description=description,
+        source=src,
+    )
+    _cross_check(src, scn)
+    return scn
+
+
+def scenario_to_dict(scn: Scenario) -> dict[str, Any]:
+    """The YAML-format mapping of ``scn`` (plain lists, floats, ints, strings).
+
+    Every field is written explicitly, so ``scenario_from_dict(scenario_to_dict(s), s.source) == s``
+    for any valid scenario; ``yaml.safe_dump`` can write the result.
+    """
+    w, r, ld = scn.world, scn.robots, scn.leader
+    start: Any = "formation" if r.start == "formation" else [_floats(p) for p in r.start]
+    out: dict[str, Any] = {
+        "name": scn.name,
+        "description": scn.description,
+        "world": {
+            "size": _floats(w.size),
+            "dt": float(w.dt),
+            "substeps": int(w.substeps),
+            "max_time": float(w.max_time),
+            "settle_tolerance": float(w.settle_tolerance),
+        },
+        "robots": {
+            "count": int(r.count),
+            "radius": float(r.radius),
+            "max_speed": float(r.max_speed),
+            "max_turn_rate": float(r.max_turn_rate),
+            "max_accel": None if r.max_accel is None else float(r.max_accel),
+            "max_turn_accel": None if r.max_turn_accel is None else float(r.max_turn_accel),
+            "wheelbase": float(r.wheelbase),
+            "start": start,
+        },
+        "leader": {
+            "kind": ld.kind,
+            "path": [_floats(p) for p in ld.path],
+            "speed": float(ld.speed),
+            "radius": float(ld.radius),
+            "max_turn_rate": float(ld.max_turn_rate),
+            "lookahead": float(ld.lookahead),
+            "start_delay": float(ld.start_delay),
+        },
+        "formations": [_formation_to_dict(f) for f in scn.formations],
+        "obstacles": [_obstacle_to_dict(o) for o in scn.obstacles],
+        "humans": [
+            {
+                "path": [_floats(p) for p in h.path],
+                "speed": float(h.speed),
+                "radius": float(h.radius),
+                "mode": h.mode,
+                "start_delay": float(h.start_delay),
+            }
+            for h in scn.humans
+        ],
+        "sensors": {
+            "lidar_rays": int(scn.sensors.lidar_rays),
+            "lidar_range": float(scn.sensors.lidar_range),
+            "neighbors": int(scn.sensors.neighbors),
+            "humans": int(scn.sensors.humans),
+        },
+        "reward": {k: float(getattr(scn.reward, k)) for k in _REWARD_KEYS},
+    }
+    return out
+
+
+def min_substeps(scn: Scenario) -> int:
+    """The smallest ``world.substeps`` that satisfies the anti-tunnelling rule for ``scn``."""
+    v_rel, r_min = _tunnel_terms(scn)
+    return max(1, math.ceil(v_rel * scn.world.dt / r_min - 1e-9))
+
+
+# --------------------------------------------------------------------------- file loading
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """SafeLoader that refuses duplicate mapping keys (PyYAML silently keeps the last one)."""
+
+
+def _construct_strict_mapping(loader: _StrictLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
+    loader.flatten_mapping(node)
+    seen: set = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=True)
+        try:
+            duplicate = key in seen
+            seen.add(key)
+        except TypeError:  # an unhashable key: let PyYAML produce its own error
+            break
+        if duplicate:
+            raise yaml.constructor.ConstructorError(
+                "while constructing a mapping", node.start_mark, f"found duplicate key {key!r}", key_node.start_mark
+            )
+    return loader.construct_mapping(node, deep=deep)
+
+
+_StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_strict_mapping)
+
+
+def _load_file(path: Path) -> Scenario:
+    src = str(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ScenarioError(src, "<file>", "an existing scenario file (not found)") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ScenarioError(src, "<file>", f"a readable UTF-8 file ({exc})") from None
+    try:
+        data = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - SafeLoader subclass
+    except yaml.YAMLError as exc:
+        raise ScenarioError(src, "<file>", "valid YAML: " + " ".join(str(exc).split())) from None
+    if data is None:
+        raise ScenarioError(src, "<file>", "a YAML mapping of sections (the file is empty)")
+    return scenario_from_dict(data, source=src)
+
+
+# --------------------------------------------------------------------------- sections
+
+
+def _parse_world(src: str, value: Any) -> WorldSpec:
+    m = _mapping(src, value, "world")
+    _check_keys(src, m, "world", _WORLD_KEYS, ("size",))
+    size = _point(src, m["size"], "world.size")
+    for i, s in enumerate(size):
+        if s <= 0:
+            raise ScenarioError(src, f"world.size[{i}]", "a positive size (m)", s)
+    dt = _number(src, m.get("dt", WorldSpec.dt), "world.dt", positive=True)
+    substeps = _integer(src, m.get("substeps", WorldSpec.substeps), "world.substeps", minimum=1)
+    max_time = _number(src, m.get("max_time", WorldSpec.max_time), "world.max_time", positive=True)
+    if max_time < dt:
+        raise ScenarioError(src, "world.max_time", f"at least one control period (world.dt = {dt})", max_time)
+    tol = _number(src, m.get("settle_tolerance", WorldSpec.settle_tolerance), "world.settle_tolerance", positive=True)
+    return WorldSpec(size=size, dt=dt, substeps=substeps, max_time=max_time, settle_tolerance=tol)
+
+
+def _parse_robots(src: str, value: Any, world: WorldSpec) -> RobotSpec:
+    m = _mapping(src, value, "robots")
+    _check_keys(src, m, "robots", _ROBOT_KEYS, ("count",))
+    count = _integer(src, m["count"], "robots.count", minimum=1)
+    radius = _number(src, m.get("radius", RobotSpec.radius), "robots.radius", positive=True)
+    max_speed = _number(src, m.get("max_speed", RobotSpec.max_speed), "robots.max_speed", positive=True)
+    max_turn = _number(src, m.get("max_turn_rate", RobotSpec.max_turn_rate), "robots.max_turn_rate", positive=True)
+    max_accel = _optional_positive(src, m.get("max_accel", RobotSpec.max_accel), "robots.max_accel")
+    max_turn_accel = _optional_positive(src, m.get("max_turn_accel", RobotSpec.max_turn_accel), "robots.max_turn_accel")
+    wheelbase = _number(src, m.get("wheelbase", RobotSpec.wheelbase), "robots.wheelbase", positive=True)
+
+    raw_start = m.get("start", "formation")
+    start: Any
+    if isinstance(raw_start, str):
+        if raw_start != "formation":
+            raise ScenarioError(src, "robots.start", "'formation' or a list of [x, y, theta] poses", raw_start)
+        start = "formation"
+    else:
+        poses = _sequence(src, raw_start, "robots.start", "'formation' or a list of [x, y, theta] poses")
+        if len(poses) != count:
+            raise ScenarioError(
+                src, "robots.start", f"one [x, y, theta] pose per follower (robots.count = {count})", f"{len(poses)} poses"
+            )
+        parsed = []
+        for i, p in enumerate(poses):
+            key = f"robots.start[{i}]"
+            vals = _numbers(src, p, key, 3, "[x, y, theta_rad]")
+            _inside(src, (vals[0], vals[1]), radius, world, key, "follower disc")
+            parsed.append(vals)
+        start = tuple(parsed)
+    return RobotSpec(
+        count=count,
+        radius=radius,
+        max_speed=max_speed,
+        max_turn_rate=max_turn,
+        max_accel=max_accel,
+        max_turn_accel=max_turn_accel,
+        wheelbase=wheelbase,
+        start=start,
+    )
+
+
+def _parse_leader(src: str, value: Any, world: WorldSpec) -> LeaderSpec:
+    m = _mapping(src, value, "leader")
+    _check_keys(src, m, "leader", _LEADER_KEYS, ("kind", "path", "speed"))
+    kind = _choice(src, m["kind"], "leader.kind", LEADER_KINDS)
+    speed = _number(src, m["speed"], "leader.speed", positive=True)
+    radius = _number(src, m.get("radius", LeaderSpec.radius), "leader.radius", positive=True)
+    max_turn = _number(src, m.get("max_turn_rate", LeaderSpec.max_turn_rate), "leader.max_turn_rate", positive=True)
+    lookahead = _number(src, m.get("lookahead", LeaderSpec.lookahead), "leader.lookahead", positive=True)
+    delay = _number(src, m.get("start_delay", LeaderSpec.start_delay), "leader.start_delay", nonnegative=True)
+    # A virtual leader is a point; a robot leader's whole disc must fit in the world.
+    margin = radius if kind == "robot" else 0.0
+    path = _path(src, m["path"], "leader.path", world, margin, "robot leader disc" if kind == "robot" else "waypoint")
+    return LeaderSpec(
+        kind=kind, path=path, speed=speed, radius=radius, max_turn_rate=max_turn, lookahead=lookahead, start_delay=delay
+    )
+
+
+def _parse_formations(src: str, value: Any, robots: RobotSpec) -> tuple[FormationSpec, ...]:
+    items = _sequence(src, value, "formations", "a list of at least one formation entry")
+    if not items:
+        raise ScenarioError(src, "formations", "at least one formation entry (the one active at t = 0)", [])
+    out: list[FormationSpec] = []
+    prev_at = -math.inf
+    for i, item in enumerate(items):
+        key = f"formations[{i}]"
+        m = _mapping(src, item, key)
+        _check_keys(src, m, key, _FORMATION_KEYS, ("at", "shape"))
+        at = _number(src, m["at"], f"{key}.at", nonnegative=True)
+        if i == 0 and at != 0.0:
+            raise ScenarioError(src, f"{key}.at", "0.0 for the first formation (one must be active from the start)", at)
+        if at <= prev_at:
+            raise ScenarioError(src, f"{key}.at", f"a time strictly after the previous entry's at = {prev_at}", at)
+        prev_at = at
+        shape = _choice(src, m["shape"], f"{key}.shape", FORMATION_SHAPES)
+        spacing = _number(src, m.get("spacing", FormationSpec.spacing), f"{key}.spacing", positive=True)
+        angle = _number(src, m.get("angle", FormationSpec.angle), f"{key}.angle")
+        if not 0.0 < angle < 180.0:
+            raise ScenarioError(src, f"{key}.angle", "an arm half-opening in degrees within (0, 180)", angle)
+        if shape == "wedge" and angle == 90.0:
+            raise ScenarioError(src, f"{key}.angle", "a wedge half-opening other than 90 degrees (its rows would coincide)", angle)
+        columns = _integer(src, m.get("columns", FormationSpec.columns), f"{key}.columns", minimum=0)
+        if columns and shape != "grid":
+            raise ScenarioError(src, f"{key}.columns", f"no columns for shape {shape!r} (only 'grid' uses them)", columns)
+        offsets = None
+        if shape == "custom":
+            if "offsets" not in m or m["offsets"] is None:
+                raise ScenarioError(
+                    src, f"{key}.offsets", f"a list of {robots.count} [x, y] offsets (required by shape 'custom')"
+                )
+            pts = _sequence(src, m["offsets"], f"{key}.offsets", "a list of [x, y] offsets")
+            if len(pts) != robots.count:
+                raise ScenarioError(
+                    src,
+                    f"{key}.offsets",
+                    f"one [x, y] offset per follower (robots.count = {robots.count})",
+                    f"{len(pts)} offsets",
+                )
+            offsets = tuple(_point(src, p, f"{key}.offsets[{j}]") for j, p in enumerate(pts))
+        elif m.get("offsets") is not None:
+            raise ScenarioError(
+                src, f"{key}.offsets", f"no offsets for shape {shape!r} (offsets are for shape 'custom' only)", "offsets"
+            )
+        out.append(FormationSpec(at=at, shape=shape, spacing=spacing, angle=angle, offsets=offsets, columns=columns))
+    return tuple(out)
+
+
+def _parse_obstacle(src: str, value: Any, key: str, world: WorldSpec) -> Obstacle:
+    m = _mapping(src, value, key)
+    if "type" not in m:
+        raise ScenarioError(
+            src, f"{key}.type", "one of " + ", ".join(repr(t) for t in _OBSTACLE_KEYS) + " (required key missing)"
+        )
+    kind = _choice(src, m["type"], f"{key}.type", tuple(_OBSTACLE_KEYS))
+    allowed = _OBSTACLE_KEYS[kind]
+    _check_keys(src, m, key, allowed, allowed[:-1] if kind == "rectangle" else allowed)
+    if kind == "circle":
+        center = _point(src, m["center"], f"{key}.center")
+        _inside(src, center, 0.0, world, f"{key}.center", "obstacle centre")
+        radius = _number(src, m["radius"], f"{key}.radius", positive=True)
+        return CircleObstacle(center=center, radius=radius)
+    if kind == "rectangle":
+        center = _point(src, m["center"], f"{key}.center")
+        _inside(src, center, 0.0, world, f"{key}.center", "obstacle centre")
+        size = _point(src, m["size"], f"{key}.size")
+        for i, s in enumerate(size):
+            if s <= 0:
+                raise ScenarioError(src, f"{key}.size[{i}]", "a positive side length (m)", s)
+        angle = _number(src, m.get("angle", RectangleObstacle.angle), f"{key}.angle")
+        return RectangleObstacle(center=center, size=size, angle=angle)
+    pts = _sequence(src, m["points"], f"{key}.points", "a list of at least 3 [x, y] vertices")
+    if len(pts) < 3:
+        raise ScenarioError(src, f"{key}.points", "at least 3 [x, y] vertices of a convex polygon", f"{len(pts)} points")
+    points = tuple(_point(src, p, f"{key}.points[{j}]") for j, p in enumerate(pts))
+    for j, p in enumerate(points):
+        _inside(src, p, 0.0, world, f"{key}.points[{j}]", "polygon vertex")
+    return PolygonObstacle(points=_convex_ccw(src, points, f"{key}.points"))
+
+
+def _parse_human(src: str, value: Any, key: str, world: WorldSpec) -> HumanSpec:
+    m = _mapping(src, value, key)
+    _check_keys(src, m, key, _HUMAN_KEYS, ("path",))
+    speed = _number(src, m.get("speed", HumanSpec.speed), f"{key}.speed", positive=True)
+    radius = _number(src, m.get("radius", HumanSpec.radius), f"{key}.radius", positive=True)
+    mode = _choice(src, m.get("mode", HumanSpec.mode), f"{key}.mode", HUMAN_MODES)
+    delay = _number(src, m.get("start_delay", HumanSpec.start_delay), f"{key}.start_delay", nonnegative=True)
+    path = _path(src, m["path"], f"{key}.path", world, radius, "human disc")
+    return HumanSpec(path=path, speed=speed, radius=radius, mode=mode, start_delay=delay)
+
+
+def _parse_sensors(src: str, value: Any) -> SensorSpec:
+    m = _mapping(src, value, "sensors")
+    _check_keys(src, m, "sensors", _SENSOR_KEYS, ())
+    d = SensorSpec()
+    return SensorSpec(
+        lidar_rays=_integer(src, m.get("lidar_rays", d.lidar_rays), "sensors.lidar_rays", minimum=1),
+        lidar_range=_number(src, m.get("lidar_range", d.lidar_range), "sensors.lidar_range", positive=True),
+        neighbors=_integer(src, m.get("neighbors", d.neighbors), "sensors.neighbors", minimum=0),
+        humans=_integer(src, m.get("humans", d.humans), "sensors.humans", minimum=0),
+    )
+
+
+def _parse_reward(src: str, value: Any) -> RewardSpec:
+    m = _mapping(src, value, "reward")
+    _check_keys(src, m, "reward", _REWARD_KEYS, ())
+    d = RewardSpec()
+    # Weights are magnitudes: the sign of each term is fixed by the env (penalty or bonus).
+    vals = {k: _number(src, m.get(k, getattr(d, k)), f"reward.{k}", nonnegative=True) for k in _REWARD_KEYS}
+    return RewardSpec(**vals)
+
+
+# --------------------------------------------------------------------------- cross-section checks
+
+
+def _tunnel_terms(scn: Scenario) -> tuple[float, float]:
+    """``(v_rel, r_min)`` of the anti-tunnelling rule (see the module docstring)."""
+    v_max = max(scn.robots.max_speed, scn.leader.speed)
+    v_human = max((h.speed for h in scn.humans), default=0.0)
+    radii = [scn.robots.radius] + [h.radius for h in scn.humans]
+    if scn.leader.kind == "robot":
+        radii.append(scn.leader.radius)
+    return 2.0 * v_max + v_human, min(radii)
+
+
+def _cross_check(src: str, scn: Scenario) -> None:
+    r, ld, w = scn.robots, scn.leader, scn.world
+    if ld.speed > r.max_speed + _EPS:
+        raise ScenarioError(
+            src, "leader.speed", f"at most robots.max_speed = {r.max_speed} (followers could never keep up)", ld.speed
+        )
+
+    v_rel, r_min = _tunnel_terms(scn)
+    if v_rel * w.dt / w.substeps > r_min + _EPS:
+        need = min_substeps(scn)
+        raise ScenarioError(
+            src,
+            "world.substeps",
+            f"at least {need}: the anti-tunnelling rule needs v_rel * dt / substeps <= r_min with "
+            f"v_rel = {v_rel:g} m/s, dt = {w.dt:g} s, r_min = {r_min:g} m",
+            w.substeps,
+        )
+
+    _check_slots(src, scn)
+    _check_start(src, scn)
+
+
+def _offsets(src: str, scn: Scenario, i: int) -> np.ndarray:
+    from swarm_env.formation import formation_offsets
+
+    try:
+        return np.asarray(formation_offsets(scn.formations[i], scn.robots.count), dtype=np.float64)
+    except ValueError as exc:  # e.g. a wedge at exactly 90 degrees
+        raise ScenarioError(src, f"formations[{i}]", f"a formation that can be laid out ({exc})") from None
+
+
+def _check_slots(src: str, scn: Scenario) -> None:
+    """Slots of every formation must leave room for the follower discs (and a robot leader's disc)."""
+    r = scn.robots.radius
+    for i, f in enumerate(scn.formations):
+        key = f"formations[{i}]." + ("offsets" if f.shape == "custom" else "spacing")
+        got = [list(p) for p in f.offsets] if f.offsets is not None else f.spacing
+        off = _offsets(src, scn, i)
+        if off.shape[0] > 1:
+            d = np.linalg.norm(off[:, None, :] - off[None, :, :], axis=-1)
+            d[np.diag_indices_from(d)] = np.inf
+            a, b = np.unravel_index(int(np.argmin(d)), d.shape)
+            if d[a, b] < 2.0 * r - 1e-6:
+                raise ScenarioError(
+                    src,
+                    key,
+                    f"slots at least 2 * robots.radius = {2 * r:g} m apart (slots {a} and {b} are {d[a, b]:.3g} m apart)",
+                    got,
+                )
+        if scn.leader.kind == "robot":
+            norms = np.linalg.norm(off, axis=1)
+            k = int(np.argmin(norms))
+            need = r + scn.leader.radius
+            if norms[k] < need - 1e-6:
+                raise ScenarioError(
+                    src,
+                    key,
+                    f"slots at least robots.radius + leader.radius = {need:g} m from the robot leader "
+                    f"(slot {k} is {norms[k]:.3g} m from it)",
+                    got,
+                )
+
+
+def start_poses(scn: Scenario) -> np.ndarray:
+    """``(N, 3)`` starting poses ``(x, y, theta)`` of the followers.
+
+    Explicit ``robots.start`` poses, or with ``start: formation`` the slots of
+    ``formations[0]`` around a leader standing on ``path[0]`` facing ``path[1]``
+    (no obstacle projection), each follower facing the leader's heading.
+    """
+    from swarm_env.formation import formation_offsets
+
+    r = scn.robots
+    if r.start != "formation":
+        return np.asarray(r.start, dtype=np.float64).reshape(-1, 3)
+    p0 = np.asarray(scn.leader.path[0], dtype=np.float64)
+    p1 = np.asarray(scn.leader.path[1], dtype=np.float64)
+    heading = math.atan2(p1[1] - p0[1], p1[0] - p0[0])
+    c, s = math.cos(heading), math.sin(heading)
+    off = np.asarray(formation_offsets(scn.formations[0], r.count), dtype=np.float64)
+    xy = p0 + off @ np.array([[c, s], [-s, c]])
+    return np.column_stack([xy, np.full(len(xy), heading)])
+
+
+def _check_start(src: str, scn: Scenario) -> None:
+    """Starting discs inside the world and clear of obstacles, each other, a robot leader and the humans."""
+    from swarm_env.geometry import StaticMap
+
+    r = scn.robots.radius
+    explicit = scn.robots.start != "formation"
+    poses = start_poses(scn)
+    xy = poses[:, :2]
+
+    def fail(i: int, why: str) -> None:
+        if explicit:
+            raise ScenarioError(src, f"robots.start[{i}]", why, [float(v) for v in poses[i]])
+        raise ScenarioError(
+            src, "robots.start", why + " with start: formation (move the path start or give explicit poses)", "formation"
+        )
+
+    w, h = scn.world.size
+    for i, (x, y) in enumerate(xy):
+        if not (r - 1e-9 <= x <= w - r + 1e-9 and r - 1e-9 <= y <= h - r + 1e-9):
+            fail(i, f"follower discs inside the world [0, {w:g}] x [0, {h:g}] (follower {i} starts at ({x:.3g}, {y:.3g}))")
+    if scn.obstacles:
+        static = StaticMap.from_obstacles(scn.world.size, scn.obstacles)
+        dist = static.distance(xy, walls=False)
+        bad = np.flatnonzero(dist < r - 1e-6)
+        if bad.size:
+            i = int(bad[0])
+            fail(i, f"follower discs clear of obstacles (follower {i} at ({xy[i, 0]:.3g}, {xy[i, 1]:.3g}) is "
+                    f"{dist[i]:.3g} m from one, radius {r:g})")
+        if scn.leader.kind == "robot":
+            d0 = float(static.distance(np.asarray(scn.leader.path[0], dtype=np.float64), walls=False))
+            if d0 < scn.leader.radius - 1e-6:
+                raise ScenarioError(
+                    src, "leader.path[0]", f"a robot leader start clear of obstacles ({d0:.3g} m from one)",
+                    list(scn.leader.path[0]),
+                )
+    if len(xy) > 1:
+        d = np.linalg.norm(xy[:, None, :] - xy[None, :, :], axis=-1)
+        d[np.diag_indices_from(d)] = np.inf
+        a, b = np.unravel_index(int(np.argmin(d)), d.shape)
+        if d[a, b] < 2 * r - 1e-6:
+            fail(int(b), f"non-overlapping follower discs (followers {a} and {b} start {d[a, b]:.3g} m apart)")
+    # Other discs present at t = 0: the robot leader and the humans on their first waypoints.
+    others: list[tuple[str, np.ndarray, float]] = []
+    if scn.leader.kind == "robot":
+        others.append(("the robot leader", np.asarray(scn.leader.path[0], dtype=np.float64), scn.leader.radius))
+    for j, hum in enumerate(scn.humans):
+        others.append((f"humans[{j}]", np.asarray(hum.path[0], dtype=np.float64), hum.radius))
+    for name, p, rad in others:
+        d = np.linalg.norm(xy - p, axis=1)
+        i = int(np.argmin(d))
+        if d[i] < r + rad - 1e-6:
+            fail(i, f"follower discs clear of {name} at ({p[0]:.3g}, {p[1]:.3g}) (follower {i} is {d[i]:.3g} m away)")
+    if scn.leader.kind == "robot":
+        p = np.asarray(scn.leader.path[0], dtype=np.float64)
+        for j, hum in enumerate(scn.humans):
+            dd = float(np.linalg.norm(np.asarray(hum.path[0]) - p))
+            if dd < hum.radius + scn.leader.radius - 1e-6:
+                raise ScenarioError(
+                    src, f"humans[{j}].path[0]", f"a human start clear of the robot leader's start ({dd:.3g} m away)",
+                    list(hum.path[0]),
+                )
+
+
+# --------------------------------------------------------------------------- geometry helpers
+
+
+def _convex_ccw(src: str, points: Sequence[Point], key: str) -> tuple[Point, ...]:
+    """``points`` counter-clockwise (via :func:`swarm_env.geometry.convex_ccw`), or a ScenarioError.
+
+    Collinear vertices are allowed; zero-area, non-convex and self-intersecting
+    vertex orders are not.
+    """
+    from swarm_env.geometry import convex_ccw
+
+    try:
+        out = convex_ccw(np.asarray(points, dtype=np.float64))
+    except ValueError as exc:
+        raise ScenarioError(
+            src, key, f"the vertices of a convex polygon with non-zero area, in boundary order ({exc})",
+            [list(p) for p in points],
+        ) from None
+    return tuple((float(x), float(y)) for x, y in np.asarray(out, dtype=np.float64))
+
+
+def _path(src: str, value: Any, key: str, world: WorldSpec, margin: float, what: str) -> tuple[Point, ...]:
+    pts = _sequence(src, value, key, "a list of at least 2 [x, y] waypoints")
+    if len(pts) < 2:
+        raise ScenarioError(src, key, "at least 2 [x, y] waypoints", f"{len(pts)} points")
+    path = tuple(_point(src, p, f"{key}[{i}]") for i, p in enumerate(pts))
+    for i, p in enumerate(path):
+        _inside(src, p, margin, world, f"{key}[{i}]", what)
+        if i and math.dist(p, path[i - 1]) < 1e-9:
+            raise ScenarioError(src, f"{key}[{i}]", "a waypoint different from the previous one", list(p))
+    return path
+
+
+def _inside(src: str, p: Point, margin: float, world: WorldSpec, key: str, what: str) -> None:
+    w, h = world.size
+    if not (margin - 1e-9 <= p[0] <= w - margin + 1e-9 and margin - 1e-9 <= p[1] <= h - margin + 1e-9):
+        extra = f" (a {what} of radius {margin:g} must fit)" if margin > 0 else ""
+        raise ScenarioError(
+            src, key, f"a point inside the world [{margin:g}, {w - margin:g}] x [{margin:g}, {h - margin:g}]{extra}", list(p)
+        )
+
+
+# --------------------------------------------------------------------------- value helpers
+
+
+def _short(value: Any) -> Any:
+    text = repr(value)
+    return value if len(text) <= 80 else text[:77] + "..."
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def _number(
+    src: str, value: Any, key: str, *, positive: bool = False, nonnegative: bool = False
+) -> float:
+    kind = "a positive number" if positive else "a non-negative number" if nonnegative else "a number"
+    if not _is_number(value):
+        hint = ""
+        if isinstance(value, str):
+            try:
+                float(value)
+                hint = " (YAML 1.1 reads exponents without a dot, like 1e3, as text: write 1.0e3)"
+            except ValueError:
+                pass
+        raise ScenarioError(src, key, kind + hint, _short(value))
+    x = float(value)
+    if not math.isfinite(x):
+        raise ScenarioError(src, key, "a finite " + kind.removeprefix("a "), x)
+    if (positive and x <= 0) or (nonnegative and x < 0):
+        raise ScenarioError(src, key, kind, value)
+    return x
+
+
+def _optional_positive(src: str, value: Any, key: str) -> float | None:
+    if value is None:
+        return None
+    if not _is_number(value):
+        raise ScenarioError(src, key, "a positive number or null (unlimited)", _short(value))
+    return _number(src, value, key, positive=True)
+
+
+def _integer(src: str, value: Any, key: str, *, minimum: int) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
+        raise ScenarioError(src, key, f"an integer >= {minimum}", _short(value))
+    if int(value) < minimum:
+        raise ScenarioError(src, key, f"an integer >= {minimum}", int(value))
+    return int(value)
+
+
+def _string(src: str, value: Any, key: str, *, nonempty: bool = False) -> str:
+    if not isinstance(value, str) or (nonempty and not value.strip()):
+        raise ScenarioError(src, key, "a non-empty string" if nonempty else "a string", _short(value))
+    return value
+
+
+def _choice(src: str, value: Any, key: str, allowed: Sequence[str]) -> Any:
+    if not isinstance(value, str) or value not in allowed:
+        raise ScenarioError(src, key, "one of " + ", ".join(repr(a) for a in allowed), _short(value))
+    return value
+
+
+def _mapping(src: str, value: Any, key: str) -> Mapping[str, Any]:
+    if value is None:  # an empty YAML section (`sensors:`) parses to None
+        value = {}
+    if not isinstance(value, Mapping):
+        raise ScenarioError(src, key, "a mapping", _short(value))
+    return value
+
+
+def _sequence(src: str, value: Any, key: str, expected: str) -> list[Any]:
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
+        raise ScenarioError(src, key, expected, _short(value))
+    return list(value)
+
+
+def _numbers(src: str, value: Any, key: str, n: int, form: str) -> tuple[float, ...]:
+    seq = _sequence(src, value, key, f"a list {form}")
+    if len(seq) != n:
+        raise ScenarioError(src, key, f"a list {form} of {n} numbers", _short(value))
+    return tuple(_number(src, v, f"{key}[{i}]") for i, v in enumerate(seq))
+
+
+def _point(src: str, value: Any, key: str) -> Point:
+    x, y = _numbers(src, value, key, 2, "[x, y]")
+    return (x, y)
+
+
+def _parse_list(src: str, value: Any, key: str, parse) -> tuple:
+    if value is None:
+        return ()
+    items = _sequence(src, value, key, "a list")
+    return tuple(parse(item, f"{key}[{i}]") for i, item in enumerate(items))
+
+
+def _check_keys(src: str, m: Mapping[str, Any], key: str, allowed: Sequence[str], required: Sequence[str]) -> None:
+    prefix = f"{key}." if key else ""
+    for k in m:
+        if not isinstance(k, str):
+            raise ScenarioError(src, f"{prefix}{k!r}", "string keys", k)
+        if k not in allowed:
+            close = difflib.get_close_matches(k, allowed, n=1)
+            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            where = f"the keys of {key}" if key else "the top-level sections"
+            raise ScenarioError(src, f"{prefix}{k}", f"one of {where}: {', '.join(allowed)}{hint}", k)
+    for k in required:
+        if k not in m:
+            raise ScenarioError(src, f"{prefix}{k}", "a value (required key missing)")
+
+
+def _floats(p: Sequence[float]) -> list[float]:
+    return [float(v) for v in p]
+
+
+def _formation_to_dict(f: FormationSpec) -> dict[str, Any]:
+    d: dict[str, Any] = {"at": float(f.at), "shape": f.shape, "spacing": float(f.spacing), "angle": float(f.angle)}
+    if f.shape == "grid":
+        d["columns"] = int(f.columns)
+    if f.offsets is not None:
+        d["offsets"] = [_floats(p) for p in f.offsets]
+    return d
+
+
+def _obstacle_to_dict(o: Obstacle) -> dict[str, Any]:
+    if isinstance(o, CircleObstacle):
+        return {"type": "circle", "center": _floats(o.center), "radius": float(o.radius)}
+    if isinstance(o, RectangleObstacle):
+        return {"type": "rectangle", "center": _floats(o.center), "size": _floats(o.size), "angle": float(o.angle)}
+    return {"type": "polygon", "points": [_floats(p) for p in o.points]}

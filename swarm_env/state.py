@@ -1,0 +1,81 @@
+"""``WorldState``: the frozen snapshot of the world after each step.
+
+It is the one data type that flows out of :class:`swarm_env.world.World`:
+observations, rewards, metrics, the renderer and the scripted experts all read
+it (experts read it as privileged information, like CrowdNav's ``FullState``).
+Arrays are read-only copies; nothing in here refers back to pymunk.
+
+Conventions: poses are ``(x, y, theta)`` in the world frame (theta in radians,
+counter-clockwise from +x, wrapped to ``[-pi, pi)``); ``*_vel`` are world-frame
+linear velocities ``(vx, vy)``; ``*_twist`` are body-frame ``(v, omega)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from swarm_env.geometry import StaticMap
+from swarm_env.scenario import Scenario
+
+ContactKind = Literal["robot_robot", "robot_obstacle", "robot_human", "robot_wall"]
+CONTACT_KINDS: tuple[ContactKind, ...] = ("robot_robot", "robot_obstacle", "robot_human", "robot_wall")
+
+#: Robot index used for the leader in contacts and per-robot tables (followers are 0..N-1).
+LEADER_ID = -1
+
+
+@dataclass(frozen=True)
+class Contact:
+    """The onset of a contact in the last step.
+
+    ``robot`` is a follower index or :data:`LEADER_ID`; ``other`` is the index of
+    the other robot (follower index or ``LEADER_ID``), human, obstacle, or wall
+    (0 bottom, 1 right, 2 top, 3 left), according to ``kind``.
+    """
+
+    kind: ContactKind
+    robot: int
+    other: int
+
+
+@dataclass(frozen=True)
+class WorldState:
+    """Everything an expert may know about the world at ``time``."""
+
+    time: float
+    step: int
+    follower_pose: np.ndarray  # (N, 3)
+    follower_vel: np.ndarray  # (N, 2) world frame
+    follower_twist: np.ndarray  # (N, 2) (v, omega)
+    follower_radius: np.ndarray  # (N,)
+    leader_pose: np.ndarray  # (3,)
+    leader_vel: np.ndarray  # (2,)
+    leader_twist: np.ndarray  # (2,)
+    leader_radius: float  # 0.0 for a virtual leader
+    leader_done: bool  # the leader reached the end of its path
+    human_pos: np.ndarray  # (H, 2)
+    human_vel: np.ndarray  # (H, 2)
+    human_radius: np.ndarray  # (H,)
+    slot_targets: np.ndarray  # (N, 2) current slot targets, moved out of obstacles
+    formation_index: int  # index into scenario.formations of the active formation
+    next_switch_time: float  # time of the next formation switch, inf if none
+    contacts: tuple[Contact, ...]  # contact onsets during the last step
+    static: StaticMap
+    scenario: Scenario
+
+    @property
+    def n_followers(self) -> int:
+        return int(self.follower_pose.shape[0])
+
+    @property
+    def leader_is_robot(self) -> bool:
+        return self.scenario.leader.kind == "robot"
+
+    def robot_positions(self) -> np.ndarray:
+        """Positions of all physical robots, followers first then the robot leader (if any)."""
+        if self.leader_is_robot:
+            return np.vstack([self.follower_pose[:, :2], self.leader_pose[None, :2]])
+        return self.follower_pose[:, :2]

@@ -1,0 +1,126 @@
+"""Writing rendered frames to video files and pictures.
+
+``.mp4`` goes through imageio-ffmpeg (H.264 ``libx264``, ``yuv420p`` so that
+every player opens it); ``.gif`` through imageio's pillow plugin. imageio is
+imported lazily, so ``import swarm_env`` does not need it.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+VIDEO_SUFFIXES = (".mp4", ".gif")
+
+
+def _as_rgb(frame: np.ndarray) -> np.ndarray:
+    """Check ``frame`` and return it as ``(H, W, 3)`` uint8 (gray is repeated, alpha dropped)."""
+    a = np.asarray(frame)
+    if a.dtype != np.uint8:
+        raise TypeError(f"frames must be uint8 arrays, got dtype {a.dtype}")
+    if a.ndim == 2:
+        a = np.repeat(a[:, :, None], 3, axis=2)
+    if a.ndim != 3 or a.shape[2] not in (3, 4) or a.shape[0] < 1 or a.shape[1] < 1:
+        raise ValueError(f"frames must have shape (H, W, 3), (H, W, 4) or (H, W), got {a.shape}")
+    return a[:, :, :3]
+
+
+def _pad_even(a: np.ndarray) -> np.ndarray:
+    """Pad the bottom/right edge by one replicated pixel where a side is odd (yuv420p needs even sides)."""
+    ph, pw = a.shape[0] % 2, a.shape[1] % 2
+    if ph or pw:
+        a = np.pad(a, ((0, ph), (0, pw), (0, 0)), mode="edge")
+    return a
+
+
+class VideoWriter:
+    """Writes RGB frames to ``path`` (``.mp4`` or ``.gif``) at ``fps`` frames per second.
+
+    Every frame must have the size of the first one. A context manager::
+
+        with VideoWriter("run.mp4", fps=10) as video:
+            for ...:
+                video.append(env.render())
+
+    ``.mp4`` frames are streamed to ffmpeg as they come (odd sides are padded
+    by one pixel); ``.gif`` frames are kept in memory and written by
+    :meth:`close`. ``quality`` is imageio-ffmpeg's 0-10 scale (mp4 only).
+    """
+
+    def __init__(self, path: str | os.PathLike[str], fps: float, *, quality: float = 8.0) -> None:
+        self.path = Path(path)
+        suffix = self.path.suffix.lower()
+        if suffix not in VIDEO_SUFFIXES:
+            raise ValueError(f"{self.path}: unsupported video format {suffix!r}; use one of {VIDEO_SUFFIXES}")
+        if not fps > 0:
+            raise ValueError(f"fps must be > 0, got {fps!r}")
+        self.fps = float(fps)
+        self.quality = quality
+        self.n_frames = 0
+        self._format = suffix[1:]
+        self._shape: tuple[int, ...] | None = None
+        self._writer: Any = None
+        self._gif_frames: list[np.ndarray] = []
+        self._closed = False
+
+    def append(self, frame: np.ndarray) -> None:
+        """Add one ``(H, W, 3)`` uint8 frame (``(H, W, 4)`` and ``(H, W)`` are accepted too)."""
+        if self._closed:
+            raise RuntimeError(f"{self.path}: the VideoWriter is closed")
+        a = _as_rgb(frame)
+        if self._shape is None:
+            self._shape = a.shape
+        elif a.shape != self._shape:
+            raise ValueError(f"{self.path}: frame shape {a.shape} differs from the first frame's {self._shape}")
+        if self._format == "gif":
+            self._gif_frames.append(a.copy())
+        else:
+            if self._writer is None:
+                import imageio.v2 as iio  # noqa: PLC0415 - lazy: optional dependency
+
+                self._writer = iio.get_writer(
+                    self.path,
+                    format="FFMPEG",
+                    mode="I",
+                    fps=self.fps,
+                    codec="libx264",
+                    pixelformat="yuv420p",
+                    quality=self.quality,
+                    macro_block_size=1,  # we pad to even sides ourselves; no rescaling to multiples of 16
+                )
+            self._writer.append_data(np.ascontiguousarray(_pad_even(a)))
+        self.n_frames += 1
+
+    def close(self) -> None:
+        """Finish the file. Safe to call more than once."""
+        if self._closed:
+            return
+        self._closed = True
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        if self._format == "gif" and self._gif_frames:
+            import imageio.v3 as iio3  # noqa: PLC0415
+
+            # pillow's GIF duration is per frame in milliseconds; loop=0 repeats forever.
+            iio3.imwrite(self.path, np.stack(self._gif_frames), plugin="pillow", duration=1000.0 / self.fps, loop=0)
+            self._gif_frames = []
+
+    def __enter__(self) -> VideoWriter:
+        return self
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+
+def save_frame_png(path: str | os.PathLike[str], frame: np.ndarray) -> None:
+    """Write one ``(H, W, 3)`` uint8 frame as a PNG file."""
+    import imageio.v3 as iio3  # noqa: PLC0415
+
+    iio3.imwrite(Path(path), _as_rgb(frame), extension=".png")

@@ -1,0 +1,361 @@
+"""Tests for swarm_env.guidance: pure pursuit and velocity-obstacle geometry."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from swarm_env.geometry import StaticMap
+from swarm_env.guidance import (
+    disc_time_to_collision,
+    lookahead_target,
+    pure_pursuit,
+    sample_twists,
+    static_time_to_collision,
+    twist_velocities,
+    vo_discs_inside,
+    vo_polygons_inside,
+    vo_select,
+    wrap_angle,
+)
+from swarm_env.paths import PolylinePath
+from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
+
+EMPTY_D = np.zeros((0, 3))
+EMPTY_V = np.zeros((0, 2))
+
+
+def unicycle_step(pose: np.ndarray, twist: np.ndarray, dt: float) -> np.ndarray:
+    """Exact arc integration of a unicycle (the test's own simulator)."""
+    x, y, th = pose
+    v, w = twist
+    if abs(w) < 1e-12:
+        return np.array([x + v * dt * math.cos(th), y + v * dt * math.sin(th), th])
+    th2 = th + w * dt
+    return np.array([x + v / w * (math.sin(th2) - math.sin(th)), y - v / w * (math.cos(th2) - math.cos(th)), th2])
+
+
+# ------------------------------------------------------------------ angles, pure pursuit
+def test_wrap_angle():
+    a = np.array([0.0, math.pi, -math.pi, 3 * math.pi / 2, -7.0, 20.0])
+    w = wrap_angle(a)
+    assert np.all(w >= -math.pi) and np.all(w < math.pi)
+    np.testing.assert_allclose(np.cos(w), np.cos(a), atol=1e-12)
+    np.testing.assert_allclose(np.sin(w), np.sin(a), atol=1e-12)
+    assert wrap_angle(math.pi) == pytest.approx(-math.pi)
+    assert isinstance(wrap_angle(1.0), float) and isinstance(wrap_angle(np.float64(4.0)), float)
+
+
+def test_pure_pursuit_curvature_eq4():
+    pose = np.array([1.0, 2.0, 0.3])
+    for alpha, dist in [(0.2, 2.0), (-0.6, 3.0), (1.2, 5.0), (0.0, 1.0)]:
+        target = pose[:2] + dist * np.array([math.cos(pose[2] + alpha), math.sin(pose[2] + alpha)])
+        v, w = pure_pursuit(pose, target, v_max=0.5, omega_max=10.0, time_gap=1.0)
+        assert v == pytest.approx(min(dist / 1.0, 0.5))  # Eq. 9 saturated by v_max
+        assert w / v == pytest.approx(2 * math.sin(alpha) / dist)  # Eq. 4
+    # close targets: v = l / time_gap
+    v, w = pure_pursuit(pose, pose[:2] + [0.1, 0.0], v_max=0.5, omega_max=10.0, time_gap=0.5)
+    assert v == pytest.approx(0.2)
+
+
+def test_pure_pursuit_saturation():
+    pose = np.array([0.0, 0.0, 0.0])
+    target = np.array([0.5 * math.cos(1.0), 0.5 * math.sin(1.0)])  # alpha = 1 rad, l = 0.5
+    v, w = pure_pursuit(pose, target, v_max=1.0, omega_max=0.5, time_gap=0.1)
+    assert w == pytest.approx(0.5)
+    assert w / v == pytest.approx(2 * math.sin(1.0) / 0.5)  # curvature kept: slowed down
+    v2, w2 = pure_pursuit(pose, target, v_max=1.0, omega_max=0.5, time_gap=0.1, keep_curvature=False)
+    assert (v2, w2) == pytest.approx((1.0, 0.5))
+    v3, w3 = pure_pursuit(pose, -target, v_max=1.0, omega_max=0.5, time_gap=0.1)  # behind
+    assert v3 == 0.0 and abs(w3) == pytest.approx(0.5)
+
+
+def test_pure_pursuit_behind_turns_in_place_towards_target():
+    pose = np.array([0.0, 0.0, 0.0])
+    v, w = pure_pursuit(pose, np.array([-1.0, 0.5]), 0.5, 1.0, 1.0)  # behind-left
+    assert v == 0.0 and w > 0
+    v, w = pure_pursuit(pose, np.array([-1.0, -0.5]), 0.5, 1.0, 1.0)  # behind-right
+    assert v == 0.0 and w < 0
+    np.testing.assert_array_equal(pure_pursuit(pose, np.array([0.0, 0.0]), 0.5, 1.0, 1.0), [0.0, 0.0])
+
+
+def test_pure_pursuit_vectorised_matches_rows():
+    rng = np.random.default_rng(0)
+    poses = np.column_stack([rng.uniform(-3, 3, (20, 2)), rng.uniform(-4, 4, 20)])
+    targets = rng.uniform(-3, 3, (20, 2))
+    out = pure_pursuit(poses, targets, 0.65, 1.0, 0.5)
+    assert out.shape == (20, 2)
+    for i in range(20):
+        np.testing.assert_allclose(out[i], pure_pursuit(poses[i], targets[i], 0.65, 1.0, 0.5))
+    assert np.all(np.abs(out[:, 1]) <= 1.0 + 1e-12) and np.all(out[:, 0] <= 0.65 + 1e-12)
+
+
+def test_pure_pursuit_reaches_a_target_behind():
+    pose = np.array([0.0, 0.0, 0.0])
+    target = np.array([-2.0, 1.0])
+    for _ in range(400):
+        pose = unicycle_step(pose, pure_pursuit(pose, target, 0.65, 1.0, 1.0), 0.1)
+    assert np.linalg.norm(pose[:2] - target) < 0.05
+
+
+def test_lookahead_target_monotone_progress():
+    path = PolylinePath([(0, 0), (10, 0), (10, 10)])
+    carrot, s = lookahead_target(path, np.array([2.0, 0.5]), 0.0, 1.0)
+    assert s == pytest.approx(2.0)
+    np.testing.assert_allclose(carrot, [3.0, 0.0])
+    carrot, s2 = lookahead_target(path, np.array([1.0, 0.0]), s, 1.0)  # robot fell behind
+    assert s2 == pytest.approx(2.0)  # progress never decreases
+    carrot, s3 = lookahead_target(path, np.array([9.8, 0.1]), 9.0, 1.0)
+    np.testing.assert_allclose(carrot, [10.0, 0.8])  # around the corner
+    carrot, s4 = lookahead_target(path, np.array([10.0, 9.9]), 19.0, 1.0)
+    np.testing.assert_allclose(carrot, [10.0, 10.0])  # clipped to the end
+    # a far-away part of the path is not short-cut thanks to the window
+    _, s5 = lookahead_target(path, np.array([10.0, 0.0]) + [0.0, 9.0], 0.0, 1.0)
+    assert s5 <= 3.0
+
+
+# ------------------------------------------------------------------ sampling
+def test_sample_twists_and_velocities():
+    tw = sample_twists(0.65, 1.0)
+    assert tw.shape == (77, 2)
+    assert np.any(np.all(tw == 0.0, axis=1))
+    assert tw[:, 0].min() == 0.0 and tw[:, 0].max() == pytest.approx(0.65)
+    assert tw[:, 1].min() == pytest.approx(-1.0) and tw[:, 1].max() == pytest.approx(1.0)
+    assert np.any(np.all(sample_twists(0.5, 1.0, n_v=4, n_w=4) == 0.0, axis=1))  # 0 added
+    theta, tau = 0.4, 0.5
+    vel = twist_velocities(theta, tw, tau)
+    for (v, w), mean in zip(tw, vel):
+        end = unicycle_step(np.array([0.0, 0.0, theta]), (v, w), tau)
+        np.testing.assert_allclose(mean, end[:2] / tau, atol=1e-12)
+
+
+# ------------------------------------------------------------------ VO: discs
+def test_disc_vo_basic_cases():
+    rel_pos = np.array([[5.0, 0.0]])
+    R = np.array([1.0])
+    cand = np.array(
+        [
+            [1.0, 0.0],  # straight at it: collides at t = 4
+            [0.0, 1.0],  # parallel, far: misses
+            [-1.0, 0.0],  # moving away
+            [0.5, 0.0],  # straight at it but collides at t = 8 > horizon
+            [1.0, 0.25],  # misses by more than... no: grazes inside (distance 5 sin(atan .25) = 1.21 > 1)
+        ]
+    )
+    inside = vo_discs_inside(rel_pos, R, cand, horizon=5.0)
+    assert inside[:, 0].tolist() == [True, False, False, False, False]
+    ttc = disc_time_to_collision(rel_pos, R, cand, 5.0)
+    assert ttc[0, 0] == pytest.approx(4.0)
+    assert np.isinf(ttc[1:, 0]).all()
+
+
+def test_disc_vo_with_obstacle_velocity_and_overlap():
+    # Obstacle ahead coming towards a standing robot: rel_vel = 0 - (-1, 0)
+    rel = np.array([[3.0, 0.0]])
+    assert vo_discs_inside(rel, np.array([1.0]), np.array([[[1.0, 0.0]]]), 3.0)[0, 0]
+    # same, but the robot runs away at the obstacle's speed: never closes
+    assert not vo_discs_inside(rel, np.array([1.0]), np.array([[[0.0, 0.0]]]), 3.0)[0, 0]
+    # overlapping: inside unless separating
+    ov = np.array([[0.5, 0.0]])
+    cand = np.array([[1.0, 0.0], [0.0, 0.0], [-0.2, 0.0], [0.0, 1.0]])
+    assert vo_discs_inside(ov, np.array([1.0]), cand, 3.0)[:, 0].tolist() == [True, True, False, False]
+
+
+def test_disc_ttc_matches_brute_force():
+    rng = np.random.default_rng(1)
+    rel = rng.uniform(-4, 4, (12, 2))
+    R = rng.uniform(0.3, 1.2, 12)
+    w = rng.uniform(-2, 2, (30, 12, 2))
+    ttc = disc_time_to_collision(rel, R, w, 3.0)
+    t = np.linspace(0.0, 3.0, 6001)
+    for c in range(30):
+        for d in range(12):
+            gap = np.linalg.norm(w[c, d] * t[:, None] - rel[d], axis=1) - R[d]
+            hit = np.nonzero(gap < 0.0)[0]
+            if len(hit) == 0:
+                assert np.isinf(ttc[c, d]) or ttc[c, d] > 3.0 - 1e-3 or gap.min() > -1e-3
+            else:
+                assert ttc[c, d] == pytest.approx(t[hit[0]], abs=1e-3)
+    # (C, 2) candidate velocities broadcast to every disc
+    np.testing.assert_array_equal(
+        disc_time_to_collision(rel, R, w[:, 0], 3.0),
+        disc_time_to_collision(rel, R, np.repeat(w[:, :1], 12, axis=1), 3.0),
+    )
+
+
+# ------------------------------------------------------------------ VO: static geometry
+@pytest.fixture(scope="module")
+def static_map() -> StaticMap:
+    return StaticMap.from_obstacles(
+        (20.0, 12.0),
+        [
+            RectangleObstacle(center=(10.0, 6.0), size=(2.0, 4.0)),  # x in [9, 11], y in [4, 8]
+            RectangleObstacle(center=(4.0, 9.0), size=(2.0, 1.0), angle=30.0),
+            CircleObstacle(center=(15.0, 3.0), radius=1.0),
+            PolygonObstacle(points=((16.0, 8.0), (18.0, 8.5), (17.0, 10.5))),
+        ],
+    )
+
+
+def test_polygon_vo_rectangle(static_map):
+    P = np.array([7.0, 6.0])
+    r = 0.3
+    cand = np.array(
+        [
+            [1.0, 0.0],  # into the face: gap 2 - 0.3 = 1.7 m -> t = 1.7 s
+            [0.5, 0.0],  # t = 3.4 s > horizon
+            [0.0, 1.0],  # parallel to the face 2 m away
+            [-1.0, 0.0],  # away
+            [1.0, 1.0],  # towards the upper corner (9, 8): passes... through its vertex disc
+        ]
+    )
+    inside = vo_polygons_inside(P, r, cand, static_map, 3.0)
+    assert inside.tolist() == [True, False, False, False, True]
+    ttc = static_time_to_collision(P, r, cand, static_map, 3.0)
+    assert ttc[0] == pytest.approx(1.7)
+    # parallel to the face at a distance slightly above the radius: outside
+    P2 = np.array([8.6, 1.0])  # 0.4 m left of the face x = 9
+    assert not vo_polygons_inside(P2, r, np.array([[0.0, 1.0]]), static_map, 10.0)[0]
+    # ... and slightly below: inside (the swept disc touches the face)
+    P3 = np.array([8.8, 1.0])
+    assert vo_polygons_inside(P3, r, np.array([[0.0, 1.0]]), static_map, 10.0)[0]
+
+
+def test_polygon_vo_is_not_a_bounding_circle(static_map):
+    # Passing diagonally close to the rectangle's corner (9, 8) but clear of it:
+    # a bounding circle (radius sqrt(5) around (10, 6)) would flag this.
+    P = np.array([6.0, 9.0])
+    v = np.array([[1.0, 0.0]])  # along y = 9: 1 m above the top face y = 8
+    assert not vo_polygons_inside(P, 0.3, v, static_map, 10.0)[0]
+    assert np.linalg.norm(P + v[0] * 4.0 - [10.0, 6.0]) < math.sqrt(5) + 0.3
+
+
+def test_static_ttc_matches_brute_force(static_map):
+    rng = np.random.default_rng(2)
+    r = 0.3
+    t = np.linspace(0.0, 4.0, 4001)
+    n_checked = 0
+    for _ in range(60):
+        P = rng.uniform([0.5, 0.5], [19.5, 11.5])
+        if static_map.distance(P[None])[0] < r + 1e-3:
+            continue
+        V = rng.uniform(-2.0, 2.0, (8, 2))
+        ttc = static_time_to_collision(P, r, V, static_map, 4.0)
+        for c in range(8):
+            path = P + V[c] * t[:, None]
+            gap = static_map.distance(path) - r
+            hit = np.nonzero(gap < 0.0)[0]
+            if len(hit):
+                assert ttc[c] == pytest.approx(t[hit[0]], abs=2e-3)
+                n_checked += 1
+            else:
+                assert np.isinf(ttc[c]) or gap.min() < 1e-2
+    assert n_checked > 30  # the test exercised real collisions
+
+
+def test_static_overlap_rule(static_map):
+    # Robot touching the rectangle's left face (centre 0.2 m from it, radius 0.3)
+    P = np.array([8.8, 6.0])
+    cand = np.array([[1.0, 0.0], [0.0, 0.0], [-0.5, 0.0], [0.0, 0.5]])
+    inside = vo_polygons_inside(P, 0.3, cand, static_map, 3.0)
+    assert inside.tolist() == [True, True, False, True]  # only leaving is allowed
+    # Overlapping the bottom wall
+    Pw = np.array([3.0, 0.2])
+    inside = vo_polygons_inside(Pw, 0.3, np.array([[0.0, 0.5], [0.0, -0.5], [1.0, 0.0]]), static_map, 3.0)
+    assert inside.tolist() == [False, True, True]
+
+
+# ------------------------------------------------------------------ vo_select
+def test_vo_select_free_returns_preferred(static_map):
+    pose = np.array([2.0, 2.0, 0.3])
+    pref = np.array([0.41, 0.13])  # off the sampling grid
+    res = vo_select(pose, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0)
+    assert res.feasible and res.n_safe >= 77
+    np.testing.assert_allclose(res.twist, pref)
+    assert res.min_time_to_collision == math.inf
+    res = vo_select(pose, 0.25, pref, EMPTY_D, EMPTY_V, None, 0.65, 1.0)
+    np.testing.assert_allclose(res.twist, pref)
+
+
+def test_vo_select_deviates_from_disc_ahead():
+    pose = np.array([0.0, 0.0, 0.0])
+    disc = np.array([[2.0, 0.0, 0.3]])
+    res = vo_select(pose, 0.25, np.array([0.65, 0.0]), disc, np.zeros((1, 2)), None, 0.65, 1.0)
+    assert res.feasible
+    assert not np.allclose(res.twist, [0.65, 0.0])
+    vel = twist_velocities(0.0, res.twist[None], 0.5)
+    rel = disc[:, :2] - pose[:2]
+    assert not vo_discs_inside(rel, np.array([0.3 + 0.25 + 0.05]), vel, 3.0)[0, 0]
+
+
+def test_vo_select_infeasible_never_raises():
+    pose = np.array([5.0, 5.0, 0.0])
+    # surrounded by overlapping discs approaching from every side
+    ang = np.linspace(0, 2 * math.pi, 12, endpoint=False)
+    ring = np.column_stack([5 + 0.6 * np.cos(ang), 5 + 0.6 * np.sin(ang), np.full(12, 0.3)])
+    vel = -0.5 * np.column_stack([np.cos(ang), np.sin(ang)])
+    res = vo_select(pose, 0.25, np.array([0.5, 0.0]), ring, vel, None, 0.65, 1.0)
+    assert not res.feasible and res.n_safe == 0
+    assert res.min_time_to_collision <= 3.0
+    assert res.twist.shape == (2,) and np.all(np.isfinite(res.twist))
+    assert res.twist[0] == 0.0  # nothing helps: at least do not drive into it
+
+
+def _run_vo_sim(starts, goals, humans, static, steps=300, dt=0.1, radius=0.25, human_r=0.3):
+    """Unicycle robots heading to goals with pure pursuit + vo_select; humans walk straight."""
+    poses = np.array(starts, dtype=float)
+    hpos = np.array([h[0] for h in humans], dtype=float).reshape(-1, 2)
+    hvel = np.array([h[1] for h in humans], dtype=float).reshape(-1, 2)
+    n = len(poses)
+    vel = np.zeros((n, 2))
+    min_rr, min_rh = math.inf, math.inf
+    for _ in range(steps):
+        twists = []
+        for i in range(n):
+            pref = pure_pursuit(poses[i], np.asarray(goals[i], float), 0.65, 1.0, 1.0)
+            others = [j for j in range(n) if j != i]
+            discs = np.vstack([
+                np.column_stack([poses[others, :2], np.full(len(others), radius)]),
+                np.column_stack([hpos, np.full(len(hpos), human_r)]),
+            ])
+            dvel = np.vstack([vel[others], hvel])
+            twists.append(vo_select(poses[i], radius, pref, discs, dvel, static, 0.65, 1.0).twist)
+        new = np.array([unicycle_step(poses[i], twists[i], dt) for i in range(n)])
+        vel = (new[:, :2] - poses[:, :2]) / dt
+        poses = new
+        hpos = hpos + hvel * dt
+        for i in range(n):
+            for j in range(i + 1, n):
+                min_rr = min(min_rr, float(np.linalg.norm(poses[i, :2] - poses[j, :2])))
+            if len(hpos):
+                min_rh = min(min_rh, float(np.linalg.norm(hpos - poses[i, :2], axis=1).min()))
+    return poses, min_rr, min_rh
+
+
+def test_sim_two_robots_crossing(static_map):
+    empty = StaticMap.from_obstacles((20.0, 20.0), [])
+    # perpendicular crossing and head-on swap
+    for starts, goals in [
+        ([(2.0, 10.0, 0.0), (6.0, 6.0, math.pi / 2)], [(10.0, 10.0), (6.0, 14.0)]),
+        ([(2.0, 10.0, 0.0), (12.0, 10.0, math.pi)], [(12.0, 10.0), (2.0, 10.0)]),
+    ]:
+        poses, min_rr, _ = _run_vo_sim(starts, goals, [], empty, steps=400)
+        assert min_rr >= 0.5  # sum of radii
+        for p, g in zip(poses, goals):
+            assert np.linalg.norm(p[:2] - g) < 0.5  # both still got there
+
+
+def test_sim_human_walking_at_robot():
+    empty = StaticMap.from_obstacles((20.0, 20.0), [])
+    # human walks straight at the robot along its path
+    starts = [(2.0, 10.0, 0.0)]
+    goals = [(16.0, 10.0)]
+    humans = [((14.0, 10.0), (-0.5, 0.0))]
+    poses, _, min_rh = _run_vo_sim(starts, goals, humans, empty, steps=350)
+    assert min_rh >= 0.55  # robot radius + human radius
+    assert np.linalg.norm(poses[0, :2] - goals[0]) < 0.5
+    # human walks at a standing robot
+    _, _, min_rh = _run_vo_sim([(8.0, 10.0, 0.0)], [(8.0, 10.0)], [((14.0, 10.0), (-0.5, 0.0))], empty, steps=200)
+    assert min_rh >= 0.55
