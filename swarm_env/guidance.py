@@ -352,14 +352,10 @@ def trajectory_static_ttc(
 
     # -- convex polygons (padded arrays: a repeated last edge changes no minimum)
     if len(static.polygons):
-        A = static.poly_vertices  # (P, M, 2) edge starts
-        E = static.poly_edges
-        N = static.poly_normals  # outward unit normals
+        g = _polygon_arrays(static)
+        A, N, L, ux, uy = g["A"], g["N"], g["L"], g["ux"], g["uy"]
         qx = P[0] - A[..., 0]
         qy = P[1] - A[..., 1]
-        L = np.sqrt(E[..., 0] ** 2 + E[..., 1] ** 2)
-        inv_L = np.where(L > 0.0, 1.0 / np.maximum(L, 1e-300), 0.0)
-        ux, uy = E[..., 0] * inv_L, E[..., 1] * inv_L
         along = qx * ux + qy * uy  # (P, M)
         perp = qx * N[..., 0] + qy * N[..., 1]  # signed distance to the edge line, > 0 outside
         foot = np.clip(along, 0.0, L)
@@ -369,41 +365,78 @@ def trajectory_static_ttc(
         inside = hmax <= 0.0
         sd = np.where(inside, hmax, np.sqrt(d2.min(axis=1)))  # (P,) signed clearance now
         keep = sd <= reach
-        if np.any(keep):
-            overl = keep & (sd < radius)
-            if np.any(overl):
-                rows = np.nonzero(overl)[0]
-                nrm = N[rows, np.argmax(perp[rows], axis=1)].copy()  # centre inside: nearest edge line
-                e_out = np.argmin(d2[rows], axis=1)
-                ox_, oy_ = fx[rows, e_out], fy[rows, e_out]
-                dn = np.hypot(ox_, oy_)
-                ok = (~inside[rows]) & (dn > 0.0)
-                nrm[ok] = np.column_stack([ox_[ok], oy_[ok]]) / dn[ok, None]
-                vn = vx[:, 0, None] * nrm[:, 0] + vy[:, 0, None] * nrm[:, 1]  # first segment, (C, k)
-                np.minimum(out, np.where(vn > 0.0, np.inf, 0.0).min(axis=1), out=out)
-            free = keep & ~overl
-            if np.any(free):
-                a = A[free].reshape(-1, 2)
-                nxf, nyf = N[free][..., 0].ravel(), N[free][..., 1].ravel()
-                uxf, uyf = ux[free].ravel(), uy[free].ravel()
-                Lf = L[free].ravel()
-                # segment start relative to each edge start, (C, K, e)
-                rx = sx[..., None] - a[:, 0]
-                ry = sy[..., None] - a[:, 1]
-                per = rx * nxf + ry * nyf
-                alo = rx * uxf + ry * uyf
-                vn = vx[..., None] * nxf + vy[..., None] * nyf
-                va = vx[..., None] * uxf + vy[..., None] * uyf
+        overl = keep & (sd < radius)
+        if np.any(overl):
+            rows = np.nonzero(overl)[0]
+            nrm = N[rows, np.argmax(perp[rows], axis=1)].copy()  # centre inside: nearest edge line
+            e_out = np.argmin(d2[rows], axis=1)
+            ox_, oy_ = fx[rows, e_out], fy[rows, e_out]
+            dn = np.hypot(ox_, oy_)
+            ok = (~inside[rows]) & (dn > 0.0)
+            nrm[ok] = np.column_stack([ox_[ok], oy_[ok]]) / dn[ok, None]
+            vn = vx[:, 0, None] * nrm[:, 0] + vy[:, 0, None] * nrm[:, 1]  # first segment, (C, k)
+            np.minimum(out, np.where(vn > 0.0, np.inf, 0.0).min(axis=1), out=out)
+        free = np.nonzero(keep & ~overl)[0]
+        if len(free):
+            # Broad phase: which (candidate, segment, polygon) sweeps come within
+            # `radius` of the polygon's bounding circle at all.
+            cx = g["centre"][free, 0] - sx[..., None]  # (C, K, p)
+            cy = g["centre"][free, 1] - sy[..., None]
+            uu = (vx * vx + vy * vy)[..., None]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ts = np.clip((cx * vx[..., None] + cy * vy[..., None]) / uu, 0.0, dur[:, None])
+            ts = np.where(uu > 0.0, ts, 0.0)
+            ex = cx - ts * vx[..., None]
+            ey = cy - ts * vy[..., None]
+            rb = g["bound"][free] + radius
+            ci, ki, pj = np.nonzero(ex * ex + ey * ey <= rb * rb)
+            if len(ci):
+                pi = free[pj]
+                a = A[pi]  # (n, M, 2)
+                nx, ny = N[pi, :, 0], N[pi, :, 1]
+                ex_, ey_ = ux[pi], uy[pi]
+                Ln = L[pi]
+                s0x, s0y = sx[ci, ki][:, None], sy[ci, ki][:, None]
+                wx, wy = vx[ci, ki][:, None], vy[ci, ki][:, None]
+                dk = dur[ki][:, None]
+                rx = s0x - a[..., 0]  # segment start relative to each edge start, (n, M)
+                ry = s0y - a[..., 1]
+                per = rx * nx + ry * ny
+                vn = wx * nx + wy * ny
                 with np.errstate(divide="ignore", invalid="ignore"):
                     t = np.where((vn < 0.0) & (per >= radius), (per - radius) / -vn, np.inf)
-                    s_hit = alo + va * t  # nan/inf where there is no hit: compares False
-                ok = (s_hit >= 0.0) & (s_hit <= Lf) & (t <= dur[:, None])
-                t = np.where(ok, t + t0[:, None], np.inf)
-                np.minimum(out, t.min(axis=(1, 2)), out=out)
+                    s_hit = (rx * ex_ + ry * ey_) + (wx * ex_ + wy * ey_) * t  # nan/inf: compares False
+                t = np.where((s_hit >= 0.0) & (s_hit <= Ln) & (t <= dk), t, np.inf)
                 # vertex discs (every vertex starts one edge)
-                t = _ray_disc_ttc(-rx, -ry, radius * radius, vx[..., None], vy[..., None], dur[:, None])
-                np.minimum(out, (t + t0[:, None]).min(axis=(1, 2)), out=out)
+                tv = _ray_disc_ttc(-rx, -ry, radius * radius, wx, wy, dk)
+                tloc = np.minimum(t, tv).min(axis=1) + t0[ki]
+                np.minimum.at(out, ci, tloc)
     return out
+
+
+# Per-map derived polygon arrays, keyed by id() with the map itself kept alive
+# (so an id is never reused while cached). A handful of maps exist per process.
+_POLY_CACHE: dict[int, tuple[StaticMap, dict]] = {}
+
+
+def _polygon_arrays(static: StaticMap) -> dict:
+    hit = _POLY_CACHE.get(id(static))
+    if hit is not None and hit[0] is static:
+        return hit[1]
+    A = static.poly_vertices
+    E = static.poly_edges
+    L = np.sqrt(E[..., 0] ** 2 + E[..., 1] ** 2)
+    inv_L = np.where(L > 0.0, 1.0 / np.maximum(L, 1e-300), 0.0)
+    centre = np.array([p.mean(axis=0) for p in static.polygons]).reshape(-1, 2)
+    bound = np.array([np.max(np.hypot(*(p - c).T)) for p, c in zip(static.polygons, centre)])
+    g = {
+        "A": A, "N": static.poly_normals, "L": L, "ux": E[..., 0] * inv_L, "uy": E[..., 1] * inv_L,
+        "centre": centre, "bound": bound,
+    }
+    if len(_POLY_CACHE) >= 32:
+        _POLY_CACHE.pop(next(iter(_POLY_CACHE)))
+    _POLY_CACHE[id(static)] = (static, g)
+    return g
 
 
 # ---------------------------------------------------------------------------- VO: discs
@@ -508,12 +541,17 @@ def vo_select(
     margin: float = 0.05,
     n_v: int = 7,
     n_w: int = 11,
-    tau: float = 0.5,
+    tau: float = 1.0,
     w_pref: float = 1.0,
     w_heading: float = 0.5,
     v_min: float = 0.0,
     goal_heading: float | None = None,
     side_bias: float = 0.1,
+    model: str = "arc",
+    n_arc: int = 2,
+    escape: bool = True,
+    velocity: np.ndarray | None = None,
+    reciprocal: np.ndarray | bool = False,
 ) -> VOResult:
     """Choose a safe twist close to ``preferred`` (paper 003 Sec. II-D).
 
@@ -551,8 +589,15 @@ def vo_select(
     pref = np.array([min(max(pref[0], v_min), v_max), min(max(pref[1], -omega_max), omega_max)])
     grid = sample_twists(v_max, omega_max, n_v, n_w, v_min)
     twists = np.vstack([pref[None, :], grid])  # the preferred twist first: it wins ties
-    vel = twist_velocities(theta, twists, tau)
     C = twists.shape[0]
+    if model == "arc":
+        times, pts = twist_trajectories(theta, twists, tau, horizon, n_arc)
+    elif model == "chord":
+        vel = twist_velocities(theta, twists, tau)
+        times = np.array([0.0, horizon])
+        pts = np.stack([np.zeros_like(vel), vel * horizon], axis=1)
+    else:
+        raise ValueError(f"model must be 'arc' or 'chord', got {model!r}")
 
     ttc = np.full(C, np.inf)
     d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
@@ -560,15 +605,24 @@ def vo_select(
         dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
         rel = d[:, :2] - pose[:2]
         R = d[:, 2] + radius + margin
-        # Cull discs that cannot be reached within the horizon at the top relative speed.
-        vmax_c = float(np.sqrt(np.max(vel[:, 0] ** 2 + vel[:, 1] ** 2)))
-        reach = (vmax_c + np.hypot(dv[:, 0], dv[:, 1])) * horizon + R
+        # Cull discs that no candidate can meet within the horizon.
+        ext = float(np.sqrt(np.max(np.sum(pts * pts, axis=2))))
+        reach = ext + np.hypot(dv[:, 0], dv[:, 1]) * horizon + R
         keep = rel[:, 0] ** 2 + rel[:, 1] ** 2 <= reach * reach
-        if np.any(keep):
-            w = vel[:, None, :] - dv[keep][None, :, :]
-            ttc = disc_time_to_collision(rel[keep], R[keep], w, horizon).min(axis=1)
+        recip = np.broadcast_to(np.asarray(reciprocal, dtype=bool), (d.shape[0],))
+        plain = keep & ~recip
+        if np.any(plain):
+            ttc = trajectory_disc_ttc(times, pts, rel[plain], R[plain], dv[plain]).min(axis=1)
+        both = keep & recip
+        if np.any(both):
+            # Reciprocal VO: the other robot takes half of the avoidance, so test
+            # 2 v - v_now against its VO (van den Berg et al. 2008): displacement 2 x(t) - v_now t.
+            own = np.zeros(2) if velocity is None else np.asarray(velocity, dtype=np.float64).reshape(2)
+            pts_r = 2.0 * pts - own[None, None, :] * times[None, :, None]
+            np.minimum(ttc, trajectory_disc_ttc(times, pts_r, rel[both], R[both], dv[both]).min(axis=1), out=ttc)
     if static is not None:
-        np.minimum(ttc, static_time_to_collision(pose[:2], radius + margin, vel, static, horizon), out=ttc)
+        np.minimum(ttc, trajectory_static_ttc(pose[:2], radius + margin, times, pts, static), out=ttc)
+    ttc[ttc > horizon] = np.inf
 
     if goal_heading is None:
         goal_heading = theta + pref[1] * tau
@@ -581,7 +635,50 @@ def vo_select(
     n_safe = int(np.count_nonzero(safe))
     if n_safe:
         idx = int(np.argmin(np.where(safe, penalty, np.inf)))
+        if twists[idx, 0] <= 0.0 < pref[0] and escape:
+            idx = _escape_turn(
+                pose, radius + margin, twists, safe, penalty, d, disc_vel, static, tau, horizon, v_max, pref[0]
+            )
         return VOResult(twists[idx].copy(), True, n_safe, math.inf)
     # lexsort: last key is primary -> largest ttc, then slowest, then least penalty.
     idx = int(np.lexsort((penalty, np.abs(twists[:, 0]), -ttc))[0])
     return VOResult(twists[idx].copy(), False, 0, float(ttc[idx]))
+
+
+def _escape_turn(
+    pose: np.ndarray,
+    rad: float,
+    twists: np.ndarray,
+    safe: np.ndarray,
+    penalty: np.ndarray,
+    discs: np.ndarray,
+    disc_vel: np.ndarray,
+    static: StaticMap | None,
+    tau: float,
+    horizon: float,
+    v_max: float,
+    v_pref: float,
+) -> int:
+    """Blocked: the robot wants to move but only standing still is safe. Standing
+    still with the preferred turn rate is a fixed point (nothing changes, so the
+    next step is blocked again), so instead turn in place towards the most open
+    direction: among the safe ``v = 0`` candidates, pick the one whose heading
+    after ``tau`` allows the longest straight run at ``max(v_pref, v_max / 2)``
+    (probe: turn in place for ``tau``, then drive straight until ``horizon``);
+    ties (several fully open directions) go to the least penalty."""
+    stop = np.nonzero(safe & (twists[:, 0] <= 0.0))[0]
+    theta = float(pose[2])
+    hd = theta + twists[stop, 1] * tau
+    run = max(v_pref, 0.5 * v_max) * max(horizon - tau, 0.0)
+    times = np.array([0.0, tau, max(horizon, tau + 1e-9)])
+    pts = np.zeros((len(stop), 3, 2))
+    pts[:, 2, 0] = run * np.cos(hd)
+    pts[:, 2, 1] = run * np.sin(hd)
+    ttc = np.full(len(stop), np.inf)
+    if discs.shape[0]:
+        dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
+        ttc = trajectory_disc_ttc(times, pts, discs[:, :2] - pose[:2], discs[:, 2] + rad, dv).min(axis=1)
+    if static is not None:
+        np.minimum(ttc, trajectory_static_ttc(pose[:2], rad, times, pts, static), out=ttc)
+    best = np.lexsort((penalty[stop], -ttc))[0]
+    return int(stop[best])

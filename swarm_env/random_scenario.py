@@ -30,8 +30,8 @@ What a generated world looks like (units m, s):
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
 from typing import Any
 
@@ -229,13 +229,19 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
     n_hum = _draw_int(rng, cfg.n_humans)
     n_sw = _draw_int(rng, cfg.n_switches)
 
-    travel = _TRAVEL_FRACTION * cfg.max_time
-    formations = _draw_formations(rng, cfg, n, n_sw, travel)
+    formations = _draw_formations(rng, cfg, n_sw)
     offsets = [formation_offsets(f, n) for f in formations]
     extent = max(float(np.max(np.linalg.norm(o, axis=1))) for o in offsets) + r
 
     path, start_xy = _draw_path(rng, cfg, offsets[0], extent)
     line = PolylinePath(path)
+    # Switches are spread over the leader's actual travel time, one per stratum, so they
+    # are strictly increasing and at least ~0.4 * travel / (n_sw + 1) apart.
+    travel = line.length / cfg.leader_speed
+    for i in range(1, len(formations)):
+        at = round(travel * (i + float(rng.uniform(-0.3, 0.3))) / len(formations), 1)
+        at = max(at, round(formations[i - 1].at + cfg.dt, 6))  # very short travels: keep them increasing
+        formations[i] = dataclasses.replace(formations[i], at=at)
     leader_clear = (r + 0.5) if cfg.leader_kind == "robot" else 0.5
     # Discs present at t = 0 (followers, and the robot leader) with their radii.
     start_discs = [(p, r) for p in start_xy]
@@ -281,24 +287,20 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
 # --------------------------------------------------------------------------- drawing
 
 
-def _draw_formations(
-    rng: np.random.Generator, cfg: RandomScenarioConfig, n: int, n_sw: int, travel: float
-) -> list[FormationSpec]:
+def _draw_formations(rng: np.random.Generator, cfg: RandomScenarioConfig, n_sw: int) -> list[FormationSpec]:
+    """``1 + n_sw`` formations (switch times are set once the path is known); consecutive shapes differ."""
     spacing_min = 2.0 * cfg.radius + 0.1
     out: list[FormationSpec] = []
     prev = ""
-    for i in range(n_sw + 1):
+    for _ in range(n_sw + 1):
         choices = [s for s in cfg.shapes if s != prev] or list(cfg.shapes)
         shape = choices[int(rng.integers(len(choices)))]
         prev = shape
-        # Switches are spread over the leader's travel, one per stratum, so they are
-        # strictly increasing and at least ~0.4 * travel / (n_sw + 1) apart.
-        at = 0.0 if i == 0 else round(travel * (i + float(rng.uniform(-0.3, 0.3))) / (n_sw + 1), 1)
         spacing = round(max(spacing_min, float(rng.uniform(*cfg.spacing))), 2)
         angle = round(float(rng.uniform(*cfg.angle)), 1)
         if shape == "wedge" and angle == 90.0:  # a wedge's rows coincide at exactly 90 degrees
             angle = 89.0
-        out.append(FormationSpec(at=at, shape=shape, spacing=spacing, angle=angle))
+        out.append(FormationSpec(at=0.0, shape=shape, spacing=spacing, angle=angle))
     return out
 
 

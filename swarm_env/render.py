@@ -98,6 +98,11 @@ def _import_pygame() -> Any:
     return pygame
 
 
+def _circle(pg: Any) -> Any:
+    """pygame-ce >= 2.5's anti-aliased ``draw.aacircle``, else the plain ``draw.circle`` (same signature)."""
+    return getattr(pg.draw, "aacircle", pg.draw.circle)
+
+
 def _dashes(points: np.ndarray, dash: float, gap: float) -> list[np.ndarray]:
     """Split the polyline ``points`` (P, 2) into dashes of length ``dash`` separated by ``gap``.
 
@@ -330,9 +335,9 @@ class Renderer:
                 pg.draw.aalines(surf, OBSTACLE_EDGE, True, pts)
         circles = np.asarray(static.circles, dtype=np.float64).reshape(-1, 3)
         for (cx, cy), r in zip(self.world_to_pixels(circles[:, :2]).tolist(), (circles[:, 2] * s).tolist()):
-            pg.draw.aacircle(surf, OBSTACLE_FILL, (cx, cy), max(r, 1.0))
+            _circle(pg)(surf, OBSTACLE_FILL, (cx, cy), max(r, 1.0))
             if r >= 3:
-                pg.draw.aacircle(surf, OBSTACLE_EDGE, (cx, cy), r, 1)
+                _circle(pg)(surf, OBSTACLE_EDGE, (cx, cy), r, 1)
         # The leader's path: dashed, with a small ring on its end.
         path = np.asarray(state.scenario.leader.path, dtype=np.float64).reshape(-1, 2)
         if len(path) >= 2:
@@ -341,7 +346,7 @@ class Renderer:
             for dash in _dashes(pix, max(DASH_M * s, 3.0), max(GAP_M * s, 2.0)):
                 for a, b in zip(dash[:-1].tolist(), dash[1:].tolist()):
                     pg.draw.aaline(surf, PATH, a, b, width)
-            pg.draw.aacircle(surf, PATH, pix[-1].tolist(), max(3.0, 0.12 * s), 1)
+            _circle(pg)(surf, PATH, pix[-1].tolist(), max(3.0, 0.12 * s), 1)
         return surf
 
     def _draw_dynamic(self, pg: Any, surf: Any, state: WorldState) -> None:
@@ -370,8 +375,8 @@ class Renderer:
             slots = self.world_to_pixels(state.slot_targets).tolist()
             radii = np.maximum(np.asarray(state.follower_radius) * s, 2.0).tolist()
             for i in range(n):
-                pg.draw.aacircle(surf, _mix(colours[i], 0.25), slots[i], radii[i])
-                pg.draw.aacircle(surf, _mix(colours[i], 0.5), slots[i], radii[i], 1)
+                _circle(pg)(surf, _mix(colours[i], 0.25), slots[i], radii[i])
+                _circle(pg)(surf, _mix(colours[i], 0.5), slots[i], radii[i], 1)
 
         # Humans with velocity arrows.
         if len(state.human_pos):
@@ -379,8 +384,8 @@ class Renderer:
             tips = self.world_to_pixels(np.asarray(state.human_pos) + ARROW_SECONDS * np.asarray(state.human_vel))
             hr = np.maximum(np.asarray(state.human_radius) * s, 2.0)
             for (cx, cy), (tx, ty), r in zip(hp.tolist(), tips.tolist(), hr.tolist()):
-                pg.draw.aacircle(surf, HUMAN_FILL, (cx, cy), r)
-                pg.draw.aacircle(surf, HUMAN_EDGE, (cx, cy), r, 1)
+                _circle(pg)(surf, HUMAN_FILL, (cx, cy), r)
+                _circle(pg)(surf, HUMAN_EDGE, (cx, cy), r, 1)
                 self._arrow(pg, surf, HUMAN_ARROW, (cx, cy), (tx, ty))
 
         flashing = {i for i in range(n + 1) if self._flashing(i)} | self._contact_robots(state, n)
@@ -389,12 +394,12 @@ class Renderer:
         lp = self.world_to_pixels(state.leader_pose[:2]).tolist()
         if state.leader_radius > 0:
             lr = max(state.leader_radius * s, 3.0)
-            pg.draw.aacircle(surf, LEADER, lp, lr)
+            _circle(pg)(surf, LEADER, lp, lr)
             self._heading(pg, surf, lp, lr, float(state.leader_pose[2]))
             if n in flashing:
-                pg.draw.aacircle(surf, CONTACT, lp, lr + 3, 3)
+                _circle(pg)(surf, CONTACT, lp, lr + 3, 3)
         else:
-            pg.draw.aacircle(surf, LEADER, lp, max(0.12 * s, 4.0))
+            _circle(pg)(surf, LEADER, lp, max(0.12 * s, 4.0))
 
         # Followers: disc, darker rim, heading line.
         if n:
@@ -402,11 +407,11 @@ class Renderer:
             radii = np.maximum(np.asarray(state.follower_radius) * s, 2.0).tolist()
             thetas = np.asarray(state.follower_pose[:, 2]).tolist()
             for i in range(n):
-                pg.draw.aacircle(surf, colours[i], pos[i], radii[i])
-                pg.draw.aacircle(surf, _mix(colours[i], 0.6, (0, 0, 0)), pos[i], radii[i], 1)
+                _circle(pg)(surf, colours[i], pos[i], radii[i])
+                _circle(pg)(surf, _mix(colours[i], 0.6, (0, 0, 0)), pos[i], radii[i], 1)
                 self._heading(pg, surf, pos[i], radii[i], thetas[i])
                 if i in flashing:
-                    pg.draw.aacircle(surf, CONTACT, pos[i], radii[i] + 3, 3)
+                    _circle(pg)(surf, CONTACT, pos[i], radii[i] + 3, 3)
 
     def _flashing(self, row: int) -> bool:
         if self._last_contact is None or row >= len(self._last_contact):

@@ -94,6 +94,8 @@ from typing import Any
 import numpy as np
 import yaml
 
+from swarm_env.formation import formation_offsets
+from swarm_env.geometry import StaticMap, convex_ccw
 from swarm_env.scenario import (
     FORMATION_SHAPES,
     HUMAN_MODES,
@@ -191,7 +193,9 @@ def load_scenario(spec: str | os.PathLike[str] | Mapping[str, Any] | Scenario) -
         if builtin.is_file():
             path = builtin
         elif not path.is_file():
-            raise ScenarioError(text, "<file>", f"a built-in scenario name (one of {list_scenarios()}) or a path to a YAML file")
+            raise ScenarioError(
+                text, "<file>", f"a built-in scenario name (one of {list_scenarios()}) or a path to a YAML file"
+            )
     return _load_file(path)
 
 
@@ -446,7 +450,9 @@ def _parse_formations(src: str, value: Any, robots: RobotSpec) -> tuple[Formatio
         if not 0.0 < angle < 180.0:
             raise ScenarioError(src, f"{key}.angle", "an arm half-opening in degrees within (0, 180)", angle)
         if shape == "wedge" and angle == 90.0:
-            raise ScenarioError(src, f"{key}.angle", "a wedge half-opening other than 90 degrees (its rows would coincide)", angle)
+            raise ScenarioError(
+                src, f"{key}.angle", "a wedge half-opening other than 90 degrees (its rows would coincide)", angle
+            )
         columns = _integer(src, m.get("columns", FormationSpec.columns), f"{key}.columns", minimum=0)
         if columns and shape != "grid":
             raise ScenarioError(src, f"{key}.columns", f"no columns for shape {shape!r} (only 'grid' uses them)", columns)
@@ -573,8 +579,6 @@ def _cross_check(src: str, scn: Scenario) -> None:
 
 
 def _offsets(src: str, scn: Scenario, i: int) -> np.ndarray:
-    from swarm_env.formation import formation_offsets
-
     try:
         return np.asarray(formation_offsets(scn.formations[i], scn.robots.count), dtype=np.float64)
     except ValueError as exc:  # e.g. a wedge at exactly 90 degrees
@@ -620,8 +624,6 @@ def start_poses(scn: Scenario) -> np.ndarray:
     ``formations[0]`` around a leader standing on ``path[0]`` facing ``path[1]``
     (no obstacle projection), each follower facing the leader's heading.
     """
-    from swarm_env.formation import formation_offsets
-
     r = scn.robots
     if r.start != "formation":
         return np.asarray(r.start, dtype=np.float64).reshape(-1, 3)
@@ -636,8 +638,6 @@ def start_poses(scn: Scenario) -> np.ndarray:
 
 def _check_start(src: str, scn: Scenario) -> None:
     """Starting discs inside the world and clear of obstacles, each other, a robot leader and the humans."""
-    from swarm_env.geometry import StaticMap
-
     r = scn.robots.radius
     explicit = scn.robots.start != "formation"
     poses = start_poses(scn)
@@ -706,8 +706,6 @@ def _convex_ccw(src: str, points: Sequence[Point], key: str) -> tuple[Point, ...
     Collinear vertices are allowed; zero-area, non-convex and self-intersecting
     vertex orders are not.
     """
-    from swarm_env.geometry import convex_ccw
-
     try:
         out = convex_ccw(np.asarray(points, dtype=np.float64))
     except ValueError as exc:
@@ -735,7 +733,10 @@ def _inside(src: str, p: Point, margin: float, world: WorldSpec, key: str, what:
     if not (margin - 1e-9 <= p[0] <= w - margin + 1e-9 and margin - 1e-9 <= p[1] <= h - margin + 1e-9):
         extra = f" (a {what} of radius {margin:g} must fit)" if margin > 0 else ""
         raise ScenarioError(
-            src, key, f"a point inside the world [{margin:g}, {w - margin:g}] x [{margin:g}, {h - margin:g}]{extra}", list(p)
+            src,
+            key,
+            f"a point inside the world [{margin:g}, {w - margin:g}] x [{margin:g}, {h - margin:g}]{extra}",
+            list(p),
         )
 
 

@@ -42,9 +42,12 @@ def test_render(name: str) -> None:
 
 @pytest.mark.parametrize("name", SCENARIOS)
 def test_max_cycles(name: str) -> None:
+    # PettingZoo's test compares the median agent count with max_cycles, so the random generator gets
+    # a fixed team size here (its default draws 2-8 followers out of 8 possible agents).
+    knobs = {"n_followers": 8} if name == "random" else {}
     mod = types.SimpleNamespace(
-        parallel_env=lambda **kw: swarm_env.parallel_env(name, **kw),
-        env=lambda **kw: swarm_env.env(name, **kw),
+        parallel_env=lambda **kw: swarm_env.parallel_env(name, **knobs, **kw),
+        env=lambda **kw: swarm_env.env(name, **knobs, **kw),
     )
     max_cycles_test(mod)
 

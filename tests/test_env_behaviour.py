@@ -158,8 +158,9 @@ def test_discrete_primitive_turns_at_the_documented_rate() -> None:
     env = swarm_env.parallel_env("paper_vo_0", action_type="discrete")
     env.reset(seed=0)
     spec = env.unwrapped.scenario.robots
-    th0 = env.unwrapped.world_state().follower_pose[:, 2].copy()
     env.step({a: 8 for a in env.agents})  # +48 degrees primitive: turns at max_turn_rate
+    th0 = env.unwrapped.world_state().follower_pose[:, 2].copy()
+    env.step({a: 8 for a in env.agents})  # (the first step lags one physics substep)
     th1 = env.unwrapped.world_state().follower_pose[:, 2]
     assert np.allclose(th1 - th0, spec.max_turn_rate * env.unwrapped.scenario.world.dt, atol=1e-6)
 

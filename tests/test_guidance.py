@@ -303,8 +303,9 @@ def test_vo_select_infeasible_never_raises():
     assert res.twist[0] == 0.0  # nothing helps: at least do not drive into it
 
 
-def _run_vo_sim(starts, goals, humans, static, steps=300, dt=0.1, radius=0.25, human_r=0.3):
-    """Unicycle robots heading to goals with pure pursuit + vo_select; humans walk straight."""
+def _run_vo_sim(starts, goals, humans, static, steps=300, dt=0.1, radius=0.25, human_r=0.3, reciprocal=False, **kw):
+    """Unicycle robots heading to goals with pure pursuit + vo_select; humans walk straight.
+    Returns final poses and the smallest robot-robot and robot-human centre distances."""
     poses = np.array(starts, dtype=float)
     hpos = np.array([h[0] for h in humans], dtype=float).reshape(-1, 2)
     hvel = np.array([h[1] for h in humans], dtype=float).reshape(-1, 2)
@@ -321,7 +322,10 @@ def _run_vo_sim(starts, goals, humans, static, steps=300, dt=0.1, radius=0.25, h
                 np.column_stack([hpos, np.full(len(hpos), human_r)]),
             ])
             dvel = np.vstack([vel[others], hvel])
-            twists.append(vo_select(poses[i], radius, pref, discs, dvel, static, 0.65, 1.0).twist)
+            recip = np.r_[np.full(len(others), reciprocal), np.zeros(len(hpos), bool)]
+            res = vo_select(poses[i], radius, pref, discs, dvel, static, 0.65, 1.0,
+                            velocity=vel[i], reciprocal=recip, **kw)
+            twists.append(res.twist)
         new = np.array([unicycle_step(poses[i], twists[i], dt) for i in range(n)])
         vel = (new[:, :2] - poses[:, :2]) / dt
         poses = new

@@ -1,0 +1,100 @@
+"""The swarm-env command line: list, validate, run (JSON + video), bench."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import imageio.v2 as imageio
+import pytest
+
+from swarm_env.cli import main
+
+GOOD = """\
+world: {size: [10, 8], dt: 0.1, substeps: 4, max_time: 5.0}
+robots: {count: 2, radius: 0.25, max_speed: 0.65, max_turn_rate: 1.0}
+leader: {kind: virtual, path: [[2, 4], [8, 4]], speed: 0.4}
+formations:
+  - {at: 0.0, shape: v, spacing: 1.0, angle: 45}
+"""
+
+
+def test_list_shows_scenarios_and_policies(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["list"]) == 0
+    out = capsys.readouterr().out
+    for name in ("paper_vo_0", "paper_cbs_switch", "corridor", "random", "zero"):
+        assert name in out
+
+
+def test_console_script_is_installed() -> None:
+    exe = shutil.which("swarm-env")
+    assert exe, "the swarm-env console script is not on PATH (pip install -e .)"
+    out = subprocess.run([exe, "list"], capture_output=True, text=True, check=True).stdout
+    assert "paper_vo_45" in out
+
+
+def test_validate_good_and_bad_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    good = tmp_path / "good.yaml"
+    good.write_text(GOOD)
+    assert main(["validate", str(good)]) == 0
+    assert "ok: good" in capsys.readouterr().out
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(GOOD.replace("max_speed", "max_sped"))
+    assert main(["validate", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "bad.yaml" in err and "max_sped" in err
+
+
+def test_run_writes_json_and_video(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out_json, out_video = tmp_path / "out.json", tmp_path / "out.mp4"
+    code = main(["run", "--scenario", "paper_vo_0", "--policy", "random", "--episodes", "2", "--seed", "0",
+                 "--json", str(out_json), "--video", str(out_video)])
+    assert code == 0
+    printed = capsys.readouterr().out
+    assert "follower_1" in printed and "time to target" in printed  # the per-robot table
+    doc = json.loads(out_json.read_text())
+    assert doc["scenario"] == "paper_vo_0" and doc["policy"] == "random"
+    assert [e["seed"] for e in doc["episodes"]] == [0, 1]
+    assert doc["summary"]["episodes"] == 2
+    steps = sum(e["steps"] for e in doc["episodes"])
+    with imageio.get_reader(str(out_video)) as reader:
+        frames = sum(1 for _ in reader)  # (len() of an ffmpeg reader is inf)
+    assert frames == steps + 2  # one initial frame per episode
+
+
+def test_run_from_a_yaml_path_and_zero_policy(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    path = tmp_path / "mine.yaml"
+    path.write_text(GOOD)
+    assert main(["run", "--scenario", str(path), "--policy", "zero"]) == 0
+    assert "mine" in capsys.readouterr().out
+
+
+def test_run_rejects_unknown_policy_and_scenario(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", "--scenario", "paper_vo_0", "--policy", "no_such_policy"]) == 2
+    assert "registered policies" in capsys.readouterr().err
+    assert main(["run", "--scenario", "no_such_scenario"]) == 2
+    assert "no_such_scenario" in capsys.readouterr().err
+
+
+def test_bench_runs_and_reports(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    out = tmp_path / "bench.json"
+    assert main(["bench", "--scenario", "paper_vo_0", "--steps", "50", "--repeats", "2", "--quiet", "--json", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "env-steps/s" in printed
+    doc = json.loads(out.read_text())
+    assert len(doc[0]["env_steps_per_s"]) == 2 and all(x > 0 for x in doc[0]["env_steps_per_s"])
+
+
+def test_bench_against_mpe2_prints_a_ratio(capsys: pytest.CaptureFixture[str]) -> None:
+    pytest.importorskip("mpe2")
+    assert main(["bench", "--scenario", "paper_vo_0", "--steps", "30", "--repeats", "1", "--vs", "mpe2", "--quiet"]) == 0
+    assert "ratio" in capsys.readouterr().out
+
+
+def test_module_entry_point() -> None:
+    out = subprocess.run([sys.executable, "-m", "swarm_env.cli", "validate", "paper_vo_90"], capture_output=True,
+                         text=True)
+    assert out.returncode == 0 and "ok: paper_vo_90" in out.stdout

@@ -1,0 +1,116 @@
+"""Episode metrics (settling, per-robot table, JSON shape), the policy registry and the evaluation path."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import numpy as np
+import pytest
+
+import swarm_env
+from swarm_env.env import SwarmEnv
+from swarm_env.evaluation import evaluate, run_episode, summarize
+from swarm_env.guidance import pure_pursuit
+from swarm_env.policies import PredictPolicy, RandomPolicy, UnknownPolicyError, ZeroPolicy, load_policy, registered_policies
+from swarm_env.scenario_io import scenario_from_dict
+from swarm_env.state import WorldState
+
+
+class SlotTracker:
+    """A minimal test policy: pure pursuit straight at each slot (no avoidance)."""
+
+    def reset(self, env: SwarmEnv, seed: int | None) -> None:
+        self.limits = np.array([env.scenario.robots.max_speed, env.scenario.robots.max_turn_rate])
+
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
+        twist = pure_pursuit(state.follower_pose, state.slot_targets, self.limits[0], self.limits[1], 0.5)
+        return {a: (twist[i] / self.limits).astype(np.float32) for i, a in enumerate(state_agents(observations))}
+
+
+def state_agents(observations: dict[str, np.ndarray]) -> list[str]:
+    return sorted(observations, key=lambda a: int(a.split("_")[1]))
+
+
+def _open_switch_scenario() -> Any:
+    return scenario_from_dict(
+        {
+            "name": "open_switch",
+            "world": {"size": [30.0, 12.0], "dt": 0.1, "substeps": 4, "max_time": 60.0, "settle_tolerance": 0.3},
+            "robots": {"count": 3, "radius": 0.25, "max_speed": 0.65, "max_turn_rate": 1.0},
+            "leader": {"kind": "virtual", "path": [[5.0, 6.0], [17.0, 6.0]], "speed": 0.4},
+            "formations": [
+                {"at": 0.0, "shape": "column", "spacing": 1.0},
+                {"at": 10.0, "shape": "column", "spacing": 1.5},
+            ],
+        }
+    )
+
+
+def test_settle_time_and_success_with_a_tracking_policy() -> None:
+    env = SwarmEnv(_open_switch_scenario())
+    result = run_episode(env, SlotTracker(), seed=0)
+    assert result["collisions"]["total"] == 0
+    [settle] = result["settle_times"]
+    assert settle["at"] == 10.0 and settle["shape"] == "column"
+    assert settle["settle_time"] is not None and 0.5 < settle["settle_time"] < 15.0
+    assert result["success"] is True  # the leader arrived and the formation settled: terminated
+    assert result["steps"] < 600
+    leader = result["per_robot"][0]
+    assert leader["robot"] == "leader" and abs(leader["distance"] - 12.0) < 1e-6
+    assert abs(leader["time_to_target"] - 30.0) < 0.11
+    assert abs(leader["avg_linear_velocity"] - 12.0 / result["sim_time"]) < 0.02
+    assert len(result["per_robot"]) == 4
+    assert result["formation_error"]["max"] >= result["formation_error"]["mean"] > 0
+    json.dumps(result)  # JSON-ready
+
+
+def test_standing_still_never_settles_after_the_switch() -> None:
+    env = SwarmEnv(_open_switch_scenario(), max_cycles=200)
+    result = run_episode(env, ZeroPolicy(env), seed=0)
+    assert result["settle_times"] == [{"at": 10.0, "shape": "column", "settle_time": None}]
+    assert result["success"] is False
+    assert result["per_robot"][1]["distance"] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_registry_lists_builtin_policies_from_entry_points() -> None:
+    names = registered_policies()
+    assert names["random"] == "swarm_env.policies:RandomPolicy"
+    assert names["zero"] == "swarm_env.policies:ZeroPolicy"
+
+
+def test_load_policy_errors_and_wrapping() -> None:
+    env = swarm_env.parallel_env("paper_vo_0")
+    assert isinstance(load_policy("random", env), RandomPolicy)
+    with pytest.raises(UnknownPolicyError, match="registered policies: .*random"):
+        load_policy("nope", env)
+    with pytest.raises(ValueError, match="no argument"):
+        load_policy("zero:3", env)
+
+    class Model:  # anything with SB3's predict() can be scored
+        def predict(self, obs: np.ndarray, deterministic: bool = True) -> tuple[np.ndarray, None]:
+            return np.tile(np.array([0.5, 0.0], np.float32), (len(obs), 1)), None
+
+    short = swarm_env.parallel_env("paper_vo_0", max_cycles=30)  # before anyone reaches an obstacle
+    policy = load_policy(Model(), short)
+    assert isinstance(policy, PredictPolicy)
+    result = run_episode(short, policy, seed=0)
+    assert result["per_robot"][1]["avg_linear_velocity"] > 0.2
+
+
+def test_evaluate_aggregates_episodes_with_confidence_intervals() -> None:
+    report = evaluate("paper_vo_0", "random", episodes=3, seed=5, env_kwargs={"max_cycles": 40})
+    assert [e["seed"] for e in report["episodes"]] == [5, 6, 7]
+    s = report["summary"]
+    assert s["episodes"] == 3 and s["formation_error"]["n"] == 3 and s["formation_error"]["ci95"] >= 0
+    again = evaluate("paper_vo_0", "random", episodes=3, seed=5, env_kwargs={"max_cycles": 40})
+    strip = lambda r: [{k: v for k, v in e.items() if k not in ("wall_time", "policy_time")} for e in r["episodes"]]
+    assert strip(report) == strip(again)  # seeded policy + env: identical episodes
+
+
+def test_summarize_handles_missing_values() -> None:
+    ep = {"success": False, "collisions": {"total": 0}, "formation_error": {"mean": 1.0}, "settle_times": [],
+          "sim_time": 1.0, "min_separation": None}
+    s = summarize([ep])
+    assert s["settle_time"] == {"mean": None, "ci95": None, "n": 0}
+    assert s["formation_error"] == {"mean": 1.0, "ci95": 0.0, "n": 1}
