@@ -23,7 +23,8 @@ Policies are found by name in the Python entry-point group
 ``swarm_env.policies``. An entry point names a factory
 ``factory(env: SwarmEnv, arg: str | None) -> Policy``; the spec string
 ``"name:arg"`` (e.g. ``ppo:runs/best.zip``) passes ``arg`` to it. This package
-registers ``random`` and ``zero``; the experts (``vo``, ``cbs_rrt``) and RL
+registers ``random``, ``zero`` and ``pursuit`` (pure pursuit to the slot, no
+avoidance); the experts (``vo``, ``cbs_rrt``) and RL
 loaders register themselves from their own packages.
 """
 
@@ -34,6 +35,7 @@ from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 
 import numpy as np
 
+from swarm_env.guidance import pure_pursuit
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -88,6 +90,34 @@ class ZeroPolicy:
         return {a: np.zeros(2, dtype=np.float32) for a in observations}
 
 
+class PursuitPolicy:
+    """Pure pursuit straight at each follower's slot target, with no collision avoidance.
+
+    The paper-003 tracking law (:func:`swarm_env.guidance.pure_pursuit`) alone: a
+    reference point for what the experts' avoidance layers add. ``arg`` is the
+    time gap in seconds (default 0.5): the speed command is ``distance / gap``.
+    """
+
+    def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
+        try:
+            self.time_gap = 0.5 if arg is None else float(arg)
+        except ValueError:
+            raise ValueError(f"policy 'pursuit' takes a time gap in seconds, got {arg!r}") from None
+        if not self.time_gap > 0:
+            raise ValueError(f"policy 'pursuit' needs a positive time gap, got {arg!r}")
+
+    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+        if env.action_type == "discrete":
+            raise ValueError("policy 'pursuit' drives the continuous action space only")
+
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
+        robots = state.scenario.robots
+        limits = np.array([robots.max_speed, robots.max_turn_rate])
+        twist = pure_pursuit(state.follower_pose, state.slot_targets, limits[0], limits[1], self.time_gap)
+        action = (twist / limits).astype(np.float32)
+        return {a: action[int(a.rsplit("_", 1)[1])] for a in observations}
+
+
 class PredictPolicy:
     """Adapts an SB3-style model (``predict(obs_batch, deterministic=...)``) to :class:`Policy`."""
 
@@ -109,7 +139,7 @@ class PredictPolicy:
         return {a: actions[i] for i, a in enumerate(agents)}
 
 
-_BUILTIN: dict[str, Callable[..., Any]] = {"random": RandomPolicy, "zero": ZeroPolicy}
+_BUILTIN: dict[str, Callable[..., Any]] = {"random": RandomPolicy, "zero": ZeroPolicy, "pursuit": PursuitPolicy}
 
 
 def registered_policies() -> dict[str, str]:

@@ -77,6 +77,16 @@ def test_registry_lists_builtin_policies_from_entry_points() -> None:
     names = registered_policies()
     assert names["random"] == "swarm_env.policies:RandomPolicy"
     assert names["zero"] == "swarm_env.policies:ZeroPolicy"
+    assert names["pursuit"] == "swarm_env.policies:PursuitPolicy"
+
+
+def test_pursuit_policy_tracks_slots_in_open_space() -> None:
+    env = SwarmEnv(_open_switch_scenario())
+    policy = load_policy("pursuit:0.5", env)
+    result = run_episode(env, policy, seed=0)
+    assert result["success"] and result["formation_error"]["mean"] < 0.3
+    with pytest.raises(ValueError, match="time gap"):
+        load_policy("pursuit:fast", env)
 
 
 def test_load_policy_errors_and_wrapping() -> None:
