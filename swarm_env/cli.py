@@ -103,7 +103,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
 def cmd_run(args: argparse.Namespace) -> int:
     from swarm_env.evaluation import evaluate
 
-    env_kwargs: dict[str, Any] = {"action_type": args.action_type}
+    env_kwargs: dict[str, Any] = {"action_type": args.action_type, "max_cycles": args.max_cycles}
     if args.render == "human":
         env_kwargs["render_mode"] = "human"
     writer = None
@@ -186,6 +186,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--episodes", type=int, default=1)
     r.add_argument("--seed", type=int, default=0, help="seed of the first episode; episode k uses seed+k")
     r.add_argument("--action-type", choices=["continuous", "discrete"], default="continuous")
+    r.add_argument("--max-cycles", type=int, help="stop each episode after this many steps (default: max_time)")
     r.add_argument("--json", help="write {scenario, policy, episodes, summary} to this file")
     r.add_argument("--video", help="write an .mp4 (or .gif) of all episodes to this file")
     r.add_argument("--fps", type=float, default=20.0, help="video frames per second")
@@ -206,9 +207,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if getattr(args, "episodes", 1) < 1:
-        print("error: --episodes must be >= 1", file=sys.stderr)
-        return 2
+    for flag in ("episodes", "max_cycles", "steps", "repeats"):
+        value = getattr(args, flag, None)
+        if value is not None and value < 1:
+            print(f"error: --{flag.replace('_', '-')} must be >= 1, got {value}", file=sys.stderr)
+            return 2
     try:
         return int(args.func(args))
     except ScenarioError as exc:

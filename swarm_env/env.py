@@ -63,7 +63,7 @@ class SwarmEnv(ParallelEnv):
     ## Observation space
 
     One ``Box`` (float32) per agent, in the agent's own frame, of length
-    ``11 + 5 * neighbors + 5 * humans + lidar_rays`` (69 for the default
+    ``11 + 5 * neighbors + 5 * humans + lidar_rays`` (52 for the default
     sensors): own twist, vector to its slot, leader relative pose and
     velocity, time to the next formation switch, the ``neighbors`` nearest
     followers and ``humans`` nearest humans (relative position and velocity,
@@ -272,20 +272,21 @@ class SwarmEnv(ParallelEnv):
         dist = slot_distance(state)
         reward, terms = compute_rewards(state, state.scenario.reward, dist, self._prev_dist, norm, self._prev_action)
         self._prev_dist, self._prev_action = dist, norm
-        settled = bool(np.all(dist <= state.scenario.world.settle_tolerance))
+        settled = bool((dist <= state.scenario.world.settle_tolerance).all())
         terminated = bool(state.leader_done and settled)
         truncated = bool(not terminated and state.step >= self._max_steps)
-        self._metrics.update(state, time.perf_counter() - t0)
+        self._metrics.update(state, time.perf_counter() - t0, dist)
         self._metrics.terminated = terminated
 
         agents = self.agents
-        observations = {a: obs[i] for i, a in enumerate(agents)}
-        rewards = {a: float(reward[i]) for i, a in enumerate(agents)}
-        terminations = {a: terminated for a in agents}
-        truncations = {a: truncated for a in agents}
+        observations = dict(zip(agents, obs))  # row views of one fresh array
+        rewards = dict(zip(agents, reward.tolist()))  # Python floats
+        terminations = dict.fromkeys(agents, terminated)
+        truncations = dict.fromkeys(agents, truncated)
+        per_term = [terms[t].tolist() for t in REWARD_TERMS]
         infos = {
-            a: {"reward_terms": {t: float(terms[t][i]) for t in REWARD_TERMS}, "slot_distance": float(dist[i])}
-            for i, a in enumerate(agents)
+            a: {"reward_terms": dict(zip(REWARD_TERMS, vals)), "slot_distance": d}
+            for a, d, *vals in zip(agents, dist.tolist(), *per_term)
         }
         if terminated or truncated:
             self.agents = []
@@ -299,12 +300,23 @@ class SwarmEnv(ParallelEnv):
         """Validate the action dict and return (N, 2) normalised (v, omega) in [-1, 1]."""
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
-        unknown = set(actions) - set(self.agents)
-        if unknown:
-            raise ValueError(f"actions for agents not in env.agents: {sorted(unknown)}")
-        missing = [a for a in self.agents if a not in actions]
-        if missing:
-            raise ValueError(f"missing actions for agents {missing}")
+        agents = self.agents
+        if len(actions) != len(agents) or not all(a in actions for a in agents):
+            unknown = set(actions) - set(agents)
+            if unknown:
+                raise ValueError(f"actions for agents not in env.agents: {sorted(unknown)}")
+            missing = [a for a in agents if a not in actions]
+            if missing:
+                raise ValueError(f"missing actions for agents {missing}")
+        if self.action_type == "continuous":
+            # Common case first: one conversion of all actions; anything unusual (a bad shape
+            # or value) goes through the per-agent checks below for a precise message.
+            try:
+                out = np.array([actions[a] for a in agents], dtype=np.float64)
+            except (TypeError, ValueError):
+                out = None
+            if out is not None and out.shape == (self._n, 2) and np.isfinite(out).all():
+                return self._clip_actions(out)
         out = np.zeros((self._n, 2))
         if self.action_type == "discrete":
             for i, a in enumerate(self.agents):
@@ -329,9 +341,12 @@ class SwarmEnv(ParallelEnv):
             if not np.all(np.isfinite(arr)):
                 raise ValueError(f"{a}: action must be finite, got {arr.tolist()}")
             out[i] = arr
-        if np.any(np.abs(out) > 1.0):
+        return self._clip_actions(out)
+
+    def _clip_actions(self, out: np.ndarray) -> np.ndarray:
+        if np.abs(out).max(initial=0.0) > 1.0:
             if not self._warned_clip:
-                warnings.warn("actions outside [-1, 1] are clipped to the action space", stacklevel=3)
+                warnings.warn("actions outside [-1, 1] are clipped to the action space", stacklevel=4)
                 self._warned_clip = True
             np.clip(out, -1.0, 1.0, out=out)
         return out

@@ -239,7 +239,10 @@ def formation_offsets(spec: FormationSpec, n: int) -> np.ndarray:
     """
     if n < 0:
         raise ValueError(f"number of followers must be >= 0, got {n}")
-    return np.array(_offsets_cached(spec, int(n)))
+    try:
+        return np.array(_offsets_cached(spec, int(n)))
+    except TypeError:  # unhashable spec (e.g. offsets given as lists): compute uncached
+        return np.array(_offsets_cached.__wrapped__(spec, int(n)))
 
 
 def active_formation(formations: Sequence[FormationSpec], t: float) -> int:

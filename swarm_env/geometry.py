@@ -48,6 +48,17 @@ _CONVEX_TOL = 1e-9
 _CACHE_SIZE = 16
 # project_free() checks the feet of a point on the free set's boundary nearest-first, this many at a time.
 _FEET_CHUNK = 4
+# project_free()'s fast path (see StaticMap._project_fast): a point farther than this beyond
+# ``clearance`` from an obstacle's bounding disc (or from the walls) is certainly free of it,
+# and the certificate that no other obstacle can hold a nearer candidate keeps this margin.
+# Both only need to dominate rounding (coordinates O(100) m, errors O(1e-13) m).
+_SCREEN_MARGIN = 1e-7
+# project_free() screens points one by one in Python when at most this many are suspect
+# (the usual handful of formation slots); larger batches go straight to the vectorised search.
+_FAST_MAX_POINTS = 32
+# project_free() remembers this many recent small queries (formation slots) by their exact
+# bits: a fixed scenario with a virtual leader replays the same slot targets every episode.
+_MEMO_SIZE = 2048
 # Elements per (edges, points) temporary in distance(): 12288 float64 = 96 KiB, under glibc's
 # default 128 KiB mmap threshold.
 _BLOCK_ELEMS = 12288
@@ -157,7 +168,8 @@ class StaticMap:
     ``(P,)`` real vertex counts, ``obstacle_count`` the number of scenario obstacles.
 
     Instances are immutable and safe to share between environments; the only
-    mutable state is a small per-clearance cache of :meth:`project_free`.
+    mutable state is caches of :meth:`project_free` (its primitives per clearance, and
+    its results for recent small queries, which are not pickled).
     """
 
     size: tuple[float, float]
@@ -176,6 +188,11 @@ class StaticMap:
     _ray_w: np.ndarray = field(init=False, repr=False)
     _proj_cache: dict = field(init=False, repr=False)
     _chunk: int = field(init=False, repr=False)
+    _bound: np.ndarray = field(init=False, repr=False)
+    _bound_cols: tuple = field(init=False, repr=False)
+    _reach2: dict = field(init=False, repr=False)
+    _memo: dict = field(init=False, repr=False)
+    _owner_sd_data: tuple = field(init=False, repr=False)
 
     # -- construction --------------------------------------------------------------------------
 
@@ -244,6 +261,36 @@ class StaticMap:
         # 96 KiB: measured ~3x faster per point than one big block (large temporaries are
         # fresh mmap'd pages from the allocator on every call).
         put(self, "_chunk", max(32, _BLOCK_ELEMS // max(len(flat["nx"]) if P else 0, len(circles), 1)))
+
+        # project_free()'s fast path works per "owner": obstacle k (circles first, then
+        # polygons, the order of circles/polygons) and, last, the walls. A bounding disc per
+        # obstacle screens points cheaply; the exact signed distance of one point to one
+        # owner is then evaluated with Python floats by the very arithmetic of distance()
+        # (same operations in the same order, so the same bits).
+        bound = [(float(x), float(y), float(r)) for x, y, r in circles]
+        for p in polys:
+            centre = p.mean(axis=0)
+            bound.append((float(centre[0]), float(centre[1]), float(np.sqrt(((p - centre) ** 2).sum(axis=1)).max())))
+        put(self, "_bound", _frozen(np.array(bound, dtype=np.float64).reshape(-1, 3)))
+        put(self, "_bound_cols", tuple(_frozen(self._bound[:, k:k + 1].copy()) for k in range(3)))  # (B, 1) each
+        put(self, "_reach2", {})  # clearance -> (B, 1) squared screening radii
+        put(self, "_memo", {})  # (clearance, point bytes) -> project_free() result, see _MEMO_SIZE
+        poly_edges = []
+        for i, p in enumerate(polys):
+            rows = []
+            for m in range(len(p)):
+                rows.append(tuple(float(v) for v in (verts[i, m, 0], verts[i, m, 1], edges[i, m, 0], edges[i, m, 1],
+                                                     inv_ee[i, m], normals[i, m, 0], normals[i, m, 1])))
+            poly_edges.append(tuple(rows))
+        put(self, "_owner_sd_data", (tuple(tuple(float(v) for v in row) for row in circles), tuple(poly_edges)))
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["_memo"] = {}  # a cache: not worth pickling
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
 
     @classmethod
     def from_obstacles(cls, size: tuple[float, float], obstacles: Sequence[Obstacle]) -> "StaticMap":
@@ -348,6 +395,53 @@ class StaticMap:
         if len(self.polygons):
             np.minimum(d, self._polygon_sd(pts).min(axis=0), out=d)
         return d
+
+    def min_distance(
+        self,
+        points: np.ndarray,
+        minus: np.ndarray | float = 0.0,
+        upper: float = math.inf,
+        lower: np.ndarray | None = None,
+    ) -> float:
+        """``min(upper, min_i(distance(points[i]) - minus[i]))`` as a float: the same number as
+        that expression (walls included), computed faster when ``upper`` is finite.
+
+        ``points`` ``(N, 2)``, ``minus`` ``(N,)`` or a scalar (e.g. robot radii). For a running
+        minimum over many steps: a point whose lower bound (``lower``, default
+        :meth:`distance_lower_bound`) minus ``minus[i]`` is not below ``upper`` cannot change
+        the result, so its exact clearance is never computed.
+        """
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        sub = np.asarray(minus, dtype=np.float64)
+        if sub.shape != (len(pts),):
+            sub = np.broadcast_to(sub, (len(pts),))
+        if not len(pts):
+            return float(upper)
+        if math.isfinite(upper) and len(pts) <= _FAST_MAX_POINTS:
+            lb = self.distance_lower_bound(pts) if lower is None else lower
+            cand = np.flatnonzero(lb - sub < upper + _SCREEN_MARGIN)
+            if len(cand) < len(pts):
+                pts, sub = pts[cand], sub[cand]
+            if not len(pts):
+                return float(upper)
+        return min(float(upper), float((self.distance(pts) - sub).min()))
+
+    def distance_lower_bound(self, points: np.ndarray) -> np.ndarray:
+        """``(N, 2) -> (N,)``: a cheap lower bound of :meth:`distance` (walls included): the
+        clearance to each obstacle's bounding disc, so exact where a circle obstacle or a
+        wall is nearest. Meant for skipping exact clearances that cannot matter."""
+        pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
+        W, H = self.size
+        x, y = pts[:, 0], pts[:, 1]
+        lb = np.minimum(np.minimum(x, W - x), np.minimum(y, H - y))  # wall clearance inside the world
+        if lb.min() < 0.0:  # outside the world the clearance is lower still
+            lb = np.where(lb >= 0.0, lb, -np.inf)
+        bd = self._bound
+        if len(bd):
+            dx = x - bd[:, 0, None]
+            dy = y - bd[:, 1, None]
+            np.minimum(lb, (np.sqrt(dx * dx + dy * dy) - bd[:, 2, None]).min(axis=0), out=lb)
+        return lb
 
     def is_free(self, points: np.ndarray, clearance: float = 0.0) -> np.ndarray:
         """``(..., 2) -> (...)`` bool: the point's :meth:`distance` (walls included) is ``>= clearance``."""
@@ -503,6 +597,11 @@ class StaticMap:
         (ties: the first candidate, so results are deterministic). If no free point
         exists (free space empty at this clearance) the candidate with the largest
         clearance is returned.
+
+        A handful of points (formation slots) first go through :meth:`_project_fast`,
+        which settles most of them with the same result at a fraction of the cost, and the
+        results of the last ``_MEMO_SIZE`` such queries are remembered by their exact bits
+        (a fixed scenario with a virtual leader asks the same questions every episode).
         """
         pts = np.asarray(points, dtype=np.float64)
         c = float(clearance)
@@ -510,13 +609,184 @@ class StaticMap:
             raise ValueError(f"clearance must be a finite number >= 0, got {clearance!r}")
         shape = pts.shape
         pts = pts.reshape(-1, 2)
-        if not np.all(np.isfinite(pts)):
+        if not np.isfinite(pts).all():
             raise ValueError("project_free: points must be finite")
-        out = pts.copy()
-        bad = ~(self.distance(pts) >= c)
-        if not np.any(bad):
-            return out.reshape(shape)
-        q = pts[bad]
+        if len(pts) > _FAST_MAX_POINTS:
+            out = pts.copy()
+            bad = np.flatnonzero(~(self.distance(pts) >= c))
+        else:
+            key = (c, pts.tobytes())
+            hit = self._memo.get(key)
+            if hit is not None:
+                return hit.copy().reshape(shape)
+            out = pts.copy()
+            bad = self._project_fast(pts, c, out)
+        if len(bad):
+            out[bad] = self._project_exact(pts[bad], c)
+        if len(pts) <= _FAST_MAX_POINTS and _MEMO_SIZE:
+            while len(self._memo) >= _MEMO_SIZE:
+                self._memo.pop(next(iter(self._memo)))  # oldest first
+            self._memo[key] = out.copy()
+        return out.reshape(shape)
+
+    def _project_fast(self, pts: np.ndarray, c: float, out: np.ndarray) -> np.ndarray:
+        """project_free() for a few points, writing into ``out`` the points it settles.
+
+        Returns the indices of the points left to the exact search (:meth:`_project_exact`).
+        Every point it settles gets bit for bit what the exact search would give it:
+
+        * A point farther than ``c`` (plus a margin) from every obstacle's bounding disc and
+          from the walls is free. For the others the exact clearance to the obstacles
+          whose disc is near is computed (the others cannot bring it below ``c``).
+        * A point that violates exactly one owner ``O`` (an obstacle, or the walls) is
+          tested against ``O``'s primitives only, nearest foot first, as the exact search
+          does: ``f*`` is the first foot with ``d_O(f*) >= c``, at distance ``rho``. Every
+          candidate of another owner ``O2`` (a foot on its inflated boundary or a corner
+          on it) has ``d_O2 <= c + eps`` and so lies at least ``d_O2(q) - c - eps`` from the
+          point (``d_O2`` is 1-Lipschitz). If that exceeds ``rho`` for every other owner
+          (a certificate checked with the exact or bounding-disc clearance), the exact
+          search sees the same candidates up to ``f*`` and picks ``f*``: the only corners
+          left to compare are the end points of ``O``'s own segments.
+        * Anything else (two owners violated, a certificate that fails) is left to the
+          exact search.
+        """
+        W, H = self.size
+        x, y = pts[:, 0], pts[:, 1]
+        reach = c + _SCREEN_MARGIN
+        wall_in = np.minimum(np.minimum(x, W - x), np.minimum(y, H - y))  # wall clearance inside the world
+        sus = wall_in < reach
+        bd = self._bound
+        walls = len(bd)  # owner index of the walls
+        if walls:
+            bx, by, brad = self._bound_cols
+            dx = x - bx
+            dy = y - by
+            d2 = dx * dx + dy * dy  # (B, N)
+            reach2 = self._reach2.get(c)
+            if reach2 is None:
+                if len(self._reach2) >= _CACHE_SIZE:
+                    self._reach2.clear()
+                r = brad + reach
+                reach2 = self._reach2[c] = r * r
+            near = d2 < reach2
+            sus |= near.any(axis=0)
+        idx = np.flatnonzero(sus)
+        if not len(idx):
+            return idx
+        circ_sd, poly_sd = self._owner_sd_data
+        k_circ = len(circ_sd)
+        slow = []
+        prim = None
+        cp = c + _PUSH_EPS
+        if walls:
+            near_rows = near[:, idx].T.tolist()
+            lbs = (np.sqrt(d2[:, idx]) - brad).T.tolist()  # bounding-disc lower bounds of the clearances
+        else:
+            near_rows = lbs = [[]] * len(idx)
+        for i, (qx, qy), w_in, near_row, lb in zip(idx.tolist(), pts[idx].tolist(), wall_in[idx].tolist(), near_rows, lbs):
+            near_i = [o for o, hit in enumerate(near_row) if hit]
+            if w_in < reach:
+                near_i.append(walls)
+            sd = {o: self._owner_sd(o, qx, qy, k_circ, circ_sd, poly_sd) for o in near_i}
+            viol = [o for o in near_i if not sd[o] >= c]
+            if not viol:
+                continue  # free: unchanged
+            if len(viol) > 1:
+                slow.append(i)
+                continue
+            o = viol[0]
+            if prim is None:
+                prim = self._primitives(c)
+            found = self._owner_nearest_free(o, qx, qy, c, prim, k_circ, circ_sd, poly_sd)
+            if found is None:
+                slow.append(i)
+                continue
+            fd2, fx, fy = found
+            # Certificate: every other owner is farther than rho (+ eps + margin) beyond c.
+            limit = cp + math.sqrt(fd2) + _SCREEN_MARGIN
+            ok = True
+            if o != walls and not (sd[walls] if walls in sd else w_in) > limit:
+                ok = False
+            if ok:
+                for o2 in range(walls):
+                    if o2 != o and not ((sd[o2] if o2 in sd else lb[o2]) > limit):
+                        ok = False
+                        break
+            # The end points of o's own segments are the only corners left that could win.
+            if ok:
+                for ex, ey in prim["owner_ends"][o]:
+                    ddx, ddy = qx - ex, qy - ey
+                    if not ddx * ddx + ddy * ddy > fd2:
+                        ok = False
+                        break
+            if ok:
+                out[i, 0], out[i, 1] = fx, fy
+            else:
+                slow.append(i)
+        return np.array(slow, dtype=np.intp)
+
+    def _owner_sd(self, o: int, x: float, y: float, k_circ: int, circ_sd: tuple, poly_sd: tuple) -> float:
+        """Signed clearance of the point ``(x, y)`` to owner ``o`` alone (see
+        :meth:`_project_fast`), computed exactly as :meth:`distance` computes that term."""
+        if o < k_circ:
+            cx, cy, r = circ_sd[o]
+            dx, dy = x - cx, y - cy
+            return math.sqrt(dx * dx + dy * dy) - r
+        if o < k_circ + len(poly_sd):
+            hmax = -math.inf
+            d2min = math.inf
+            for ax, ay, ex, ey, inv, nx, ny in poly_sd[o - k_circ]:
+                wx, wy = x - ax, y - ay
+                t = (wx * ex + wy * ey) * inv
+                t = min(max(t, 0.0), 1.0)
+                qx, qy = wx - t * ex, wy - t * ey
+                d2 = qx * qx + qy * qy
+                h = wx * nx + wy * ny
+                if h > hmax:
+                    hmax = h
+                if d2 < d2min:
+                    d2min = d2
+            return math.sqrt(d2min) if hmax > 0.0 else hmax
+        W, H = self.size
+        inside = min(min(x, W - x), min(y, H - y))
+        if inside >= 0.0:
+            return inside
+        ox = max(max(-x, x - W), 0.0)
+        oy = max(max(-y, y - H), 0.0)
+        return -math.sqrt(ox * ox + oy * oy)
+
+    def _owner_nearest_free(
+        self, o: int, qx: float, qy: float, c: float, prim: dict, k_circ: int, circ_sd: tuple, poly_sd: tuple
+    ) -> tuple[float, float, float] | None:
+        """The exact search restricted to owner ``o``'s primitives: its feet, nearest first
+        (ties in primitive order), and the first with ``d_o >= c`` as ``(d2, x, y)``; the
+        arithmetic is :meth:`_feet`'s. ``None`` if no foot is free of ``o``."""
+        feet = []
+        for key, cx, cy, rad in prim["owner_circles"][o]:
+            dx, dy = qx - cx, qy - cy
+            r = math.sqrt(dx * dx + dy * dy)
+            if r > 0.0:
+                ux, uy = dx / r, dy / r
+            else:  # a point on a centre goes +x, as in _feet
+                ux, uy = 1.0, 0.0
+            fx, fy = cx + rad * ux, cy + rad * uy
+            ddx, ddy = fx - qx, fy - qy
+            feet.append((ddx * ddx + ddy * ddy, key, fx, fy))
+        for key, ax, ay, ex, ey, inv in prim["owner_segments"][o]:
+            t = ((qx - ax) * ex + (qy - ay) * ey) * inv
+            t = min(max(t, 0.0), 1.0)
+            fx, fy = ax + t * ex, ay + t * ey
+            ddx, ddy = fx - qx, fy - qy
+            feet.append((ddx * ddx + ddy * ddy, key, fx, fy))
+        feet.sort()
+        for fd2, _, fx, fy in feet:
+            if self._owner_sd(o, fx, fy, k_circ, circ_sd, poly_sd) >= c:
+                return fd2, fx, fy
+        return None
+
+    def _project_exact(self, q: np.ndarray, c: float) -> np.ndarray:
+        """The nearest free points of the ``(V, 2)`` points ``q``, all known not free (see
+        :meth:`project_free`): the vectorised search over every candidate."""
         prim = self._primitives(c)
         feet = self._feet(q, prim)  # (V, F, 2)
         v, nf = feet.shape[:2]
@@ -556,8 +826,7 @@ class StaticMap:
         if np.any(none):  # empty free space: best effort, the most clearance among the feet
             fd = self.distance(feet[none])
             best[none] = feet[none][np.arange(int(none.sum())), np.argmax(fd, axis=1)]
-        out[bad] = best
-        return out.reshape(shape)
+        return best
 
     def _primitives(self, c: float) -> dict:
         """Boundary primitives of the free set at clearance ``c`` (+ _PUSH_EPS) and its free
@@ -591,6 +860,27 @@ class StaticMap:
         if len(corners):
             corners = corners[self.distance(corners) >= c]
         prim = {"circles": circ_a, "segments": seg_a, "corners": _frozen(corners.reshape(-1, 2))}
+        # Per owner of _project_fast (circle obstacles, polygons, then the walls): its
+        # primitives as Python floats, keyed by their index among _feet's feet, and the end
+        # points of its segments.
+        k, p_count = len(self.circles), len(self.polygons)
+        owner_c: list[list] = [[] for _ in range(k + p_count + 1)]
+        owner_s: list[list] = [[] for _ in range(k + p_count + 1)]
+        owner_e: list[list] = [[] for _ in range(k + p_count + 1)]
+        c_owner = list(range(k)) + [k + i for i, poly in enumerate(self.polygons) for _ in range(len(poly))]
+        s_owner = [k + i for i, poly in enumerate(self.polygons) for _ in range(len(poly))] + [k + p_count] * 4
+        for j, (row, o) in enumerate(zip(circ_a.tolist(), c_owner)):
+            owner_c[o].append((j, row[0], row[1], row[2]))
+        nc = len(circ_a)
+        for j, (row, o) in enumerate(zip(seg_a.tolist(), s_owner)):
+            ax, ay, bx, by = row
+            ex, ey = bx - ax, by - ay
+            ee = ex * ex + ey * ey
+            owner_s[o].append((nc + j, ax, ay, ex, ey, 1.0 / ee if ee > 0.0 else 0.0))
+            owner_e[o] += [(ax, ay), (bx, by)]
+        prim["owner_circles"] = tuple(tuple(v) for v in owner_c)
+        prim["owner_segments"] = tuple(tuple(v) for v in owner_s)
+        prim["owner_ends"] = tuple(tuple(v) for v in owner_e)
         if len(self._proj_cache) >= _CACHE_SIZE:
             self._proj_cache.pop(next(iter(self._proj_cache)))
         self._proj_cache[c] = prim

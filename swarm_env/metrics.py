@@ -36,11 +36,22 @@ from swarm_env.rewards import slot_distance
 from swarm_env.state import CONTACT_KINDS, LEADER_ID, WorldState
 
 
+# Slack (m) per step of the carried clearance bounds: covers rounding, far below any clearance that matters.
+_LIPSCHITZ_SLACK = 1e-9
+
+
+def _norm(v: np.ndarray, axis: int) -> np.ndarray:
+    """``np.linalg.norm(v, axis=axis)`` for real ``v``: the same arithmetic, without its Python overhead."""
+    return np.sqrt(np.add.reduce(v * v, axis=axis))
+
+
 class EpisodeMetrics:
     """Accumulates one episode's metrics; call :meth:`start` then :meth:`update` each step."""
 
     def __init__(self) -> None:
         self._started = False
+        self._pairs: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        self._static_lb: np.ndarray | None = None  # per follower: a lower bound of its static clearance
 
     def start(self, state: WorldState) -> None:
         n = state.n_followers
@@ -53,8 +64,7 @@ class EpisodeMetrics:
         self.robot_collisions = np.zeros(n + 1, dtype=int)  # last entry: the leader
         self.err_sum = np.zeros(n)
         self.err_max = 0.0
-        self.v_sum = np.zeros(n + 1)
-        self.w_sum = np.zeros(n + 1)
+        self.twist_sum = np.zeros((n + 1, 2))  # summed (v, omega) per robot, the leader last
         self.dist = np.zeros(n + 1)
         self.prev_pos = self._positions(state)
         self.min_sep = math.inf
@@ -63,15 +73,31 @@ class EpisodeMetrics:
         self.settle: list[dict[str, Any]] = []
         self._pending: dict[str, Any] | None = None
         self.terminated = False
+        self._static_lb = None
         self._started = True
         self._observe_proximity(state)
 
+    @property
+    def v_sum(self) -> np.ndarray:
+        return self.twist_sum[:, 0]
+
+    @property
+    def w_sum(self) -> np.ndarray:
+        return self.twist_sum[:, 1]
+
     @staticmethod
     def _positions(state: WorldState) -> np.ndarray:
-        return np.vstack([state.follower_pose[:, :2], state.leader_pose[None, :2]])
+        n = len(state.follower_pose)
+        pos = np.empty((n + 1, 2))
+        pos[:n] = state.follower_pose[:, :2]
+        pos[n] = state.leader_pose[:2]
+        return pos
 
-    def update(self, state: WorldState, wall_time: float = 0.0) -> None:
-        """Account for the step that produced ``state``."""
+    def update(self, state: WorldState, wall_time: float = 0.0, slot_dist: np.ndarray | None = None) -> None:
+        """Account for the step that produced ``state``.
+
+        ``slot_dist``: ``rewards.slot_distance(state)`` if the caller has it already.
+        """
         if not self._started:
             raise RuntimeError("EpisodeMetrics.update() called before start()")
         self.steps += 1
@@ -82,38 +108,59 @@ class EpisodeMetrics:
             self.robot_collisions[c.robot if c.robot != LEADER_ID else self.n] += 1
             if c.kind == "robot_robot":
                 self.robot_collisions[c.other if c.other != LEADER_ID else self.n] += 1
-        err = slot_distance(state)
+        err = slot_distance(state) if slot_dist is None else slot_dist
         self.err_sum += err
         self.err_max = max(self.err_max, float(err.max(initial=0.0)))
-        self.v_sum[: self.n] += state.follower_twist[:, 0]
-        self.w_sum[: self.n] += state.follower_twist[:, 1]
-        self.v_sum[self.n] += state.leader_twist[0]
-        self.w_sum[self.n] += state.leader_twist[1]
+        twist_sum = self.twist_sum
+        twist_sum[: self.n] += state.follower_twist
+        twist_sum[self.n] += state.leader_twist
         pos = self._positions(state)
-        self.dist += np.linalg.norm(pos - self.prev_pos, axis=1)
+        moved = _norm(pos - self.prev_pos, 1)
+        self.dist += moved
         self.prev_pos = pos
         if state.leader_done and self.leader_arrival is None:
             self.leader_arrival = state.time
-        self._observe_proximity(state)
+        self._observe_proximity(state, moved[: self.n])
         self._observe_settling(state, err)
 
-    def _observe_proximity(self, state: WorldState) -> None:
+    def _observe_proximity(self, state: WorldState, moved: np.ndarray | None = None) -> None:
+        """Lower ``min_sep`` / ``min_clear``; ``moved``: each follower's displacement since the last call."""
         pos = state.follower_pose[:, :2]
         r = state.follower_radius
-        robots = [np.column_stack([pos, r])]
         if state.leader_is_robot:
-            robots.append(np.array([[*state.leader_pose[:2], state.leader_radius]]))
-        allr = np.vstack(robots)
-        if len(allr) > 1:
-            d = np.linalg.norm(allr[:, None, :2] - allr[None, :, :2], axis=2) - allr[:, None, 2] - allr[None, :, 2]
-            iu = np.triu_indices(len(allr), 1)
+            all_pos = np.vstack([pos, state.leader_pose[None, :2]])
+            all_r = np.append(r, state.leader_radius)
+        else:
+            all_pos, all_r = pos, r
+        m = len(all_pos)
+        if m > 1:
+            centres = _norm(all_pos[:, None, :] - all_pos[None, :, :], 2) if m > len(pos) else state.follower_distances()
+            d = centres - all_r[:, None] - all_r[None, :]
+            iu = self._pairs.get(m)
+            if iu is None:
+                iu = self._pairs[m] = np.triu_indices(m, 1)
             self.min_sep = min(self.min_sep, float(d[iu].min()))
-        clear = state.static.distance(pos) - r
-        if len(state.human_pos):
-            dh = np.linalg.norm(pos[:, None, :] - state.human_pos[None, :, :], axis=2) - r[:, None] - state.human_radius
-            clear = np.minimum(clear, dh.min(axis=1))
-        if len(clear):
-            self.min_clear = min(self.min_clear, float(clear.min()))
+        if len(pos):
+            # Only the running minimum is kept, so the static clearance is computed exactly
+            # just for the followers that could lower it (same result as min(distance - r)).
+            # A lower bound of each follower's clearance carries over from the last step
+            # (the clearance is 1-Lipschitz: it drops by at most the distance moved); while
+            # no follower can go below the minimum, nothing at all is computed.
+            lb = self._static_lb
+            if lb is not None and moved is not None and len(lb) == len(pos):
+                lb = lb - moved - _LIPSCHITZ_SLACK
+                if (lb - r).min() >= self.min_clear + _LIPSCHITZ_SLACK:
+                    self._static_lb = lb
+                    lb = None
+                else:
+                    lb = self._static_lb = state.static.distance_lower_bound(pos)
+            else:
+                lb = self._static_lb = state.static.distance_lower_bound(pos)
+            if lb is not None:
+                self.min_clear = state.static.min_distance(pos, r, self.min_clear, lower=lb)
+        if len(state.human_pos) and len(pos):
+            dh = _norm(pos[:, None, :] - state.human_pos[None, :, :], 2) - r[:, None] - state.human_radius
+            self.min_clear = min(self.min_clear, float(dh.min()))
 
     def _observe_settling(self, state: WorldState, err: np.ndarray) -> None:
         formations = state.scenario.formations

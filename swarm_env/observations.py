@@ -79,6 +79,11 @@ class Capacity:
     speed_limit: float  # m/s, bound on any body's speed used for clipping velocities
 
 
+def _norm(v: np.ndarray, axis: int) -> np.ndarray:
+    """``np.linalg.norm(v, axis=axis)`` for real ``v``: the same arithmetic, without its Python overhead."""
+    return np.sqrt(np.add.reduce(v * v, axis=axis))
+
+
 class ObservationBuilder:
     """Builds every follower's observation (and the global state) in one vectorised pass."""
 
@@ -93,6 +98,8 @@ class ObservationBuilder:
         self.low, self.high = self._bounds()
         k = sensors.lidar_rays
         self._ray_angles = 2.0 * np.pi * np.arange(k) / k
+        self._columns: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self._ray_owner: dict[int, np.ndarray] = {}
         # Global state: per follower (x, y, cos, sin, v, omega, slot x, slot y, present),
         # leader (x, y, cos, sin, vx, vy), per human (x, y, vx, vy, present), time, next switch.
         self.state_size = 9 * capacity.max_followers + 6 + 5 * capacity.max_humans + 2
@@ -126,77 +133,112 @@ class ObservationBuilder:
         """(N, size) float32 observations of the N followers of ``state``."""
         scn = state.scenario
         n = state.n_followers
-        pos = state.follower_pose[:, :2]
-        th = state.follower_pose[:, 2]
+        pose = state.follower_pose
+        pos = pose[:, :2]
+        th = pose[:, 2]
         c, s = np.cos(th), np.sin(th)
         out = np.zeros((n, self.size), dtype=np.float64)
-
-        out[:, 0] = state.follower_twist[:, 0] / scn.robots.max_speed
-        out[:, 1] = state.follower_twist[:, 1] / scn.robots.max_turn_rate
-        out[:, OBS_SLOT] = _to_body(state.slot_targets - pos, c, s)
-        out[:, 4:6] = _to_body(state.leader_pose[None, :2] - pos, c, s)
+        np.divide(state.follower_twist, (scn.robots.max_speed, scn.robots.max_turn_rate), out=out[:, OBS_OWN_TWIST])
         rel_heading = state.leader_pose[2] - th
-        out[:, 6] = np.cos(rel_heading)
-        out[:, 7] = np.sin(rel_heading)
-        out[:, 8:10] = _to_body(np.broadcast_to(state.leader_vel, (n, 2)), c, s)
+        np.cos(rel_heading, out=out[:, 6])
+        np.sin(rel_heading, out=out[:, 7])
         out[:, 10] = min(state.next_switch_time - state.time, self.capacity.max_time)
 
+        # Every world-frame vector of the observation goes through one rotation into the body
+        # frames: slot, leader position, leader velocity, then per neighbour / human the
+        # relative position and velocity (see _vector_columns for where each lands).
+        k = self.sensors.neighbors if n > 1 else 0
+        hk = self.sensors.humans if len(state.human_pos) else 0
+        vec = np.zeros((n, 3 + 2 * k + 2 * hk, 2))
+        np.subtract(state.slot_targets, pos, out=vec[:, 0])
+        np.subtract(state.leader_pose[:2], pos, out=vec[:, 1])
+        vec[:, 2] = state.leader_vel
         vel = state.follower_vel
-        k = self.sensors.neighbors
-        if k and n > 1:
-            d = np.linalg.norm(pos[None, :, :] - pos[:, None, :], axis=2)
+        present = []
+        if k:
+            d = state.follower_distances().copy()
             np.fill_diagonal(d, np.inf)
-            self._nearest(out[:, self.layout["neighbors"]], d, pos, vel, pos, vel, c, s, k)
-        h = self.sensors.humans
-        if h and len(state.human_pos):
-            d = np.linalg.norm(state.human_pos[None, :, :] - pos[:, None, :], axis=2)
-            self._nearest(out[:, self.layout["humans"]], d, state.human_pos, state.human_vel, pos, vel, c, s, h)
+            present.append(("neighbors", k, self._nearest(vec[:, 3:3 + 2 * k], d, pos, vel, pos, vel, k)))
+        if hk:
+            d = _norm(state.human_pos[None, :, :] - pos[:, None, :], 2)
+            valid = self._nearest(vec[:, 3 + 2 * k:], d, state.human_pos, state.human_vel, pos, vel, hk)
+            present.append(("humans", hk, valid))
+        cc, ss = c[:, None], s[:, None]
+        vx, vy = vec[..., 0], vec[..., 1]
+        colx, coly = self._vector_columns(k, hk)
+        out[:, colx] = cc * vx + ss * vy
+        out[:, coly] = -ss * vx + cc * vy
+        for name, count, valid in present:
+            block = out[:, self.layout[name]].reshape(n, count, _ENTITY)  # a view into out
+            block[~valid] = 0.0  # absent rows are all zero
+            block[:, :, 4] = valid
 
-        out[:, self.layout["lidar"]] = self._lidar(state) / self.sensors.lidar_range
+        np.divide(self._lidar(state), self.sensors.lidar_range, out=out[:, self.layout["lidar"]])
         np.clip(out, self.low, self.high, out=out)
         return out.astype(np.float32)
 
+    def _vector_columns(self, k: int, hk: int) -> tuple[np.ndarray, np.ndarray]:
+        """Observation columns of the body-frame x and y of each vector built in :meth:`build`."""
+        key = (k, hk)
+        hit = self._columns.get(key)
+        if hit is None:
+            xs = [OBS_SLOT.start, OBS_LEADER.start, OBS_LEADER.start + 4]
+            for name, count in (("neighbors", k), ("humans", hk)):
+                base = self.layout[name].start
+                xs += [base + _ENTITY * j for j in range(count)]  # relative positions
+                xs += [base + _ENTITY * j + 2 for j in range(count)]  # relative velocities
+            colx = np.array(xs, dtype=np.intp)
+            hit = self._columns[key] = (colx, colx + 1)
+        return hit
+
+    @staticmethod
     def _nearest(
-        self,
-        block: np.ndarray,
+        vec: np.ndarray,
         dist: np.ndarray,
         other_pos: np.ndarray,
         other_vel: np.ndarray,
         pos: np.ndarray,
         vel: np.ndarray,
-        c: np.ndarray,
-        s: np.ndarray,
         k: int,
-    ) -> None:
-        """Fill ``block`` (N, 5k view) with the k nearest entities per row of ``dist`` (N, M)."""
+    ) -> np.ndarray:
+        """Write into ``vec`` (N, 2k, 2) the world-frame relative positions (first k) and
+        velocities (last k) of the k nearest entities per row of ``dist`` (N, M); return
+        the (N, k) mask of entities present (rows beyond M, or at infinite distance, are not)."""
         n, m = dist.shape
         order = np.argsort(dist, axis=1, kind="stable")[:, :k]
-        valid = np.isfinite(np.take_along_axis(dist, order, axis=1))
-        rel_p = other_pos[order] - pos[:, None, :]
-        rel_v = other_vel[order] - vel[:, None, :]
-        cc, ss = c[:, None], s[:, None]
-        rows = np.zeros((n, k, _ENTITY))
         kk = order.shape[1]
-        rows[:, :kk, 0] = cc * rel_p[..., 0] + ss * rel_p[..., 1]
-        rows[:, :kk, 1] = -ss * rel_p[..., 0] + cc * rel_p[..., 1]
-        rows[:, :kk, 2] = cc * rel_v[..., 0] + ss * rel_v[..., 1]
-        rows[:, :kk, 3] = -ss * rel_v[..., 0] + cc * rel_v[..., 1]
-        rows[:, :kk, 4] = 1.0
-        rows[:, :kk][~valid] = 0.0
-        block[:] = rows.reshape(n, k * _ENTITY)
+        found = np.isfinite(dist[np.arange(n)[:, None], order])
+        if kk == k:
+            valid = found
+        else:
+            valid = np.zeros((n, k), dtype=bool)
+            valid[:, :kk] = found
+        np.subtract(other_pos[order], pos[:, None, :], out=vec[:, :kk])
+        np.subtract(other_vel[order], vel[:, None, :], out=vec[:, k:k + kk])
+        return valid
 
     def _lidar(self, state: WorldState) -> np.ndarray:
         n = state.n_followers
         r = self.sensors.lidar_rays
-        discs = [np.column_stack([state.follower_pose[:, :2], state.follower_radius])]
+        pose = state.follower_pose
+        discs = np.empty((n + state.leader_is_robot + len(state.human_pos), 3))
+        discs[:n, :2] = pose[:, :2]
+        discs[:n, 2] = state.follower_radius
+        m = n
         if state.leader_is_robot:
-            discs.append(np.array([[state.leader_pose[0], state.leader_pose[1], state.leader_radius]]))
+            discs[m, :2] = state.leader_pose[:2]
+            discs[m, 2] = state.leader_radius
+            m += 1
         if len(state.human_pos):
-            discs.append(np.column_stack([state.human_pos, state.human_radius]))
-        origins = np.repeat(state.follower_pose[:, :2], r, axis=0)
-        angles = (state.follower_pose[:, 2:3] + self._ray_angles[None, :]).ravel()
-        exclude = np.repeat(np.arange(n), r)
-        dist = cast_rays(origins, angles, self.sensors.lidar_range, state.static, np.vstack(discs), exclude)
+            discs[m:, :2] = state.human_pos
+            discs[m:, 2] = state.human_radius
+        origins = np.repeat(pose[:, :2], r, axis=0)
+        angles = (pose[:, 2:3] + self._ray_angles[None, :]).ravel()
+        exclude = self._ray_owner.get(n)
+        if exclude is None:
+            exclude = self._ray_owner[n] = np.repeat(np.arange(n), r)  # ray -> its own robot's disc
+            exclude.flags.writeable = False
+        dist = cast_rays(origins, angles, self.sensors.lidar_range, state.static, discs, exclude)
         return dist.reshape(n, r)
 
     # ------------------------------------------------------------------ global
@@ -232,7 +274,3 @@ class ObservationBuilder:
 #: Bound of every global-state entry (positions are normalised by the world size).
 STATE_LIMIT = 2.0
 
-
-def _to_body(vec: np.ndarray, c: np.ndarray, s: np.ndarray) -> np.ndarray:
-    """Rotate world-frame vectors (N, 2) into the body frames given by cos/sin (N,)."""
-    return np.stack([c * vec[:, 0] + s * vec[:, 1], -s * vec[:, 0] + c * vec[:, 1]], axis=1)

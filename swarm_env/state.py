@@ -12,7 +12,7 @@ linear velocities ``(vx, vy)``; ``*_twist`` are body-frame ``(v, omega)``.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
@@ -65,6 +65,8 @@ class WorldState:
     contacts: tuple[Contact, ...]  # contact onsets during the last step
     static: StaticMap
     scenario: Scenario
+    # Derived arrays computed on first use and shared by the readers of this snapshot.
+    _derived: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def n_followers(self) -> int:
@@ -73,6 +75,18 @@ class WorldState:
     @property
     def leader_is_robot(self) -> bool:
         return self.scenario.leader.kind == "robot"
+
+    def follower_distances(self) -> np.ndarray:
+        """(N, N) read-only distances between followers (m), computed once per snapshot
+        (observations and metrics both need them): ``[i, j] = |p_i - p_j|``."""
+        d = self._derived.get("follower_distances")
+        if d is None:
+            pos = self.follower_pose[:, :2]
+            diff = pos[:, None, :] - pos[None, :, :]
+            d = np.sqrt(np.add.reduce(diff * diff, axis=2))  # = np.linalg.norm(diff, axis=2)
+            d.flags.writeable = False
+            self._derived["follower_distances"] = d
+        return d
 
     def robot_positions(self) -> np.ndarray:
         """Positions of all physical robots, followers first then the robot leader (if any)."""

@@ -24,6 +24,7 @@ size and substeps are fixed, and nothing here draws random numbers.
 from __future__ import annotations
 
 import math
+import threading
 from typing import Any
 
 import numpy as np
@@ -55,6 +56,14 @@ LEADER_GOAL_TOLERANCE = 0.2
 SLOT_MARGIN = 0.05
 
 
+# Body property accessors, called directly: pymunk's Body routes every attribute assignment
+# through a Python-level __setattr__, which made up a third of the physics step's cost (the
+# callback below runs for every robot in every substep).
+_BODY_ANGLE = pymunk.Body.angle.fget
+_SET_BODY_VELOCITY = pymunk.Body.velocity.fset
+_SET_BODY_ANGULAR_VELOCITY = pymunk.Body.angular_velocity.fset
+
+
 def _drive(body: pymunk.Body, gravity: Any, damping: float, dt: float) -> None:
     """pymunk velocity callback of a differential-drive robot.
 
@@ -64,18 +73,65 @@ def _drive(body: pymunk.Body, gravity: Any, damping: float, dt: float) -> None:
     (measured: 0.11 m of overlap at 0.65 m/s). Setting the wheel velocity here
     lets the contact solver correct it within the same substep.
 
-    ``body.cmd`` is the commanded ``(v, omega)``; ``body.act`` the realised one,
-    moved towards the command by at most ``body.limits`` per second.
+    ``body.drive`` is the list ``[v_cmd, omega_cmd, v, omega, dv_max, domega_max]``:
+    the commanded twist, the realised one (updated in place: moved towards the
+    command by at most ``dv_max``/``domega_max`` per second, ``None`` = no limit).
     """
-    v_cmd, w_cmd = body.cmd
-    v, w = body.act
-    dv, dw = body.limits
+    s = body.drive
+    v_cmd, w_cmd, v, w, dv, dw = s
     v = v_cmd if dv is None else v + min(max(v_cmd - v, -dv * dt), dv * dt)
     w = w_cmd if dw is None else w + min(max(w_cmd - w, -dw * dt), dw * dt)
-    body.act = (v, w)
-    a = body.angle
-    body.velocity = (v * math.cos(a), v * math.sin(a))
-    body.angular_velocity = w
+    s[2] = v
+    s[3] = w
+    a = _BODY_ANGLE(body)
+    _SET_BODY_VELOCITY(body, (v * math.cos(a), v * math.sin(a)))
+    _SET_BODY_ANGULAR_VELOCITY(body, w)
+
+
+try:  # pymunk's cffi handles: optional, only for the faster callback below
+    from pymunk._chipmunk import ffi as _CP_FFI
+    from pymunk._chipmunk import lib as _CP_LIB
+except ImportError:  # pragma: no cover - other pymunk builds
+    _CP_FFI = _CP_LIB = None
+
+
+def _install_fast_drive(body: pymunk.Body) -> None:
+    """Replace ``body``'s velocity callback, at the C level, by one doing exactly what
+    :func:`_drive` does (same float operations on the same ``body.drive`` list).
+
+    pymunk dispatches a Python velocity callback through a generic trampoline (a handle
+    lookup and a Vec2d per call); a cffi callback bound to this body skips both, which
+    saves about a third of the physics step. The callback object lives on the body
+    (``_fast_drive``: not pickled, pymunk skips ``_`` attributes); pymunk still reports
+    and pickles :func:`_drive`, so a copied space falls back to it (same numbers) until
+    :class:`World` installs a new one. Does nothing where pymunk's internals differ.
+    """
+    if _CP_FFI is None:
+        return
+    try:
+        handle = body._body
+        get_angle = _CP_LIB.cpBodyGetAngle
+        set_velocity = _CP_LIB.cpBodySetVelocity
+        set_angular_velocity = _CP_LIB.cpBodySetAngularVelocity
+        set_func = _CP_LIB.cpBodySetVelocityUpdateFunc
+        state = body.drive
+        cos, sin = math.cos, math.sin
+
+        def drive(cbody: Any, gravity: Any, damping: float, dt: float) -> None:
+            v_cmd, w_cmd, v, w, dv, dw = state
+            v = v_cmd if dv is None else v + min(max(v_cmd - v, -dv * dt), dv * dt)
+            w = w_cmd if dw is None else w + min(max(w_cmd - w, -dw * dt), dw * dt)
+            state[2] = v
+            state[3] = w
+            a = get_angle(cbody)
+            set_velocity(cbody, (v * cos(a), v * sin(a)))
+            set_angular_velocity(cbody, w)
+
+        callback = _CP_FFI.callback("cpBodyVelocityFunc", drive)
+    except Exception:  # noqa: BLE001 - unknown pymunk internals or no executable memory: keep _drive
+        return
+    body._fast_drive = callback  # keeps the C function alive as long as the body
+    set_func(handle, callback)
 
 
 def _unit_body(
@@ -84,11 +140,104 @@ def _unit_body(
     body = pymunk.Body(_ROBOT_MASS, pymunk.moment_for_circle(_ROBOT_MASS, 0.0, radius))
     body.position = position
     body.angle = angle
-    body.cmd = (0.0, 0.0)
-    body.act = (0.0, 0.0)
-    body.limits = limits
+    body.drive = [0.0, 0.0, 0.0, 0.0, limits[0], limits[1]]
     body.velocity_func = _drive
+    _install_fast_drive(body)
     return body
+
+
+# pymunk.batch.Buffer never frees its C arrays, so there is one per thread (a buffer is
+# filled and copied out within one read; cffi releases the GIL during the C call).
+_BATCH_BUFFERS = threading.local()
+
+
+def _batch_buffer() -> Any:
+    buf = getattr(_BATCH_BUFFERS, "buffer", None)
+    if buf is None:
+        import pymunk.batch as pb
+
+        buf = _BATCH_BUFFERS.buffer = pb.Buffer()
+    return buf
+
+
+class _BodyReader:
+    """Reads ``(x, y, angle, vx, vy, omega)`` of a list of bodies as an ``(n, 6)`` array.
+
+    One ``pymunk.batch`` call copies the state of every body in the space (about 10x
+    faster than 6 property reads per body); the rows of ``bodies`` are picked by body
+    id, and the ids are checked on every read. Where ``pymunk.batch`` is missing or
+    behaves differently (it is marked experimental), the properties are read instead;
+    both give the same numbers. Not picklable: :class:`World` rebuilds it.
+    """
+
+    _batch_ok: bool | None = None  # pymunk.batch passed the self-test (None: not run yet)
+
+    def __init__(self, space: pymunk.Space, bodies: list[pymunk.Body]) -> None:
+        self.space = space
+        self.bodies = bodies
+        self._batch: Any = None
+        if not self._batch_works():
+            return
+        import pymunk.batch as pb
+
+        fields = self._fields()
+        buf = _batch_buffer()
+        buf.clear()
+        pb.get_space_bodies(space, fields, buf)
+        ids = bytes(buf.int_buf())
+        all_ids = np.frombuffer(ids, dtype=np.uintp).tolist()
+        if sorted(set(all_ids)) != sorted(all_ids) or any(b.id not in all_ids for b in bodies):
+            return
+        rows = np.array([all_ids.index(b.id) for b in bodies], dtype=np.intp)
+        self._batch = (pb.get_space_bodies, fields, ids, rows, len(all_ids))
+
+    @staticmethod
+    def _fields() -> Any:
+        import pymunk.batch as pb
+
+        f = pb.BodyFields
+        return f.BODY_ID | f.POSITION | f.ANGLE | f.VELOCITY | f.ANGULAR_VELOCITY
+
+    @classmethod
+    def _batch_works(cls) -> bool:
+        """Once per process: does pymunk.batch return our 6 numbers, in our order?"""
+        if cls._batch_ok is None:
+            try:
+                import pymunk.batch as pb
+
+                space = pymunk.Space()
+                body = pymunk.Body(1.0, 1.0)
+                body.position, body.angle = (1.5, 2.5), 3.5
+                body.velocity, body.angular_velocity = (4.5, 5.5), 6.5
+                space.add(body, pymunk.Circle(body, 1.0))
+                buf = _batch_buffer()
+                buf.clear()
+                pb.get_space_bodies(space, cls._fields(), buf)
+                ids = np.frombuffer(bytes(buf.int_buf()), dtype=np.uintp).tolist()
+                vals = np.frombuffer(bytes(buf.float_buf()), dtype=np.float64).reshape(-1, 6)
+                cls._batch_ok = body.id in ids and vals[ids.index(body.id)].tolist() == [1.5, 2.5, 3.5, 4.5, 5.5, 6.5]
+            except Exception:  # noqa: BLE001 - the API is marked experimental: fall back to properties
+                cls._batch_ok = False
+        return bool(cls._batch_ok)
+
+    def read(self) -> np.ndarray:
+        if self._batch is not None:
+            get, fields, ids, rows, count = self._batch
+            buf = _batch_buffer()
+            buf.clear()
+            get(self.space, fields, buf)
+            if bytes(buf.int_buf()) == ids:
+                return np.frombuffer(buf.float_buf(), dtype=np.float64).reshape(count, 6)[rows]
+        return self._read_properties()
+
+    def _read_properties(self) -> np.ndarray:
+        out: list[float] = []
+        for b in self.bodies:
+            out.extend(b.position)
+            out.append(b.angle)
+            out.extend(b.velocity)
+            out.append(b.angular_velocity)
+        return np.array(out, dtype=np.float64).reshape(len(self.bodies), 6)
 
 
 class World:
@@ -172,6 +321,24 @@ class World:
                 self.space.on_collision(robot_type, other, begin=self._on_begin, separate=self._on_separate)
 
         self._slots = self._compute_slots()
+        self._reader = _BodyReader(self.space, self._bodies)
+        # Constant per-episode arrays, shared read-only by every snapshot.
+        self._follower_radius = np.full(self.n, robots.radius)
+        self._follower_radius.flags.writeable = False
+        self._human_radius.flags.writeable = False
+
+    # pymunk.batch buffers do not pickle: drop the reader and build a new one for the copy
+    # (and give the copy's robots their fast velocity callbacks, see _install_fast_drive).
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        del state["_reader"]
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        self._reader = _BodyReader(self.space, self._bodies)
+        for body in self._bodies + ([self._leader_body] if self._leader_body is not None else []):
+            _install_fast_drive(body)
 
     # ------------------------------------------------------------------ building
     @staticmethod
@@ -240,23 +407,27 @@ class World:
         limits (if any) are applied in every substep by :func:`_drive`.
         """
         robots = self.scenario.robots
-        v = np.clip(command[:, 0], -robots.max_speed, robots.max_speed).tolist()
-        w = np.clip(command[:, 1], -robots.max_turn_rate, robots.max_turn_rate).tolist()
-        for body, vi, wi in zip(self._bodies, v, w):
-            body.cmd = (vi, wi)
+        v_max, w_max = float(robots.max_speed), float(robots.max_turn_rate)
+        for body, (v, w) in zip(self._bodies, command.tolist()):
+            drive = body.drive
+            drive[0] = min(max(v, -v_max), v_max)  # = np.clip, on Python floats
+            drive[1] = min(max(w, -w_max), w_max)
         if self._leader_body is not None:
-            self._leader_body.cmd = tuple(self._leader_command().tolist())
+            self._leader_body.drive[0:2] = self._leader_command().tolist()
         self._touched_step = set(self._touching)
         t0 = self.time
+        space_step, sub_dt = self.space.step, self.sub_dt
         for k in range(self.substeps):
-            self._move_humans(t0 + k * self.sub_dt)
-            self.space.step(self.sub_dt)
+            if self._human_bodies:
+                self._move_humans(t0 + k * sub_dt)
+            space_step(sub_dt)
 
         self.step_count += 1
         self.time = self.step_count * self.dt  # no accumulated float drift
-        self._human_pos, self._human_vel = human_states(self.scenario.humans, self.time)
-        for body, p in zip(self._human_bodies, self._human_pos.tolist()):
-            body.position = (p[0], p[1])  # snap to the exact path (kinematic bodies integrate with round-off)
+        if self._human_bodies:
+            self._human_pos, self._human_vel = human_states(self.scenario.humans, self.time)
+            for body, p in zip(self._human_bodies, self._human_pos.tolist()):
+                body.position = (p[0], p[1])  # snap to the exact path (kinematic bodies integrate with round-off)
         self._advance_leader()
         self.formation_index = formation_lib.active_formation(self.scenario.formations, self.time)
         self._slots = self._compute_slots()
@@ -312,9 +483,13 @@ class World:
             self._leader_body.angular_velocity = 0.0
 
     def _compute_slots(self) -> np.ndarray:
-        return formation_lib.slot_targets(
-            self.leader_pose(), self._offsets[self.formation_index], self.static, self._slot_clearance
-        )
+        # formation.slot_targets(..., static, clearance) screens the targets with
+        # static.distance() and projects the bad ones; project_free() does both (a free point
+        # comes back unchanged, each point independently of the others), with a cheaper screen.
+        targets = formation_lib.slot_targets(self.leader_pose(), self._offsets[self.formation_index], None, 0.0)
+        slots = self.static.project_free(targets, self._slot_clearance)  # a new array, shared read-only
+        slots.flags.writeable = False  # by the snapshots
+        return slots
 
     # ------------------------------------------------------------------ reading
     def follower_positions(self) -> np.ndarray:
@@ -331,15 +506,14 @@ class World:
 
     def snapshot(self) -> WorldState:
         """A frozen copy of the current state."""
-        raw = np.array(
-            [(b.position.x, b.position.y, b.angle, b.velocity.x, b.velocity.y, b.angular_velocity) for b in self._bodies],
-            dtype=float,
-        ).reshape(self.n, 6)
+        raw = self._reader.read()  # (n, 6): x, y, angle, vx, vy, omega
+        angle = raw[:, 2]
+        twist = np.empty((self.n, 2))
+        np.add(raw[:, 3] * np.cos(angle), raw[:, 4] * np.sin(angle), out=twist[:, 0])  # forward speed
+        twist[:, 1] = raw[:, 5]
         pose = raw[:, :3].copy()
-        pose[:, 2] = guidance.wrap_angle(pose[:, 2])
+        pose[:, 2] = guidance.wrap_angle(angle)
         vel = raw[:, 3:5].copy()
-        speed = vel[:, 0] * np.cos(raw[:, 2]) + vel[:, 1] * np.sin(raw[:, 2])
-        twist = np.stack([speed, raw[:, 5]], axis=1)
         if self._leader_body is None:
             lpose = np.array(self._virtual_pose, dtype=float)
             lvel = np.array(self._virtual_vel, dtype=float)
@@ -352,32 +526,32 @@ class World:
             lvel = np.array([lb.velocity.x, lb.velocity.y])
             ltwist = np.array([lvel[0] * math.cos(lpose[2]) + lvel[1] * math.sin(lpose[2]), lb.angular_velocity])
             lradius = float(self.scenario.leader.radius)
-        arrays = dict(
-            follower_pose=pose,
-            follower_vel=vel,
-            follower_twist=twist,
-            follower_radius=np.full(self.n, self.scenario.robots.radius),
-            leader_pose=lpose,
-            leader_vel=lvel,
-            leader_twist=ltwist,
-            human_pos=np.array(self._human_pos, dtype=float).reshape(-1, 2),
-            human_vel=np.array(self._human_vel, dtype=float).reshape(-1, 2),
-            human_radius=self._human_radius.copy(),
-            slot_targets=np.array(self._slots, dtype=float),
-        )
-        for arr in arrays.values():
+        human_pos = np.array(self._human_pos, dtype=float).reshape(-1, 2)
+        human_vel = np.array(self._human_vel, dtype=float).reshape(-1, 2)
+        slots = self._slots
+        for arr in (pose, vel, twist, lpose, lvel, ltwist, human_pos, human_vel):
             arr.flags.writeable = False
         return WorldState(
             time=self.time,
             step=self.step_count,
+            follower_pose=pose,
+            follower_vel=vel,
+            follower_twist=twist,
+            follower_radius=self._follower_radius,
+            leader_pose=lpose,
+            leader_vel=lvel,
+            leader_twist=ltwist,
             leader_radius=lradius,
             leader_done=self._leader_done,
+            human_pos=human_pos,
+            human_vel=human_vel,
+            human_radius=self._human_radius,
+            slot_targets=slots,
             formation_index=self.formation_index,
             next_switch_time=formation_lib.next_switch_time(self.scenario.formations, self.time),
             contacts=self._onsets,
             static=self.static,
             scenario=self.scenario,
-            **arrays,
         )
 
 

@@ -98,3 +98,15 @@ def test_module_entry_point() -> None:
     out = subprocess.run([sys.executable, "-m", "swarm_env.cli", "validate", "paper_vo_90"], capture_output=True,
                          text=True)
     assert out.returncode == 0 and "ok: paper_vo_90" in out.stdout
+
+
+def test_run_human_render_under_the_dummy_driver(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", "--scenario", "corridor", "--policy", "zero", "--render", "human", "--max-cycles", "5"]) == 0
+    assert "steps=5" in capsys.readouterr().out
+
+
+def test_run_discrete_actions_and_bad_numbers(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", "--scenario", "paper_vo_90", "--policy", "random", "--action-type", "discrete",
+                 "--max-cycles", "20"]) == 0
+    assert main(["run", "--episodes", "0"]) == 2
+    assert "--episodes must be >= 1" in capsys.readouterr().err

@@ -288,6 +288,111 @@ def test_project_free_is_nearest_free_point_on_random_maps() -> None:
         np.testing.assert_array_equal(m.project_free(pts, clearance), out)  # deterministic
 
 
+def _exact_projection(m: StaticMap, pts: np.ndarray, clearance: float) -> np.ndarray:
+    """project_free() through the vectorised exact search only (no fast path)."""
+    out = pts.copy()
+    bad = ~(m.distance(pts) >= clearance)
+    if np.any(bad):
+        out[bad] = m._project_exact(pts[bad], clearance)
+    return out
+
+
+def _assert_fast_path_matches_exact(m: StaticMap, pts: np.ndarray, clearance: float) -> tuple[int, int]:
+    """project_free() on small batches must equal the exact search bit for bit; returns
+    (points not free, points the fast path settled)."""
+    ref = _exact_projection(m, pts, clearance)
+    bad = ~(m.distance(pts) >= clearance)
+    settled = 0
+    for s in range(0, len(pts), 8):  # formation-sized batches take the fast path
+        chunk = pts[s:s + 8]
+        got = m.project_free(chunk, clearance)
+        assert got.tobytes() == ref[s:s + 8].tobytes(), (chunk, got, ref[s:s + 8])
+        scratch = chunk.copy()
+        slow = m._project_fast(chunk, clearance, scratch)
+        settled += int(bad[s:s + 8].sum()) - len(slow)
+    return int(bad.sum()), settled
+
+
+def test_project_free_fast_path_equals_exact_search_on_random_maps() -> None:
+    rng = np.random.default_rng(11)
+    total = settled = 0
+    for _ in range(25):
+        size = float(rng.uniform(6.0, 20.0))
+        m = random_map(rng, n=int(rng.integers(1, 12)), size=size)
+        clearance = float(rng.choice([0.0, rng.uniform(0.0, 0.6)]))
+        bound = m._bound  # bounding discs: put many points in and around the obstacles
+        k = rng.integers(0, len(bound), 150)
+        ang = rng.uniform(0.0, 2 * np.pi, 150)
+        rad = bound[k, 2] * rng.uniform(0.0, 1.6, 150)
+        pts = np.vstack([
+            rng.uniform(-0.5, size + 0.5, (100, 2)),
+            bound[k, :2] + np.c_[np.cos(ang), np.sin(ang)] * rad[:, None],
+            bound[:, :2],  # obstacle centres (ties between directions)
+        ])
+        b, f = _assert_fast_path_matches_exact(m, pts, clearance)
+        total, settled = total + b, settled + f
+    assert total > 1000
+    assert settled > 0.5 * total  # the fast path does the work, not the fallback
+
+
+def test_project_free_fast_path_equals_exact_search_on_lattice_ties() -> None:
+    """Axis-aligned shapes at integer coordinates and lattice points: many exact ties
+    between feet, corners and directions, where only identical tie-breaking agrees."""
+    rng = np.random.default_rng(5)
+    g = np.arange(-1.0, 11.01, 0.25)
+    grid = np.stack(np.meshgrid(g, g), axis=-1).reshape(-1, 2)
+    total = settled = 0
+    for _ in range(12):
+        obs = []
+        for i in range(int(rng.integers(1, 6))):
+            c = (float(rng.integers(1, 9)), float(rng.integers(1, 9)))
+            if i % 3 == 0:
+                obs.append(CircleObstacle(c, float(rng.choice([0.5, 1.0, 1.5]))))
+            elif i % 3 == 1:
+                size = (float(rng.integers(1, 4)), float(rng.integers(1, 4)))
+                obs.append(RectangleObstacle(c, size, float(rng.choice([0.0, 45.0, 90.0]))))
+            else:
+                obs.append(PolygonObstacle(((c[0] - 1, c[1] - 1), (c[0] + 1, c[1] - 1), (c[0], c[1] + 1))))
+        m = StaticMap.from_obstacles((10.0, 10.0), obs)
+        extra = np.vstack([*m.polygons, m.circles[:, :2]]) if len(m.circles) else np.vstack(m.polygons)
+        pts = np.vstack([grid, extra])
+        b, f = _assert_fast_path_matches_exact(m, pts, float(rng.choice([0.0, 0.25, 0.5, 1.0])))
+        total, settled = total + b, settled + f
+    assert settled > 0.5 * total
+
+
+def test_project_free_memo_returns_fresh_arrays_and_stays_bounded(monkeypatch: pytest.MonkeyPatch) -> None:
+    import swarm_env.geometry as geometry
+
+    m = random_map(np.random.default_rng(8), n=8, size=10.0)
+    pts = np.random.default_rng(9).uniform(0.0, 10.0, (8, 2))
+    first = m.project_free(pts, 0.3)
+    again = m.project_free(pts.copy(), 0.3)  # same bits: answered from the memo
+    assert again.tobytes() == first.tobytes() and again is not first
+    again[:] = -1.0  # the caller owns its result
+    assert m.project_free(pts, 0.3).tobytes() == first.tobytes()
+    assert m.project_free(pts.reshape(4, 2, 2), 0.3).shape == (4, 2, 2)  # shape follows the query
+    assert pickle.loads(pickle.dumps(m))._memo == {}
+    monkeypatch.setattr(geometry, "_MEMO_SIZE", 5)
+    for k in range(20):
+        m.project_free(pts + 0.01 * k, 0.3)
+    assert len(m._memo) <= 5
+
+
+def test_min_distance_equals_the_plain_minimum() -> None:
+    rng = np.random.default_rng(3)
+    for _ in range(40):
+        m = random_map(rng, n=int(rng.integers(0, 10)), size=12.0)
+        pts = rng.uniform(-0.3, 12.3, (int(rng.integers(1, 12)), 2))
+        radii = rng.uniform(0.0, 0.4, len(pts))
+        plain = float((m.distance(pts) - radii).min())
+        for upper in (math.inf, plain - 0.5, plain - 1e-12, plain, plain + 1e-12, plain + 0.3, 5.0):
+            got = m.min_distance(pts, radii, upper)
+            assert got == min(upper, plain), (upper, got, plain)
+        assert m.min_distance(pts, 0.25) == float((m.distance(pts) - 0.25).min())
+    assert m.min_distance(np.zeros((0, 2)), 0.1, 2.0) == 2.0
+
+
 def test_project_free_empty_free_space_is_best_effort() -> None:
     m = empty_map(1.0, 1.0)
     out = m.project_free(np.array([[0.1, 0.9]]), clearance=0.8)  # nothing is 0.8 from all walls

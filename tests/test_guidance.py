@@ -14,6 +14,9 @@ from swarm_env.guidance import (
     pure_pursuit,
     sample_twists,
     static_time_to_collision,
+    trajectory_disc_ttc,
+    trajectory_static_ttc,
+    twist_trajectories,
     twist_velocities,
     vo_discs_inside,
     vo_polygons_inside,
@@ -131,6 +134,54 @@ def test_sample_twists_and_velocities():
         np.testing.assert_allclose(mean, end[:2] / tau, atol=1e-12)
 
 
+def test_twist_trajectories_follow_the_unicycle():
+    tw = sample_twists(0.65, 1.0)
+    times, pts = twist_trajectories(0.7, tw, 1.0, 3.0, n_arc=2)
+    np.testing.assert_allclose(times, [0.0, 0.5, 1.0, 3.0])
+    assert pts.shape == (77, 4, 2)
+    for c, (v, w) in enumerate(tw):
+        p = np.array([0.0, 0.0, 0.7])
+        for k, t in enumerate(times[1:3], start=1):  # the arc part
+            np.testing.assert_allclose(pts[c, k], unicycle_step(p, (v, w), t)[:2], atol=1e-12)
+        end_arc = unicycle_step(p, (v, w), 1.0)  # then straight on with the heading reached
+        straight = end_arc[:2] + 2.0 * v * np.array([math.cos(end_arc[2]), math.sin(end_arc[2])])
+        np.testing.assert_allclose(pts[c, 3], straight, atol=1e-12)
+
+
+def test_preferred_row_matches_vectorised_trajectories():
+    from swarm_env.guidance import _trajectory_row
+
+    for v, w, theta in [(0.5, 0.0, 0.3), (0.65, -1.0, -2.0), (0.0, 0.7, 1.0), (0.2, 1e-14, 0.0)]:
+        _, pts = twist_trajectories(theta, np.array([[v, w]]), 1.0, 3.0, 2)
+        np.testing.assert_allclose(_trajectory_row(v, w, 1.0, 3.0, 2, theta), pts[0], atol=1e-12)
+    _, pts = twist_trajectories(0.4, np.array([[0.5, 0.5]]), 3.0, 2.0, 3)  # horizon <= tau: arc only
+    np.testing.assert_allclose(_trajectory_row(0.5, 0.5, 3.0, 2.0, 3, 0.4), pts[0], atol=1e-12)
+
+
+def test_trajectory_disc_ttc_matches_brute_force_and_reciprocity():
+    times, pts = twist_trajectories(0.0, sample_twists(0.65, 1.0, n_v=3, n_w=5), 1.0, 3.0)
+    rel = np.array([[1.5, 0.3], [0.5, -1.5], [-1.0, 0.0]])
+    R = np.array([0.55, 0.6, 0.55])
+    dv = np.array([[-0.4, 0.0], [0.0, 0.5], [0.3, 0.0]])
+    ttc = trajectory_disc_ttc(times, pts, rel, R, dv)
+    t = np.linspace(0.0, 3.0, 3001)
+    for c in range(pts.shape[0]):
+        robot = np.stack([np.interp(t, times, pts[c, :, 0]), np.interp(t, times, pts[c, :, 1])], axis=1)
+        for d in range(3):
+            gap = np.linalg.norm(rel[d] + dv[d] * t[:, None] - robot, axis=1) - R[d]
+            hit = np.nonzero(gap < 0)[0]
+            if len(hit):
+                assert ttc[c, d] == pytest.approx(t[hit[0]], abs=2e-3)
+            else:
+                assert np.isinf(ttc[c, d]) or gap.min() < 1e-3
+    # reciprocal: the displacement against a marked disc is 2 x(t) - v_now t
+    own = np.array([0.3, 0.1])
+    rec = trajectory_disc_ttc(times, pts, rel, R, dv, np.array([True, False, True]), own)
+    pts2 = 2.0 * pts - own * times[None, :, None]
+    np.testing.assert_allclose(rec[:, [0, 2]], trajectory_disc_ttc(times, pts2, rel, R, dv)[:, [0, 2]])
+    np.testing.assert_allclose(rec[:, 1], ttc[:, 1])
+
+
 # ------------------------------------------------------------------ VO: discs
 def test_disc_vo_basic_cases():
     rel_pos = np.array([[5.0, 0.0]])
@@ -224,12 +275,15 @@ def test_polygon_vo_rectangle(static_map):
 
 
 def test_polygon_vo_is_not_a_bounding_circle(static_map):
-    # Passing diagonally close to the rectangle's corner (9, 8) but clear of it:
-    # a bounding circle (radius sqrt(5) around (10, 6)) would flag this.
-    P = np.array([6.0, 9.0])
-    v = np.array([[1.0, 0.0]])  # along y = 9: 1 m above the top face y = 8
-    assert not vo_polygons_inside(P, 0.3, v, static_map, 10.0)[0]
+    # Gliding 0.5 m above the rectangle's top face (y = 8) with radius 0.3: clear of
+    # it, although the path crosses the rectangle's bounding circle (centre (10, 6),
+    # radius sqrt(5)) inflated by the radius.
+    P = np.array([6.0, 8.5])
+    v = np.array([[1.0, 0.0]])
+    assert not vo_polygons_inside(P, 0.3, v, static_map, 6.0)[0]  # (the triangle is 9.9 s away)
     assert np.linalg.norm(P + v[0] * 4.0 - [10.0, 6.0]) < math.sqrt(5) + 0.3
+    # a little lower (0.25 m above the face) it is inside
+    assert vo_polygons_inside(np.array([6.0, 8.25]), 0.3, v, static_map, 6.0)[0]
 
 
 def test_static_ttc_matches_brute_force(static_map):
@@ -271,12 +325,17 @@ def test_static_overlap_rule(static_map):
 def test_vo_select_free_returns_preferred(static_map):
     pose = np.array([2.0, 2.0, 0.3])
     pref = np.array([0.41, 0.13])  # off the sampling grid
-    res = vo_select(pose, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0)
-    assert res.feasible and res.n_safe >= 77
+    res = vo_select(pose, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0, fast=False)
+    assert res.feasible and res.n_safe == 78  # 77 grid twists + the preferred one
     np.testing.assert_allclose(res.twist, pref)
     assert res.min_time_to_collision == math.inf
-    res = vo_select(pose, 0.25, pref, EMPTY_D, EMPTY_V, None, 0.65, 1.0)
-    np.testing.assert_allclose(res.twist, pref)
+    for st in (static_map, None):  # fast path: same answer
+        res = vo_select(pose, 0.25, pref, EMPTY_D, EMPTY_V, st, 0.65, 1.0)
+        np.testing.assert_allclose(res.twist, pref)
+        assert res.feasible
+    # out-of-limit preferences are clipped
+    res = vo_select(pose, 0.25, np.array([2.0, -3.0]), EMPTY_D, EMPTY_V, None, 0.65, 1.0)
+    np.testing.assert_allclose(res.twist, [0.65, -1.0])
 
 
 def test_vo_select_deviates_from_disc_ahead():
@@ -301,6 +360,31 @@ def test_vo_select_infeasible_never_raises():
     assert res.min_time_to_collision <= 3.0
     assert res.twist.shape == (2,) and np.all(np.isfinite(res.twist))
     assert res.twist[0] == 0.0  # nothing helps: at least do not drive into it
+
+
+def test_vo_select_escape_turns_towards_open_space(static_map):
+    # Facing the rectangle's left face from 0.45 m (centre to face), goal behind it:
+    # every forward twist is unsafe, standing is safe. Rather than stand still
+    # forever the robot turns in place (towards the open side).
+    pose = np.array([8.55, 6.5, 0.0])
+    pref = np.array([0.65, 0.0])
+    res = vo_select(pose, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0)
+    assert res.feasible and res.twist[0] == 0.0 and abs(res.twist[1]) > 0.0
+    stuck = vo_select(pose, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0, escape=False)
+    np.testing.assert_allclose(stuck.twist, [0.0, 0.0])
+
+
+def test_vo_select_chord_model_and_odd_inputs():
+    pose = np.array([0.0, 0.0, 0.0])
+    disc = np.array([[2.0, 0.0, 0.3]])
+    res = vo_select(pose, 0.25, np.array([0.65, 0.0]), disc, np.zeros((1, 2)), None, 0.65, 1.0,
+                    model="chord", tau=0.5)
+    assert res.feasible and not np.allclose(res.twist, [0.65, 0.0])
+    with pytest.raises(ValueError):
+        vo_select(pose, 0.25, np.zeros(2), disc, np.zeros((1, 2)), None, 0.65, 1.0, model="nope")
+    # zero limits, no discs, custom goal heading: still an answer
+    res = vo_select(pose, 0.25, np.zeros(2), EMPTY_D, EMPTY_V, None, 0.0, 0.0, goal_heading=1.0)
+    np.testing.assert_allclose(res.twist, [0.0, 0.0])
 
 
 def _run_vo_sim(starts, goals, humans, static, steps=300, dt=0.1, radius=0.25, human_r=0.3, reciprocal=False, **kw):
@@ -338,17 +422,51 @@ def _run_vo_sim(starts, goals, humans, static, steps=300, dt=0.1, radius=0.25, h
     return poses, min_rr, min_rh
 
 
-def test_sim_two_robots_crossing(static_map):
+CROSSINGS = [
+    ([(2.0, 10.0, 0.0), (6.0, 6.0, math.pi / 2)], [(10.0, 10.0), (6.0, 14.0)]),  # perpendicular, mirror-symmetric
+    ([(2.0, 10.0, 0.0), (12.0, 10.0, math.pi)], [(12.0, 10.0), (2.0, 10.0)]),  # head-on swap
+    ([(2.0, 9.8, 0.0), (9.0, 4.0, 2.0)], [(12.0, 10.0), (5.0, 15.0)]),  # oblique
+]
+
+
+@pytest.mark.parametrize("case", range(len(CROSSINGS)))
+def test_sim_two_robots_crossing_reciprocal(case):
     empty = StaticMap.from_obstacles((20.0, 20.0), [])
-    # perpendicular crossing and head-on swap
-    for starts, goals in [
-        ([(2.0, 10.0, 0.0), (6.0, 6.0, math.pi / 2)], [(10.0, 10.0), (6.0, 14.0)]),
-        ([(2.0, 10.0, 0.0), (12.0, 10.0, math.pi)], [(12.0, 10.0), (2.0, 10.0)]),
-    ]:
-        poses, min_rr, _ = _run_vo_sim(starts, goals, [], empty, steps=400)
-        assert min_rr >= 0.5  # sum of radii
-        for p, g in zip(poses, goals):
-            assert np.linalg.norm(p[:2] - g) < 0.5  # both still got there
+    starts, goals = CROSSINGS[case]
+    poses, min_rr, _ = _run_vo_sim(starts, goals, [], empty, steps=400, reciprocal=True)
+    assert min_rr >= 0.5  # sum of radii
+    for p, g in zip(poses, goals):
+        assert np.linalg.norm(p[:2] - g) < 0.5  # and both got there
+
+
+@pytest.mark.parametrize("case", range(len(CROSSINGS)))
+def test_sim_two_robots_crossing_plain_vo_is_safe(case):
+    # Plain VO (each robot dodges fully) may stall in a symmetric meeting, but never collides.
+    empty = StaticMap.from_obstacles((20.0, 20.0), [])
+    starts, goals = CROSSINGS[case]
+    _, min_rr, _ = _run_vo_sim(starts, goals, [], empty, steps=400, reciprocal=False)
+    assert min_rr >= 0.5
+
+
+def test_sim_robots_around_static_obstacles(static_map):
+    starts = [(1.0, 6.0, 0.0), (19.0, 6.5, math.pi), (10.0, 1.0, math.pi / 2)]
+    goals = [(19.0, 6.0), (1.0, 6.5), (10.0, 11.0)]  # all through the central rectangle
+    poses = np.array(starts)
+    vel = np.zeros((3, 2))
+    worst = math.inf
+    for _ in range(500):
+        tw = []
+        for i in range(3):
+            o = [j for j in range(3) if j != i]
+            discs = np.column_stack([poses[o, :2], np.full(2, 0.25)])
+            pref = pure_pursuit(poses[i], np.asarray(goals[i]), 0.65, 1.0, 1.0)
+            tw.append(vo_select(poses[i], 0.25, pref, discs, vel[o], static_map, 0.65, 1.0,
+                                velocity=vel[i], reciprocal=True).twist)
+        new = np.array([unicycle_step(poses[i], tw[i], 0.1) for i in range(3)])
+        vel = (new[:, :2] - poses[:, :2]) / 0.1
+        poses = new
+        worst = min(worst, float(static_map.distance(poses[:, :2]).min()))
+    assert worst >= 0.25  # never touched an obstacle or wall
 
 
 def test_sim_human_walking_at_robot():

@@ -124,3 +124,31 @@ def test_summarize_handles_missing_values() -> None:
     s = summarize([ep])
     assert s["settle_time"] == {"mean": None, "ci95": None, "n": 0}
     assert s["formation_error"] == {"mean": 1.0, "ci95": 0.0, "n": 1}
+
+
+@pytest.mark.parametrize("name", ["paper_cbs_switch", "paper_vo_0", "corridor"])
+def test_min_clearance_and_separation_equal_a_brute_force_minimum(name: str) -> None:
+    """The metrics skip clearances that cannot lower the running minimum: same numbers as computing all."""
+    env = SwarmEnv(name)
+    env.reset(seed=1)
+    rng = np.random.default_rng(2)
+    clear, sep = [], []
+
+    def observe(state: WorldState) -> None:
+        pos, r = state.follower_pose[:, :2], state.follower_radius
+        clear.append(float((state.static.distance(pos) - r).min()))
+        if len(state.human_pos):
+            gap = np.linalg.norm(pos[:, None] - state.human_pos[None], axis=2) - r[:, None] - state.human_radius
+            clear.append(float(gap.min()))
+        discs = np.vstack([np.column_stack([pos, r]), [[*state.leader_pose[:2], state.leader_radius]]])
+        discs = discs if state.leader_is_robot else discs[:-1]
+        d = np.linalg.norm(discs[:, None, :2] - discs[None, :, :2], axis=2) - discs[:, None, 2] - discs[None, :, 2]
+        sep.append(float(d[np.triu_indices(len(discs), 1)].min()))
+
+    observe(env.world_state())
+    for _ in range(150):
+        env.step({a: rng.uniform(-1.0, 1.0, 2).astype(np.float32) for a in env.agents})
+        observe(env.world_state())
+    result = env.episode_metrics()
+    assert result["min_clearance"] == min(clear)
+    assert result["min_separation"] == min(sep)

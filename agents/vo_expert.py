@@ -1,0 +1,361 @@
+"""The decentralized pure-pursuit + velocity-obstacle expert of paper 003.
+
+Each follower runs the block diagram of paper 003's Fig. 2 on its own, from the
+privileged :class:`~swarm_env.state.WorldState`:
+
+1. **Formation target** (Eqs. 5-6): its slot target ``state.slot_targets[i]``,
+   computed by the env from the leader's pose and the active formation (and
+   moved out of obstacles).
+2. **Pure pursuit** (Eqs. 7-11, 3-4) towards that target, with the slot's own
+   velocity as *feed-forward*: the robot pursues the point where the slot will
+   be one time gap ``T`` from now, ``p* = slot + v_slot T``. Pure pursuit's
+   speed is ``min(|p* - p| / T, v_max) = min(|v_slot + e / T|, v_max)`` (``e`` the
+   position error), so a robot sitting on a slot that moves at ``v_slot`` keeps
+   moving at ``v_slot``: a moving slot is tracked without the steady-state lag
+   of the plain law (which needs an error of ``|v_slot| T`` to move at all, i.e.
+   0.5 m behind a slot moving at 0.5 m/s with ``T = 1`` s). ``v_slot`` is the
+   rigid-body velocity of the leader's frame at the slot, ``v_L + omega_L x (slot
+   - p_L)``.
+3. **Velocity obstacle** (Eq. 12): :func:`swarm_env.guidance.vo_select_batch`
+   samples candidate twists ``(v, omega)`` within the robot's limits, rejects
+   every candidate whose predicted motion enters the velocity obstacle of
+   another follower (reciprocal: they all run this rule), the robot leader and
+   the humans (plain VO: they do not yield), the static circles, polygons (exact
+   Minkowski sums, not bounding circles) and walls within the time horizon, and
+   returns the safe candidate with the least penalty (distance to the
+   pure-pursuit twist, consistency with the target direction). The env's robot
+   leader uses the same functions (one implementation).
+
+When no candidate is safe the robot takes the candidate that postpones the
+predicted contact longest (slower first); if that means standing still while
+something comes at it, it turns in place towards the most open direction.
+Each such step is counted as an *infeasible event* in :meth:`VOExpert.stats`.
+
+All followers are computed in one vectorised pass (one numpy evaluation of
+every candidate of every follower against its discs and the static map), but
+each follower's answer depends only on its own view of the world: the policy is
+decentralized; batching is an implementation detail.
+
+Registered as ``vo`` in the ``swarm_env.policies`` entry-point group
+(``swarm-env run --policy vo``); ``vo:KEY=VALUE,KEY=VALUE`` sets constructor
+parameters from the command line (e.g. ``vo:horizon=4,margin=0.1``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from swarm_env.guidance import pure_pursuit, vo_select_batch
+from swarm_env.state import WorldState
+
+if TYPE_CHECKING:
+    from swarm_env.env import SwarmEnv
+
+__all__ = ["VOExpert", "make_policy"]
+
+
+class VOExpert:
+    """Pure pursuit to the formation slot + sampled velocity obstacles, per follower.
+
+    A :class:`swarm_env.policies.Policy`: ``reset(env, seed)``, ``act(observations,
+    state) -> {agent: action}`` (continuous actions ``(v / max_speed, omega /
+    max_turn_rate)`` in ``[-1, 1]``, float32), ``stats()``. Deterministic: it
+    draws no random numbers (``seed`` is ignored), so the same state gives the
+    same actions.
+
+    Keyword-only parameters (units m, s, rad):
+
+    Tracking (pure pursuit, paper 003 Eqs. 7-11):
+        time_gap: ``T`` of Eq. 9's ``v = min(l / T, v_max)`` (s, > 0). Smaller is
+            stiffer.
+        feed_forward: pursue ``slot + v_slot T`` instead of the slot itself (see
+            the module docstring). ``False`` gives the plain law of the paper.
+        arrive_radius: below this distance to a slot that does not move the
+            robot stops instead of creeping (m).
+
+    Avoidance (velocity obstacles, Eq. 12; see :func:`swarm_env.guidance.vo_select`):
+        horizon: VO truncation time for moving discs (s). ``horizon_static``:
+            the same for static obstacles and walls (``None``: ``horizon``).
+        margin: safety margin added to every combined radius (m).
+        human_margin: extra margin around humans, who do not avoid robots (m).
+        n_v, n_w: the candidate grid, ``n_v`` speeds in ``[0, max_speed]`` times
+            ``n_w`` turn rates in ``[-max_turn_rate, max_turn_rate]`` (plus the
+            preferred twist, standing still and driving straight).
+        tau: how long a candidate twist is assumed held before driving straight (s).
+        w_pref, w_heading, side_bias: penalty weights (distance to the preferred
+            twist, heading consistency, keep-right tie breaker).
+        reciprocal: avoid the other followers reciprocally (each takes half of
+            the avoidance; they all run this rule). The robot leader and humans
+            are always avoided fully.
+        escape: turn in place towards open space instead of standing still when
+            blocked.
+
+    Raises:
+        ValueError: for invalid parameters; from :meth:`reset` when the env uses
+            ``action_type="discrete"`` — the motion primitives drive at full speed
+            and cannot express the slow-downs and turns in place the VO search
+            relies on, so the expert refuses rather than silently degrading.
+    """
+
+    def __init__(
+        self,
+        *,
+        time_gap: float = 1.0,
+        feed_forward: bool = True,
+        arrive_radius: float = 0.05,
+        horizon: float = 3.0,
+        horizon_static: float | None = None,
+        margin: float = 0.05,
+        human_margin: float = 0.05,
+        n_v: int = 7,
+        n_w: int = 11,
+        tau: float = 1.0,
+        w_pref: float = 1.0,
+        w_heading: float = 0.5,
+        side_bias: float = 0.1,
+        reciprocal: bool = True,
+        escape: bool = True,
+    ) -> None:
+        for name, value in (("time_gap", time_gap), ("horizon", horizon), ("tau", tau)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        for name, value in (("arrive_radius", arrive_radius), ("margin", margin), ("human_margin", human_margin)):
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if horizon_static is not None and not horizon_static > 0:
+            raise ValueError(f"horizon_static must be > 0 or None, got {horizon_static!r}")
+        if int(n_v) < 1 or int(n_w) < 1:
+            raise ValueError(f"n_v and n_w must be >= 1, got {n_v!r}, {n_w!r}")
+        self.time_gap = float(time_gap)
+        self.feed_forward = bool(feed_forward)
+        self.arrive_radius = float(arrive_radius)
+        self.horizon = float(horizon)
+        self.horizon_static = None if horizon_static is None else float(horizon_static)
+        self.margin = float(margin)
+        self.human_margin = float(human_margin)
+        self.n_v = int(n_v)
+        self.n_w = int(n_w)
+        self.tau = float(tau)
+        self.w_pref = float(w_pref)
+        self.w_heading = float(w_heading)
+        self.side_bias = float(side_bias)
+        self.reciprocal = bool(reciprocal)
+        self.escape = bool(escape)
+        self._index: dict[str, int] = {}
+        self._reset_stats()
+
+    # ------------------------------------------------------------------ Policy protocol
+    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+        """Start an episode (clears the telemetry). ``seed`` is unused: the expert is deterministic."""
+        if getattr(env, "action_type", "continuous") != "continuous":
+            raise ValueError(
+                "the VO expert drives the continuous action space only: paper 000's motion primitives "
+                "(action_type='discrete') all drive at full speed and cannot express the slow-downs and "
+                "turns in place the velocity-obstacle search relies on; make the env with action_type='continuous'"
+            )
+        self._index = {a: int(a.rsplit("_", 1)[1]) for a in env.possible_agents}
+        self._reset_stats()
+
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
+        """One action per agent in ``observations`` (the env's live agents), from ``state``."""
+        t0 = time.perf_counter()
+        twist, feasible, escaped = self.twists(state)
+        limits = np.array([state.scenario.robots.max_speed, state.scenario.robots.max_turn_rate])
+        action = np.clip(twist / limits, -1.0, 1.0).astype(np.float32)
+        index = self._index
+        out = {a: action[index[a] if a in index else int(a.rsplit("_", 1)[1])] for a in observations}
+        self._times.append(time.perf_counter() - t0)
+        self._infeasible += int(np.count_nonzero(~feasible))
+        self._escapes += int(np.count_nonzero(escaped))
+        self._follower_steps += len(feasible)
+        self._observe_clearance(state)
+        return out
+
+    def twists(self, state: WorldState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The commanded twists ``(N, 2)`` ``(v, omega)`` of all followers, with the per
+        follower flags ``feasible`` (a safe candidate existed) and ``escaped`` (turned
+        in place towards open space). Pure: reads ``state`` only."""
+        robots = state.scenario.robots
+        v_max, w_max = float(robots.max_speed), float(robots.max_turn_rate)
+        pose = state.follower_pose
+        n = len(pose)
+        preferred = self.preferred_twists(state)
+
+        # Everything a follower may have to avoid, as one disc list: followers, robot leader, humans.
+        has_leader = state.leader_is_robot
+        n_h = len(state.human_pos)
+        n_d = n + int(has_leader) + n_h
+        discs = np.empty((n_d, 3))
+        vel = np.empty((n_d, 2))
+        discs[:n, :2] = pose[:, :2]
+        discs[:n, 2] = state.follower_radius
+        vel[:n] = state.follower_vel
+        k = n
+        if has_leader:
+            discs[k, :2] = state.leader_pose[:2]
+            discs[k, 2] = state.leader_radius
+            vel[k] = state.leader_vel
+            k += 1
+        if n_h:
+            discs[k:, :2] = state.human_pos
+            discs[k:, 2] = state.human_radius + self.human_margin
+            vel[k:] = state.human_vel
+        mask = np.ones((n, n_d), dtype=bool)
+        mask[np.arange(n), np.arange(n)] = False  # not itself
+        recip = np.zeros(n_d, dtype=bool)
+        recip[:n] = self.reciprocal
+        res = vo_select_batch(
+            pose,
+            state.follower_radius,
+            preferred,
+            discs,
+            vel,
+            state.static,
+            v_max,
+            w_max,
+            disc_mask=mask,
+            reciprocal=recip,
+            velocity=state.follower_vel,
+            horizon=self.horizon,
+            horizon_static=self.horizon_static,
+            margin=self.margin,
+            n_v=self.n_v,
+            n_w=self.n_w,
+            tau=self.tau,
+            w_pref=self.w_pref,
+            w_heading=self.w_heading,
+            side_bias=self.side_bias,
+            escape=self.escape,
+        )
+        return res.twist, res.feasible, res.escaped
+
+    def preferred_twists(self, state: WorldState) -> np.ndarray:
+        """Pure pursuit towards each follower's (led) slot target: ``(N, 2)`` twists before avoidance."""
+        robots = state.scenario.robots
+        slots = state.slot_targets
+        T = self.time_gap
+        if self.feed_forward:
+            lead = state.leader_pose[:2]
+            omega = float(state.leader_twist[1])
+            # Velocity of the leader's frame at each slot: v_L + omega_L x (slot - p_L).
+            v_slot = np.empty_like(slots)
+            v_slot[:, 0] = state.leader_vel[0] - omega * (slots[:, 1] - lead[1])
+            v_slot[:, 1] = state.leader_vel[1] + omega * (slots[:, 0] - lead[0])
+            target = slots + v_slot * T
+        else:
+            target = slots
+        twist = pure_pursuit(state.follower_pose, target, float(robots.max_speed), float(robots.max_turn_rate), T)
+        d = target - state.follower_pose[:, :2]
+        arrived = d[:, 0] ** 2 + d[:, 1] ** 2 < self.arrive_radius**2
+        twist[arrived] = 0.0
+        return twist
+
+    # ------------------------------------------------------------------ telemetry
+    def _reset_stats(self) -> None:
+        self._times: list[float] = []
+        self._infeasible = 0
+        self._escapes = 0
+        self._follower_steps = 0
+        self._min_clear = math.inf
+
+    def _observe_clearance(self, state: WorldState) -> None:
+        """Running minimum of the surface gap between a follower and anything else
+        (other robots, humans, static obstacles, walls) in the states the policy saw."""
+        pos = state.follower_pose[:, :2]
+        r = state.follower_radius
+        if not len(pos):
+            return
+        m = self._min_clear
+        others = [pos]
+        radii = [r]
+        if state.leader_is_robot:
+            others.append(state.leader_pose[None, :2])
+            radii.append(np.array([state.leader_radius]))
+        if len(state.human_pos):
+            others.append(state.human_pos)
+            radii.append(state.human_radius)
+        q = np.concatenate(others)
+        qr = np.concatenate(radii)
+        gap = np.sqrt(((pos[:, None, :] - q[None, :, :]) ** 2).sum(axis=2)) - r[:, None] - qr[None, :]
+        gap[np.arange(len(pos)), np.arange(len(pos))] = np.inf  # not itself
+        m = min(m, float(gap.min()))
+        self._min_clear = state.static.min_distance(pos, r, m)
+
+    def stats(self) -> dict[str, Any]:
+        """Telemetry of the current episode (lands under ``policy_stats`` in the metrics JSON).
+
+        * ``decision_time_ms``: ``{median, p95, max, mean}`` wall time of one ``act()``
+          call for all followers (ms), and ``calls``;
+        * ``infeasible_events``: follower-steps in which no candidate was safe
+          (``infeasible_rate`` per follower-step);
+        * ``escape_turns``: follower-steps turned in place towards open space;
+        * ``min_clearance``: the smallest surface gap (m) between a follower and
+          another robot, a human, an obstacle or a wall in the states seen
+          (``null`` before the first ``act``).
+        """
+        t = np.array(self._times) * 1e3
+        timing = (
+            {
+                "median": float(np.median(t)),
+                "p95": float(np.percentile(t, 95)),
+                "max": float(t.max()),
+                "mean": float(t.mean()),
+                "calls": int(t.size),
+            }
+            if t.size
+            else {"median": None, "p95": None, "max": None, "mean": None, "calls": 0}
+        )
+        steps = max(self._follower_steps, 1)
+        return {
+            "decision_time_ms": timing,
+            "infeasible_events": self._infeasible,
+            "infeasible_rate": self._infeasible / steps,
+            "escape_turns": self._escapes,
+            "min_clearance": self._min_clear if math.isfinite(self._min_clear) else None,
+        }
+
+
+_FLOAT_PARAMS = (
+    "time_gap", "arrive_radius", "horizon", "horizon_static", "margin", "human_margin", "tau",
+    "w_pref", "w_heading", "side_bias",
+)
+_INT_PARAMS = ("n_v", "n_w")
+_BOOL_PARAMS = ("feed_forward", "reciprocal", "escape")
+
+
+def _parse_arg(arg: str) -> dict[str, Any]:
+    """``"key=value,key=value"`` -> constructor keyword arguments (typed)."""
+    kwargs: dict[str, Any] = {}
+    for item in filter(None, (s.strip() for s in arg.split(","))):
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep:
+            raise ValueError(f"policy 'vo': expected KEY=VALUE, got {item!r}")
+        if key in _FLOAT_PARAMS:
+            kwargs[key] = None if value.lower() == "none" and key == "horizon_static" else float(value)
+        elif key in _INT_PARAMS:
+            kwargs[key] = int(value)
+        elif key in _BOOL_PARAMS:
+            if value.lower() not in ("true", "false", "1", "0"):
+                raise ValueError(f"policy 'vo': {key} must be true or false, got {value!r}")
+            kwargs[key] = value.lower() in ("true", "1")
+        else:
+            known = ", ".join(_FLOAT_PARAMS + _INT_PARAMS + _BOOL_PARAMS)
+            raise ValueError(f"policy 'vo': unknown parameter {key!r}; known: {known}")
+    return kwargs
+
+
+def make_policy(env: "SwarmEnv", arg: str | None = None) -> VOExpert:
+    """Entry-point factory (``swarm_env.policies`` group, name ``vo``).
+
+    ``arg``: optional ``KEY=VALUE,...`` constructor parameters, e.g. ``"horizon=4,margin=0.1"``.
+    Raises ``ValueError`` for a discrete-action env or a bad ``arg``.
+    """
+    policy = VOExpert(**_parse_arg(arg or ""))
+    if env.action_type != "continuous":
+        policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
+    return policy

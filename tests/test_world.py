@@ -1,0 +1,63 @@
+"""World internals that exist for speed: they must give exactly the numbers of the plain path."""
+
+from __future__ import annotations
+
+import copy
+import pickle
+
+import numpy as np
+import pymunk
+
+from swarm_env import world as world_mod
+from swarm_env.env import SwarmEnv
+
+
+def _world(name: str = "paper_vo_45") -> world_mod.World:
+    env = SwarmEnv(name)
+    env.reset(seed=0)
+    return env._world
+
+
+def _robots(w: world_mod.World) -> list[pymunk.Body]:
+    return w._bodies + ([w._leader_body] if w._leader_body is not None else [])
+
+
+def _run(w: world_mod.World, steps: int, seed: int = 1) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(steps):
+        w.step(rng.uniform(-1.0, 1.0, (w.n, 2)) * 0.8)
+        out.append(w._reader._read_properties())
+    return out
+
+
+def test_fast_velocity_callback_matches_the_python_one_bit_for_bit() -> None:
+    fast = _world()
+    plain = copy.deepcopy(fast)
+    assert all(hasattr(b, "_fast_drive") for b in _robots(fast))
+    for b in _robots(plain):
+        b.velocity_func = world_mod._drive  # back to pymunk's trampoline and the Python callback
+    a, b = _run(fast, 60), _run(plain, 60)
+    assert any(np.any(x[:, 3:] != 0.0) for x in a)  # robots moved
+    for x, y in zip(a, b):
+        assert x.tobytes() == y.tobytes()
+
+
+def test_batch_reader_matches_body_properties() -> None:
+    w = _world()
+    _run(w, 20)
+    assert w._reader._batch is not None  # pymunk.batch passed its self-test here
+    np.testing.assert_array_equal(w._reader.read(), w._reader._read_properties())
+    w._reader._batch = None  # the fallback reads the same numbers
+    np.testing.assert_array_equal(w._reader.read(), w._reader._read_properties())
+
+
+def test_copies_get_their_own_fast_callbacks_and_continue_identically() -> None:
+    w = _world()
+    _run(w, 10)
+    for clone in (copy.deepcopy(w), pickle.loads(pickle.dumps(w))):
+        assert all(hasattr(b, "_fast_drive") for b in _robots(clone))
+        assert clone._reader.read().tobytes() == w._reader.read().tobytes()
+    twin = copy.deepcopy(w)
+    for x, y in zip(_run(w, 15, seed=4), _run(twin, 15, seed=4)):
+        assert x.tobytes() == y.tobytes()
