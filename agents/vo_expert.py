@@ -12,10 +12,12 @@ privileged :class:`~swarm_env.state.WorldState`:
    speed is ``min(|p* - p| / T, v_max) = min(|v_slot + e / T|, v_max)`` (``e`` the
    position error), so a robot sitting on a slot that moves at ``v_slot`` keeps
    moving at ``v_slot``: a moving slot is tracked without the steady-state lag
-   of the plain law (which needs an error of ``|v_slot| T`` to move at all, i.e.
-   0.5 m behind a slot moving at 0.5 m/s with ``T = 1`` s). ``v_slot`` is the
+   of the plain law (which needs an error of ``|v_slot| T`` to move at
+   ``|v_slot|``, i.e. 0.25 m behind a slot moving at 0.5 m/s with the default
+   ``T = 0.5`` s). ``v_slot`` is the
    rigid-body velocity of the leader's frame at the slot, ``v_L + omega_L x (slot
-   - p_L)``.
+   - p_L)``. One deviation from Eq. 4: a target behind the robot is turned to
+   in place at the full turn rate (``full_turn``).
 3. **Velocity obstacle** (Eq. 12): :func:`swarm_env.guidance.vo_select_batch`
    samples candidate twists ``(v, omega)`` within the robot's limits, rejects
    every candidate whose predicted motion enters the velocity obstacle of
@@ -30,6 +32,9 @@ When no candidate is safe the robot takes the candidate that postpones the
 predicted contact longest (slower first); if that means standing still while
 something comes at it, it turns in place towards the most open direction.
 Each such step is counted as an *infeasible event* in :meth:`VOExpert.stats`.
+A follower that has come to rest inside another robot's safety margin may
+still turn in place (``allow_still_overlap`` of :func:`vo_select_batch`), so
+two followers that met face to face turn away instead of standing for good.
 
 All followers are computed in one vectorised pass (one numpy evaluation of
 every candidate of every follower against its discs and the static map), but
@@ -76,6 +81,12 @@ class VOExpert:
             the module docstring). ``False`` gives the plain law of the paper.
         arrive_radius: below this distance to a slot that does not move the
             robot stops instead of creeping (m).
+        full_turn: when the (led) target is behind the robot (more than 90
+            degrees off its heading), turn in place at the full turn rate.
+            Pure pursuit's own rule turns at ``2 v / l`` there (continuous with
+            Eq. 4 at 90 degrees), which is slow for a far target and let a
+            follower whose slot lay beyond an obstacle alternate for minutes
+            between that slow turn and the escape turn (paper_cbs_switch).
 
     Avoidance (velocity obstacles, Eq. 12; see :func:`swarm_env.guidance.vo_select`):
         horizon: VO truncation time for moving discs (s). ``horizon_static``:
@@ -104,7 +115,7 @@ class VOExpert:
     def __init__(
         self,
         *,
-        time_gap: float = 1.0,
+        time_gap: float = 0.5,
         feed_forward: bool = True,
         arrive_radius: float = 0.05,
         horizon: float = 3.0,
@@ -116,9 +127,10 @@ class VOExpert:
         tau: float = 1.0,
         w_pref: float = 1.0,
         w_heading: float = 0.5,
-        side_bias: float = 0.1,
+        side_bias: float = 0.0,
         reciprocal: bool = True,
         escape: bool = True,
+        full_turn: bool = True,
     ) -> None:
         for name, value in (("time_gap", time_gap), ("horizon", horizon), ("tau", tau)):
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -145,6 +157,7 @@ class VOExpert:
         self.side_bias = float(side_bias)
         self.reciprocal = bool(reciprocal)
         self.escape = bool(escape)
+        self.full_turn = bool(full_turn)
         self._index: dict[str, int] = {}
         self._reset_stats()
 
@@ -230,6 +243,7 @@ class VOExpert:
             w_heading=self.w_heading,
             side_bias=self.side_bias,
             escape=self.escape,
+            allow_still_overlap=True,
         )
         return res.twist, res.feasible, res.escaped
 
@@ -248,8 +262,18 @@ class VOExpert:
             target = slots + v_slot * T
         else:
             target = slots
-        twist = pure_pursuit(state.follower_pose, target, float(robots.max_speed), float(robots.max_turn_rate), T)
+        twist = pure_pursuit(
+            state.follower_pose, target, float(robots.max_speed), float(robots.max_turn_rate), T
+        )
         d = target - state.follower_pose[:, :2]
+        if self.full_turn:
+            # Target behind (|alpha| > 90 deg): pure pursuit turns in place at 2 v / l, slow
+            # for a far target; turn at the full rate instead.
+            alpha = np.arctan2(d[:, 1], d[:, 0]) - state.follower_pose[:, 2]
+            alpha = (alpha + math.pi) % (2.0 * math.pi) - math.pi
+            behind = np.abs(alpha) > 0.5 * math.pi
+            twist[behind, 0] = 0.0
+            twist[behind, 1] = np.where(alpha[behind] >= 0.0, 1.0, -1.0) * float(robots.max_turn_rate)
         arrived = d[:, 0] ** 2 + d[:, 1] ** 2 < self.arrive_radius**2
         twist[arrived] = 0.0
         return twist
@@ -261,29 +285,41 @@ class VOExpert:
         self._escapes = 0
         self._follower_steps = 0
         self._min_clear = math.inf
+        self._static_lb: np.ndarray | None = None  # per follower: a lower bound of its static clearance
+        self._last_pos: np.ndarray | None = None
 
     def _observe_clearance(self, state: WorldState) -> None:
         """Running minimum of the surface gap between a follower and anything else
         (other robots, humans, static obstacles, walls) in the states the policy saw."""
         pos = state.follower_pose[:, :2]
         r = state.follower_radius
-        if not len(pos):
+        n = len(pos)
+        if not n:
             return
         m = self._min_clear
-        others = [pos]
-        radii = [r]
+        if n > 1:
+            # follower_distances() is computed once per snapshot and shared with the metrics.
+            gap = state.follower_distances() - r[:, None] - r[None, :]
+            m = min(m, float(gap[np.triu_indices(n, 1)].min()))
         if state.leader_is_robot:
-            others.append(state.leader_pose[None, :2])
-            radii.append(np.array([state.leader_radius]))
+            d = pos - state.leader_pose[:2]
+            m = min(m, float((np.sqrt((d * d).sum(axis=1)) - r).min()) - state.leader_radius)
         if len(state.human_pos):
-            others.append(state.human_pos)
-            radii.append(state.human_radius)
-        q = np.concatenate(others)
-        qr = np.concatenate(radii)
-        gap = np.sqrt(((pos[:, None, :] - q[None, :, :]) ** 2).sum(axis=2)) - r[:, None] - qr[None, :]
-        gap[np.arange(len(pos)), np.arange(len(pos))] = np.inf  # not itself
-        m = min(m, float(gap.min()))
-        self._min_clear = state.static.min_distance(pos, r, m)
+            d = pos[:, None, :] - state.human_pos[None, :, :]
+            m = min(m, float((np.sqrt((d * d).sum(axis=2)) - r[:, None] - state.human_radius).min()))
+        # The static clearance changes by at most the distance moved (it is 1-Lipschitz):
+        # carry a lower bound per follower and compute it exactly only when that bound
+        # could beat the running minimum (the trick of swarm_env.metrics).
+        lb = self._static_lb
+        if lb is not None and self._last_pos is not None and len(lb) == n:
+            d = pos - self._last_pos
+            lb = lb - np.sqrt((d * d).sum(axis=1)) - 1e-9
+        if lb is None or len(lb) != n or (lb - r).min() < m:
+            lb = state.static.distance(pos)
+            m = min(m, float((lb - r).min()))
+        self._static_lb = lb
+        self._last_pos = pos
+        self._min_clear = m
 
     def stats(self) -> dict[str, Any]:
         """Telemetry of the current episode (lands under ``policy_stats`` in the metrics JSON).
@@ -324,7 +360,7 @@ _FLOAT_PARAMS = (
     "w_pref", "w_heading", "side_bias",
 )
 _INT_PARAMS = ("n_v", "n_w")
-_BOOL_PARAMS = ("feed_forward", "reciprocal", "escape")
+_BOOL_PARAMS = ("feed_forward", "reciprocal", "escape", "full_turn")
 
 
 def _parse_arg(arg: str) -> dict[str, Any]:
@@ -335,11 +371,17 @@ def _parse_arg(arg: str) -> dict[str, Any]:
         key = key.strip()
         if not sep:
             raise ValueError(f"policy 'vo': expected KEY=VALUE, got {item!r}")
-        if key in _FLOAT_PARAMS:
-            kwargs[key] = None if value.lower() == "none" and key == "horizon_static" else float(value)
-        elif key in _INT_PARAMS:
-            kwargs[key] = int(value)
-        elif key in _BOOL_PARAMS:
+        try:
+            if key in _FLOAT_PARAMS:
+                kwargs[key] = None if value.lower() == "none" and key == "horizon_static" else float(value)
+            elif key in _INT_PARAMS:
+                kwargs[key] = int(value)
+        except ValueError:
+            kind = "an integer" if key in _INT_PARAMS else "a number"
+            raise ValueError(f"policy 'vo': {key} must be {kind}, got {value!r}") from None
+        if key in _FLOAT_PARAMS or key in _INT_PARAMS:
+            continue
+        if key in _BOOL_PARAMS:
             if value.lower() not in ("true", "false", "1", "0"):
                 raise ValueError(f"policy 'vo': {key} must be true or false, got {value!r}")
             kwargs[key] = value.lower() in ("true", "1")

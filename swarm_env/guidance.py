@@ -35,6 +35,12 @@ because the cone is truncated — the robot ends up standing in the path of an
 oncoming human (measured: 0.02 m separation in tests/test_guidance.py's
 head-on case with ``tau = 0.5``; none below the radii with the arc model).
 
+Batches: :func:`vo_select_batch` runs the selection for ``N`` robots in one
+vectorised pass over one shared list of discs (``disc_mask`` says which discs
+each robot avoids, so a robot can be left out of its own list); the scripted VO
+expert (``agents.vo_expert``) drives all followers with it. :func:`vo_select`
+is its ``N = 1`` case, used by the env's robot leader: one implementation.
+
 Robots that all run this rule should mark each other ``reciprocal`` (RVO: each
 takes half of the avoidance), otherwise two plain-VO robots dodge fully at the
 same time, oscillate and can stall face to face. Standing still is never
@@ -81,6 +87,8 @@ __all__ = [
 _TWO_PI = 2.0 * math.pi
 # Below this distance (m) the target counts as reached: the pursuit angle is undefined.
 _EPS_DIST = 1e-9
+# vo_select_batch tests this many least-penalty candidates first (see there).
+_FIRST_STAGE = 24
 
 
 def wrap_angle(a):
@@ -224,26 +232,39 @@ def twist_velocities(theta: float, twists: np.ndarray, tau: float) -> np.ndarray
 
 
 # ---------------------------------------------------------------------------- VO: core
-def _ray_disc_ttc(px, py, R2, wx, wy, limit):
+def _ray_disc_ttc(px, py, R2, wx, wy, limit, still_overlap_ok=False):
     """Elementwise first time ``t`` in ``[0, limit]`` with ``|w t - p| < R`` (arrays broadcast).
 
     ``p`` obstacle minus robot position, ``w`` robot minus obstacle velocity,
     ``R2 = R**2``. Entry time: the earlier root of ``|w|^2 t^2 - 2 (w.p) t + |p|^2 - R^2``
     in the cancellation-free form ``c / (w.p + sqrt(disc))``; it exists when
     ``w.p > 0`` (approaching) and ``disc > 0`` (not grazing). Overlapping at ``t = 0``:
-    ``0`` unless the distance grows (``w.p < 0``, or ``w.p == 0`` with ``w != 0``).
+    ``0`` unless the distance grows (``w.p < 0``, or ``w.p == 0`` with ``w != 0``);
+    with ``still_overlap_ok`` also ``inf`` where it stays the same (``w == 0``).
     ``inf`` where there is no entry within ``limit``.
     """
-    wp = wx * px + wy * py
-    ww = wx * wx + wy * wy
-    c = px * px + py * py - R2
-    disc = wp * wp - ww * c
-    hit = (wp > 0.0) & (disc > 0.0)
-    den = wp + np.sqrt(np.maximum(disc, 0.0))
-    t = np.divide(c, den, out=np.full(den.shape, np.inf), where=hit)
+    # In-place arithmetic on fresh temporaries (the same operations in the same order).
+    wp = wx * px
+    wp += wy * py
+    ww = wx * wx
+    ww += wy * wy
+    c = px * px
+    c += py * py
+    c -= R2
+    disc = wp * wp
+    disc -= ww * c
+    hit = wp > 0.0
+    hit &= disc > 0.0
+    np.maximum(disc, 0.0, out=disc)
+    den = np.sqrt(disc, out=disc)
+    den += wp
+    t = np.full(den.shape, np.inf)
+    np.divide(c, den, out=t, where=hit)
     over = c < 0.0
     if over.any():
-        t = np.where(over, np.where((wp > 0.0) | (ww == 0.0), 0.0, np.inf), t)
+        t[over] = np.inf
+        over &= (wp > 0.0) if still_overlap_ok else (wp > 0.0) | (ww == 0.0)
+        t[over] = 0.0
     t[t > limit] = np.inf
     return t
 
@@ -297,6 +318,26 @@ def _trajectory_row(v: float, w: float, tau: float, horizon: float, n_arc: int, 
         hd = theta + w * t_hold
         out.append((x + run * math.cos(hd), y + run * math.sin(hd)))
     return np.array(out)
+
+
+def _world_trajectories(v: np.ndarray, w: np.ndarray, theta: np.ndarray, tau: float, horizon: float, n_arc: int) -> np.ndarray:
+    """:func:`twist_trajectories`' points for one twist ``(v[i], w[i])`` per robot, each
+    from its own heading ``theta[i]``: ``(N, K+1, 2)`` (the same numbers, fewer numpy calls)."""
+    t_hold = min(float(tau), float(horizon))
+    ts = np.arange(n_arc + 1) * (t_hold / n_arc)
+    half = 0.5 * w[:, None] * ts
+    scale = v[:, None] * ts * np.sinc(half / math.pi)
+    ang = theta[:, None] + half
+    extra = horizon > t_hold
+    out = np.empty((len(v), n_arc + 1 + int(extra), 2))
+    out[:, : n_arc + 1, 0] = scale * np.cos(ang)
+    out[:, : n_arc + 1, 1] = scale * np.sin(ang)
+    if extra:
+        run = v * (horizon - t_hold)
+        hd = theta + w * t_hold
+        out[:, -1, 0] = out[:, n_arc, 0] + run * np.cos(hd)
+        out[:, -1, 1] = out[:, n_arc, 1] + run * np.sin(hd)
+    return out
 
 
 def _rotate(pts: np.ndarray, theta: float) -> np.ndarray:
@@ -381,7 +422,7 @@ def _pieces_disc_ttc(pc, rel_pos, combined_radius, disc_vel, reciprocal=None, ve
     return _rows_disc_ttc(pc, rel, R, dv, recip, own)
 
 
-def _rows_disc_ttc(pc, rel, R, dv, recip=None, own=None) -> np.ndarray:
+def _rows_disc_ttc(pc, rel, R, dv, recip=None, own=None, still_overlap_ok=False) -> np.ndarray:
     """``(C, D)`` first contact time of the ``C`` trajectory rows of ``pc`` (see
     :func:`_pieces`) with ``D`` discs moving at constant velocity.
 
@@ -390,6 +431,7 @@ def _rows_disc_ttc(pc, rel, R, dv, recip=None, own=None) -> np.ndarray:
     radii, ``dv`` ``(., D, 2)`` disc velocities, ``recip`` ``(., D)`` bool or
     ``None`` (reciprocal discs see the displacement ``2 x(t) - own t``, see
     :func:`trajectory_disc_ttc`), ``own`` ``(., 2)`` the robot's current velocity.
+    ``still_overlap_ok``: see :func:`_ray_disc_ttc`.
     """
     t0, dur, sx, sy, ux, uy = pc
     if rel.shape[0] == 1:  # shared by all rows: drop the leading axis (fewer, smaller temporaries)
@@ -408,7 +450,7 @@ def _rows_disc_ttc(pc, rel, R, dv, recip=None, own=None) -> np.ndarray:
         UY = np.where(r, 2.0 * UY - oy_, UY)
     px, py = ox - SX, oy - SY
     wx, wy = UX - dv[..., None, :, 0], UY - dv[..., None, :, 1]
-    t = _ray_disc_ttc(px, py, (R * R)[..., None, :], wx, wy, dur[:, None])
+    t = _ray_disc_ttc(px, py, (R * R)[..., None, :], wx, wy, dur[:, None], still_overlap_ok)
     t += tk
     return t.min(axis=1)
 
@@ -460,56 +502,31 @@ def _pieces_static_ttc(position, radius, pc, ext, static, circles=True) -> np.nd
     return _rows_static_ttc(P, np.array([float(radius)]), None, pc, ext, static, circles)
 
 
-def _rows_static_ttc(P, rad, ridx, pc, ext, static, circles=True) -> np.ndarray:
-    """``(C,)`` static contact times of the trajectory rows of ``pc`` (see
-    :func:`trajectory_static_ttc` for the rules) for several robots at once.
-
-    ``P`` ``(N, 2)`` robot positions, ``rad`` ``(N,)`` their radii (margin
-    included), ``ridx`` ``(C,)`` the robot of each row (``None``: ``N == 1``, all
-    rows are that robot's); ``pc`` holds displacements from the row's robot;
-    ``ext`` bounds how far any row gets from its robot.
-    """
-    one = ridx is None
+def _static_context(P: np.ndarray, rad: np.ndarray, ext: float, static: StaticMap, circles: bool) -> dict:
+    """What :func:`_rows_static_ttc` needs to know about the robots themselves (not
+    their candidate motions), computed once for all the row sets tested from the
+    same positions: which walls, circles and polygons are in reach, each robot's
+    clearance to the polygons now and, where it already overlaps one (margin
+    included), the outward normal there."""
     single = P.shape[0] == 1
-    t0, dur, sx, sy, vx, vy = pc
-    Pr = P if one else P[ridx]  # (C or 1, 2)
-    rr = rad if one else rad[ridx]  # (C or 1,)
-    sx = Pr[:, 0:1] + sx  # piece starts in world coordinates (C, K)
-    sy = Pr[:, 1:2] + sy
-    out = np.full(sx.shape[0], np.inf)
     reach = rad + (ext + 1e-9)  # (N,)
-
-    # -- walls
+    ctx: dict = {"P": P, "rad": rad, "single": single}
     W, H = static.size
     off = np.array([0.0, W, H, 0.0])
     if single:
         near = off + _WALL_AX * P[0, 0] + _WALL_AY * P[0, 1] <= reach[0]
     else:
         near = (off + _WALL_AX * P[:, 0:1] + _WALL_AY * P[:, 1:2] <= reach[:, None]).any(axis=0)
-    if near.any():
-        ax, ay, o = _WALL_AX[near], _WALL_AY[near], off[near]
-        gap = o + ax * sx[..., None] + ay * sy[..., None] - rr[:, None, None]  # (C, K, w)
-        vn = ax * vx[..., None] + ay * vy[..., None]  # > 0: moving away from the wall
-        t = np.divide(gap, -vn, out=np.full(gap.shape, np.inf), where=vn < 0.0)
-        t[gap < 0.0] = np.inf
-        t[(gap < 0.0) & (vn <= 0.0)] = 0.0
-        t[t > dur[:, None]] = np.inf
-        t += t0[:, None]
-        np.minimum(out, t.min(axis=(1, 2)), out=out)
-
-    # -- circles
+    ctx["walls"] = (_WALL_AX[near], _WALL_AY[near], off[near]) if near.any() else None
+    ctx["circles"] = None
     circ = static.circles
     if circles and len(circ):
         dist = np.hypot(circ[:, 0] - P[:, 0:1], circ[:, 1] - P[:, 1:2]) - circ[:, 2]  # (N, c)
         keep = dist <= reach[:, None]
         keep = keep[0] if single else keep.any(axis=0)
         if keep.any():
-            ck = circ[keep]
-            rel = ck[None, :, :2] - Pr[:, None, :]
-            t = _rows_disc_ttc(pc, rel, ck[None, :, 2] + rr[:, None], np.zeros((1, len(ck), 2)))
-            np.minimum(out, t.min(axis=1), out=out)
-
-    # -- convex polygons
+            ctx["circles"] = circ[keep]
+    ctx["poly"] = None
     if len(static.polygons):
         g = _polygon_arrays(static)
         centre, bound = g["centre"], g["bound"]
@@ -528,6 +545,7 @@ def _rows_static_ttc(P, rad, ridx, pc, ext, static, circles=True) -> np.ndarray:
             inside = hmax <= 0.0
             sd = np.where(inside, hmax, np.sqrt(d2.min(axis=2)))  # signed clearance now
             overl = sd < rad[:, None]
+            over = None
             if overl.any():
                 rn, rj = np.nonzero(overl)
                 nrm = N[rj, np.argmax(perp[rn, rj], axis=1)]  # centre inside: nearest edge line
@@ -536,45 +554,100 @@ def _rows_static_ttc(P, rad, ridx, pc, ext, static, circles=True) -> np.ndarray:
                 dn = np.hypot(ox_, oy_)
                 use = (~inside[rn, rj]) & (dn > 0.0)
                 nrm[use] = np.column_stack([ox_[use], oy_[use]]) / dn[use, None]
-                bad = vx[:, 0, None] * nrm[:, 0] + vy[:, 0, None] * nrm[:, 1] <= 0.0  # first piece, (C, k)
-                if not one:
-                    bad &= ridx[:, None] == rn
-                out[bad.any(axis=1)] = 0.0
+                over = (rn, nrm)
             free = (sd <= reach[:, None]) & ~overl  # (N, p)
             fcols = np.nonzero(free[0] if single else free.any(axis=0))[0]
-            if len(fcols):
-                # Broad phase: which (row, piece, polygon) sweeps come within the row's
-                # radius of the polygon's bounding circle at all.
-                cx = centre[cand[fcols], 0] - sx[..., None]  # (C, K, p)
-                cy = centre[cand[fcols], 1] - sy[..., None]
-                uu = (vx * vx + vy * vy)[..., None]
-                ts = np.divide(cx * vx[..., None] + cy * vy[..., None], uu, out=np.zeros(cx.shape), where=uu > 0.0)
-                np.clip(ts, 0.0, dur[:, None], out=ts)
-                ex = cx - ts * vx[..., None]
-                ey = cy - ts * vy[..., None]
-                rb = bound[cand[fcols]] + rr[:, None, None]
-                hit = ex * ex + ey * ey <= rb * rb
-                if not one:
-                    hit &= free[ridx][:, fcols][:, None, :]
-                ci, ki, pj = np.nonzero(hit)
-                if len(ci):
-                    pi = fcols[pj]
-                    r_ = (rr[ci] if not one else np.broadcast_to(rr, ci.shape))[:, None]
-                    a, nx, ny = A[pi], N[pi, :, 0], N[pi, :, 1]  # (n, M, ...)
-                    ex_, ey_, Ln = ux[pi], uy[pi], L[pi]
-                    wx, wy = vx[ci, ki][:, None], vy[ci, ki][:, None]
-                    dk = dur[ki][:, None]
-                    rx = sx[ci, ki][:, None] - a[..., 0]  # piece start relative to each edge start
-                    ry = sy[ci, ki][:, None] - a[..., 1]
-                    per = rx * nx + ry * ny
-                    vn = wx * nx + wy * ny
-                    t = np.divide(per - r_, -vn, out=np.full(per.shape, np.inf), where=(vn < 0.0) & (per >= r_))
-                    fin = np.isfinite(t)
-                    s_hit = rx * ex_ + ry * ey_ + np.where(fin, (wx * ex_ + wy * ey_) * np.where(fin, t, 0.0), 0.0)
-                    t[~fin | (s_hit < 0.0) | (s_hit > Ln) | (t > dk)] = np.inf
-                    # vertex discs (every vertex starts one edge)
-                    np.minimum(t, _ray_disc_ttc(-rx, -ry, r_ * r_, wx, wy, dk), out=t)
-                    np.minimum.at(out, ci, t.min(axis=1) + t0[ki])
+            ctx["poly"] = {
+                "A": A, "N": N, "L": L, "ux": ux, "uy": uy,
+                "centre": centre[cand], "bound": bound[cand], "over": over, "free": free, "fcols": fcols,
+            }
+    return ctx
+
+
+def _rows_static_ttc(P, rad, ridx, pc, ext, static, circles=True, ctx=None) -> np.ndarray:
+    """``(C,)`` static contact times of the trajectory rows of ``pc`` (see
+    :func:`trajectory_static_ttc` for the rules) for several robots at once.
+
+    ``P`` ``(N, 2)`` robot positions, ``rad`` ``(N,)`` their radii (margin
+    included), ``ridx`` ``(C,)`` the robot of each row (``None``: ``N == 1``, all
+    rows are that robot's); ``pc`` holds displacements from the row's robot;
+    ``ext`` bounds how far any row gets from its robot. ``ctx``: the
+    :func:`_static_context` of ``(P, rad, ext, static, circles)`` if the caller
+    has it (it tests several row sets from the same positions).
+    """
+    if ctx is None:
+        ctx = _static_context(P, rad, ext, static, circles)
+    one = ridx is None
+    t0, dur, sx, sy, vx, vy = pc
+    Pr = P if one else P[ridx]  # (C or 1, 2)
+    rr = rad if one else rad[ridx]  # (C or 1,)
+    sx = Pr[:, 0:1] + sx  # piece starts in world coordinates (C, K)
+    sy = Pr[:, 1:2] + sy
+    out = np.full(sx.shape[0], np.inf)
+
+    # -- walls
+    if ctx["walls"] is not None:
+        ax, ay, o = ctx["walls"]
+        gap = o + ax * sx[..., None] + ay * sy[..., None] - rr[:, None, None]  # (C, K, w)
+        vn = ax * vx[..., None] + ay * vy[..., None]  # > 0: moving away from the wall
+        t = np.divide(gap, -vn, out=np.full(gap.shape, np.inf), where=vn < 0.0)
+        t[gap < 0.0] = np.inf
+        t[(gap < 0.0) & (vn <= 0.0)] = 0.0
+        t[t > dur[:, None]] = np.inf
+        t += t0[:, None]
+        np.minimum(out, t.min(axis=(1, 2)), out=out)
+
+    # -- circles
+    if circles and ctx["circles"] is not None:
+        ck = ctx["circles"]
+        rel = ck[None, :, :2] - Pr[:, None, :]
+        t = _rows_disc_ttc(pc, rel, ck[None, :, 2] + rr[:, None], np.zeros((1, len(ck), 2)))
+        np.minimum(out, t.min(axis=1), out=out)
+
+    # -- convex polygons
+    pg = ctx["poly"]
+    if pg is not None:
+        A, N, L, ux, uy = pg["A"], pg["N"], pg["L"], pg["ux"], pg["uy"]
+        if pg["over"] is not None:
+            rn, nrm = pg["over"]
+            bad = vx[:, 0, None] * nrm[:, 0] + vy[:, 0, None] * nrm[:, 1] <= 0.0  # first piece, (C, k)
+            if not one:
+                bad &= ridx[:, None] == rn
+            out[bad.any(axis=1)] = 0.0
+        fcols = pg["fcols"]
+        if len(fcols):
+            # Broad phase: which (row, piece, polygon) sweeps come within the row's
+            # radius of the polygon's bounding circle at all.
+            cx = pg["centre"][fcols, 0] - sx[..., None]  # (C, K, p)
+            cy = pg["centre"][fcols, 1] - sy[..., None]
+            uu = (vx * vx + vy * vy)[..., None]
+            ts = np.divide(cx * vx[..., None] + cy * vy[..., None], uu, out=np.zeros(cx.shape), where=uu > 0.0)
+            np.clip(ts, 0.0, dur[:, None], out=ts)
+            ex = cx - ts * vx[..., None]
+            ey = cy - ts * vy[..., None]
+            rb = pg["bound"][fcols] + rr[:, None, None]
+            hit = ex * ex + ey * ey <= rb * rb
+            if not one:
+                hit &= pg["free"][ridx][:, fcols][:, None, :]
+            ci, ki, pj = np.nonzero(hit)
+            if len(ci):
+                pi = fcols[pj]
+                r_ = (rr[ci] if not one else np.broadcast_to(rr, ci.shape))[:, None]
+                a, nx, ny = A[pi], N[pi, :, 0], N[pi, :, 1]  # (n, M, ...)
+                ex_, ey_, Ln = ux[pi], uy[pi], L[pi]
+                wx, wy = vx[ci, ki][:, None], vy[ci, ki][:, None]
+                dk = dur[ki][:, None]
+                rx = sx[ci, ki][:, None] - a[..., 0]  # piece start relative to each edge start
+                ry = sy[ci, ki][:, None] - a[..., 1]
+                per = rx * nx + ry * ny
+                vn = wx * nx + wy * ny
+                t = np.divide(per - r_, -vn, out=np.full(per.shape, np.inf), where=(vn < 0.0) & (per >= r_))
+                fin = np.isfinite(t)
+                s_hit = rx * ex_ + ry * ey_ + np.where(fin, (wx * ex_ + wy * ey_) * np.where(fin, t, 0.0), 0.0)
+                t[~fin | (s_hit < 0.0) | (s_hit > Ln) | (t > dk)] = np.inf
+                # vertex discs (every vertex starts one edge)
+                np.minimum(t, _ray_disc_ttc(-rx, -ry, r_ * r_, wx, wy, dk), out=t)
+                np.minimum.at(out, ci, t.min(axis=1) + t0[ki])
     return out
 
 
@@ -706,7 +779,11 @@ class VOBatchResult:
     plus ``escaped`` ``(N,)`` bool: the robot was turned in place towards open
     space (the ``escape`` rule) instead of taking the least-penalty answer, and
     ``fast`` ``(N,)`` bool: the preferred twist was accepted without evaluating
-    the grid."""
+    the grid (it was tested alone and was safe); ``preferred_safe`` ``(N,)``
+    bool: the preferred twist was tested and is safe (then it is the answer
+    unless a ``goal_heading`` makes another candidate cheaper). With ``fast``,
+    ``n_safe`` counts the safe candidates among those tested (the search stops
+    at the first pass that holds one), so it is a lower bound."""
 
     twist: np.ndarray
     feasible: np.ndarray
@@ -714,6 +791,7 @@ class VOBatchResult:
     min_time_to_collision: np.ndarray
     escaped: np.ndarray
     fast: np.ndarray
+    preferred_safe: np.ndarray
 
 
 def vo_select(
@@ -781,7 +859,11 @@ def vo_select(
         reciprocal: ``(D,)`` bool (or one bool for all): discs that are robots
             running this same rule; they are avoided reciprocally, each robot
             taking half of the avoidance (:func:`trajectory_disc_ttc`). Humans and
-            non-reacting robots must be ``False`` (plain VO).
+            non-reacting robots must be ``False`` (plain VO). A reciprocal disc
+            that is already within the combined radius (margin included) is
+            avoided plainly: the other robot evidently did not take its half,
+            and the reciprocal displacement can pass a move towards it as
+            separating (measured: two followers squeezed into contact in a jam).
         fast: test the preferred twist alone first and return it if it is safe
             (with ``goal_heading=None`` it has the least penalty, so the answer
             is the same; ``n_safe`` is then reported as 1). ``False`` always
@@ -841,13 +923,6 @@ def vo_select(
     return VOResult(res.twist[0], bool(res.feasible[0]), int(res.n_safe[0]), float(res.min_time_to_collision[0]))
 
 
-def _own_discs(mask: np.ndarray | None, i: int, d: np.ndarray, dv: np.ndarray, h: np.ndarray) -> tuple:
-    """Robot ``i``'s discs (all of them without a mask): positions/radii, velocities, horizons."""
-    if mask is None:
-        return d, dv, h
-    return d[mask[i]], dv[mask[i]], h[mask[i]]
-
-
 def _rotate_each(pts: np.ndarray, theta: np.ndarray, shared: bool) -> np.ndarray:
     """Rotate body-frame points by one angle per robot, ``theta`` ``(M,)``: ``pts``
     ``(..., 2)`` shared by all robots (``shared``) or ``(M, ..., 2)`` one set per
@@ -887,6 +962,7 @@ def vo_select_batch(
     model: str = "arc",
     n_arc: int = 2,
     escape: bool = True,
+    allow_still_overlap: bool = False,
     velocity: np.ndarray | None = None,
     reciprocal: np.ndarray | bool = False,
     fast: bool = True,
@@ -908,12 +984,27 @@ def vo_select_batch(
             reciprocally by each robot (see :func:`vo_select`).
         velocity: ``(N, 2)`` the robots' current world velocities, or ``None``.
         goal_heading: ``(N,)`` or ``None`` (per robot, as in :func:`vo_select`).
+        allow_still_overlap: a disc the robot already overlaps (margin included)
+            and that does not move relative to it (both standing) is not a
+            contact for a candidate that stands still (turning in place
+            included) — the gap is not shrinking. By default (the rule of
+            :func:`vo_select`) every candidate is then "in contact at t = 0"
+            but those moving away, and two robots that came to a stop face to
+            face inside each other's margin stay there for good (measured:
+            near-symmetric crossings of two followers). With this option they
+            may turn in place, and the escape probe rates the directions away
+            from each other as open.
         The other arguments are :func:`vo_select`'s, shared by all robots.
 
-    With ``fast`` the preferred twists of all robots are tested first (one row
-    each) and only the robots whose preferred twist is unsafe (or all, when
-    ``goal_heading`` is given) evaluate the whole grid. Rare paths (escape turns,
-    no safe candidate) are resolved per robot.
+    With ``fast`` each robot tests its candidates in order of increasing
+    penalty, in passes shared by all robots, and stops at the first pass that
+    holds a safe one (every cheaper candidate was tested and is unsafe, so the
+    answer is the one of testing the whole grid): first its cheapest (the
+    preferred twist, whose penalty is 0 unless a ``goal_heading`` is given),
+    then up to the 24th, then the rest (a lone robot left after the first pass
+    tests the rest at once). The escape probes of all
+    robots that need one are evaluated together. ``fast=False`` tests every
+    candidate of every robot in one pass.
     """
     h_static = float(horizon if horizon_static is None else min(horizon_static, horizon))
     if not (tau > 0.0 and horizon > 0.0 and h_static > 0.0 and n_arc >= 1):
@@ -939,7 +1030,7 @@ def vo_select_batch(
         if n == 1:  # numpy's per-call overhead dominates for one row: plain Python
             pref_pts = _trajectory_row(float(pv[0]), float(pw[0]), tau, horizon, n_arc, float(theta[0]))[None]
         else:
-            pref_pts = _rotate_each(_trajectories_body(np.column_stack([pv, pw]), tau, horizon, n_arc)[1], theta, False)
+            pref_pts = _world_trajectories(pv, pw, theta, tau, horizon, n_arc)
     else:
         times = np.array([0.0, horizon])
         pref_pts = np.zeros((n, 2, 2))
@@ -982,16 +1073,27 @@ def vo_select_batch(
         n_keep = len(kidx)
         rel_k, R_k, dv_k, h_k = rel[:, kidx], R[:, kidx], dv[kidx][None], h_disc[kidx][None]
         recip_k = None if recip is None else recip[:, kidx]
+        moving_k = (kidx < n_moving)[None]
     else:
         n_keep = int(keep.sum(axis=1).max(initial=0))
         # Each robot's kept discs first (in their original order), padded to n_keep.
-        order = np.argsort(~keep, axis=1, kind="stable")[:, :n_keep]
+        kidx = np.argsort(~keep, axis=1, kind="stable")[:, :n_keep]
         rows = np.arange(n)[:, None]
-        valid = keep[rows, order]
-        rel_k, R_k, dv_k, h_k = rel[rows, order], R[rows, order], dv[order], h_disc[order]
-        recip_k = None if recip is None else recip[rows, order] & valid
+        valid = keep[rows, kidx]
+        rel_k, R_k, dv_k, h_k = rel[rows, kidx], R[rows, kidx], dv[kidx], h_disc[kidx]
+        recip_k = None if recip is None else recip[rows, kidx] & valid
+        moving_k = valid & (kidx < n_moving)
+    if recip_k is not None:
+        # Within the combined radius of a reciprocal disc already (margin included),
+        # reciprocity is dropped: the other robot evidently did not take its half, and
+        # the reciprocal displacement 2 x(t) - v t can pass a move towards it as separating.
+        recip_k = recip_k & (rel_k[..., 0] ** 2 + rel_k[..., 1] ** 2 > R_k * R_k)
     own_k = np.zeros((n, 2)) if vel is None else vel
     whole = n == 1  # then every row is robot 0's and the (1, ...) arrays broadcast as they are
+
+    poses2 = poses[:, :2]
+    # (circles=True: the escape probes test the static circles with the map; the grid with the discs)
+    static_ctx = None if static is None else _static_context(poses2, rad, ext, static, circles=True)
 
     def contact_times(sub: np.ndarray, pts: np.ndarray, per: int) -> np.ndarray:
         """Contact time of trajectory rows ``pts`` ``(len(sub) * per, K+1, 2)``: ``per``
@@ -999,128 +1101,230 @@ def vo_select_batch(
         pc = _pieces(times, pts)
         ttc = np.full(pts.shape[0], np.inf)
         m = len(sub)
-        ridx = None if m == 1 else np.repeat(np.arange(m), per)
+        # The robot of each row (None: one robot only, its (1, ...) arrays broadcast as they are).
+        rows = None if whole else (np.full(pts.shape[0], sub[0]) if m == 1 else np.repeat(sub, per))
         if n_keep:
             if whole:
                 rc, rl, rR, rdv, rown, rh, rvalid = recip_k, rel_k, R_k, dv_k, own_k, h_k, valid
             else:
-                rows = sub if m == 1 else sub[ridx]
-                rc = None if recip_k is None else recip_k[rows]
-                rl, rR, rdv, rown, rh = rel_k[rows], R_k[rows], dv_k[rows], own_k[rows], h_k[rows]
-                rvalid = None if valid is None else valid[rows]
+                r1 = sub if m == 1 else rows  # one robot: its (1, ...) slices broadcast over the rows
+                rc = None if recip_k is None else recip_k[r1]
+                rl, rR, rdv, rown, rh = rel_k[r1], R_k[r1], dv_k[r1], own_k[r1], h_k[r1]
+                rvalid = None if valid is None else valid[r1]
             if rc is not None and not rc.any():
                 rc = None
-            t = _rows_disc_ttc(pc, rl, rR, rdv, rc, rown)
+            t = _rows_disc_ttc(pc, rl, rR, rdv, rc, rown, allow_still_overlap)
             far = t > rh
             if rvalid is not None:
                 far |= ~rvalid
             t[far] = np.inf
             ttc = t.min(axis=1)
         if static is not None:
-            ts = _rows_static_ttc(poses[:, :2] if whole else poses[sub, :2], rad if whole else rad[sub], ridx, pc,
-                                  ext, static, circles=False)
+            ts = _rows_static_ttc(poses2, rad, rows, pc, ext, static, circles=False, ctx=static_ctx)
             ts[ts > h_static] = np.inf
             np.minimum(ttc, ts, out=ttc)
         return ttc
 
-    twist_out = np.empty((n, 2))
-    twist_out[:, 0], twist_out[:, 1] = pv, pw
-    feasible = np.ones(n, dtype=bool)
-    n_safe = np.ones(n, dtype=np.int64)
-    ttc_out = np.full(n, np.inf)
-    escaped = np.zeros(n, dtype=bool)
-    accepted = np.zeros(n, dtype=bool)
+    def escape_turns(requests: list) -> list[int]:
+        """Turn in place towards the most open direction, for several robots at once.
+
+        For each request ``(k, eligible)`` (robot ``k``) pick, among its
+        eligible standing (``v = 0``) candidates, the one whose heading after
+        ``tau`` allows the longest straight run at ``v_max``; ties (several fully
+        open directions) go to the least penalty. Used when standing still is
+        the best the VO offers but would repeat forever (blocked) or only
+        postpone a contact (something moving at the robot). Plain VO throughout
+        (a probe is not a commitment).
+
+        Probes: against the moving discs, turn in place for ``tau`` then run
+        straight until ``horizon`` (the discs move meanwhile); against the
+        static map (circles included), a straight run from the current position
+        for ``horizon - tau`` s (``horizon`` if that is shorter than ``tau``). The
+        static probe starts moving at once so that a robot already within the
+        margin of an obstacle rates the directions leading away from it as
+        open: by the overlap rule a probe that starts by standing still is "in
+        contact at t = 0" in every direction, and the robot kept turning back
+        towards the obstacle (measured: a follower stuck for the rest of an
+        episode of paper_cbs_switch at an obstacle between it and its slot).
+        """
+        req_k, req_c = [], []
+        for r, (k, eligible) in enumerate(requests):
+            stop = np.flatnonzero(eligible & (twists[k, :, 0] <= 0.0))
+            req_k.append(np.full(len(stop), r))
+            req_c.append(stop)
+        rq = np.concatenate(req_k)
+        cand = np.concatenate(req_c)
+        ks = robot = np.array([k for k, _ in requests])[rq]
+        hd = theta[robot] + twists[ks, cand, 1] * tau
+        cos_h, sin_h = np.cos(hd), np.sin(hd)
+        ttc_p = np.full(len(rq), np.inf)
+        if n_keep:
+            run = v_max * max(horizon - tau, 0.0)
+            times3 = np.array([0.0, tau, max(horizon, tau + 1e-9)])
+            pts = np.zeros((len(rq), 3, 2))
+            pts[:, 2, 0] = run * cos_h
+            pts[:, 2, 1] = run * sin_h
+            rows = robot if n > 1 else np.zeros(1, dtype=np.intp)
+            t = _rows_disc_ttc(_pieces(times3, pts), rel_k[rows], R_k[rows], dv_k[rows], None, None, allow_still_overlap)
+            t[(t > h_k[rows]) | ~moving_k[rows]] = np.inf
+            ttc_p = t.min(axis=1)
+        if static is not None:
+            t_run = horizon - tau if horizon > 2.0 * tau else horizon
+            pts = np.zeros((len(rq), 2, 2))
+            pts[:, 1, 0] = v_max * t_run * cos_h
+            pts[:, 1, 1] = v_max * t_run * sin_h
+            # (the batch's static context: its reach, ext >= v_max t_run, covers the probes)
+            ts = _rows_static_ttc(poses2, rad, None if whole else robot, _pieces(np.array([0.0, t_run]), pts),
+                                  ext, static, circles=True, ctx=static_ctx)
+            ts[ts > h_static] = np.inf
+            np.minimum(ttc_p, ts, out=ttc_p)
+        pen = penalty[ks, cand]
+        out = []
+        for r in range(len(requests)):
+            rows_r = np.flatnonzero(rq == r)
+            out.append(int(cand[rows_r[np.lexsort((pen[rows_r], -ttc_p[rows_r]))[0]]]))
+        return out
+
+    ttc0 = None
     if fast and goal_heading is None:
         # The preferred twist has penalty 0, the minimum: where it is safe it is the answer.
-        accepted = np.isinf(contact_times(np.arange(n), pref_pts, 1))
-    sub = np.nonzero(~accepted)[0]
-    if len(sub) == 0:
-        return VOBatchResult(twist_out, feasible, n_safe, ttc_out, escaped, accepted)
+        ttc0 = contact_times(np.arange(n), pref_pts, 1)
+        if np.isinf(ttc0).all():
+            out = np.empty((n, 2))
+            out[:, 0], out[:, 1] = pv, pw
+            ok = np.ones(n, dtype=bool)
+            return VOBatchResult(out, ok, np.ones(n, dtype=np.int64), np.full(n, np.inf), ~ok, ok, ok.copy())
 
-    m = len(sub)
     grid = sample_twists(v_max, omega_max, n_v, n_w, v_min)
     g1 = grid.shape[0] + 1
-    twists = np.empty((m, g1, 2))
-    twists[:, 0, 0], twists[:, 0, 1] = pv[sub], pw[sub]  # the preferred twist first: it wins ties
+    twists = np.empty((n, g1, 2))
+    twists[:, 0, 0], twists[:, 0, 1] = pv, pw  # the preferred twist first: it wins ties
     twists[:, 1:] = grid
-    if model == "arc":
-        rot = _rotate(body, float(theta[sub[0]]))[None] if m == 1 else _rotate_each(body, theta[sub], True)
-        pts = np.concatenate([pref_pts[sub][:, None], rot], axis=1)
-    else:
-        mv = twist_velocities(np.repeat(theta[sub], g1), twists.reshape(-1, 2), tau)
-        pts = np.stack([np.zeros_like(mv), mv * horizon], axis=1).reshape(m, g1, 2, 2)
-    ttc = contact_times(sub, pts.reshape(m * g1, *pts.shape[2:]), g1).reshape(m, g1)
-
-    gh = theta[sub] + pw[sub] * tau if goal_heading is None else np.asarray(goal_heading, dtype=np.float64).reshape(n)[sub]
-    dv_ = (twists[..., 0] - pv[sub, None]) / (v_max if v_max > 0 else 1.0)
-    dw_ = (twists[..., 1] - pw[sub, None]) / (omega_max if omega_max > 0 else 1.0)
-    head = np.abs(wrap_angle(theta[sub, None] + twists[..., 1] * tau - gh[:, None])) / math.pi
+    gh = theta + pw * tau if goal_heading is None else np.asarray(goal_heading, dtype=np.float64).reshape(n)
+    dv_ = (twists[..., 0] - pv[:, None]) / (v_max if v_max > 0 else 1.0)
+    dw_ = (twists[..., 1] - pw[:, None]) / (omega_max if omega_max > 0 else 1.0)
+    head = np.abs(wrap_angle(theta[:, None] + twists[..., 1] * tau - gh[:, None])) / math.pi
     penalty = w_pref * np.hypot(dv_, dw_) + w_heading * head + side_bias * np.maximum(dw_, 0.0)
+    pts = None  # (N, g1, K+1, 2) trajectories, built when more than the preferred twists are tested
 
+    def all_points() -> np.ndarray:
+        if model == "arc":
+            rot = _rotate(body, float(theta[0]))[None] if n == 1 else _rotate_each(body, theta, True)
+            return np.concatenate([pref_pts[:, None], rot], axis=1)
+        mv = twist_velocities(np.repeat(theta, g1), twists.reshape(-1, 2), tau)
+        return np.stack([np.zeros_like(mv), mv * horizon], axis=1).reshape(n, g1, 2, 2)
+
+    ttc = np.full((n, g1), np.nan)  # nan: not tested
+    if ttc0 is not None:
+        ttc[:, 0] = ttc0
+
+    def evaluate(robots: np.ndarray, cols: np.ndarray) -> None:
+        """Contact times of candidates ``cols`` ``(len(robots), h)`` of ``robots`` into ``ttc``."""
+        nonlocal pts
+        h = cols.shape[1]
+        if pts is None:
+            pts = all_points()
+        rows_pts = pts[robots[:, None], cols].reshape(len(robots) * h, *pts.shape[2:])
+        ttc[robots[:, None], cols] = contact_times(robots, rows_pts, h).reshape(len(robots), h)
+
+    # Standing candidates (v = 0) all have the same trajectory (none) whatever their turn
+    # rate, hence the same contact time: one of them, (0, 0), is tested with a robot's
+    # second pass and its result copied to the others (the escape rule needs them).
+    still = np.flatnonzero((grid[:, 0] == 0.0) & (grid[:, 1] == 0.0)) + 1
+    zero = twists[:, :, 0] == 0.0
+
+    def evaluate_ranks(robots: np.ndarray, lo: np.ndarray, hi: np.ndarray, extra: np.ndarray | None = None) -> None:
+        """Test each robot's candidates of penalty rank ``lo[k] <= rank < hi[k]`` (lists of
+        unequal length are padded by repeating their last candidate: tested twice, harmless),
+        and the candidates ``extra`` of every robot."""
+        go = hi > lo
+        robots, lo, hi = robots[go], lo[go], hi[go]
+        if not len(robots):
+            return
+        h = int((hi - lo).max())
+        ranks = np.minimum(lo[:, None] + np.arange(h), hi[:, None] - 1)
+        cols = order[robots[:, None], ranks]
+        if extra is not None and len(extra):
+            cols = np.concatenate([cols, np.broadcast_to(extra, (len(robots), len(extra)))], axis=1)
+        evaluate(robots, cols)
+
+    # Candidates are tested in order of increasing penalty, in passes, and a robot
+    # stops at the first pass that holds a safe candidate: every cheaper one was
+    # tested and is unsafe, so the answer is the one testing the whole grid gives.
+    # Pass 1: each robot's least-penalty candidate (the preferred twist unless a
+    # goal_heading is given: the fast path); pass 2: up to rank _FIRST_STAGE; pass 3: the rest. A
+    # single robot left after pass 1 tests the rest at once (a pass costs more than
+    # the rows it saves). ``fast=False``: the whole grid in one pass.
+    order = np.argsort(penalty, axis=1, kind="stable")  # stable: ties keep grid order (preferred first)
+    everyone = np.arange(n)
+    if not fast:
+        evaluate(everyone, order)
+        done = np.full(n, g1)
+    else:
+        done = np.ones(n, dtype=np.intp)
+        if ttc0 is None:  # (otherwise pass 1, the preferred twists alone, was done above)
+            evaluate_ranks(everyone, np.zeros(n, dtype=np.intp), done)
+        for target in (min(_FIRST_STAGE, g1), g1):
+            tested = np.arange(g1) < done[:, None]
+            pending = everyone[~(np.isinf(np.take_along_axis(ttc, order, axis=1)) & tested).any(axis=1)]
+            if not len(pending):
+                break
+            if len(pending) == 1:
+                target = g1
+            hi = np.full(len(pending), target)
+            evaluate_ranks(pending, done[pending], hi, still if escape and target < g1 else None)
+            done[pending] = np.maximum(done[pending], hi)
+            if target == g1:
+                break
+
+    known = zero & ~np.isnan(ttc)
+    if known.any():
+        rows_z = np.flatnonzero(known.any(axis=1))
+        ttc_z = np.where(known[rows_z], ttc[rows_z], -np.inf).max(axis=1)  # (all known ones are equal)
+        ttc[rows_z] = np.where(zero[rows_z], ttc_z[:, None], ttc[rows_z])
+    feasible = np.ones(n, dtype=bool)
+    ttc_out = np.full(n, np.inf)
+    escaped = np.zeros(n, dtype=bool)
+    pref_safe = np.isinf(ttc[:, 0])
+    accepted = pref_safe & (done == 1)
     safe = np.isinf(ttc)
-    n_safe_sub = [np.count_nonzero(safe)] if m == 1 else np.count_nonzero(safe, axis=1)
-    idx = np.argmin(np.where(safe, penalty, np.inf), axis=1)
-    for k, i in enumerate(sub.tolist()):
-        tw, pen, tt = twists[k], penalty[k], ttc[k]
-        j = int(idx[k])
-        if n_safe_sub[k]:
-            if escape and tw[j, 0] <= 0.0 < pv[i]:
-                j = _escape_turn(poses[i], rad[i], tw, safe[k], pen, *_own_discs(mask, i, d, dv, h_disc),
-                                 static, tau, horizon, h_static, v_max)
-                escaped[i] = True
-            twist_out[i], n_safe[i] = tw[j], n_safe_sub[k]
+    n_safe = np.count_nonzero(safe, axis=1)
+    choice = np.argmin(np.where(safe, penalty, np.inf), axis=1)
+    requests = []  # (k, eligible standing candidates) of the robots that escape
+    chosen_v = twists[everyone, choice, 0]
+    special = (n_safe == 0) | ((chosen_v <= 0.0) & (pv > 0.0)) if escape else n_safe == 0
+    for k in np.flatnonzero(special).tolist():  # rare: resolved robot by robot
+        tw = twists[k]
+        j = choice[k]
+        if n_safe[k]:
+            requests.append((k, None))  # None: its safe candidates (known once all standing ones are tested)
             continue
         # lexsort: last key is primary -> largest ttc, then slowest, then least penalty.
-        j = int(np.lexsort((pen, np.abs(tw[:, 0]), -tt))[0])
+        tt = ttc[k]
+        j = choice[k] = int(np.lexsort((penalty[k], np.abs(tw[:, 0]), -tt))[0])
         if escape and tw[j, 0] <= 0.0:
             # Standing still only postpones the contact (something is coming at the
             # robot): turn in place towards the most open direction, to run next.
-            best = (tt == tt[j]) & (tw[:, 0] <= 0.0)
-            j = _escape_turn(poses[i], rad[i], tw, best, pen, *_own_discs(mask, i, d, dv, h_disc),
-                             static, tau, horizon, h_static, v_max)
-            escaped[i] = True
-        twist_out[i], feasible[i], n_safe[i], ttc_out[i] = tw[j], False, 0, tt[j]
-    return VOBatchResult(twist_out, feasible, n_safe, ttc_out, escaped, accepted)
-
-
-def _escape_turn(
-    pose: np.ndarray,
-    rad: float,
-    twists: np.ndarray,
-    eligible: np.ndarray,
-    penalty: np.ndarray,
-    discs: np.ndarray,
-    disc_vel: np.ndarray,
-    disc_horizon: np.ndarray,
-    static: StaticMap | None,
-    tau: float,
-    horizon: float,
-    h_static: float,
-    v_max: float,
-) -> int:
-    """Turn in place towards the most open direction: among the ``eligible``
-    standing (``v = 0``) candidates pick the one whose heading after ``tau``
-    allows the longest straight run at ``v_max`` (probe: turn in
-    place for ``tau``, then straight until ``horizon``); ties (several fully open
-    directions) go to the least penalty. Used when standing still is the best
-    the VO offers but would repeat forever (blocked) or only postpone a contact
-    (something moving at the robot). ``discs`` includes the static circles
-    (plain VO throughout: a probe is not a commitment)."""
-    stop = np.nonzero(eligible & (twists[:, 0] <= 0.0))[0]
-    hd = float(pose[2]) + twists[stop, 1] * tau
-    run = v_max * max(horizon - tau, 0.0)
-    times = np.array([0.0, tau, max(horizon, tau + 1e-9)])
-    pts = np.zeros((len(stop), 3, 2))
-    pts[:, 2, 0] = run * np.cos(hd)
-    pts[:, 2, 1] = run * np.sin(hd)
-    ttc = np.full(len(stop), np.inf)
-    if discs.shape[0]:
-        t = trajectory_disc_ttc(times, pts, discs[:, :2] - pose[:2], discs[:, 2] + rad, disc_vel)
-        t[t > disc_horizon] = np.inf
-        ttc = t.min(axis=1)
-    if static is not None:
-        ts = trajectory_static_ttc(pose[:2], rad, times, pts, static, circles=False)
-        ts[ts > h_static] = np.inf
-        np.minimum(ttc, ts, out=ttc)
-    best = np.lexsort((penalty[stop], -ttc))[0]
-    return int(stop[best])
+            requests.append((k, (tt == tt[j]) & (tw[:, 0] <= 0.0)))
+    if requests:
+        # The escape rule needs to know which standing candidates are safe: test those not tested yet.
+        ks = np.array([k for k, _ in requests])
+        untested = np.isnan(ttc[ks]) & (twists[ks, :, 0] <= 0.0)
+        if untested.any():
+            cnt = untested.sum(axis=1)
+            h = int(cnt.max())
+            cols = np.argsort(~untested, axis=1, kind="stable")[:, :h]
+            cols = np.where(np.arange(h) < cnt[:, None], cols, cols[:, :1])  # pad: repeat the first
+            has = cnt > 0
+            evaluate(ks[has], cols[has])
+        requests = [(k, np.isinf(ttc[k]) if eligible is None else eligible) for k, eligible in requests]
+        for (k, _), j in zip(requests, escape_turns(requests)):
+            choice[k] = j
+            escaped[k] = True
+    choice = np.asarray(choice)
+    twist_out = twists[everyone, choice]
+    none_safe = n_safe == 0
+    feasible[none_safe] = False
+    ttc_out[none_safe] = ttc[everyone, choice][none_safe]
+    n_safe[accepted] = 1
+    return VOBatchResult(twist_out, feasible, n_safe, ttc_out, escaped, accepted, pref_safe)
