@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from swarm_env.policies import UnknownPolicyError
+from swarm_env.policies import PolicyError, UnknownPolicyError
 from swarm_env.scenario import ScenarioError
 
 
@@ -219,6 +219,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     except UnknownPolicyError as exc:
         print(f"error: {exc.args[0] if exc.args else exc}", file=sys.stderr)
+        return 2
+    except PolicyError as exc:
+        print(f"error: {exc}", file=sys.stderr)
         return 2
 
 

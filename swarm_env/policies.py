@@ -48,6 +48,10 @@ class UnknownPolicyError(KeyError):
     """No policy of that name is registered."""
 
 
+class PolicyError(ValueError):
+    """A registered policy rejected its argument or the env (e.g. ``vo`` with discrete actions)."""
+
+
 @runtime_checkable
 class Policy(Protocol):
     def reset(self, env: "SwarmEnv", seed: int | None) -> None: ...
@@ -153,7 +157,8 @@ def registered_policies() -> dict[str, str]:
 def load_policy(spec: str | Any, env: "SwarmEnv") -> Policy:
     """Build a policy from ``"name"`` / ``"name:arg"`` or wrap a model object.
 
-    Raises :class:`UnknownPolicyError` (a ``KeyError``) naming the known policies when ``name`` is unknown.
+    Raises :class:`UnknownPolicyError` (a ``KeyError``) naming the known policies when ``name`` is
+    unknown, and :class:`PolicyError` (a ``ValueError``) when the factory rejects ``arg`` or the env.
     """
     if not isinstance(spec, str):
         if isinstance(spec, Policy):
@@ -169,7 +174,12 @@ def load_policy(spec: str | Any, env: "SwarmEnv") -> Policy:
     if factory is None:
         known = ", ".join(registered_policies())
         raise UnknownPolicyError(f"unknown policy {name!r}; registered policies: {known}")
-    policy = factory(env, arg or None)
+    try:
+        policy = factory(env, arg or None)
+    except PolicyError:
+        raise
+    except ValueError as exc:  # a factory's documented way to reject its argument or the env
+        raise PolicyError(f"policy {spec!r}: {exc}") from exc
     if not isinstance(policy, Policy):
         policy = PredictPolicy(policy)
     return policy

@@ -110,3 +110,8 @@ def test_run_discrete_actions_and_bad_numbers(capsys: pytest.CaptureFixture[str]
                  "--max-cycles", "20"]) == 0
     assert main(["run", "--episodes", "0"]) == 2
     assert "--episodes must be >= 1" in capsys.readouterr().err
+
+
+def test_run_rejects_a_bad_policy_argument(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", "--scenario", "paper_vo_0", "--policy", "pursuit:fast", "--max-cycles", "2"]) == 2
+    assert "pursuit:fast" in capsys.readouterr().err
