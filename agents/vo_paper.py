@@ -450,17 +450,19 @@ DISCUSSION = """\
   situation: a follower pinned inside a neighbour's safety margin while a human walks straight at it,
   so no candidate is safe. A prioritised fallback (keep clear of humans first, of robots — who yield —
   second) would address it; it is not implemented.
-* **Formation error.** Per follower 0.29–0.93 m against the paper's 0.19–1.24 m: below the paper's
-  value for both followers at 0° and for Robot 3 at −45°, 5 % and 16 % above it at −90°, and 3.5 times
-  the paper's 0.194 m for Robot 2 at −45° (0.67 m). Most of it is not tracking error — with the slot's velocity as
-  feed-forward a follower sits on a moving slot — but the robot leader's own avoidance: the humans walk
-  into its path, it swerves by up to 3 m and its slots swing round at up to 1.2 m/s (1 rad/s at 1.2 m),
-  faster than a follower can drive (0.65 m/s), and a follower pushed to the far side of the leader or a
-  human needs tens of seconds at 0.15 m/s of spare speed to catch up (see the position plots).
-* **Time to target.** Our leader needs 35–37 s for the 15 m path; the paper's 30.4–30.7 s means its
-  leader drove straight at 0.5 m/s, hardly deviating for the humans. Ours (the env's, `world.py`) stops
-  and detours for them with the same VO, which also lengthens every robot's distance (16.4–19.7 m
-  against 15.2–17.1 m); averages run to the end of the episode (leader arrived and formation settled).
+* **Formation error.** Per follower 0.14–0.45 m against the paper's 0.19–1.24 m: below the paper's
+  value for every follower but Robot 2 at −45° (0.45 m against 0.194 m), whose track the two humans
+  cross; per scenario (mean of both followers) 0.33, 0.41 and 0.15 m against the paper's 0.93, 0.40 and
+  0.73 m. Without humans both followers stay at 0.16 m (the slot's velocity as feed-forward keeps a
+  follower on its moving slot), so what remains is the giving way to humans and obstacles (see the
+  position plots).
+* **Time to target.** Our leader needs 31.1–32.2 s for the 15 m path (paper: 30.4–30.7 s) and drives
+  14.8–15.2 m (paper: 15.2–15.4 m): it gives way to the humans with the same VO, and slows over its last
+  metre as its pure-pursuit carrot reaches the end of the path. The paper's leader figures are also what
+  placed the humans in the `paper_vo_*` files (see their comments): with the pair centred on the
+  leader's line and one second later, our leader detoured by up to 3 m and needed 35–37 s, and the
+  followers' errors rose to 0.3–0.9 m. Averages run to the end of the episode (leader arrived and
+  formation settled).
 * **Angular velocity.** Averages are near zero as in the paper (the course is straight); the profiles
   show the VO's characteristic switching between candidates of the sampled grid (7 speeds x 11 turn
   rates) while avoiding.
