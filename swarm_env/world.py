@@ -64,6 +64,16 @@ _SET_BODY_VELOCITY = pymunk.Body.velocity.fset
 _SET_BODY_ANGULAR_VELOCITY = pymunk.Body.angular_velocity.fset
 
 
+def _advance_twist(drive: list, dt: float) -> tuple[float, float]:
+    """Move the realised twist of ``drive`` (see :func:`_drive`) towards the command for ``dt`` s."""
+    v_cmd, w_cmd, v, w, dv, dw = drive
+    v = v_cmd if dv is None else v + min(max(v_cmd - v, -dv * dt), dv * dt)
+    w = w_cmd if dw is None else w + min(max(w_cmd - w, -dw * dt), dw * dt)
+    drive[2] = v
+    drive[3] = w
+    return v, w
+
+
 def _drive(body: pymunk.Body, gravity: Any, damping: float, dt: float) -> None:
     """pymunk velocity callback of a differential-drive robot.
 
@@ -77,12 +87,7 @@ def _drive(body: pymunk.Body, gravity: Any, damping: float, dt: float) -> None:
     the commanded twist, the realised one (updated in place: moved towards the
     command by at most ``dv_max``/``domega_max`` per second, ``None`` = no limit).
     """
-    s = body.drive
-    v_cmd, w_cmd, v, w, dv, dw = s
-    v = v_cmd if dv is None else v + min(max(v_cmd - v, -dv * dt), dv * dt)
-    w = w_cmd if dw is None else w + min(max(w_cmd - w, -dw * dt), dw * dt)
-    s[2] = v
-    s[3] = w
+    v, w = _advance_twist(body.drive, dt)
     a = _BODY_ANGLE(body)
     _SET_BODY_VELOCITY(body, (v * math.cos(a), v * math.sin(a)))
     _SET_BODY_ANGULAR_VELOCITY(body, w)
@@ -115,14 +120,10 @@ def _install_fast_drive(body: pymunk.Body) -> None:
         set_angular_velocity = _CP_LIB.cpBodySetAngularVelocity
         set_func = _CP_LIB.cpBodySetVelocityUpdateFunc
         state = body.drive
-        cos, sin = math.cos, math.sin
+        cos, sin, advance = math.cos, math.sin, _advance_twist
 
         def drive(cbody: Any, gravity: Any, damping: float, dt: float) -> None:
-            v_cmd, w_cmd, v, w, dv, dw = state
-            v = v_cmd if dv is None else v + min(max(v_cmd - v, -dv * dt), dv * dt)
-            w = w_cmd if dw is None else w + min(max(w_cmd - w, -dw * dt), dw * dt)
-            state[2] = v
-            state[3] = w
+            v, w = advance(state, dt)
             a = get_angle(cbody)
             set_velocity(cbody, (v * cos(a), v * sin(a)))
             set_angular_velocity(cbody, w)
