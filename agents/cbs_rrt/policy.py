@@ -1,0 +1,781 @@
+"""The centralized CBS + motion-primitive RRT expert of paper 000, as a swarm-env policy.
+
+Three layers (paper 000 Fig. 1), run from the privileged
+:class:`~swarm_env.state.WorldState`:
+
+1. **Formation control** (:mod:`agents.cbs_rrt.goals`): every follower's goal
+   course over the planning window — its slot predicted along the leader's
+   trajectory (exact for a virtual leader), with the scheduled formation
+   switches, moved out of obstacles and apart from the other goals.
+2. **Conflict management** (:mod:`agents.cbs_rrt.cbs`, :mod:`agents.cbs_rrt.swarm`):
+   Conflict-Based Search over all followers, conflicts checked continuously
+   between timed paths, with the paper's fallbacks.
+3. **Individual path planning** (:mod:`agents.cbs_rrt.rrt`): a goal-biased RRT
+   over motion primitives in space-time with a buffer zone, CBS constraints
+   and smoothing; the path joins the goal course and follows it.
+
+Every step a pure-pursuit controller (:func:`swarm_env.guidance.pure_pursuit`,
+shared with the rest of the project) tracks each robot's timed path: it aims at
+the path's position ``lookahead_time`` seconds ahead, with the speed that
+reaches it in that time, so a robot that lags speeds up and one that is early
+waits. The swarm is replanned (all robots, one CBS) only when needed:
+
+* ``initial`` — no plan yet;
+* ``switch`` — the active formation changed;
+* ``goal_jump`` — some robot's goal course jumped (switch, a turn of the
+  leader's path, a slot flipping around an obstacle): its plan ended there;
+* ``horizon`` — the plans are about to run out (``horizon - check_margin``);
+* ``rolling`` — conflicts were left beyond the window CBS resolved
+  (``conflict_window``), or a fallback was used: replan before it runs out;
+* ``deviation`` — a robot is farther than ``deviation_tolerance`` from where its
+  plan says it should be;
+* ``goal_moved`` — a slot target differs from the planned goal by more than
+  ``goal_move_tolerance`` (a robot leader that left its predicted course);
+* ``retry`` — some robot holds a fallback (stationary or partial) plan and
+  ``min_replan_interval`` has passed (doubling, up to 8 times, while it persists).
+
+Beyond paper 000 (which has neither): humans, whose motion is a known function
+of time, and a robot leader (its predicted course) are moving discs that every
+robot's plan keeps clear of; and the tracker has a one-step safety check (a
+robot that would come within ``shield_margin`` of an obstacle, a robot or a
+human only turns in place for that step; counted in ``shield_stops``).
+
+Determinism: one ``numpy.random.Generator`` made in :meth:`CBSRRTExpert.reset`
+from the seed; every budget is a count (RRT expansions, CBS nodes, low-level
+calls), so the same seed gives the same plans on any machine. Wall-clock time
+is only measured, for :meth:`CBSRRTExpert.stats`.
+
+Registered as ``cbs_rrt`` in the ``swarm_env.policies`` entry-point group;
+``cbs_rrt:KEY=VALUE,...`` sets constructor parameters from the command line
+(e.g. ``cbs_rrt:use_cbs=false`` for independent RRT plans).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Sequence
+
+import numpy as np
+
+from agents.cbs_rrt.cbs import CBS, CBSResult
+from agents.cbs_rrt.constraints import Constraint
+from agents.cbs_rrt.distance_field import distance_field
+from agents.cbs_rrt.goals import FormationGoals, GoalWindow
+from agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
+from agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
+from agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
+from agents.cbs_rrt.timed_path import TimedPath
+from swarm_env.guidance import pure_pursuit
+from swarm_env.paths import human_states
+from swarm_env.state import WorldState
+
+if TYPE_CHECKING:
+    from swarm_env.env import SwarmEnv
+
+__all__ = ["CBSRRTExpert", "ReplanRecord", "make_policy"]
+
+_CONSTRAINT_SLACK = 0.05  # m, ConstraintTable's inflation of the constraint discs
+_SHIELD_FRACTIONS = np.array([0.25, 0.5, 0.75, 1.0])[None, :]  # points of the next step's arc checked
+
+REPLAN_REASONS = ("initial", "switch", "goal_jump", "horizon", "rolling", "deviation", "goal_moved", "retry")
+
+
+@dataclass
+class ReplanRecord:
+    """One replanning of the swarm (kept when ``record=True``; the last one always): its
+    time and reasons, the end of the window CBS resolved (``t_end``), the robots' poses,
+    the goal courses, the CBS result (root and final paths), wall time and RRT iterations."""
+
+    time: float
+    reasons: tuple[str, ...]
+    t_end: float
+    poses: np.ndarray
+    goals: GoalWindow
+    result: CBSResult
+    wall_time: float
+    rrt_iterations: int
+
+
+class CBSRRTExpert:
+    """Centralized CBS + motion-primitive RRT planner with pure-pursuit tracking (paper 000).
+
+    A :class:`swarm_env.policies.Policy`: ``reset(env, seed)``, ``act(observations, state)
+    -> {agent: action}`` (continuous actions ``(v / max_speed, omega / max_turn_rate)``,
+    float32), ``stats()``. Needs the env's continuous action space.
+
+    Keyword-only parameters (units m, s, degrees for angles):
+
+    Planning window and replanning:
+        horizon: length of the planning window (s).
+        check_margin: conflicts are checked this long past the next planned replan (s);
+            also the lead with which plans are renewed before the horizon runs out.
+        conflict_window: CBS resolves conflicts over at most this long from now (s); when
+            conflicts remain later in the plans, the swarm is replanned (``rolling``) after
+            ``conflict_window - check_margin`` — a rolling-horizon CBS: a replan never has to
+            untangle a whole formation change at once.
+        deviation_tolerance: replan when a robot is this far from its plan (m).
+        goal_move_tolerance: replan when a slot target moved this far from its planned goal (m).
+        min_replan_interval: least time between two replans for ``goal_moved``/``retry`` (s).
+
+    Safety margins:
+        robot_margin: two robots conflict below ``2 * radius + robot_margin`` (m).
+        obstacle_margin: buffer zone: the RRT keeps ``radius + obstacle_margin`` from
+            obstacles and walls; goals are projected to that clearance (m).
+
+    Formation layer:
+        goal_dt: time step of the goal courses (s).
+        goal_tolerance: an RRT node joins its goal course within this distance (m).
+
+    Motion primitives (paper 000 Sec. III-B):
+        primitive_angles: heading changes (degrees).
+        primitive_step: arc length (m); ``None``: the env's discrete primitive,
+            ``max_speed * max|angle| / max_turn_rate``.
+        speed_fraction: primitives are driven at this fraction of ``max_speed`` (the rest is
+            the tracker's room to catch up); ``None``: ``0.7``, or more against a fast leader
+            (``leader speed / max_speed + 0.25``, at most ``0.9``).
+        primitive_samples: points per primitive for collision checks.
+        turn_in_place: spins (degrees) added to the paper's forward primitives: without
+            them a robot facing an obstacle closer than its turning radius is stuck.
+
+    RRT:
+        rrt_iterations: expansions per root call (no constraints); rrt_child_iterations: per
+            call under CBS constraints; rrt_strong_iterations: per call with a strong
+            constraint (it has a weaker fallback, see :mod:`agents.cbs_rrt.swarm`);
+        goal_bias; max_wait (s);
+        smoothing: run the smoothing pass.
+
+    CBS:
+        use_cbs: ``False`` plans every robot independently (no conflict resolution; the
+            "without CBS" panel of paper 000 Fig. 3).
+        cbs_nodes: node expansions per search; cbs_low_level_calls: low-level calls per replan;
+        constraint_window: the weak constraint (a disc at the other robot's position) covers
+            this long after the conflict (s).
+        strong_constraints: first ask a child to keep clear of the other robot's whole path
+            (see :mod:`agents.cbs_rrt.swarm`); ``False``: the weak constraint only.
+        reuse_approach: keep a still-valid plan of a robot that is on its way to its slot as
+            its CBS root path (otherwise only robots already in formation keep theirs); a
+            rolling horizon that replans the approach every few seconds can otherwise keep
+            postponing it.
+
+    Tracking:
+        lookahead_time: pure pursuit aims at the plan's position this far ahead (s).
+        shield_margin: the tracker's safety check (``0`` disables it): a robot does not drive
+            closer than this to an obstacle, another robot, a human or a robot leader over the
+            next step (m).
+
+    Other:
+        field_resolution: distance-field grid step (m).
+        record: keep a :class:`ReplanRecord` of every replan in ``history`` (figures).
+    """
+
+    def __init__(
+        self,
+        *,
+        horizon: float = 30.0,
+        check_margin: float = 1.5,
+        conflict_window: float = 8.0,
+        deviation_tolerance: float = 0.2,
+        goal_move_tolerance: float = 0.5,
+        min_replan_interval: float = 1.0,
+        robot_margin: float = 0.2,
+        obstacle_margin: float = 0.1,
+        goal_dt: float = 0.25,
+        goal_tolerance: float = 0.3,
+        primitive_angles: Sequence[float] = PAPER_ANGLES_DEG,
+        primitive_step: float | None = None,
+        speed_fraction: float | None = None,
+        primitive_samples: int = 6,
+        turn_in_place: Sequence[float] = (45.0, -45.0, 90.0, -90.0),
+        rrt_iterations: int = 300,
+        rrt_child_iterations: int = 120,
+        rrt_strong_iterations: int = 40,
+        goal_bias: float = 0.3,
+        max_wait: float = 8.0,
+        smoothing: bool = True,
+        use_cbs: bool = True,
+        cbs_nodes: int = 24,
+        cbs_low_level_calls: int = 64,
+        cbs_suboptimality: float = 1.0,
+        constraint_window: float = 2.0,
+        strong_constraints: bool = True,
+        reuse_approach: bool = True,
+        lookahead_time: float = 1.0,
+        shield_margin: float = 0.05,
+        field_resolution: float = 0.05,
+        record: bool = False,
+    ) -> None:
+        positive = dict(
+            horizon=horizon, check_margin=check_margin, conflict_window=conflict_window,
+            deviation_tolerance=deviation_tolerance,
+            goal_move_tolerance=goal_move_tolerance, goal_dt=goal_dt, goal_tolerance=goal_tolerance,
+            lookahead_time=lookahead_time, field_resolution=field_resolution,
+            constraint_window=constraint_window,
+        )
+        for name, value in positive.items():
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        for name, value in dict(robot_margin=robot_margin, obstacle_margin=obstacle_margin, shield_margin=shield_margin,
+                                min_replan_interval=min_replan_interval, max_wait=max_wait).items():
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if check_margin >= horizon:
+            raise ValueError("check_margin must be smaller than horizon")
+        if speed_fraction is not None and not (isinstance(speed_fraction, (int, float)) and 0 < speed_fraction <= 1):
+            raise ValueError(f"speed_fraction must be None or in (0, 1], got {speed_fraction!r}")
+        if not 0 <= goal_bias <= 1:
+            raise ValueError(f"goal_bias must be in [0, 1], got {goal_bias!r}")
+        for name, value in dict(rrt_iterations=rrt_iterations, rrt_child_iterations=rrt_child_iterations,
+                                rrt_strong_iterations=rrt_strong_iterations, cbs_nodes=cbs_nodes,
+                                cbs_low_level_calls=cbs_low_level_calls, primitive_samples=primitive_samples).items():
+            if not isinstance(value, int) or value < (1 if name == "primitive_samples" else 0):
+                raise ValueError(f"{name} must be a non-negative int, got {value!r}")
+        self.horizon = float(horizon)
+        self.check_margin = float(check_margin)
+        self.conflict_window = float(conflict_window)
+        self.deviation_tolerance = float(deviation_tolerance)
+        self.goal_move_tolerance = float(goal_move_tolerance)
+        self.min_replan_interval = float(min_replan_interval)
+        self.robot_margin = float(robot_margin)
+        self.obstacle_margin = float(obstacle_margin)
+        self.goal_dt = float(goal_dt)
+        self.goal_tolerance = float(goal_tolerance)
+        self.primitive_angles = tuple(float(a) for a in primitive_angles)
+        self.primitive_step = primitive_step
+        self.speed_fraction = None if speed_fraction is None else float(speed_fraction)
+        self.primitive_samples = int(primitive_samples)
+        self.turn_in_place = tuple(float(a) for a in turn_in_place)
+        self.rrt_iterations = int(rrt_iterations)
+        self.rrt_child_iterations = int(rrt_child_iterations)
+        self.rrt_strong_iterations = int(rrt_strong_iterations)
+        self.goal_bias = float(goal_bias)
+        self.max_wait = float(max_wait)
+        self.smoothing = bool(smoothing)
+        self.use_cbs = bool(use_cbs)
+        self.cbs_nodes = int(cbs_nodes)
+        self.cbs_low_level_calls = int(cbs_low_level_calls)
+        if not (isinstance(cbs_suboptimality, (int, float)) and cbs_suboptimality >= 1.0):
+            raise ValueError(f"cbs_suboptimality must be >= 1, got {cbs_suboptimality!r}")
+        self.cbs_suboptimality = float(cbs_suboptimality)
+        self.constraint_window = float(constraint_window)
+        self.strong_constraints = bool(strong_constraints)
+        self.reuse_approach = bool(reuse_approach)
+        self.lookahead_time = float(lookahead_time)
+        self.shield_margin = float(shield_margin)
+        self.field_resolution = float(field_resolution)
+        self.record = bool(record)
+        self._scenario: Any = None
+        self._rng = np.random.default_rng(0)
+        self._reset_episode()
+
+    # ------------------------------------------------------------------ setup
+    def _reset_episode(self) -> None:
+        self.plans: list[TimedPath] | None = None
+        self.history: list[ReplanRecord] = []
+        self.last: ReplanRecord | None = None
+        self._plan_formation = -1
+        self._next_replan = math.inf
+        self._last_replan = -math.inf
+        self._goals_now: GoalWindow | None = None
+        self._specs: list[GoalSpec] = []
+        self._fallback_robots: set[int] = set()
+        self._retry_streak = 0
+        self._retry_delay = self.min_replan_interval
+        self._times: list[float] = []
+        self._reasons = {r: 0 for r in REPLAN_REASONS}
+        self._nodes = 0
+        self._nodes_max = 0
+        self._conflicts_resolved = 0
+        self._calls = 0
+        self._repairs = 0
+        self._rrt_iterations = 0
+        self._partial = 0
+        self._stationary = 0
+        self._dropped = 0
+        self._unsolved = 0
+        self._gaps: list[np.ndarray] = []
+        self._shield_stops = 0
+        self._shield_others: tuple[np.ndarray, ...] | None = None
+
+    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+        if env.action_type != "continuous":
+            raise ValueError("policy 'cbs_rrt' drives the continuous action space only (action_type='continuous')")
+        self._rng = np.random.default_rng(seed)
+        self._scenario = None  # set up lazily from the first state (the scenario may be new)
+        self._reset_episode()
+
+    def setup(self, state: WorldState) -> None:
+        """Build the per-scenario parts from a state of it (done by :meth:`act` on the first state
+        of a new scenario): motion primitives, distance field, formation layer, RRT."""
+        scn = state.scenario
+        robots = scn.robots
+        # The goal grid must contain every step time (replans happen at steps): its step is
+        # the env's dt divided by a whole number, as close to goal_dt as that allows.
+        env_dt = scn.world.dt
+        goal_dt = env_dt / max(1, round(env_dt / self.goal_dt))
+        self._goal_dt = goal_dt
+        self._radius = float(robots.radius)
+        self._limits = np.array([robots.max_speed, robots.max_turn_rate], dtype=np.float64)
+        fraction = self.speed_fraction
+        if fraction is None:
+            # 0.7 of the top speed leaves the tracker room to catch up; against a fast leader
+            # the robots need more to ever reach their slots (leader speed + a quarter).
+            lead = scn.leader.speed / robots.max_speed
+            fraction = max(0.7, min(0.9, lead + 0.25))
+        self.primitives = MotionPrimitives.for_robot(
+            robots.max_speed,
+            robots.max_turn_rate,
+            angles_deg=self.primitive_angles,
+            speed_fraction=fraction,
+            step=self.primitive_step,
+            samples=self.primitive_samples,
+            spin_deg=self.turn_in_place,
+        )
+        self.field = distance_field(state.static, self.field_resolution)
+        self.buffer = self._radius + self.obstacle_margin
+        self.separation = 2.0 * self._radius + self.robot_margin
+        self.formation = FormationGoals(
+            scn,
+            state.static,
+            clearance=self.buffer + 0.02,  # tracking errors of a few cm stay out of the buffer zone
+            # Pushed a little beyond the conflict distance: the rounds stop short of it where
+            # obstacles squeeze slots together, and goals that never conflict leave CBS nothing
+            # it cannot solve.
+            separation=self.separation + 0.05,
+            dt=goal_dt,
+            jump_speed=0.8 * robots.max_speed,
+        )
+        config = RRTConfig(
+            max_iterations=self.rrt_iterations,
+            goal_bias=self.goal_bias,
+            goal_tolerance=self.goal_tolerance,
+            max_wait=self.max_wait,
+            smoothing=self.smoothing,
+            follow_speed=self.primitives.speed,
+        )
+        # A robot that starts inside the buffer zone may move on inside it, but not down to
+        # where the tracker's shield would stop it.
+        floor = self._radius + self.shield_margin + 0.02
+        self.rrt = PrimitiveRRT(self.primitives, self.field, self.buffer, config, floor=floor)
+        self._scenario = scn
+
+    # ------------------------------------------------------------------ acting
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
+        if self._scenario is not state.scenario:
+            self.setup(state)
+            self._reset_episode()
+        reasons = self._triggers(state)
+        if reasons:
+            self._replan(state, reasons)
+        twist = self._track(state)
+        action = np.clip(twist / self._limits, -1.0, 1.0).astype(np.float32)
+        return {a: action[int(a.rsplit("_", 1)[1])] for a in observations}
+
+    def plan(
+        self, state: WorldState, reasons: Sequence[str] = ("initial",), rng: np.random.Generator | None = None
+    ) -> ReplanRecord:
+        """Replan the whole swarm from ``state`` now (what :meth:`act` does when a trigger
+        fires) and return the record: goals, the independent root plans and the CBS result.
+        ``rng`` replaces the policy's generator (figures and experiments)."""
+        if rng is not None:
+            self._rng = rng
+        if self._scenario is not state.scenario:
+            self.setup(state)
+            self._reset_episode()
+        self._replan(state, [r if r in REPLAN_REASONS else "initial" for r in reasons])
+        assert self.last is not None
+        return self.last
+
+    def _plan_positions(self, t: float) -> np.ndarray:
+        assert self.plans is not None
+        return np.array([p.position_at(t) for p in self.plans])
+
+    def _triggers(self, state: WorldState) -> list[str]:
+        if self.plans is None:
+            return ["initial"]
+        t = state.time
+        out = []
+        if state.formation_index != self._plan_formation:
+            out.append("switch")
+        if t >= self._next_replan - 1e-9:
+            out.append(self._next_reason)
+        dev = np.hypot(*(state.follower_pose[:, :2] - self._plan_positions(t)).T)
+        if np.any(dev > self.deviation_tolerance):
+            out.append("deviation")
+        if t - self._last_replan >= self.min_replan_interval - 1e-9:
+            g = self._goals_now
+            if g is not None and t <= g.t[-1]:
+                gx = np.array([np.interp(t, g.t, g.xy[i, :, 0]) for i in range(len(g.xy))])
+                gy = np.array([np.interp(t, g.t, g.xy[i, :, 1]) for i in range(len(g.xy))])
+                moved = np.hypot(state.slot_targets[:, 0] - gx, state.slot_targets[:, 1] - gy)
+                if np.any(moved > self.goal_move_tolerance):
+                    out.append("goal_moved")
+        if self._fallback_robots and t - self._last_replan >= self._retry_delay - 1e-9:
+            out.append("retry")
+        return out
+
+    def thresholds(self, poses: np.ndarray) -> np.ndarray:
+        """``(N, N)`` conflict distances for robots at ``poses``: ``2 r + robot_margin``, lowered
+        for pairs already about that close."""
+        return self._thresholds(poses)
+
+    def _thresholds(self, poses: np.ndarray) -> np.ndarray:
+        n = len(poses)
+        diff = poses[:, None, :2] - poses[None, :, :2]
+        d = np.sqrt(np.add.reduce(diff * diff, axis=2))
+        D = np.full((n, n), self.separation)
+        # Robots already about as close as the conflict distance may stay that close, but not
+        # close in further: otherwise a conflict at t0 would be unavoidable. The extra room is
+        # the constraint table's slack, so a robot's start never violates its constraints.
+        room = _CONSTRAINT_SLACK + 0.01
+        close = d < self.separation + room
+        D[close] = np.maximum(d[close] - room, 2.0 * self._radius + 0.01)
+        np.fill_diagonal(D, 0.0)
+        return D
+
+    def _replan(self, state: WorldState, reasons: list[str]) -> None:
+        wall0 = time.perf_counter()
+        t0 = float(state.time)
+        poses = np.array(state.follower_pose, dtype=np.float64)
+        n = len(poses)
+        gw = self.formation.window(t0, t0 + self.horizon, state.leader_pose)
+        K = len(gw.t)
+        jump_t = np.where(gw.piece_end < K - 1, gw.t[np.minimum(gw.piece_end + 1, K - 1)], math.inf)
+        renew = t0 + self.horizon - self.check_margin
+        t_next = min(float(jump_t.min()), renew)
+        self._next_reason = "goal_jump" if float(jump_t.min()) < renew else "horizon"
+        # Conflicts matter until shortly after the next replan (t_check); CBS resolves them
+        # over at most conflict_window now and the rest at a rolling replan (RHCR-style).
+        t_check = min(t0 + self.horizon, t_next + self.check_margin)
+        t1 = min(t_check, t0 + self.conflict_window)
+        k1 = min(K - 1, max(1, int(math.ceil((t1 - t0) / self._goal_dt - 1e-9))))
+        t1 = float(gw.t[k1])
+        # The RRT sees the whole horizon (an approach may take longer than the time to the
+        # next replan); conflicts only matter until shortly after that replan (t1).
+        specs = [GoalSpec(gw.t, gw.xy[i], gw.heading, int(gw.piece_end[i])) for i in range(n)]
+        movers = self._movers(state, gw)
+        low = RRTLowLevel(
+            self.rrt, poses, t0, float(gw.t[-1]), specs, self._rng, constraint_slack=_CONSTRAINT_SLACK,
+            child_iterations=self.rrt_child_iterations, strong_iterations=self.rrt_strong_iterations,
+            extra_constraints=movers, park_until=t1 + self.check_margin,
+        )
+        # A robot whose goal course jumps is replanned then: its parked plan counts only a little
+        # beyond (the check margin), not as an obstacle until the horizon.
+        until = np.where(np.isfinite(jump_t), jump_t + self.check_margin, np.inf)
+        model = TimedConflicts(self._thresholds(poses), t0, t1, window_after=self.constraint_window,
+                               strong=self.strong_constraints, t_plan=float(gw.t[-1]), until=until,
+                               min_radius=2.0 * self._radius + 0.01, start_room=_CONSTRAINT_SLACK + 0.01)
+        initial = self._reusable(state, specs, t1, reasons)
+        if self.use_cbs:
+            cbs = CBS(
+                low, model, max_nodes=self.cbs_nodes, max_low_level_calls=self.cbs_low_level_calls,
+                suboptimality=self.cbs_suboptimality,
+            )
+            result = cbs.solve(n, initial)
+        else:
+            paths = []
+            stationary = []
+            for i in range(n):
+                p = low.plan(i, ())
+                if p is None:
+                    p = low.stationary(i)
+                    stationary.append(i)
+                paths.append(p)
+            remaining = len(model.all_conflicts(paths))
+            result = CBSResult(paths, remaining == 0, sum(low.cost(i, p) for i, p in enumerate(paths)), list(paths),
+                               low_level_calls=n, stationary=tuple(stationary), remaining_conflicts=remaining)
+        self.plans = list(result.paths)
+        self._plan_formation = state.formation_index
+        self._next_replan = t_next
+        if t1 < t_check - 1e-9:
+            # Conflicts left beyond the resolved window (or robots on fallback plans): plan
+            # again before the window runs out.
+            later = model.all_conflicts(self.plans) if not result.fallback_used else [None]
+            if not later:
+                later = TimedConflicts(model.D, t1, t_check).all_conflicts(self.plans)
+            if later:
+                t_roll = t0 + max(self.conflict_window - self.check_margin, self.min_replan_interval)
+                if t_roll < self._next_replan:
+                    self._next_replan, self._next_reason = t_roll, "rolling"
+        self._last_replan = t0
+        self._goals_now = gw
+        self._specs = specs
+        self._fallback_robots = set(result.stationary) | set(result.dropped) | {
+            i for i, p in enumerate(self.plans) if not p.reached
+        }
+        # Retry fallback robots after min_replan_interval, doubling the wait (up to 8x) while
+        # the same deadlock persists: a stuck formation should not cost a full search a second.
+        self._retry_streak = self._retry_streak + 1 if self._fallback_robots else 0
+        self._retry_delay = self.min_replan_interval * 2.0 ** min(max(self._retry_streak - 1, 0), 3)
+        wall = time.perf_counter() - wall0
+        # Telemetry.
+        self._times.append(wall)
+        for r in reasons:
+            self._reasons[r] += 1
+        self._nodes += result.nodes_expanded
+        self._nodes_max = max(self._nodes_max, result.nodes_expanded)
+        self._conflicts_resolved += result.conflicts_resolved
+        self._calls += low.calls
+        self._repairs += low.repaired
+        self._rrt_iterations += low.iterations
+        self._partial += sum(1 for i, p in enumerate(self.plans) if not p.reached and i not in result.stationary
+                             and i not in result.dropped)
+        self._stationary += len(result.stationary)
+        self._dropped += len(result.dropped)
+        self._unsolved += int(not result.solved)
+        record = ReplanRecord(t0, tuple(reasons), t1, poses, gw, result, wall, low.iterations)
+        self.last = record
+        if self.record:
+            self.history.append(record)
+
+    def _movers(self, state: WorldState, gw: GoalWindow) -> list[Constraint]:
+        """Moving discs every robot keeps clear of over the whole planning window: the humans
+        (their motion is a known function of time, :func:`swarm_env.paths.human_states`; they
+        do not give way, so plans keep out of their way well ahead) and a robot leader (its
+        predicted course; it also dodges, hence a wider margin). Paper 000 has neither."""
+        scn = state.scenario
+        out: list[Constraint] = []
+        if scn.humans:
+            ts = gw.t[::2] if len(gw.t) > 2 else gw.t
+            pos = np.stack([human_states(scn.humans, float(t))[0] for t in ts])  # (K, H, 2)
+            for h, spec in enumerate(scn.humans):
+                out.append(Constraint(-1, ts, pos[:, h], self._radius + spec.radius + self.robot_margin))
+        if state.leader_is_robot:
+            out.append(Constraint(-1, gw.t, gw.leader[:, :2], self._radius + state.leader_radius + 2 * self.robot_margin))
+        return out
+
+    def _reusable(
+        self, state: WorldState, specs: list[GoalSpec], t1: float, reasons: list[str]
+    ) -> list[TimedPath | None] | None:
+        """Old plans that remain valid as CBS root paths (no low-level call needed): the robot
+        is on track and already on its goal course, its plan lasts until ``t1``, and the goal
+        course is unchanged over the plan. Only the other robots are planned afresh."""
+        if self.plans is None or "switch" in reasons or not self._specs:
+            return None
+        t0 = state.time
+        now = self._plan_positions(t0)
+        gap = np.hypot(*(state.follower_pose[:, :2] - now).T)
+        out: list[TimedPath | None] = []
+        for i, (plan, old, new) in enumerate(zip(self.plans, self._specs, specs)):
+            ok = (
+                i not in self._fallback_robots
+                and plan.reached
+                and (self.reuse_approach or plan.goal_time <= t0 + 1e-9)
+                and gap[i] <= self.deviation_tolerance
+                and plan.t_end >= t1 - 1e-9
+            )
+            if ok:
+                sel = (new.t >= t0 - 1e-9) & (new.t <= min(old.t[-1], plan.t_end) + 1e-9)
+                g_old = old.at(new.t[sel])
+                ok = bool(np.all(np.abs(g_old - new.xy_eff[sel]) < 1e-6))
+            out.append(plan if ok else None)
+        return out
+
+    def _track(self, state: WorldState) -> np.ndarray:
+        """Twists that make each robot follow its timed path.
+
+        Pure pursuit (:func:`swarm_env.guidance.pure_pursuit`) towards the plan's position
+        ``lookahead_time`` ahead, with time gap ``lookahead_time``: on the path at the plan's
+        speed the command is the plan's speed; a lagging robot speeds up. Two additions:
+        where the plan barely moves over the lookahead (a spin primitive, a wait, the parked
+        end) the robot turns in place to the plan's heading instead; and a robot that is
+        ahead of its plan along the path's direction, with the aim point behind it, waits.
+        """
+        assert self.plans is not None
+        t = state.time
+        pose = state.follower_pose
+        T = self.lookahead_time
+        now = self._plan_positions(t)
+        carrot = self._plan_positions(t + T)
+        gap = np.hypot(pose[:, 0] - now[:, 0], pose[:, 1] - now[:, 1])
+        self._gaps.append(gap)
+        twist = pure_pursuit(pose, carrot, self._limits[0], self._limits[1], T)
+        cx, cy = pose[:, 0], pose[:, 1]
+        dx, dy = carrot[:, 0] - cx, carrot[:, 1] - cy
+        c, s = np.cos(pose[:, 2]), np.sin(pose[:, 2])
+        moves = carrot - now  # where the plan goes over the lookahead
+        ahead = ((cx - now[:, 0]) * moves[:, 0] + (cy - now[:, 1]) * moves[:, 1] > 0.0) & (dx * c + dy * s < 0.0)
+        twist[ahead & (np.hypot(dx, dy) < 0.25)] = 0.0
+        still = np.hypot(moves[:, 0], moves[:, 1]) < 0.05
+        dt = state.scenario.world.dt
+        if np.any(still):
+            for i in np.flatnonzero(still & (gap < 0.1)).tolist():
+                err = (self.plans[i].heading_at(t + T) - pose[i, 2] + math.pi) % (2.0 * math.pi) - math.pi
+                w = math.copysign(min(self._limits[1], abs(err) / dt), err) if abs(err) > 0.05 else 0.0
+                twist[i] = (0.0, w)
+        others = [(state.human_pos, state.human_vel, state.human_radius)]
+        if state.leader_is_robot:
+            others.append((state.leader_pose[None, :2], state.leader_vel[None, :], np.array([state.leader_radius])))
+        self._shield_others = tuple(np.concatenate(parts) for parts in zip(*others))
+        return self._shield(pose, twist, dt, state.follower_twist[:, 0], dt / state.scenario.world.substeps)
+
+    def _shield(
+        self, pose: np.ndarray, twist: np.ndarray, dt: float, speed_now: np.ndarray, sub_dt: float
+    ) -> np.ndarray:
+        """Last line of defence: a robot whose commanded arc over the next step would bring it
+        within ``shield_margin`` of an obstacle (distance field), of another robot's commanded
+        arc, or of a human or robot leader moving on at its velocity — closer than it is
+        now — only turns in place this step
+        (a disc that turns cannot hit anything). The plans' margins make this rare; each use
+        is counted in ``stats()['shield_stops']``."""
+        if self.shield_margin <= 0:
+            return twist
+        frac = _SHIELD_FRACTIONS * dt
+        x0, y0, th = pose[:, 0:1], pose[:, 1:2], pose[:, 2:3]
+
+        def arcs(tw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            v, w = tw[:, 0:1], tw[:, 1:2]
+            turning = np.abs(w) > 1e-9
+            ws = np.where(turning, w, 1.0)
+            a = th + w * frac
+            px = np.where(turning, x0 + v / ws * (np.sin(a) - np.sin(th)), x0 + v * np.cos(th) * frac)
+            py = np.where(turning, y0 - v / ws * (np.cos(a) - np.cos(th)), y0 + v * np.sin(th) * frac)
+            return px, py
+
+        r = self._radius
+        # The env applies a new command one physics substep late (the position update of a
+        # substep uses the velocity set in the previous one): allow for that much travel.
+        lag = np.abs(speed_now) * sub_dt
+        px, py = arcs(twist)
+        now = self.field.clearance_xy(pose[:, 0], pose[:, 1])
+        ahead = self.field.clearance_xy(px, py).min(axis=1)
+        stop = (ahead < r + self.shield_margin + lag) & (ahead < now)
+        if stop.any():
+            twist = twist.copy()
+            twist[stop, 0] = 0.0
+            px, py = arcs(twist)
+        others = self._shield_others
+        if others is not None and len(others[0]):
+            # Humans and a robot leader, moving on at their current velocities.
+            opos, ovel, orad = others
+            ox = opos[:, 0:1] + ovel[:, 0:1] * frac  # (M, F)
+            oy = opos[:, 1:2] + ovel[:, 1:2] * frac
+            d_pred = np.sqrt((px[:, None, :] - ox[None]) ** 2 + (py[:, None, :] - oy[None]) ** 2).min(axis=2)
+            d_now = np.hypot(pose[:, None, 0] - opos[None, :, 0], pose[:, None, 1] - opos[None, :, 1])
+            near = ((d_pred < r + orad[None, :] + self.shield_margin + lag[:, None]) & (d_pred < d_now)).any(axis=1)
+            near &= twist[:, 0] != 0.0
+            if near.any():
+                twist = twist.copy()
+                twist[near, 0] = 0.0
+                stop |= near
+                px, py = arcs(twist)
+        n = len(pose)
+        if n > 1:
+            dx = px[:, None, :] - px[None, :, :]
+            dy = py[:, None, :] - py[None, :, :]
+            d_pred = np.sqrt(dx * dx + dy * dy).min(axis=2)
+            d_now = np.hypot(pose[:, None, 0] - pose[None, :, 0], pose[:, None, 1] - pose[None, :, 1])
+            close = (d_pred < 2.0 * r + self.shield_margin + lag[:, None] + lag[None, :]) & (d_pred < d_now)
+            np.fill_diagonal(close, False)
+            pair = close.any(axis=1) & (twist[:, 0] != 0.0)
+            if pair.any():
+                twist = twist.copy()
+                twist[pair, 0] = 0.0
+                stop |= pair
+        self._shield_stops += int(stop.sum())
+        return twist
+
+    # ------------------------------------------------------------------ telemetry
+    def stats(self) -> dict[str, Any]:
+        """Telemetry of the current episode (lands in the metrics JSON under ``policy_stats``).
+
+        ``replans`` (and ``replan_reasons``), ``cbs_nodes_expanded`` (total and ``_max`` per
+        replan), ``conflicts_resolved`` (constraints on the returned CBS nodes, summed),
+        ``low_level_calls`` (RRT searches), ``repairs`` (CBS children made by inserting waits
+        into the parent's path instead), ``rrt_iterations``, ``planning_time_ms`` (per replan: median,
+        p95, max, mean; ``total_s``), ``fallbacks`` (``stationary``: robots whose plan failed,
+        ``dropped``: robots removed from active planning, ``partial``: plans that stop short
+        of the goal, ``unsolved``: replans that ended with conflicts), and
+        ``tracking_gap_m`` — the distance between each robot and its plan's position at the
+        same time, over all steps (mean, p95, max).
+        """
+        t = np.array(self._times) * 1e3
+        timing: dict[str, Any] = (
+            {
+                "median": float(np.median(t)),
+                "p95": float(np.percentile(t, 95)),
+                "max": float(t.max()),
+                "mean": float(t.mean()),
+                "total_s": float(t.sum() / 1e3),
+            }
+            if t.size
+            else {"median": None, "p95": None, "max": None, "mean": None, "total_s": 0.0}
+        )
+        gaps = np.concatenate(self._gaps) if self._gaps else np.zeros(0)
+        return {
+            "replans": len(self._times),
+            "replan_reasons": dict(self._reasons),
+            "cbs_nodes_expanded": self._nodes,
+            "cbs_nodes_expanded_max": self._nodes_max,
+            "conflicts_resolved": self._conflicts_resolved,
+            "low_level_calls": self._calls,
+            "repairs": self._repairs,
+            "rrt_iterations": self._rrt_iterations,
+            "planning_time_ms": timing,
+            "fallbacks": {
+                "stationary": self._stationary,
+                "dropped": self._dropped,
+                "partial": self._partial,
+                "unsolved": self._unsolved,
+            },
+            "shield_stops": self._shield_stops,
+            "tracking_gap_m": {
+                "mean": float(gaps.mean()) if gaps.size else None,
+                "p95": float(np.percentile(gaps, 95)) if gaps.size else None,
+                "max": float(gaps.max()) if gaps.size else None,
+            },
+        }
+
+
+_FLOAT_PARAMS = (
+    "horizon", "check_margin", "conflict_window", "deviation_tolerance", "goal_move_tolerance", "min_replan_interval", "robot_margin",
+    "obstacle_margin", "goal_dt", "goal_tolerance", "speed_fraction", "goal_bias", "max_wait", "constraint_window",
+    "lookahead_time", "shield_margin", "field_resolution", "primitive_step", "cbs_suboptimality",
+)
+_INT_PARAMS = (
+    "primitive_samples", "rrt_iterations", "rrt_child_iterations", "rrt_strong_iterations", "cbs_nodes",
+    "cbs_low_level_calls",
+)
+_BOOL_PARAMS = ("smoothing", "use_cbs", "record", "strong_constraints", "reuse_approach")
+
+
+def _parse_arg(arg: str) -> dict[str, Any]:
+    """``"key=value,key=value"`` -> constructor keyword arguments (typed).
+    ``primitive_angles=0;12;-12`` takes a ``;``-separated list of degrees."""
+    kwargs: dict[str, Any] = {}
+    for item in filter(None, (s.strip() for s in arg.split(","))):
+        key, sep, value = item.partition("=")
+        key, value = key.strip(), value.strip()
+        if not sep:
+            raise ValueError(f"policy 'cbs_rrt': expected KEY=VALUE, got {item!r}")
+        try:
+            if key in _FLOAT_PARAMS:
+                none_ok = key in ("primitive_step", "speed_fraction")
+                kwargs[key] = None if none_ok and value.lower() == "none" else float(value)
+            elif key in _INT_PARAMS:
+                kwargs[key] = int(value)
+            elif key in _BOOL_PARAMS:
+                if value.lower() not in ("true", "false", "1", "0"):
+                    raise ValueError(f"{key} must be true or false")
+                kwargs[key] = value.lower() in ("true", "1")
+            elif key in ("primitive_angles", "turn_in_place"):
+                kwargs[key] = tuple(float(v) for v in value.split(";") if v.strip())
+            else:
+                known = ", ".join(_FLOAT_PARAMS + _INT_PARAMS + _BOOL_PARAMS + ("primitive_angles", "turn_in_place"))
+                raise ValueError(f"unknown parameter {key!r}; known: {known}")
+        except ValueError as exc:
+            raise ValueError(f"policy 'cbs_rrt': {key}={value!r}: {exc}") from None
+    return kwargs
+
+
+def make_policy(env: "SwarmEnv", arg: str | None = None) -> CBSRRTExpert:
+    """Entry-point factory (``swarm_env.policies`` group, name ``cbs_rrt``).
+
+    ``arg``: optional ``KEY=VALUE,...`` constructor parameters, e.g. ``"use_cbs=false,horizon=20"``.
+    Raises ``ValueError`` for a discrete-action env or a bad ``arg``.
+    """
+    policy = CBSRRTExpert(**_parse_arg(arg or ""))
+    if env.action_type != "continuous":
+        policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
+    return policy
