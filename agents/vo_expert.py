@@ -55,6 +55,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarm_env.guidance import pure_pursuit, vo_select_batch
+from swarm_env.policies import parse_policy_kwargs
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -355,49 +356,13 @@ class VOExpert:
         }
 
 
-_FLOAT_PARAMS = (
-    "time_gap", "arrive_radius", "horizon", "horizon_static", "margin", "human_margin", "tau",
-    "w_pref", "w_heading", "side_bias",
-)
-_INT_PARAMS = ("n_v", "n_w")
-_BOOL_PARAMS = ("feed_forward", "reciprocal", "escape", "full_turn")
-
-
-def _parse_arg(arg: str) -> dict[str, Any]:
-    """``"key=value,key=value"`` -> constructor keyword arguments (typed)."""
-    kwargs: dict[str, Any] = {}
-    for item in filter(None, (s.strip() for s in arg.split(","))):
-        key, sep, value = item.partition("=")
-        key = key.strip()
-        if not sep:
-            raise ValueError(f"policy 'vo': expected KEY=VALUE, got {item!r}")
-        try:
-            if key in _FLOAT_PARAMS:
-                kwargs[key] = None if value.lower() == "none" and key == "horizon_static" else float(value)
-            elif key in _INT_PARAMS:
-                kwargs[key] = int(value)
-        except ValueError:
-            kind = "an integer" if key in _INT_PARAMS else "a number"
-            raise ValueError(f"policy 'vo': {key} must be {kind}, got {value!r}") from None
-        if key in _FLOAT_PARAMS or key in _INT_PARAMS:
-            continue
-        if key in _BOOL_PARAMS:
-            if value.lower() not in ("true", "false", "1", "0"):
-                raise ValueError(f"policy 'vo': {key} must be true or false, got {value!r}")
-            kwargs[key] = value.lower() in ("true", "1")
-        else:
-            known = ", ".join(_FLOAT_PARAMS + _INT_PARAMS + _BOOL_PARAMS)
-            raise ValueError(f"policy 'vo': unknown parameter {key!r}; known: {known}")
-    return kwargs
-
-
 def make_policy(env: "SwarmEnv", arg: str | None = None) -> VOExpert:
     """Entry-point factory (``swarm_env.policies`` group, name ``vo``).
 
     ``arg``: optional ``KEY=VALUE,...`` constructor parameters, e.g. ``"horizon=4,margin=0.1"``.
     Raises ``ValueError`` for a discrete-action env or a bad ``arg``.
     """
-    policy = VOExpert(**_parse_arg(arg or ""))
+    policy = VOExpert(**parse_policy_kwargs('vo', arg, VOExpert))
     if env.action_type != "continuous":
         policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
     return policy

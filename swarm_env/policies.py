@@ -30,6 +30,7 @@ loaders register themselves from their own packages.
 
 from __future__ import annotations
 
+import inspect
 from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 
@@ -143,6 +144,46 @@ class PredictPolicy:
         return {a: actions[i] for i, a in enumerate(agents)}
 
 
+def parse_policy_kwargs(name: str, arg: str | None, cls: type) -> dict[str, Any]:
+    """Parse a policy argument ``"key=value,key=value"`` into keyword arguments of ``cls``.
+
+    Each value is converted to the type of the parameter's default in ``cls.__init__``:
+    ``bool`` (true/false/1/0), ``int``, ``float``, a ``None`` default takes a number or
+    ``none``, and a tuple default takes ``;``-separated numbers (``angles=0;12;-12``).
+    Raises ``ValueError`` naming the policy, the key and what was expected.
+    """
+    params = {
+        p.name: p.default
+        for p in inspect.signature(cls.__init__).parameters.values()
+        if p.kind is inspect.Parameter.KEYWORD_ONLY
+    }
+    kwargs: dict[str, Any] = {}
+    for item in filter(None, (part.strip() for part in (arg or "").split(","))):
+        key, sep, value = (x.strip() for x in item.partition("="))
+        if not sep:
+            raise ValueError(f"policy {name!r}: expected KEY=VALUE, got {item!r}")
+        if key not in params:
+            raise ValueError(f"policy {name!r}: unknown parameter {key!r}; known: {', '.join(params)}")
+        default = params[key]
+        try:
+            if isinstance(default, bool):
+                if value.lower() not in ("true", "false", "1", "0"):
+                    raise ValueError("expected true or false")
+                kwargs[key] = value.lower() in ("true", "1")
+            elif isinstance(default, int):
+                kwargs[key] = int(value)
+            elif isinstance(default, tuple):
+                kwargs[key] = tuple(float(v) for v in value.split(";") if v.strip())
+            elif default is None and value.lower() == "none":
+                kwargs[key] = None
+            else:
+                kwargs[key] = float(value)
+        except ValueError as exc:
+            kind = type(default).__name__ if default is not None else "a number or none"
+            raise ValueError(f"policy {name!r}: {key}={value!r}: expected {kind} ({exc})") from None
+    return kwargs
+
+
 _BUILTIN: dict[str, Callable[..., Any]] = {"random": RandomPolicy, "zero": ZeroPolicy, "pursuit": PursuitPolicy}
 
 
@@ -179,7 +220,8 @@ def load_policy(spec: str | Any, env: "SwarmEnv") -> Policy:
     except PolicyError:
         raise
     except ValueError as exc:  # a factory's documented way to reject its argument or the env
-        raise PolicyError(f"policy {spec!r}: {exc}") from exc
+        message = str(exc) if str(exc).startswith("policy ") else f"policy {spec!r}: {exc}"
+        raise PolicyError(message) from exc
     if not isinstance(policy, Policy):
         policy = PredictPolicy(policy)
     return policy

@@ -114,4 +114,5 @@ def test_run_discrete_actions_and_bad_numbers(capsys: pytest.CaptureFixture[str]
 
 def test_run_rejects_a_bad_policy_argument(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["run", "--scenario", "paper_vo_0", "--policy", "pursuit:fast", "--max-cycles", "2"]) == 2
-    assert "pursuit:fast" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "policy 'pursuit'" in err and "'fast'" in err

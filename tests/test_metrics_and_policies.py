@@ -152,3 +152,22 @@ def test_min_clearance_and_separation_equal_a_brute_force_minimum(name: str) -> 
     result = env.episode_metrics()
     assert result["min_clearance"] == min(clear)
     assert result["min_separation"] == min(sep)
+
+
+def test_parse_policy_kwargs_converts_by_the_defaults_types() -> None:
+    from swarm_env.policies import parse_policy_kwargs
+
+    class Expert:
+        def __init__(self, *, gain: float = 1.0, samples: int = 7, on: bool = True, limit: float | None = None,
+                     angles: tuple = (0.0, 12.0)) -> None:
+            pass
+
+    got = parse_policy_kwargs("x", "gain=2.5, samples=9,on=false,limit=none,angles=0;24;-24", Expert)
+    assert got == {"gain": 2.5, "samples": 9, "on": False, "limit": None, "angles": (0.0, 24.0, -24.0)}
+    assert parse_policy_kwargs("x", None, Expert) == {}
+    with pytest.raises(ValueError, match="unknown parameter 'gian'; known: gain, samples"):
+        parse_policy_kwargs("x", "gian=1", Expert)
+    with pytest.raises(ValueError, match="samples='many': expected int"):
+        parse_policy_kwargs("x", "samples=many", Expert)
+    with pytest.raises(ValueError, match="expected KEY=VALUE"):
+        parse_policy_kwargs("x", "gain", Expert)

@@ -69,6 +69,7 @@ from agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
 from agents.cbs_rrt.timed_path import TimedPath
 from swarm_env.guidance import pure_pursuit
 from swarm_env.paths import human_states
+from swarm_env.policies import parse_policy_kwargs
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -728,54 +729,13 @@ class CBSRRTExpert:
         }
 
 
-_FLOAT_PARAMS = (
-    "horizon", "check_margin", "conflict_window", "deviation_tolerance", "goal_move_tolerance", "min_replan_interval", "robot_margin",
-    "obstacle_margin", "goal_dt", "goal_tolerance", "speed_fraction", "goal_bias", "max_wait", "constraint_window",
-    "lookahead_time", "shield_margin", "field_resolution", "primitive_step", "cbs_suboptimality",
-)
-_INT_PARAMS = (
-    "primitive_samples", "rrt_iterations", "rrt_child_iterations", "rrt_strong_iterations", "cbs_nodes",
-    "cbs_low_level_calls",
-)
-_BOOL_PARAMS = ("smoothing", "use_cbs", "record", "strong_constraints", "reuse_approach")
-
-
-def _parse_arg(arg: str) -> dict[str, Any]:
-    """``"key=value,key=value"`` -> constructor keyword arguments (typed).
-    ``primitive_angles=0;12;-12`` takes a ``;``-separated list of degrees."""
-    kwargs: dict[str, Any] = {}
-    for item in filter(None, (s.strip() for s in arg.split(","))):
-        key, sep, value = item.partition("=")
-        key, value = key.strip(), value.strip()
-        if not sep:
-            raise ValueError(f"policy 'cbs_rrt': expected KEY=VALUE, got {item!r}")
-        try:
-            if key in _FLOAT_PARAMS:
-                none_ok = key in ("primitive_step", "speed_fraction")
-                kwargs[key] = None if none_ok and value.lower() == "none" else float(value)
-            elif key in _INT_PARAMS:
-                kwargs[key] = int(value)
-            elif key in _BOOL_PARAMS:
-                if value.lower() not in ("true", "false", "1", "0"):
-                    raise ValueError(f"{key} must be true or false")
-                kwargs[key] = value.lower() in ("true", "1")
-            elif key in ("primitive_angles", "turn_in_place"):
-                kwargs[key] = tuple(float(v) for v in value.split(";") if v.strip())
-            else:
-                known = ", ".join(_FLOAT_PARAMS + _INT_PARAMS + _BOOL_PARAMS + ("primitive_angles", "turn_in_place"))
-                raise ValueError(f"unknown parameter {key!r}; known: {known}")
-        except ValueError as exc:
-            raise ValueError(f"policy 'cbs_rrt': {key}={value!r}: {exc}") from None
-    return kwargs
-
-
 def make_policy(env: "SwarmEnv", arg: str | None = None) -> CBSRRTExpert:
     """Entry-point factory (``swarm_env.policies`` group, name ``cbs_rrt``).
 
     ``arg``: optional ``KEY=VALUE,...`` constructor parameters, e.g. ``"use_cbs=false,horizon=20"``.
     Raises ``ValueError`` for a discrete-action env or a bad ``arg``.
     """
-    policy = CBSRRTExpert(**_parse_arg(arg or ""))
+    policy = CBSRRTExpert(**parse_policy_kwargs('cbs_rrt', arg, CBSRRTExpert))
     if env.action_type != "continuous":
         policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
     return policy
