@@ -11,25 +11,9 @@ import pytest
 import swarm_env
 from swarm_env.env import SwarmEnv
 from swarm_env.evaluation import evaluate, run_episode, summarize
-from swarm_env.guidance import pure_pursuit
 from swarm_env.policies import PredictPolicy, RandomPolicy, UnknownPolicyError, ZeroPolicy, load_policy, registered_policies
 from swarm_env.scenario_io import scenario_from_dict
 from swarm_env.state import WorldState
-
-
-class SlotTracker:
-    """A minimal test policy: pure pursuit straight at each slot (no avoidance)."""
-
-    def reset(self, env: SwarmEnv, seed: int | None) -> None:
-        self.limits = np.array([env.scenario.robots.max_speed, env.scenario.robots.max_turn_rate])
-
-    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
-        twist = pure_pursuit(state.follower_pose, state.slot_targets, self.limits[0], self.limits[1], 0.5)
-        return {a: (twist[i] / self.limits).astype(np.float32) for i, a in enumerate(state_agents(observations))}
-
-
-def state_agents(observations: dict[str, np.ndarray]) -> list[str]:
-    return sorted(observations, key=lambda a: int(a.split("_")[1]))
 
 
 def _open_switch_scenario() -> Any:
@@ -49,7 +33,7 @@ def _open_switch_scenario() -> Any:
 
 def test_settle_time_and_success_with_a_tracking_policy() -> None:
     env = SwarmEnv(_open_switch_scenario())
-    result = run_episode(env, SlotTracker(), seed=0)
+    result = run_episode(env, load_policy("pursuit", env), seed=0)  # pure pursuit at the slots
     assert result["collisions"]["total"] == 0
     [settle] = result["settle_times"]
     assert settle["at"] == 10.0 and settle["shape"] == "column"
