@@ -1,4 +1,4 @@
-"""The ``swarm-env`` command line: ``list``, ``validate``, ``run``, ``bench``.
+"""The ``swarm-env`` command line: ``list``, ``validate``, ``run``, ``bench``, ``evaluate``.
 
 Exit codes: 0 success, 2 bad input (unknown scenario or policy, invalid
 scenario file, bad option), 1 anything else.
@@ -170,6 +170,63 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """The leaderboard (:mod:`swarm_env.leaderboard`); every input is checked before any episode runs."""
+    from swarm_env.leaderboard import default_seeds, parse_seeds, record_worst_videos, run_leaderboard, validate_inputs
+    from swarm_env.scenario_io import list_scenarios
+
+    scenarios: list[str] = args.scenarios or list_scenarios()
+    env_kwargs: dict[str, Any] = {"action_type": args.action_type}
+    if args.max_cycles is not None:
+        env_kwargs["max_cycles"] = args.max_cycles
+    try:
+        if args.workers < 1:
+            raise ValueError(f"--workers must be >= 1, got {args.workers}")
+        if args.fps <= 0:
+            raise ValueError(f"--fps must be > 0, got {args.fps:g}")
+        if args.videos and not args.out:
+            raise ValueError("--videos needs --out DIR (the videos go to DIR/videos/)")
+        common = parse_seeds(args.seeds) if args.seeds is not None else None
+        seeds: dict[str, list[int]] = {}
+        for item in args.scenario_seeds or []:
+            name, sep, text = item.partition("=")
+            if not sep or not name:
+                raise ValueError(f"--scenario-seeds expects SCENARIO=SEEDS (e.g. random=1000-1049), got {item!r}")
+            if name not in scenarios:
+                raise ValueError(f"--scenario-seeds names {name!r}, which is not among the scenarios {scenarios}")
+            if name in seeds:
+                raise ValueError(f"--scenario-seeds gives {name!r} twice")
+            seeds[name] = parse_seeds(text)
+        validate_inputs(args.policies, scenarios, env_kwargs)
+    except ScenarioError:
+        raise  # main() reports it (as it does UnknownPolicyError)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for scenario in scenarios:
+        seeds.setdefault(scenario, list(common) if common is not None else default_seeds(scenario))
+
+    board = run_leaderboard(
+        args.policies, scenarios, seeds, env_kwargs=env_kwargs, workers=args.workers, progress=not args.quiet
+    )
+    print(board.to_markdown())
+    print(f"{len(board.episodes)} episodes in {board.wall_time:.1f} s (wall, {args.workers} worker(s))", file=sys.stderr)
+    for policy in board.policies:  # likely a bad argument (e.g. a missing model file) rather than a misfit
+        reasons = {r.na_reason for r in board.rows if r.policy == policy}
+        if None not in reasons:
+            print(f"warning: policy {policy!r} ran on no scenario: {'; '.join(sorted(reasons))}", file=sys.stderr)
+    if args.out:
+        out = Path(args.out)
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "leaderboard.md").write_text(board.to_markdown())
+        for path in (out / "leaderboard.md", board.to_csv(out / "leaderboard.csv"), board.to_json(out / "leaderboard.json")):
+            print(f"wrote {path}")
+        if args.videos:
+            for rec in record_worst_videos(board, out / "videos", fps=args.fps, progress=not args.quiet):
+                print(f"wrote {rec.path}" + ("" if rec.reproduced else "  (re-run differs from the recorded episode)"))
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="swarm-env", description="Leader-follower swarm environment (PettingZoo + pymunk).")
     sub = p.add_subparsers(dest="command", required=True)
@@ -202,6 +259,32 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--json", help="write the raw figures to this file")
     b.add_argument("--quiet", action="store_true", help="no per-repeat progress on stderr")
     b.set_defaults(func=cmd_bench)
+
+    e = sub.add_parser(
+        "evaluate",
+        help="leaderboard: policies x scenarios x seeds -> Markdown/CSV/JSON tables (+ worst-episode videos)",
+        description="Run every policy on every scenario for its seeds through one evaluation path and print a "
+        "Markdown table of mean ± 95 % CI of success, collisions, formation error, settle time, episode time and "
+        "policy time. Seeds: --seeds applies to every scenario not named in --scenario-seeds; without --seeds a "
+        "fixed scenario gets seeds 0-4 (it is deterministic up to the policy's randomness) and 'random' gets the "
+        "held-out seeds 1000-1049.",
+    )
+    e.add_argument("--policies", nargs="+", required=True, metavar="SPEC",
+                   help="registered policy names, optionally name:ARG (e.g. vo cbs_rrt random ppo:runs/x/model.zip)")
+    e.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO",
+                   help="built-in names, 'random' or YAML paths (default: every built-in scenario and random)")
+    e.add_argument("--seeds", metavar="SEEDS", help="seeds of every scenario: '0-9', '3' or '0,5,7' (mixes like '0-4,9' too)")
+    e.add_argument("--scenario-seeds", nargs="+", metavar="SCENARIO=SEEDS",
+                   help="per-scenario seeds overriding --seeds, e.g. random=1000-1049 paper_vo_0=0-2")
+    e.add_argument("--workers", type=int, default=1, help="processes running (policy, scenario) jobs in parallel")
+    e.add_argument("--action-type", choices=["continuous", "discrete"], default="continuous")
+    e.add_argument("--max-cycles", type=int, help="stop each episode after this many steps (default: max_time)")
+    e.add_argument("--out", metavar="DIR", help="write DIR/leaderboard.md, .csv and .json")
+    e.add_argument("--videos", action="store_true", help="also write DIR/videos/<policy>__<scenario>__seed<k>.mp4 "
+                   "of each policy's worst episode per scenario (most collisions, then failure, then formation error)")
+    e.add_argument("--fps", type=float, default=20.0, help="video frames per second")
+    e.add_argument("--quiet", action="store_true", help="no progress bars")
+    e.set_defaults(func=cmd_evaluate)
     return p
 
 

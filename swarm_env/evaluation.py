@@ -56,27 +56,36 @@ def run_episode(
     return result
 
 
+def mean_ci95(values: Iterable[float | None]) -> dict[str, float | int | None]:
+    """``{"mean", "ci95", "n"}`` of the non-``None`` values; ``ci95`` is the normal-approximation
+    half-width ``1.96 * s / sqrt(n)`` (0 for n = 1, ``None`` with no values)."""
+    arr = np.array([v for v in values if v is not None], dtype=float)
+    if arr.size == 0:
+        return {"mean": None, "ci95": None, "n": 0}
+    half = float(1.96 * arr.std(ddof=1) / np.sqrt(arr.size)) if arr.size > 1 else 0.0
+    return {"mean": float(arr.mean()), "ci95": half, "n": int(arr.size)}
+
+
 def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
-    """Means (and 95 % normal-approximation half-widths) of the headline metrics."""
+    """Means (and 95 % normal-approximation half-widths, :func:`mean_ci95`) of the headline metrics.
 
-    def stat(values: Iterable[float | None]) -> dict[str, float | None]:
-        arr = np.array([v for v in values if v is not None], dtype=float)
-        if arr.size == 0:
-            return {"mean": None, "ci95": None, "n": 0}
-        half = float(1.96 * arr.std(ddof=1) / np.sqrt(arr.size)) if arr.size > 1 else 0.0
-        return {"mean": float(arr.mean()), "ci95": half, "n": int(arr.size)}
-
+    ``policy_time`` (policy wall seconds per episode) is included when the
+    episodes carry it (:func:`run_episode` results do).
+    """
     settle = [s["settle_time"] for e in episodes for s in e["settle_times"]]
-    return {
+    summary = {
         "episodes": len(episodes),
-        "success_rate": stat(float(e["success"]) for e in episodes),
-        "collision_free_rate": stat(float(e["collisions"]["total"] == 0) for e in episodes),
-        "collisions": stat(e["collisions"]["total"] for e in episodes),
-        "formation_error": stat(e["formation_error"]["mean"] for e in episodes),
-        "settle_time": stat(settle),
-        "sim_time": stat(e["sim_time"] for e in episodes),
-        "min_separation": stat(e["min_separation"] for e in episodes),
+        "success_rate": mean_ci95(float(e["success"]) for e in episodes),
+        "collision_free_rate": mean_ci95(float(e["collisions"]["total"] == 0) for e in episodes),
+        "collisions": mean_ci95(e["collisions"]["total"] for e in episodes),
+        "formation_error": mean_ci95(e["formation_error"]["mean"] for e in episodes),
+        "settle_time": mean_ci95(settle),
+        "sim_time": mean_ci95(e["sim_time"] for e in episodes),
+        "min_separation": mean_ci95(e["min_separation"] for e in episodes),
     }
+    if all("policy_time" in e for e in episodes):
+        summary["policy_time"] = mean_ci95(e["policy_time"] for e in episodes)
+    return summary
 
 
 def evaluate(

@@ -110,10 +110,11 @@ class PursuitPolicy:
             raise ValueError(f"policy 'pursuit' takes a time gap in seconds, got {arg!r}") from None
         if not self.time_gap > 0:
             raise ValueError(f"policy 'pursuit' needs a positive time gap, got {arg!r}")
+        self.reset(env, None)  # refuse a discrete env now, before any episode
 
     def reset(self, env: "SwarmEnv", seed: int | None) -> None:
         if env.action_type == "discrete":
-            raise ValueError("policy 'pursuit' drives the continuous action space only")
+            raise PolicyError("policy 'pursuit' drives the continuous action space only")
 
     def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
         robots = state.scenario.robots

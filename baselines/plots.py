@@ -1,0 +1,61 @@
+"""Learning-curve figures from a run's ``eval.csv`` (matplotlib, headless)."""
+
+from __future__ import annotations
+
+import csv
+from collections.abc import Mapping
+from pathlib import Path
+
+
+def read_eval_csv(path: str | Path) -> dict[str, list[float]]:
+    """Columns of an ``eval.csv`` written by :class:`baselines.callbacks.EvalCallback`, as float lists."""
+    with open(path, newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    if not rows:
+        raise ValueError(f"{path}: no evaluation rows yet")
+    return {key: [float(r[key]) if r[key] not in ("", "None") else float("nan") for r in rows] for key in rows[0]}
+
+
+def plot_learning_curve(
+    eval_csv: str | Path,
+    out_png: str | Path,
+    *,
+    title: str = "",
+    references: Mapping[str, Mapping[str, float]] | None = None,
+) -> Path:
+    """Validation formation error and collisions per episode against agent-steps, with 95 % CI bands.
+
+    ``references`` optionally draws horizontal lines, e.g.
+    ``{"vo": {"formation_error": 0.31, "collisions": 0.0}}`` for an expert's level.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    data = read_eval_csv(eval_csv)
+    steps = np.array(data["agent_steps"]) / 1e6
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
+    for ax, key, label in (
+        (axes[0], "formation_error", "formation error (m)"),
+        (axes[1], "collisions", "collisions per episode"),
+    ):
+        mean = np.array(data[key])
+        ci = np.nan_to_num(np.array(data[f"{key}_ci95"]))
+        ax.plot(steps, mean, marker="o", ms=3, label="policy (validation seeds)")
+        ax.fill_between(steps, mean - ci, mean + ci, alpha=0.25)
+        for i, (name, values) in enumerate((references or {}).items()):
+            if key in values:
+                ax.axhline(values[key], ls="--", lw=1, color=f"C{i + 1}", label=name)
+        ax.set_xlabel("agent-steps (millions)")
+        ax.set_ylabel(label)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    out = Path(out_png)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

@@ -1,0 +1,256 @@
+"""Train an SB3 policy on the swarm env in one command.
+
+.. code-block:: console
+
+    python -m baselines.train --algo ppo --scenario random --total-steps 2e6 --seed 0
+
+Every :class:`~baselines.config.TrainConfig` field is an option (``--help`` lists
+them with their documentation). A run writes a directory
+``<runs_dir>/<run_name>/``::
+
+    config.json        the exact TrainConfig (python -m baselines.train --config it repeats the run)
+    versions.json      python, platform, package versions, git commit, command line
+    model.zip          the final model (+ vecnormalize.pkl: its observation/reward statistics)
+    best/              the model with the best validation score (see baselines.callbacks)
+    checkpoints/       periodic checkpoints
+    eval.csv           validation metrics over training (the learning curve's data)
+    learning_curve.png validation formation error and collisions over agent-steps
+    logs/              SB3 logger output: progress.csv and TensorBoard event files
+                       (tensorboard --logdir runs/)
+
+Load the result as a policy with ``ppo:<run dir>`` (or ``ppo:<run dir>/best``)
+anywhere a policy spec is accepted, e.g. ``swarm-env evaluate``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import platform
+import subprocess
+import sys
+import time
+from datetime import datetime, timezone
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+from typing import Any
+
+from baselines.config import TrainConfig, field_help, parse_seeds, policy_kwargs
+
+PACKAGES = ("swarm-env", "numpy", "torch", "stable-baselines3", "gymnasium", "pettingzoo", "pymunk", "tensorboard")
+
+
+def package_versions() -> dict[str, Any]:
+    """Interpreter, platform, package versions and the git commit of the working directory (if any)."""
+    versions: dict[str, Any] = {"python": sys.version.split()[0], "platform": platform.platform()}
+    for pkg in PACKAGES:
+        try:
+            versions[pkg] = version(pkg)
+        except PackageNotFoundError:
+            versions[pkg] = None
+    try:
+        root = Path(__file__).resolve().parent.parent
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=5)
+        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, timeout=5)
+        versions["git_commit"] = commit.stdout.strip() or None
+        versions["git_dirty"] = bool(dirty.stdout.strip()) if commit.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        versions["git_commit"] = None
+    versions["argv"] = sys.argv
+    return versions
+
+
+def _env_kwargs(cfg: TrainConfig) -> dict[str, Any]:
+    return {**cfg.env_kwargs, "action_type": cfg.action_type}
+
+
+def _make_model(cfg: TrainConfig, venv: Any, log_dir: Path) -> Any:
+    from baselines.model_io import algorithm_class
+
+    cls = algorithm_class(cfg.algo)
+    common: dict[str, Any] = {
+        "learning_rate": cfg.learning_rate,
+        "gamma": cfg.gamma,
+        "seed": cfg.seed,
+        "device": "cpu",
+        "verbose": 0,
+        "policy_kwargs": policy_kwargs(cfg.net_arch, cfg.algo),
+    }
+    if cfg.algo in ("ppo", "a2c"):
+        common.update(n_steps=cfg.n_steps, gae_lambda=cfg.gae_lambda, ent_coef=cfg.ent_coef)
+        if cfg.algo == "ppo":
+            common.update(batch_size=cfg.batch_size, n_epochs=cfg.n_epochs, clip_range=cfg.clip_range)
+    else:
+        # One env step yields num_envs transitions; a few gradient steps per env step keeps the
+        # update-to-data ratio near SB3's single-env default without making each step slow.
+        common.update(
+            batch_size=cfg.batch_size,
+            buffer_size=cfg.buffer_size,
+            train_freq=1,
+            gradient_steps=max(1, venv.num_envs // 16),
+            learning_starts=10 * venv.num_envs,
+        )
+    model = cls("MlpPolicy", venv, **common)
+    from stable_baselines3.common.logger import configure
+
+    model.set_logger(configure(str(log_dir), ["csv", "tensorboard"]))
+    return model
+
+
+def _warm_start(model: Any, venv: Any, cfg: TrainConfig) -> None:
+    """Copy a saved model's weights (and VecNormalize observation statistics) into ``model``."""
+    from baselines.model_io import load_model
+
+    assert cfg.init_from is not None
+    source, source_norm = load_model(cfg.init_from, "ppo" if cfg.algo in ("ppo", "bc") else cfg.algo)
+    try:
+        model.policy.load_state_dict(source.policy.state_dict())
+    except RuntimeError as exc:
+        raise ValueError(
+            f"--init-from {cfg.init_from}: its network does not match this run's (net_arch={list(cfg.net_arch)}, "
+            f"algo={cfg.algo}): {str(exc).splitlines()[0]}"
+        ) from None
+    if source_norm is not None and hasattr(venv, "obs_rms"):
+        venv.obs_rms = source_norm.obs_rms.copy() if hasattr(source_norm.obs_rms, "copy") else source_norm.obs_rms
+
+
+def train(cfg: TrainConfig) -> Path:
+    """Run ``cfg`` to completion and return the run directory."""
+    import torch
+    from stable_baselines3.common.callbacks import CallbackList
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from baselines.callbacks import CheckpointCallback, EvalCallback, TqdmCallback
+    from baselines.model_io import save_model
+    from baselines.plots import plot_learning_curve
+    from baselines.vec_env import make_vec_env
+
+    torch.set_num_threads(cfg.torch_threads)
+    stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
+    name = cfg.run_name or f"{cfg.algo}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}"
+    run_dir = Path(cfg.runs_dir) / name
+    if (run_dir / "config.json").exists():
+        raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / "config.json").write_text(cfg.to_json() + "\n")
+    (run_dir / "versions.json").write_text(json.dumps(package_versions(), indent=2) + "\n")
+
+    env_kwargs = _env_kwargs(cfg)
+    venv: Any = make_vec_env(cfg.scenario, cfg.n_copies, n_procs=cfg.n_procs, **env_kwargs)
+    vecnorm = None
+    if cfg.norm_obs or cfg.norm_reward:
+        venv = vecnorm = VecNormalize(venv, norm_obs=cfg.norm_obs, norm_reward=cfg.norm_reward, gamma=cfg.gamma)
+    model = _make_model(cfg, venv, run_dir / "logs")
+    if cfg.init_from:
+        _warm_start(model, venv, cfg)
+
+    callbacks = []
+    evaluator = None
+    if cfg.eval_every:
+        evaluator = EvalCallback(cfg.eval_every, cfg.scenario, env_kwargs, parse_seeds(cfg.eval_seeds), run_dir, vecnorm)
+        callbacks.append(evaluator)
+    if cfg.checkpoint_every:
+        callbacks.append(CheckpointCallback(cfg.checkpoint_every, run_dir, vecnorm))
+    if cfg.progress:
+        callbacks.append(TqdmCallback(cfg.total_steps))
+
+    t0 = time.perf_counter()
+    try:
+        model.learn(total_timesteps=cfg.total_steps, callback=CallbackList(callbacks))
+    finally:
+        venv.close()
+    wall = time.perf_counter() - t0
+    save_model(model, run_dir, vecnorm)
+    summary = {"agent_steps": int(model.num_timesteps), "wall_s": round(wall, 1), "steps_per_s": round(model.num_timesteps / wall, 1)}
+    if evaluator is not None and evaluator.history:
+        summary["final_eval"] = evaluator.history[-1]
+        summary["best_score"] = evaluator.best_score
+        plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=name)
+    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    return run_dir
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def _int_arg(text: str) -> int:
+    """Integers, also written as 2e6 or 2_000_000."""
+    try:
+        value = float(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not value.is_integer():
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}")
+    return int(value)
+
+
+def _kv_arg(text: str) -> tuple[str, Any]:
+    import yaml
+
+    key, sep, value = text.partition("=")
+    if not sep or not key.isidentifier():
+        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
+    return key, yaml.safe_load(value)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """One option per :class:`TrainConfig` field, its help text taken from the field's ``#:`` comment."""
+    parser = argparse.ArgumentParser(
+        prog="python -m baselines.train",
+        description="Train an SB3 policy (parameter sharing over all followers) on the swarm env.",
+    )
+    parser.add_argument("--config", help="start from this config.json (e.g. a previous run's); options override it")
+    helps = field_help()
+    for f in dataclasses.fields(TrainConfig):
+        flag = "--" + f.name.replace("_", "-")
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+        shown = list(default) if isinstance(default, tuple) else default
+        kwargs: dict[str, Any] = {"help": f"{helps.get(f.name, '')} (default: {shown})", "default": argparse.SUPPRESS}
+        if f.name == "env_kwargs":
+            parser.add_argument("--env", dest="env_kwargs", type=_kv_arg, action="append", metavar="KEY=VALUE", **kwargs)
+            continue
+        if isinstance(default, bool):
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
+        elif isinstance(default, int):
+            parser.add_argument(flag, type=_int_arg, **kwargs)
+        elif isinstance(default, float):
+            parser.add_argument(flag, type=float, **kwargs)
+        elif isinstance(default, tuple):
+            parser.add_argument(flag, type=int, nargs="+", **kwargs)
+        else:
+            parser.add_argument(flag, type=str, **kwargs)
+    return parser
+
+
+def config_from_args(argv: list[str] | None = None) -> TrainConfig:
+    args = vars(build_parser().parse_args(argv))
+    base: dict[str, Any] = {}
+    config_path = args.pop("config", None)
+    if config_path:
+        base = dataclasses.asdict(TrainConfig.from_json(config_path))
+        base["run_name"] = None  # a repeated run gets its own directory
+    if "env_kwargs" in args:
+        args["env_kwargs"] = {**base.get("env_kwargs", {}), **dict(args["env_kwargs"])}
+    return TrainConfig(**{**base, **args})
+
+
+def main(argv: list[str] | None = None) -> int:
+    try:
+        cfg = config_from_args(argv)
+    except (ValueError, TypeError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    try:
+        run_dir = train(cfg)
+    except (ValueError, FileExistsError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(run_dir)
+    summary = json.loads((run_dir / "summary.json").read_text())
+    print(json.dumps(summary, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,590 @@
+"""One leaderboard: policies x scenarios x seeds through the one evaluation path.
+
+:func:`run_leaderboard` plays every policy spec (``vo``, ``cbs_rrt``,
+``random``, ``ppo:PATH``, ... anything :func:`swarm_env.policies.load_policy`
+builds) on every scenario for that scenario's seeds, each episode through
+:func:`swarm_env.evaluation.run_episode`, and returns a :class:`Leaderboard`:
+one :class:`Row` per policy x scenario with the mean and 95 % confidence
+interval of the headline metrics, plus every episode's metrics.
+
+.. code-block:: python
+
+    board = run_leaderboard(["random", "vo"], ["paper_vo_0", "random"],
+                            {"paper_vo_0": range(5), "random": range(1000, 1050)}, workers=2)
+    print(board.to_markdown())
+    board.to_csv("leaderboard.csv"); board.to_json("leaderboard.json")
+    record_worst_videos(board, "videos")
+
+Seeds. A fixed scenario (``paper_vo_0``, ...) is deterministic: only a
+stochastic policy makes its seeds differ, so few seeds suffice
+(:data:`DEFAULT_FIXED_SEEDS`). ``random`` draws a new world per seed; its
+default seeds (:data:`DEFAULT_RANDOM_SEEDS`, 1000 and up) are held out from
+training, which uses seeds below 1000.
+
+Jobs. Each (policy, scenario) pair is one job: one fresh env and one fresh
+policy that play the job's seeds in order. ``workers > 1`` runs jobs in a
+process pool (``spawn``: no state inherited from the parent), which gives the
+same metrics as ``workers=1`` because a job does not depend on where it runs;
+only the timings (``wall_time``, ``policy_time``, ``policy_stats``) differ.
+
+A policy that refuses a scenario (a :class:`~swarm_env.policies.PolicyError`,
+e.g. ``vo`` with ``action_type="discrete"``) gives a row marked ``n/a: reason``.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import json
+import multiprocessing
+import os
+import queue
+import re
+import time
+import warnings
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from swarm_env.env import SwarmEnv
+from swarm_env.evaluation import run_episode, summarize
+from swarm_env.policies import PolicyError, UnknownPolicyError, load_policy, registered_policies
+from swarm_env.scenario_io import RANDOM_NAME
+
+#: Seeds of a fixed scenario when none are given (deterministic up to the policy's own randomness).
+DEFAULT_FIXED_SEEDS: tuple[int, ...] = tuple(range(0, 5))
+#: Seeds of ``random`` when none are given: held out (training draws seeds below 1000).
+DEFAULT_RANDOM_SEEDS: tuple[int, ...] = tuple(range(1000, 1050))
+
+#: Fields of an episode's metrics that measure this machine, not the policy's behaviour.
+TIMING_KEYS = ("wall_time", "policy_time", "policy_stats")
+
+
+@dataclass(frozen=True)
+class Metric:
+    """One aggregated column: summary key, table header, decimals in the Markdown table."""
+
+    key: str
+    label: str
+    digits: int
+    in_markdown: bool = True
+
+
+#: The leaderboard's columns, in order (keys of :func:`swarm_env.evaluation.summarize` plus ``policy_time``).
+METRICS: tuple[Metric, ...] = (
+    Metric("success_rate", "success", 2),
+    Metric("collision_free_rate", "collision-free", 2),
+    Metric("collisions", "collisions / ep", 2),
+    Metric("formation_error", "formation error (m)", 3),
+    Metric("settle_time", "settle time (s)", 1),
+    Metric("sim_time", "episode time (s)", 1),
+    Metric("policy_time", "policy time (s / ep)", 3),
+    Metric("min_separation", "min separation (m)", 3, in_markdown=False),
+)
+
+
+# --------------------------------------------------------------------------- seeds
+def parse_seeds(text: str) -> list[int]:
+    """Parse ``"0-9"``, ``"3"``, ``"0,5,7"`` or mixes (``"0-4,10"``) into a list of seeds.
+
+    Raises ``ValueError`` naming the bad part: seeds are non-negative integers, a range
+    ``A-B`` needs ``A <= B``, and no seed may appear twice.
+    """
+    seeds: list[int] = []
+    parts = [p.strip() for p in str(text).split(",")]
+    if not any(parts):
+        raise ValueError(f"empty seed list {text!r}; expected e.g. '0-9', '3' or '0,5,7'")
+    for part in parts:
+        m = re.fullmatch(r"(\d+)(?:\s*-\s*(\d+))?", part)
+        if m is None:
+            raise ValueError(f"bad seed range {part!r} in {text!r}; expected N, A-B or a comma list of them (e.g. '0-9', '0,5,7')")
+        lo = int(m.group(1))
+        hi = int(m.group(2)) if m.group(2) is not None else lo
+        if hi < lo:
+            raise ValueError(f"bad seed range {part!r} in {text!r}: the end is below the start")
+        seeds.extend(range(lo, hi + 1))
+    dup = sorted({s for s in seeds if seeds.count(s) > 1}) if len(set(seeds)) != len(seeds) else []
+    if dup:
+        raise ValueError(f"seed list {text!r} repeats seed(s) {dup}")
+    return seeds
+
+
+def format_seeds(seeds: Iterable[int]) -> str:
+    """The inverse of :func:`parse_seeds`: ``[0, 1, 2, 5]`` -> ``"0-2,5"``."""
+    seeds = list(seeds)
+    runs: list[str] = []
+    i = 0
+    while i < len(seeds):
+        j = i
+        while j + 1 < len(seeds) and seeds[j + 1] == seeds[j] + 1:
+            j += 1
+        runs.append(str(seeds[i]) if i == j else f"{seeds[i]}-{seeds[j]}")
+        i = j + 1
+    return ",".join(runs)
+
+
+def default_seeds(scenario: str) -> list[int]:
+    """:data:`DEFAULT_RANDOM_SEEDS` for ``"random"``, :data:`DEFAULT_FIXED_SEEDS` for any fixed scenario."""
+    return list(DEFAULT_RANDOM_SEEDS if scenario == RANDOM_NAME else DEFAULT_FIXED_SEEDS)
+
+
+def resolve_seeds(
+    scenarios: Sequence[str], seeds: Sequence[int] | Mapping[str, Sequence[int]] | None
+) -> dict[str, list[int]]:
+    """Seeds per scenario: ``None`` -> :func:`default_seeds`; a sequence -> the same for all;
+    a mapping -> per scenario (it must name exactly the scenarios). Raises ``ValueError``."""
+    if seeds is None:
+        out = {s: default_seeds(s) for s in scenarios}
+    elif isinstance(seeds, Mapping):
+        missing = [s for s in scenarios if s not in seeds]
+        extra = [s for s in seeds if s not in scenarios]
+        if missing or extra:
+            raise ValueError(
+                f"seeds per scenario must name exactly the scenarios {list(scenarios)}; "
+                f"missing {missing}, not evaluated {extra}"
+            )
+        out = {s: list(seeds[s]) for s in scenarios}
+    else:
+        out = {s: list(seeds) for s in scenarios}
+    for scenario, values in out.items():
+        if not values:
+            raise ValueError(f"scenario {scenario!r}: no seeds")
+        for v in values:
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+                raise ValueError(f"scenario {scenario!r}: seeds must be non-negative ints, got {v!r}")
+        if len(set(values)) != len(values):
+            raise ValueError(f"scenario {scenario!r}: seed list repeats a seed")
+        out[scenario] = [int(v) for v in values]
+    return out
+
+
+# --------------------------------------------------------------------------- validation
+def validate_inputs(policies: Sequence[str], scenarios: Sequence[str], env_kwargs: Mapping[str, Any] | None = None) -> None:
+    """Check every policy name and scenario before any episode runs.
+
+    Raises :class:`~swarm_env.policies.UnknownPolicyError` for an unregistered policy name
+    (the part before ``:``), :class:`~swarm_env.scenario.ScenarioError` for an unknown or
+    invalid scenario, and ``ValueError`` for an empty or repeated list entry or env arguments
+    the env rejects. A policy's *argument* and its fit to each env are checked when its job
+    starts (a refusal becomes an ``n/a`` row).
+    """
+    for kind, items in (("policies", policies), ("scenarios", scenarios)):
+        if isinstance(items, str):
+            raise ValueError(f"{kind} must be a list of strings, got the string {items!r}")
+        if not items:
+            raise ValueError(f"no {kind} to evaluate")
+        repeated = sorted({x for x in items if list(items).count(x) > 1})
+        if repeated:
+            raise ValueError(f"{kind} listed more than once: {repeated}")
+    known = registered_policies()
+    for spec in policies:
+        if not isinstance(spec, str):
+            raise ValueError(f"policy specs must be strings like 'vo' or 'ppo:PATH', got {spec!r}")
+        name = spec.partition(":")[0]
+        if name not in known:
+            raise UnknownPolicyError(f"unknown policy {name!r}; registered policies: {', '.join(known)}")
+    kwargs = dict(env_kwargs or {})
+    if "render_mode" in kwargs:
+        raise ValueError("env_kwargs must not set render_mode: episodes run headless; record_worst_videos renders")
+    for scenario in scenarios:
+        try:
+            SwarmEnv(scenario, **kwargs).close()
+        except TypeError as exc:  # e.g. random-generator knobs with a fixed scenario
+            raise ValueError(f"scenario {scenario!r}: {exc}") from None
+
+
+# --------------------------------------------------------------------------- running
+@dataclass(frozen=True)
+class _Job:
+    policy: str
+    scenario: str
+    seeds: tuple[int, ...]
+    env_kwargs: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class _JobResult:
+    episodes: list[dict[str, Any]]
+    na_reason: str | None
+
+
+def _run_job(job: _Job, on_episode: Callable[[], None]) -> _JobResult:
+    """Play one (policy, scenario) job with one fresh env and policy; ``on_episode`` ticks progress."""
+    env = SwarmEnv(job.scenario, **job.env_kwargs)
+    try:
+        try:
+            policy = load_policy(job.policy, env)
+        except PolicyError as exc:
+            return _JobResult([], str(exc))
+        # Some policies refuse an env in reset() (ValueError), not in their factory; probe once so
+        # that this too gives an n/a row. run_episode resets both again with the same seed.
+        env.reset(seed=job.seeds[0])
+        try:
+            policy.reset(env, job.seeds[0])
+        except ValueError as exc:
+            message = str(exc) if str(exc).startswith("policy ") else f"policy {job.policy!r}: {exc}"
+            return _JobResult([], message)
+        episodes = []
+        for seed in job.seeds:
+            try:
+                episodes.append(run_episode(env, policy, seed))
+            except PolicyError as exc:
+                if episodes:  # a refusal after some episodes ran is a fault, not a misfit
+                    raise
+                return _JobResult([], str(exc))
+            except Exception as exc:
+                exc.add_note(f"while evaluating policy {job.policy!r} on scenario {job.scenario!r}, seed {seed}")
+                raise
+            on_episode()
+        return _JobResult(episodes, None)
+    finally:
+        env.close()
+
+
+_PROGRESS_QUEUE: Any = None  # set in each pool worker by _init_worker
+
+
+def _init_worker(progress_queue: Any) -> None:
+    global _PROGRESS_QUEUE
+    _PROGRESS_QUEUE = progress_queue
+
+
+def _run_job_in_worker(job: _Job) -> _JobResult:
+    return _run_job(job, lambda: _PROGRESS_QUEUE.put(1))
+
+
+def _run_pool(jobs: list[_Job], workers: int, tick: Callable[[int], None]) -> list[_JobResult]:
+    # spawn: a clean interpreter per worker (fork would copy the parent's threads and pygame state).
+    ctx = multiprocessing.get_context("spawn")
+    progress_queue = ctx.Queue()
+    results: list[_JobResult | None] = [None] * len(jobs)
+    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
+    try:
+        pending: dict[Future[_JobResult], int] = {pool.submit(_run_job_in_worker, job): i for i, job in enumerate(jobs)}
+        while pending:
+            done, _ = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
+            _drain(progress_queue, tick)
+            for fut in done:
+                results[pending.pop(fut)] = fut.result()  # re-raises a job's exception here
+        _drain(progress_queue, tick)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown(wait=True)
+    return [r for r in results if r is not None]
+
+
+def _drain(progress_queue: Any, tick: Callable[[int], None]) -> None:
+    n = 0
+    while True:
+        try:
+            n += progress_queue.get_nowait()
+        except queue.Empty:
+            break
+    if n:
+        tick(n)
+
+
+def run_leaderboard(
+    policies: list[str],
+    scenarios: list[str],
+    seeds: Sequence[int] | Mapping[str, Sequence[int]] | None = None,
+    *,
+    env_kwargs: dict[str, Any] | None = None,
+    workers: int = 1,
+    progress: bool = True,
+) -> Leaderboard:
+    """Evaluate every policy spec on every scenario for its seeds.
+
+    * ``seeds``: one sequence for every scenario, a mapping scenario -> seeds, or ``None``
+      for :func:`default_seeds` (see :func:`resolve_seeds`).
+    * ``env_kwargs``: passed to every :class:`~swarm_env.env.SwarmEnv` (``action_type``,
+      ``max_cycles``, random-generator knobs when every scenario is ``random``); not ``render_mode``.
+    * ``workers``: jobs (one per policy x scenario) run in a ``spawn`` process pool of this
+      size when > 1; the metrics equal those of ``workers=1``.
+    * ``progress``: a tqdm bar over episodes on stderr.
+
+    All inputs are validated (:func:`validate_inputs`) before any episode runs.
+    """
+    if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"workers must be an int >= 1, got {workers!r}")
+    kwargs = dict(env_kwargs or {})
+    validate_inputs(policies, scenarios, kwargs)
+    seed_map = resolve_seeds(scenarios, seeds)
+    jobs = [_Job(p, s, tuple(seed_map[s]), kwargs) for p in policies for s in scenarios]
+
+    from tqdm.auto import tqdm
+
+    total = sum(len(job.seeds) for job in jobs)
+    t0 = time.perf_counter()
+    with tqdm(total=total, desc="leaderboard", unit="ep", disable=not progress) as bar:
+        if workers == 1 or len(jobs) == 1:
+            results = [_run_job(job, lambda: bar.update(1)) for job in jobs]
+        else:
+            results = _run_pool(jobs, min(workers, len(jobs)), bar.update)
+        # a refused job's episodes never ran; count them so the bar ends full
+        skipped = sum(len(job.seeds) for job, r in zip(jobs, results) if r.na_reason is not None)
+        bar.update(skipped)
+    wall = time.perf_counter() - t0
+
+    rows: list[Row] = []
+    episodes: list[dict[str, Any]] = []
+    for job, result in zip(jobs, results):
+        if result.na_reason is not None:
+            rows.append(Row(job.policy, job.scenario, list(job.seeds), None, result.na_reason))
+            continue
+        rows.append(Row(job.policy, job.scenario, list(job.seeds), aggregate(result.episodes)))
+        episodes.extend({"policy": job.policy, "scenario": job.scenario, "seed": ep["seed"], "metrics": ep} for ep in result.episodes)
+    return Leaderboard(list(policies), list(scenarios), seed_map, kwargs, rows, episodes, wall, workers)
+
+
+# --------------------------------------------------------------------------- aggregation
+def aggregate(episodes: list[dict[str, Any]]) -> dict[str, Any]:
+    """:func:`~swarm_env.evaluation.summarize` of ``run_episode`` results (``policy_time`` included)."""
+    return summarize(episodes)
+
+
+@dataclass
+class Row:
+    """One policy on one scenario: ``summary`` (see :func:`aggregate`) or, if the policy
+    refused the scenario, ``na_reason``."""
+
+    policy: str
+    scenario: str
+    seeds: list[int]
+    summary: dict[str, Any] | None
+    na_reason: str | None = None
+
+    @property
+    def status(self) -> str:
+        return "ok" if self.na_reason is None else f"n/a: {self.na_reason}"
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"policy": self.policy, "scenario": self.scenario, "seeds": self.seeds, "status": self.status,
+                "na_reason": self.na_reason, "summary": self.summary}
+
+
+def badness(episode: Mapping[str, Any]) -> tuple[float, bool, float]:
+    """Sort key of an episode's metrics, larger is worse: collisions, then failure
+    (``success`` False is worse), then mean formation error."""
+    return (episode["collisions"]["total"], not episode["success"], episode["formation_error"]["mean"])
+
+
+def _md_cell(text: str) -> str:
+    return " ".join(str(text).split()).replace("|", "\\|")
+
+
+def _fmt_stat(stat: Mapping[str, Any] | None, digits: int) -> str:
+    if not stat or stat.get("mean") is None:
+        return "–"
+    if stat["n"] == 1:  # no spread to report from one value
+        return f"{stat['mean']:.{digits}f}"
+    return f"{stat['mean']:.{digits}f} ± {stat['ci95']:.{digits}f}"
+
+
+@dataclass
+class Leaderboard:
+    """The result of :func:`run_leaderboard`.
+
+    ``rows``: one :class:`Row` per policy x scenario (policies outer, scenarios inner).
+    ``episodes``: ``{"policy", "scenario", "seed", "metrics"}`` per episode played, where
+    ``metrics`` is :func:`~swarm_env.evaluation.run_episode`'s dict.
+    """
+
+    policies: list[str]
+    scenarios: list[str]
+    seeds: dict[str, list[int]]
+    env_kwargs: dict[str, Any]
+    rows: list[Row]
+    episodes: list[dict[str, Any]]
+    wall_time: float = 0.0
+    workers: int = 1
+    metrics: tuple[Metric, ...] = field(default=METRICS, repr=False)
+
+    def row(self, policy: str, scenario: str) -> Row:
+        for r in self.rows:
+            if r.policy == policy and r.scenario == scenario:
+                return r
+        raise KeyError(f"no row for policy {policy!r} on scenario {scenario!r}")
+
+    def episodes_of(self, policy: str, scenario: str) -> list[dict[str, Any]]:
+        """The ``run_episode`` metrics of one row's episodes, in seed order."""
+        return [e["metrics"] for e in self.episodes if e["policy"] == policy and e["scenario"] == scenario]
+
+    def worst_episodes(self, per_scenario: bool = True) -> list[dict[str, Any]]:
+        """The worst episode (by :func:`badness`, the first seed on ties) of each policy x scenario
+        (``per_scenario=True``) or of each policy over all scenarios; entries of :attr:`episodes`."""
+        groups: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+        for e in self.episodes:
+            key = (e["policy"], e["scenario"]) if per_scenario else (e["policy"],)
+            groups.setdefault(key, []).append(e)
+        # max() keeps the first of equal keys: ties go to the earliest seed
+        return [max(group, key=lambda e: badness(e["metrics"])) for group in groups.values()]
+
+    # ---------------------------------------------------------------- writers
+    def to_markdown(self) -> str:
+        """One table per scenario (policies as rows); cells ``mean ± 95 % CI half-width``."""
+        cols = [m for m in self.metrics if m.in_markdown]
+        lines = [
+            "Each cell: mean ± 95 % confidence half-width (1.96·s/√N, normal approximation) over the "
+            "row's N episodes (no ± when N = 1); settle time averages the formation switches that settled (switches that "
+            "never settled are left out); – = nothing to average; n/a = the policy refuses the scenario.",
+        ]
+        for scenario in self.scenarios:
+            seeds = self.seeds[scenario]
+            lines += ["", f"### {scenario} — seeds {format_seeds(seeds)} (N = {len(seeds)})", ""]
+            lines.append("| policy | " + " | ".join(m.label for m in cols) + " |")
+            lines.append("|---|" + "---:|" * len(cols))
+            for r in (r for r in self.rows if r.scenario == scenario):
+                if r.summary is None:
+                    cells = [f"n/a: {r.na_reason}"] + [""] * (len(cols) - 1)
+                else:
+                    cells = [_fmt_stat(r.summary.get(m.key), m.digits) for m in cols]
+                lines.append("| " + " | ".join(_md_cell(c) for c in [f"`{r.policy}`", *cells]) + " |")
+        return "\n".join(lines) + "\n"
+
+    def csv_rows(self) -> list[dict[str, Any]]:
+        """The CSV table as dicts: policy, scenario, status, episodes, seeds, then
+        ``<metric>_mean``, ``<metric>_ci95``, ``<metric>_n`` per metric (empty when n/a)."""
+        out = []
+        for r in self.rows:
+            d: dict[str, Any] = {"policy": r.policy, "scenario": r.scenario, "status": r.status,
+                                 "episodes": 0 if r.summary is None else r.summary["episodes"],
+                                 "seeds": format_seeds(r.seeds)}
+            for m in self.metrics:
+                stat = (r.summary or {}).get(m.key) or {}
+                d[f"{m.key}_mean"] = stat.get("mean")
+                d[f"{m.key}_ci95"] = stat.get("ci95")
+                d[f"{m.key}_n"] = stat.get("n", 0) if r.summary is not None else None
+            out.append(d)
+        return out
+
+    def to_csv(self, path: str | os.PathLike[str]) -> Path:
+        """Write :meth:`csv_rows` (numbers as ``repr`` floats, missing values empty)."""
+        rows = self.csv_rows()
+        path = Path(path)
+        with path.open("w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["policy", "scenario", "status"])
+            writer.writeheader()
+            writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in rows)
+        return path
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "policies": self.policies,
+            "scenarios": self.scenarios,
+            "seeds": self.seeds,
+            "env_kwargs": self.env_kwargs,
+            "workers": self.workers,
+            "wall_time": self.wall_time,
+            "rows": [r.to_dict() for r in self.rows],
+            "episodes": self.episodes,
+        }
+
+    def to_json(self, path: str | os.PathLike[str]) -> Path:
+        """Write everything: inputs, rows with their summaries, every episode's metrics."""
+        path = Path(path)
+        path.write_text(json.dumps(self.to_dict(), indent=1, allow_nan=False, default=_json_default))
+        return path
+
+    @classmethod
+    def from_json(cls, path: str | os.PathLike[str]) -> Leaderboard:
+        """Read a file written by :meth:`to_json` (e.g. to record videos later)."""
+        doc = json.loads(Path(path).read_text())
+        rows = [Row(r["policy"], r["scenario"], r["seeds"], r["summary"], r["na_reason"]) for r in doc["rows"]]
+        return cls(doc["policies"], doc["scenarios"], doc["seeds"], doc["env_kwargs"], rows, doc["episodes"],
+                   doc.get("wall_time", 0.0), doc.get("workers", 1))
+
+
+def _json_default(x: Any) -> Any:
+    if isinstance(x, np.generic):
+        return x.item()
+    if isinstance(x, (tuple, set, range)):
+        return list(x)
+    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
+
+
+# --------------------------------------------------------------------------- videos
+def safe_name(text: str, max_len: int = 80) -> str:
+    """A filesystem-safe rendering of a policy spec or scenario: ``ppo:runs/x/model.zip`` -> ``ppo_runs_x_model.zip``."""
+    name = re.sub(r"[^A-Za-z0-9._-]+", "_", text).strip("._-")
+    return (name or "x")[:max_len]
+
+
+def _scenario_label(scenario: str) -> str:
+    p = Path(scenario)
+    return p.stem if p.suffix.lower() in (".yaml", ".yml") else scenario
+
+
+def _behaviour(metrics: Mapping[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in metrics.items() if k not in TIMING_KEYS}
+
+
+@dataclass(frozen=True)
+class VideoRecord:
+    """A written video of one episode; ``reproduced`` says its re-run matched the recorded metrics."""
+
+    path: Path
+    policy: str
+    scenario: str
+    seed: int
+    reproduced: bool
+
+
+def record_worst_videos(
+    board: Leaderboard,
+    out_dir: str | os.PathLike[str],
+    *,
+    fps: float = 20.0,
+    per_scenario: bool = True,
+    progress: bool = True,
+) -> list[VideoRecord]:
+    """Re-run each worst episode (:meth:`Leaderboard.worst_episodes`) with ``render_mode="rgb_array"``
+    and write ``<out_dir>/<policy>__<scenario>__seed<k>.mp4`` (names made safe by :func:`safe_name`).
+
+    Episodes are deterministic by seed, so the re-run (a fresh env and policy) should reproduce the
+    recorded metrics; a ``RuntimeWarning`` says so when it does not (e.g. a policy that carries state
+    from one episode to the next), and the video shows the re-run.
+    """
+    from tqdm.auto import tqdm
+
+    from swarm_env.video import VideoWriter
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    used: set[str] = set()
+    records = []
+    for entry in tqdm(board.worst_episodes(per_scenario), desc="worst-episode videos", unit="video", disable=not progress):
+        policy, scenario, seed = entry["policy"], entry["scenario"], int(entry["seed"])
+        name = f"{safe_name(policy)}__{safe_name(_scenario_label(scenario))}__seed{seed}"
+        if name in used:  # two specs that differ only in unsafe characters
+            name += "-" + hashlib.sha1(f"{policy}\0{scenario}".encode()).hexdigest()[:8]
+        used.add(name)
+        path = out / f"{name}.mp4"
+        env = SwarmEnv(scenario, **{**board.env_kwargs, "render_mode": "rgb_array"})
+        try:
+            pol = load_policy(policy, env)
+            with VideoWriter(path, fps=fps) as writer:
+                rerun = run_episode(env, pol, seed, on_frame=writer.append)
+        finally:
+            env.close()
+        same = _json_roundtrip(_behaviour(rerun)) == _json_roundtrip(_behaviour(entry["metrics"]))
+        if not same:
+            warnings.warn(
+                f"re-running policy {policy!r} on {scenario!r} seed {seed} for its video did not reproduce the "
+                f"recorded metrics (collisions {entry['metrics']['collisions']['total']} -> {rerun['collisions']['total']}, "
+                f"success {entry['metrics']['success']} -> {rerun['success']}); the video shows the re-run",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        records.append(VideoRecord(path, policy, scenario, seed, same))
+    return records
+
+
+def _json_roundtrip(x: Any) -> Any:
+    # compare as JSON would store them, so a board read back with from_json compares equal too
+    return json.loads(json.dumps(x, default=_json_default))

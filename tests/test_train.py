@@ -1,0 +1,121 @@
+"""baselines.train / config / model_io: a tiny run end to end, the CLI, warm starts, loading as a policy."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("stable_baselines3")
+
+from baselines import train as train_mod  # noqa: E402
+from baselines.config import TrainConfig, field_help, parse_seeds  # noqa: E402
+from baselines.model_io import SB3Policy, load_model  # noqa: E402
+from swarm_env.env import SwarmEnv  # noqa: E402
+from swarm_env.evaluation import run_episode  # noqa: E402
+from swarm_env.policies import PolicyError, load_policy  # noqa: E402
+
+TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 0, "world_size": [10.0, 10.0], "max_cycles": 30}
+
+
+def _tiny(tmp_path, **overrides) -> TrainConfig:
+    base = dict(
+        env_kwargs=dict(TINY_ENV), total_steps=512, n_copies=2, n_steps=32, batch_size=64, n_epochs=1,
+        net_arch=(16, 16), eval_every=256, eval_seeds="500-501", checkpoint_every=256, runs_dir=str(tmp_path),
+        run_name="tiny", progress=False,
+    )
+    return TrainConfig(**{**base, **overrides})
+
+
+def test_tiny_ppo_run_writes_a_complete_run_directory(tmp_path):
+    run = train_mod.train(_tiny(tmp_path))
+    for name in ("config.json", "versions.json", "model.zip", "vecnormalize.pkl", "eval.csv", "learning_curve.png",
+                 "summary.json", "best/model.zip", "logs/progress.csv"):
+        assert (run / name).is_file(), name
+    assert any((run / "checkpoints").iterdir())
+    assert TrainConfig.from_json(run / "config.json") == _tiny(tmp_path)
+    versions = json.loads((run / "versions.json").read_text())
+    assert versions["stable-baselines3"] and versions["torch"]
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["agent_steps"] >= 512
+    rows = (run / "eval.csv").read_text().strip().splitlines()
+    assert len(rows) >= 3  # header + the starting point + at least one later evaluation
+
+    # The run loads back as a registered policy and plays an episode through the one evaluation path.
+    env = SwarmEnv("random", **TINY_ENV)
+    policy = load_policy(f"ppo:{run}", env)
+    assert isinstance(policy, SB3Policy) and policy.vecnorm is not None
+    result = run_episode(env, policy, seed=1000)
+    assert result["steps"] == 30
+    with pytest.raises(FileExistsError):
+        train_mod.train(_tiny(tmp_path))  # never overwrite a run
+
+
+def test_warm_start_copies_weights_and_normalisation(tmp_path):
+    source = train_mod.train(_tiny(tmp_path, eval_every=0, checkpoint_every=0))
+    src_model, src_norm = load_model(source)
+    cfg = _tiny(tmp_path, run_name="warm", init_from=str(source), total_steps=64, eval_every=0, checkpoint_every=0)
+    venv = None
+    model = None
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from baselines.vec_env import make_vec_env
+
+    venv = VecNormalize(make_vec_env("random", 2, **TINY_ENV))
+    model = train_mod._make_model(cfg, venv, tmp_path / "logs")
+    train_mod._warm_start(model, venv, cfg)
+    for k, v in src_model.policy.state_dict().items():
+        np.testing.assert_array_equal(model.policy.state_dict()[k].numpy(), v.numpy())
+    np.testing.assert_array_equal(venv.obs_rms.mean, src_norm.obs_rms.mean)
+    bad = _tiny(tmp_path, run_name="bad", init_from=str(source), net_arch=(8,))
+    with pytest.raises(ValueError, match="does not match"):
+        train_mod._warm_start(train_mod._make_model(bad, venv, tmp_path / "logs2"), venv, bad)
+    venv.close()
+
+
+def test_cli_parses_every_field_and_rejects_bad_input(tmp_path, capsys):
+    cfg = train_mod.config_from_args(
+        ["--total-steps", "2e6", "--env", "n_followers=[2,8]", "--env", "n_humans=1", "--net-arch", "64", "64",
+         "--no-norm-reward", "--algo", "sac"]
+    )
+    assert cfg.total_steps == 2_000_000 and cfg.algo == "sac" and cfg.net_arch == (64, 64)
+    assert cfg.env_kwargs == {"n_followers": [2, 8], "n_humans": 1} and cfg.norm_reward is False
+    assert train_mod.main(["--algo", "dqnx"]) == 2
+    assert "unknown algorithm" in capsys.readouterr().err
+    assert train_mod.main(["--algo", "sac", "--action-type", "discrete"]) == 2
+    with pytest.raises(SystemExit):
+        train_mod.config_from_args(["--total-steps", "1.5"])
+    helps = field_help()
+    assert set(helps) == {f for f in TrainConfig.__dataclass_fields__}  # every option documented
+    help_text = train_mod.build_parser().format_help()
+    assert "--eval-seeds" in help_text and "Validation seeds" in help_text
+
+
+def test_config_from_json_repeats_a_run_and_names_unknown_keys(tmp_path):
+    path = tmp_path / "config.json"
+    path.write_text(_tiny(tmp_path).to_json())
+    cfg = train_mod.config_from_args(["--config", str(path), "--seed", "3"])
+    assert cfg.seed == 3 and cfg.net_arch == (16, 16) and cfg.run_name is None
+    path.write_text(json.dumps({"algo": "ppo", "totl_steps": 5}))
+    with pytest.raises(ValueError, match="totl_steps"):
+        TrainConfig.from_json(path)
+
+
+def test_parse_seeds_forms():
+    assert parse_seeds("0-3") == [0, 1, 2, 3]
+    assert parse_seeds("5") == [5]
+    assert parse_seeds("0,5,7-8") == [0, 5, 7, 8]
+    for bad in ("3-1", "a", "1-"):
+        with pytest.raises(ValueError, match="seed"):
+            parse_seeds(bad)
+
+
+def test_model_policy_rejects_a_mismatched_env(tmp_path):
+    run = train_mod.train(_tiny(tmp_path, eval_every=0, checkpoint_every=0))
+    with pytest.raises(PolicyError, match="acts in"):
+        load_policy(f"ppo:{run}", SwarmEnv("random", action_type="discrete", **TINY_ENV))
+    with pytest.raises(PolicyError, match="no saved model"):
+        load_policy(f"ppo:{tmp_path}/nowhere", SwarmEnv("random", **TINY_ENV))
+    with pytest.raises(PolicyError, match="needs a model path"):
+        load_policy("sac", SwarmEnv("random", **TINY_ENV))
