@@ -112,7 +112,10 @@ def _warm_start(model: Any, venv: Any, cfg: TrainConfig) -> None:
             f"algo={cfg.algo}): {str(exc).splitlines()[0]}"
         ) from None
     if source_norm is not None and hasattr(venv, "obs_rms"):
-        venv.obs_rms = source_norm.obs_rms.copy() if hasattr(source_norm.obs_rms, "copy") else source_norm.obs_rms
+        # Observation statistics the weights expect, and the return scale the critic was fitted in
+        # (a BC checkpoint's critic is trained on rewards normalised by its ret_rms).
+        venv.obs_rms = source_norm.obs_rms.copy()
+        venv.ret_rms = source_norm.ret_rms.copy()
 
 
 def train(cfg: TrainConfig) -> Path:

@@ -68,6 +68,7 @@ def test_warm_start_copies_weights_and_normalisation(tmp_path):
     for k, v in src_model.policy.state_dict().items():
         np.testing.assert_array_equal(model.policy.state_dict()[k].numpy(), v.numpy())
     np.testing.assert_array_equal(venv.obs_rms.mean, src_norm.obs_rms.mean)
+    assert venv.ret_rms.var == pytest.approx(src_norm.ret_rms.var)
     bad = _tiny(tmp_path, run_name="bad", init_from=str(source), net_arch=(8,))
     with pytest.raises(ValueError, match="does not match"):
         train_mod._warm_start(train_mod._make_model(bad, venv, tmp_path / "logs2"), venv, bad)
