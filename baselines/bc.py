@@ -84,8 +84,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from baselines.config import NET_ARCH, field_help, parse_seeds, policy_kwargs
-from baselines.demos import Demos, generate_demos, load_demos, parse_env_items
+from baselines.config import NET_ARCH, add_dataclass_options, parse_seeds, policy_kwargs
+from baselines.demos import Demos, generate_demos, load_demos
 
 if TYPE_CHECKING:
     import torch
@@ -369,7 +369,7 @@ def dagger_rollouts(
     """
     from tqdm.auto import tqdm
 
-    from baselines.demos import _stack
+    from baselines.demos import _stack, append_step
     from baselines.model_io import SB3Policy
     from swarm_env.env import SwarmEnv
     from swarm_env.policies import load_policy
@@ -397,13 +397,7 @@ def dagger_rollouts(
                 if beta > 0:
                     chosen = {a: labels[a] if rng.random() < beta else chosen[a] for a in chosen}
                 next_obs, rewards, terms, truncs, _ = env.step(chosen)
-                for agent, obs in observations.items():
-                    rows["obs"].append(np.asarray(obs, dtype=np.float32))
-                    label = labels[agent]
-                    rows["actions"].append(int(label) if discrete else np.asarray(label, dtype=np.float32).reshape(-1))
-                    rows["rewards"].append(float(rewards[agent]))
-                    rows["agent"].append(index[agent])
-                    rows["step"].append(t)
+                append_step(rows, observations, labels, rewards, index, t, discrete)  # the expert's labels
                 if not env.agents:
                     truncated = any(truncs.values()) and not any(terms.values())
                 observations = next_obs
@@ -619,31 +613,14 @@ def train_bc(cfg: BCConfig) -> Path:
 def build_parser() -> argparse.ArgumentParser:
     """One option per :class:`BCConfig` field, its help text from the field's ``#:`` comment."""
     parser = argparse.ArgumentParser(prog="python -m baselines.bc", description="Behaviour cloning (+ DAgger) of a scripted expert into PPO's policy network.")
-    helps = field_help(BCConfig)
-    for f in dataclasses.fields(BCConfig):
-        flag = "--" + f.name.replace("_", "-")
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        shown = list(default) if isinstance(default, tuple) else default
-        kwargs: dict[str, Any] = {"help": f"{helps.get(f.name, '')} (default: {shown})", "default": argparse.SUPPRESS}
-        if f.name == "env_kwargs":
-            parser.add_argument("--env", dest="env_kwargs", action="append", metavar="KEY=VALUE", **kwargs)
-        elif isinstance(default, bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
-        elif isinstance(default, int):
-            parser.add_argument(flag, type=int, **kwargs)
-        elif isinstance(default, float):
-            parser.add_argument(flag, type=float, **kwargs)
-        elif isinstance(default, tuple):
-            parser.add_argument(flag, type=int, nargs="+", **kwargs)
-        else:
-            parser.add_argument(flag, type=str, required=f.name == "out", **kwargs)
+    add_dataclass_options(parser, BCConfig, required=("out",))
     return parser
 
 
 def config_from_args(argv: list[str] | None = None) -> BCConfig:
     args = vars(build_parser().parse_args(argv))
     if "env_kwargs" in args:
-        args["env_kwargs"] = parse_env_items(args["env_kwargs"])
+        args["env_kwargs"] = dict(args["env_kwargs"])
     return BCConfig(**args)
 
 

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import typing
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -33,11 +32,12 @@ __all__ = ["NET_ARCH", "TrainConfig", "field_help", "parse_seeds", "policy_kwarg
 NET_ARCH: tuple[int, ...] = (128, 128)
 
 
-def policy_kwargs(net_arch: tuple[int, ...] = NET_ARCH, algo: str = "ppo") -> dict[str, Any]:
-    """SB3 ``policy_kwargs`` for ``algo`` with hidden layers ``net_arch``."""
+def policy_kwargs(net_arch: tuple[int, ...] = NET_ARCH, algo: str = "ppo", log_std_init: float = 0.0) -> dict[str, Any]:
+    """SB3 ``policy_kwargs`` for ``algo`` with hidden layers ``net_arch`` (and, for the on-policy
+    algorithms, the initial log standard deviation of the Gaussian actions)."""
     arch = list(net_arch)
     if algo in ("ppo", "a2c", "bc"):
-        return {"net_arch": {"pi": arch, "vf": arch}}
+        return {"net_arch": {"pi": arch, "vf": arch}, "log_std_init": log_std_init}
     return {"net_arch": {"pi": arch, "qf": arch}}
 
 
@@ -63,6 +63,8 @@ class TrainConfig:
     n_procs: int = 1
     #: Hidden layer sizes of the shared actor and critic MLPs.
     net_arch: tuple[int, ...] = NET_ARCH
+    #: PPO/A2C: initial log std of the Gaussian actions (0 -> std 1 on the [-1, 1] action range).
+    log_std_init: float = 0.0
     #: Learning rate (constant).
     learning_rate: float = 3e-4
     #: Discount factor.
@@ -151,6 +153,53 @@ def field_help(cls: type = TrainConfig) -> dict[str, str]:
     return helps
 
 
-def field_types(cls: type = TrainConfig) -> dict[str, Any]:
-    """Resolved type hints of the config's fields."""
-    return typing.get_type_hints(cls)
+def int_arg(text: str) -> int:
+    """An integer option that may be written as 2e6 or 2_000_000."""
+    import argparse
+
+    try:
+        value = float(text.replace("_", ""))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+    if not value.is_integer():
+        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}")
+    return int(value)
+
+
+def add_dataclass_options(parser: "argparse.ArgumentParser", cls: type, *, required: tuple[str, ...] = ()) -> None:
+    """One option per field of the dataclass ``cls`` (``total_steps`` -> ``--total-steps``).
+
+    Help text = the field's ``#:`` comment plus its default; options left out
+    are absent from the parsed namespace (``argparse.SUPPRESS``), so the
+    dataclass's own defaults apply. Bools get ``--x/--no-x``, ints accept
+    ``2e6``, tuples take several ints, and a field named ``env_kwargs`` becomes
+    a repeatable ``--env KEY=VALUE`` (YAML values) collected as a list of pairs.
+    """
+    import argparse
+
+    from baselines.demos import parse_env_item
+
+    def env_item(text: str) -> tuple[str, Any]:
+        try:
+            return parse_env_item(text)
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+
+    helps = field_help(cls)
+    for f in dataclasses.fields(cls):
+        flag = "--" + f.name.replace("_", "-")
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
+        shown = list(default) if isinstance(default, tuple) else default
+        kwargs: dict[str, Any] = {"help": f"{helps.get(f.name, '')} (default: {shown})", "default": argparse.SUPPRESS}
+        if f.name == "env_kwargs":
+            parser.add_argument("--env", dest="env_kwargs", type=env_item, action="append", metavar="KEY=VALUE", **kwargs)
+        elif isinstance(default, bool):
+            parser.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
+        elif isinstance(default, int):
+            parser.add_argument(flag, type=int_arg, **kwargs)
+        elif isinstance(default, float):
+            parser.add_argument(flag, type=float, **kwargs)
+        elif isinstance(default, tuple):
+            parser.add_argument(flag, type=int, nargs="+", **kwargs)
+        else:
+            parser.add_argument(flag, type=str, required=f.name in required, **kwargs)

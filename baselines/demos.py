@@ -120,6 +120,25 @@ class Demos:
 # --------------------------------------------------------------------------- recording
 
 
+def append_step(
+    rows: dict[str, list[Any]],
+    observations: dict[str, np.ndarray],
+    actions: dict[str, Any],
+    rewards: dict[str, float],
+    index: dict[str, int],
+    t: int,
+    discrete: bool,
+) -> None:
+    """Append one env step's per-agent rows (obs, the action to imitate, reward, agent index, step)."""
+    for agent, obs in observations.items():
+        rows["obs"].append(np.asarray(obs, dtype=np.float32))
+        act = actions[agent]
+        rows["actions"].append(int(act) if discrete else np.asarray(act, dtype=np.float32).reshape(-1))
+        rows["rewards"].append(float(rewards[agent]))
+        rows["agent"].append(index[agent])
+        rows["step"].append(t)
+
+
 def _record_episode(expert: str, scenario: str, env_kwargs: dict[str, Any], seed: int) -> dict[str, Any]:
     """Play one episode of ``expert`` from ``reset(seed)`` in a fresh env; its rows and metrics.
 
@@ -144,13 +163,7 @@ def _record_episode(expert: str, scenario: str, env_kwargs: dict[str, Any], seed
             if missing:
                 raise ValueError(f"expert {expert!r} returned no action for {missing} at step {t} of seed {seed}")
             next_obs, rewards, terms, truncs, _ = env.step(actions)
-            for agent, obs in observations.items():
-                rows["obs"].append(np.asarray(obs, dtype=np.float32))
-                act = actions[agent]
-                rows["actions"].append(int(act) if discrete else np.asarray(act, dtype=np.float32).reshape(-1))
-                rows["rewards"].append(float(rewards[agent]))
-                rows["agent"].append(index[agent])
-                rows["step"].append(t)
+            append_step(rows, observations, actions, rewards, index, t, discrete)
             if not env.agents:  # the episode ends for everyone at once
                 truncated = any(truncs.values()) and not any(terms.values())
             observations = next_obs
@@ -348,17 +361,19 @@ def load_demos(path: str | Path) -> Demos:
 # --------------------------------------------------------------------------- command line
 
 
-def parse_env_items(items: Iterable[str]) -> dict[str, Any]:
-    """``["n_followers=2", "n_humans=[0,2]"]`` -> keyword arguments (values parsed as YAML)."""
+def parse_env_item(item: str) -> tuple[str, Any]:
+    """``"n_humans=[0,2]"`` -> ``("n_humans", [0, 2])`` (the value parsed as YAML); ``ValueError`` otherwise."""
     import yaml
 
-    kwargs: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep or not key.isidentifier():
-            raise ValueError(f"--env expects KEY=VALUE (e.g. n_followers=4), got {item!r}")
-        kwargs[key] = yaml.safe_load(value)
-    return kwargs
+    key, sep, value = item.partition("=")
+    if not sep or not key.isidentifier():
+        raise ValueError(f"--env expects KEY=VALUE (e.g. n_followers=4), got {item!r}")
+    return key, yaml.safe_load(value)
+
+
+def parse_env_items(items: Iterable[str]) -> dict[str, Any]:
+    """``["n_followers=2", "n_humans=[0,2]"]`` -> keyword arguments (values parsed as YAML)."""
+    return dict(parse_env_item(item) for item in items)
 
 
 def build_parser() -> argparse.ArgumentParser:

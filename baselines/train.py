@@ -36,7 +36,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from baselines.config import TrainConfig, field_help, parse_seeds, policy_kwargs
+from baselines.config import TrainConfig, add_dataclass_options, parse_seeds, policy_kwargs
 
 PACKAGES = ("swarm-env", "numpy", "torch", "stable-baselines3", "gymnasium", "pettingzoo", "pymunk", "tensorboard")
 
@@ -75,7 +75,7 @@ def _make_model(cfg: TrainConfig, venv: Any, log_dir: Path) -> Any:
         "seed": cfg.seed,
         "device": "cpu",
         "verbose": 0,
-        "policy_kwargs": policy_kwargs(cfg.net_arch, cfg.algo),
+        "policy_kwargs": policy_kwargs(cfg.net_arch, cfg.algo, cfg.log_std_init),
     }
     if cfg.algo in ("ppo", "a2c"):
         common.update(n_steps=cfg.n_steps, gae_lambda=cfg.gae_lambda, ent_coef=cfg.ent_coef)
@@ -177,26 +177,6 @@ def train(cfg: TrainConfig) -> Path:
 # --------------------------------------------------------------------------- command line
 
 
-def _int_arg(text: str) -> int:
-    """Integers, also written as 2e6 or 2_000_000."""
-    try:
-        value = float(text.replace("_", ""))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if not value.is_integer():
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}")
-    return int(value)
-
-
-def _kv_arg(text: str) -> tuple[str, Any]:
-    import yaml
-
-    key, sep, value = text.partition("=")
-    if not sep or not key.isidentifier():
-        raise argparse.ArgumentTypeError(f"expected KEY=VALUE, got {text!r}")
-    return key, yaml.safe_load(value)
-
-
 def build_parser() -> argparse.ArgumentParser:
     """One option per :class:`TrainConfig` field, its help text taken from the field's ``#:`` comment."""
     parser = argparse.ArgumentParser(
@@ -204,25 +184,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="Train an SB3 policy (parameter sharing over all followers) on the swarm env.",
     )
     parser.add_argument("--config", help="start from this config.json (e.g. a previous run's); options override it")
-    helps = field_help()
-    for f in dataclasses.fields(TrainConfig):
-        flag = "--" + f.name.replace("_", "-")
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        shown = list(default) if isinstance(default, tuple) else default
-        kwargs: dict[str, Any] = {"help": f"{helps.get(f.name, '')} (default: {shown})", "default": argparse.SUPPRESS}
-        if f.name == "env_kwargs":
-            parser.add_argument("--env", dest="env_kwargs", type=_kv_arg, action="append", metavar="KEY=VALUE", **kwargs)
-            continue
-        if isinstance(default, bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
-        elif isinstance(default, int):
-            parser.add_argument(flag, type=_int_arg, **kwargs)
-        elif isinstance(default, float):
-            parser.add_argument(flag, type=float, **kwargs)
-        elif isinstance(default, tuple):
-            parser.add_argument(flag, type=int, nargs="+", **kwargs)
-        else:
-            parser.add_argument(flag, type=str, **kwargs)
+    add_dataclass_options(parser, TrainConfig)
     return parser
 
 

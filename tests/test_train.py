@@ -120,3 +120,12 @@ def test_model_policy_rejects_a_mismatched_env(tmp_path):
         load_policy(f"ppo:{tmp_path}/nowhere", SwarmEnv("random", **TINY_ENV))
     with pytest.raises(PolicyError, match="needs a model path"):
         load_policy("sac", SwarmEnv("random", **TINY_ENV))
+
+
+def test_tiny_sac_run_trains_and_loads_as_a_policy(tmp_path):
+    cfg = _tiny(tmp_path, algo="sac", run_name="sac", total_steps=256, batch_size=32, buffer_size=2000,
+                eval_every=0, checkpoint_every=0)
+    run = train_mod.train(cfg)
+    env = SwarmEnv("random", **TINY_ENV)
+    result = run_episode(env, load_policy(f"sac:{run}", env), seed=1000)
+    assert result["steps"] == 30
