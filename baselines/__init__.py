@@ -1,4 +1,20 @@
-"""RL baselines for swarm-env (stable-baselines3): training, imitation, evaluation.
+"""RL baselines for swarm-env (stable-baselines3 + torch): training, imitation, evaluation.
 
-Installed with the ``rl`` extra (``pip install -e '.[rl]'``).
+Installed with the ``rl`` extra (``pip install -e '.[rl]'``). Modules, one job each:
+
+* :mod:`baselines.vec_env` — our SB3 ``VecEnv`` bridge: M env copies as M x N
+  sub-environments with parameter sharing, seeded through SB3, with correct
+  truncation info, optionally in subprocesses.
+* :mod:`baselines.config`, :mod:`baselines.train`, :mod:`baselines.callbacks`,
+  :mod:`baselines.plots` — ``python -m baselines.train``: a typed config, run
+  directories, evaluation on validation seeds, checkpoints, learning curves.
+* :mod:`baselines.demos`, :mod:`baselines.bc` — cached expert demonstrations
+  (``python -m baselines.demos``) and behaviour cloning + DAgger into PPO's policy
+  network (``python -m baselines.bc``).
+* :mod:`baselines.model_io` — saved models as the ``ppo``, ``bc`` and ``sac``
+  policies of the ``swarm_env.policies`` registry.
+* :mod:`baselines.evaluate` — ``python -m baselines.evaluate``, the leaderboard
+  command (the same as ``swarm-env evaluate``).
+
+Nothing here is imported by ``swarm_env`` or ``agents`` (see DESIGN.md).
 """

@@ -22,11 +22,13 @@ def plot_learning_curve(
     *,
     title: str = "",
     references: Mapping[str, Mapping[str, float]] | None = None,
+    marks: Mapping[str, float] | None = None,
 ) -> Path:
     """Validation formation error and collisions per episode against agent-steps, with 95 % CI bands.
 
     ``references`` optionally draws horizontal lines, e.g.
-    ``{"vo": {"formation_error": 0.31, "collisions": 0.0}}`` for an expert's level.
+    ``{"vo": {"formation_error": 0.31, "collisions": 0.0}}`` for an expert's level;
+    ``marks`` draws labelled vertical lines at agent-steps, e.g. ``{"fine-tuning": 8e6}``.
     """
     import matplotlib
 
@@ -48,6 +50,9 @@ def plot_learning_curve(
         for i, (name, values) in enumerate((references or {}).items()):
             if key in values:
                 ax.axhline(values[key], ls="--", lw=1, color=f"C{i + 1}", label=name)
+        for mark, at in (marks or {}).items():
+            ax.axvline(at / 1e6, ls=":", lw=1, color="gray")
+            ax.annotate(mark, (at / 1e6, 0), xytext=(3, 3), textcoords="offset points", fontsize=7, color="gray")
         ax.set_xlabel("agent-steps (millions)")
         ax.set_ylabel(label)
         ax.set_ylim(bottom=0)
