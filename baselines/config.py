@@ -89,6 +89,8 @@ class TrainConfig:
     norm_reward: bool = True
     #: Start from this saved model (e.g. a BC checkpoint directory): its weights and VecNormalize statistics.
     init_from: str | None = None
+    #: Keep the observation statistics fixed (at init_from's, if given) instead of updating them while training.
+    freeze_obs_stats: bool = False
     #: Evaluate every this many agent-steps (0 = never).
     eval_every: int = 200_000
     #: Validation seeds of the periodic evaluation, e.g. 500-509.

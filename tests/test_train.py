@@ -129,3 +129,15 @@ def test_tiny_sac_run_trains_and_loads_as_a_policy(tmp_path):
     env = SwarmEnv("random", **TINY_ENV)
     result = run_episode(env, load_policy(f"sac:{run}", env), seed=1000)
     assert result["steps"] == 30
+
+
+def test_frozen_observation_statistics_stay_at_the_warm_start(tmp_path):
+    source = train_mod.train(_tiny(tmp_path, eval_every=0, checkpoint_every=0))
+    _, src_norm = load_model(source)
+    cfg = _tiny(tmp_path, run_name="frozen", init_from=str(source), freeze_obs_stats=True, eval_every=0, checkpoint_every=0)
+    _, norm = load_model(train_mod.train(cfg))
+    np.testing.assert_array_equal(norm.obs_rms.mean, src_norm.obs_rms.mean)
+    np.testing.assert_array_equal(norm.obs_rms.var, src_norm.obs_rms.var)
+    moving = _tiny(tmp_path, run_name="moving", init_from=str(source), eval_every=0, checkpoint_every=0)
+    _, moved = load_model(train_mod.train(moving))
+    assert not np.array_equal(moved.obs_rms.mean, src_norm.obs_rms.mean)
