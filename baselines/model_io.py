@@ -39,6 +39,24 @@ CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED = {"ppo": CHECKPOINT_DIR / "ppo_random", "bc": CHECKPOINT_DIR / "bc_vo_random"}
 
 
+def _running_mean_std_base() -> type:
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+
+    return RunningMeanStd
+
+
+class FrozenRunningMeanStd(_running_mean_std_base()):  # type: ignore[misc]
+    """Observation statistics that ``VecNormalize`` cannot update (``TrainConfig.freeze_obs_stats``).
+
+    A warm-started network was fitted to its source's normalised observations; letting the
+    statistics drift with the new policy's state distribution changes its inputs under it. It lives
+    here, in an importable module, because saved ``vecnormalize.pkl`` files refer to it by name.
+    """
+
+    def update(self, arr: Any) -> None:
+        pass
+
+
 def algorithm_class(name: str) -> type["BaseAlgorithm"]:
     """The SB3 algorithm class for ``name`` (``ppo``, ``sac``, ``a2c``, ``td3``, ``ddpg``; ``bc`` = PPO)."""
     import stable_baselines3 as sb3

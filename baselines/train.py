@@ -36,8 +36,6 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from stable_baselines3.common.running_mean_std import RunningMeanStd
-
 from baselines.config import TrainConfig, add_dataclass_options, parse_seeds, policy_kwargs
 
 PACKAGES = ("swarm-env", "numpy", "torch", "stable-baselines3", "gymnasium", "pettingzoo", "pymunk", "tensorboard")
@@ -100,17 +98,6 @@ def _make_model(cfg: TrainConfig, venv: Any, log_dir: Path) -> Any:
     return model
 
 
-class FrozenRunningMeanStd(RunningMeanStd):
-    """Observation statistics that ``VecNormalize`` cannot update (``TrainConfig.freeze_obs_stats``).
-
-    A warm-started network was fitted to its source's normalised observations; letting the statistics drift
-    with the new policy's state distribution changes its inputs under it.
-    """
-
-    def update(self, arr: Any) -> None:
-        pass
-
-
 def _warm_start(model: Any, venv: Any, cfg: TrainConfig) -> None:
     """Copy a saved model's weights (and VecNormalize observation statistics) into ``model``."""
     from baselines.model_io import load_model
@@ -161,6 +148,8 @@ def train(cfg: TrainConfig) -> Path:
     if cfg.init_from:
         _warm_start(model, venv, cfg)
     if cfg.freeze_obs_stats and vecnorm is not None:
+        from baselines.model_io import FrozenRunningMeanStd
+
         frozen = FrozenRunningMeanStd(shape=vecnorm.obs_rms.mean.shape)
         frozen.mean, frozen.var, frozen.count = vecnorm.obs_rms.mean.copy(), vecnorm.obs_rms.var.copy(), vecnorm.obs_rms.count
         vecnorm.obs_rms = frozen

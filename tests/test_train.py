@@ -141,3 +141,18 @@ def test_frozen_observation_statistics_stay_at_the_warm_start(tmp_path):
     moving = _tiny(tmp_path, run_name="moving", init_from=str(source), eval_every=0, checkpoint_every=0)
     _, moved = load_model(train_mod.train(moving))
     assert not np.array_equal(moved.obs_rms.mean, src_norm.obs_rms.mean)
+
+
+def test_a_command_line_run_with_frozen_statistics_loads_elsewhere(tmp_path):
+    # python -m runs train.py as __main__; the saved statistics must not refer to classes defined there.
+    import subprocess
+    import sys
+
+    args = ["--total-steps", "256", "--n-copies", "2", "--n-steps", "32", "--batch-size", "64", "--n-epochs", "1",
+            "--net-arch", "16", "16", "--eval-every", "0", "--checkpoint-every", "0", "--runs-dir", str(tmp_path),
+            "--run-name", "cli", "--no-progress", "--freeze-obs-stats"]
+    for key, value in TINY_ENV.items():
+        args += ["--env", f"{key}={json.dumps(value)}"]
+    subprocess.run([sys.executable, "-m", "baselines.train", *args], check=True, capture_output=True)
+    env = SwarmEnv("random", **TINY_ENV)
+    assert run_episode(env, load_policy(f"ppo:{tmp_path / 'cli'}", env), seed=1000)["steps"] == 30
