@@ -369,7 +369,7 @@ def dagger_rollouts(
     """
     from tqdm.auto import tqdm
 
-    from baselines.demos import _stack, append_step
+    from baselines.demos import _stack, append_step, episode_arrays
     from baselines.model_io import SB3Policy
     from swarm_env.env import SwarmEnv
     from swarm_env.policies import load_policy
@@ -402,22 +402,7 @@ def dagger_rollouts(
                     truncated = any(truncs.values()) and not any(terms.values())
                 observations = next_obs
                 t += 1
-            agent = np.asarray(rows["agent"], dtype=np.int16)
-            step = np.asarray(rows["step"], dtype=np.int32)
-            order = np.lexsort((step, agent))
-            agent, step = agent[order], step[order]
-            last = np.r_[agent[1:] != agent[:-1], True]
-            episodes.append(
-                {
-                    "obs": np.asarray(rows["obs"], dtype=np.float32)[order],
-                    "actions": (np.asarray(rows["actions"], dtype=np.int64) if discrete else np.asarray(rows["actions"], dtype=np.float32))[order],
-                    "rewards": np.asarray(rows["rewards"], dtype=np.float32)[order],
-                    "dones": last,
-                    "truncated": last & truncated,
-                    "agent": agent,
-                    "step": step,
-                }
-            )
+            episodes.append(episode_arrays(rows, truncated, discrete, env.observation_space(env.possible_agents[0]).shape))
             metrics.append({"seed": int(seed), **env.episode_metrics()})
     finally:
         env.close()

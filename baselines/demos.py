@@ -139,6 +139,26 @@ def append_step(
         rows["step"].append(t)
 
 
+def episode_arrays(rows: dict[str, list[Any]], truncated: bool, discrete: bool, obs_shape: tuple[int, ...]) -> dict[str, np.ndarray]:
+    """One episode's rows (from :func:`append_step`) as arrays, agent-major: each agent's steps form one
+    contiguous block whose last row has ``dones`` set (and ``truncated`` if the episode was cut by its time limit)."""
+    agent = np.asarray(rows["agent"], dtype=np.int16)
+    step = np.asarray(rows["step"], dtype=np.int32)
+    order = np.lexsort((step, agent))
+    agent, step = agent[order], step[order]
+    last = np.r_[agent[1:] != agent[:-1], True]
+    actions = np.asarray(rows["actions"], dtype=np.int64) if discrete else np.asarray(rows["actions"], dtype=np.float32)
+    return {
+        "obs": np.asarray(rows["obs"], dtype=np.float32).reshape(-1, *obs_shape)[order],
+        "actions": actions[order],
+        "rewards": np.asarray(rows["rewards"], dtype=np.float32)[order],
+        "dones": last,
+        "truncated": last & truncated,
+        "agent": agent,
+        "step": step,
+    }
+
+
 def _record_episode(expert: str, scenario: str, env_kwargs: dict[str, Any], seed: int) -> dict[str, Any]:
     """Play one episode of ``expert`` from ``reset(seed)`` in a fresh env; its rows and metrics.
 
@@ -175,22 +195,9 @@ def _record_episode(expert: str, scenario: str, env_kwargs: dict[str, Any], seed
     finally:
         env.close()
 
-    agent = np.asarray(rows["agent"], dtype=np.int16)
-    step = np.asarray(rows["step"], dtype=np.int32)
-    order = np.lexsort((step, agent))  # agent-major: each agent-episode becomes one contiguous block
-    agent, step = agent[order], step[order]
-    last = np.r_[agent[1:] != agent[:-1], True]
     obs_dim = env.observation_space(env.possible_agents[0]).shape
-    return {
-        "obs": np.asarray(rows["obs"], dtype=np.float32).reshape(-1, *obs_dim)[order],
-        "actions": (np.asarray(rows["actions"], dtype=np.int64) if discrete else np.asarray(rows["actions"], dtype=np.float32))[order],
-        "rewards": np.asarray(rows["rewards"], dtype=np.float32)[order],
-        "dones": last,
-        "truncated": last & truncated,
-        "agent": agent,
-        "step": step,
-        "metrics": metrics,
-    }
+    return {**episode_arrays(rows, truncated, discrete, obs_dim), "metrics": metrics}
+
 
 
 def _stack(episodes: list[dict[str, Any]], seeds: Sequence[int], meta: dict[str, Any]) -> Demos:

@@ -84,7 +84,6 @@ class _CopyBlock:
         self._returns = np.zeros((len(self.envs), self.n_slots))
         self._lengths = np.zeros(len(self.envs), dtype=np.int64)
         self._t_start = [0.0] * len(self.envs)
-        self._last_obs: list[dict[str, np.ndarray]] = [{} for _ in self.envs]
 
     # Each method returns numpy arrays over the block's sub-envs, copy-major.
     def reset(self, seeds: Sequence[int | None], options: Sequence[dict]) -> tuple[np.ndarray, list[dict]]:
@@ -100,7 +99,6 @@ class _CopyBlock:
         self._returns[m] = 0.0
         self._lengths[m] = 0
         self._t_start[m] = time.perf_counter()
-        self._last_obs[m] = observations
         base = m * self.n_slots
         for i, agent in enumerate(self.agents):
             if agent in observations:
@@ -144,8 +142,6 @@ class _CopyBlock:
                 infos[k] = info
             if episode_over:  # auto-reset: this copy's slots now hold the next episode's first observation
                 self._reset_copy(m, None, None, obs, [{} for _ in range(n)])
-            else:
-                self._last_obs[m] = observations
         return obs, rewards, dones, infos
 
     def get_attr(self, name: str, copies: Sequence[int]) -> list[Any]:
