@@ -90,12 +90,7 @@ def save_model(model: "BaseAlgorithm", directory: str | Path, vecnorm: "VecNorma
 
 def load_model(path: str | Path, algo: str = "ppo") -> tuple["BaseAlgorithm", "VecNormalize | None"]:
     """Load a saved model (on CPU) and its VecNormalize statistics, if saved beside it."""
-    import torch
-
     model_path = resolve_model_path(path)
-    # One thread: these MLPs act on a handful of observations per step, where torch's thread pool
-    # only adds overhead, and on a busy machine it made scoring ~50x slower (measured: 115 s vs 2.5 s).
-    torch.set_num_threads(1)
     model = algorithm_class(algo).load(model_path, device="cpu")
     vecnorm = None
     stats = model_path.parent / VECNORM_FILE
@@ -151,6 +146,13 @@ def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
         if algo not in SHIPPED:
             raise PolicyError(f"policy {algo!r} needs a model path: {algo}:PATH (a run directory or a .zip)")
         path = SHIPPED[algo]
+    import torch
+
+    # Scoring runs the MLP on a handful of observations per step, where torch's thread pool only adds
+    # overhead: on this busy 2-core machine it made scoring ~50x slower (115 s vs 2.5 s for 10 episodes).
+    # A policy loaded by name is for scoring, so the process gets one torch thread; load_model itself
+    # (used by training's --init-from) leaves the thread count alone.
+    torch.set_num_threads(1)
     try:
         model, vecnorm = load_model(path, algo)  # type: ignore[arg-type]
     except FileNotFoundError as exc:

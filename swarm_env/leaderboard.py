@@ -74,7 +74,7 @@ class Metric:
     in_markdown: bool = True
 
 
-#: The leaderboard's columns, in order (keys of :func:`swarm_env.evaluation.summarize` plus ``policy_time``).
+#: The leaderboard's columns, in order (keys of :func:`swarm_env.evaluation.summarize`).
 METRICS: tuple[Metric, ...] = (
     Metric("success_rate", "success", 2),
     Metric("collision_free_rate", "collision-free", 2),
@@ -337,20 +337,15 @@ def run_leaderboard(
         if result.na_reason is not None:
             rows.append(Row(job.policy, job.scenario, list(job.seeds), None, result.na_reason))
             continue
-        rows.append(Row(job.policy, job.scenario, list(job.seeds), aggregate(result.episodes)))
+        rows.append(Row(job.policy, job.scenario, list(job.seeds), summarize(result.episodes)))
         episodes.extend({"policy": job.policy, "scenario": job.scenario, "seed": ep["seed"], "metrics": ep} for ep in result.episodes)
     return Leaderboard(list(policies), list(scenarios), seed_map, kwargs, rows, episodes, wall, workers)
 
 
 # --------------------------------------------------------------------------- aggregation
-def aggregate(episodes: list[dict[str, Any]]) -> dict[str, Any]:
-    """:func:`~swarm_env.evaluation.summarize` of ``run_episode`` results (``policy_time`` included)."""
-    return summarize(episodes)
-
-
 @dataclass
 class Row:
-    """One policy on one scenario: ``summary`` (see :func:`aggregate`) or, if the policy
+    """One policy on one scenario: ``summary`` (:func:`swarm_env.evaluation.summarize`) or, if the policy
     refused the scenario, ``na_reason``."""
 
     policy: str

@@ -156,3 +156,18 @@ def test_a_command_line_run_with_frozen_statistics_loads_elsewhere(tmp_path):
     subprocess.run([sys.executable, "-m", "baselines.train", *args], check=True, capture_output=True)
     env = SwarmEnv("random", **TINY_ENV)
     assert run_episode(env, load_policy(f"ppo:{tmp_path / 'cli'}", env), seed=1000)["steps"] == 30
+
+
+def test_loading_for_training_keeps_the_thread_count_but_scoring_uses_one(tmp_path):
+    import torch
+
+    run = train_mod.train(_tiny(tmp_path, eval_every=0, checkpoint_every=0))
+    before = torch.get_num_threads()
+    try:
+        torch.set_num_threads(2)
+        load_model(run)  # what --init-from uses: must not override --torch-threads
+        assert torch.get_num_threads() == 2
+        load_policy(f"ppo:{run}", SwarmEnv("random", **TINY_ENV))  # scoring: one thread
+        assert torch.get_num_threads() == 1
+    finally:
+        torch.set_num_threads(before)
