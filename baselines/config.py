@@ -53,7 +53,7 @@ class TrainConfig:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     #: Action space of the followers: continuous or discrete (SAC/TD3/DDPG need continuous).
     action_type: str = "continuous"
-    #: Training budget in agent-steps (SB3 timesteps: one follower acting once; padded inactive slots count too).
+    #: Training budget in agent-steps (SB3 timesteps: one follower acting once).
     total_steps: int = 2_000_000
     #: Seed of the algorithm (torch, action sampling) and of the training worlds.
     seed: int = 0

@@ -23,12 +23,11 @@ DESIGN.md):
   observation returned for that sub-env is the first of the next episode.
   ``infos[k]["episode"] = {"r", "l", "t"}`` carries the agent's return, length
   and wall time (SB3 logs ``rollout/ep_rew_mean`` from it).
-* **Fewer agents than slots**: the ``random`` scenario draws 2..N followers per
-  episode. A slot whose follower is absent this episode is *inactive*: zero
-  observation, zero reward, ``done=True`` every step (each step is a one-step
-  episode whose value target is 0) and ``infos[k]["inactive"] = True``; its
-  action is ignored. These transitions carry no signal; train with a fixed
-  follower count if the wasted share of the batch matters.
+* **Fixed teams**: swarm_env_v1 keeps ``env.agents == env.possible_agents``
+  after every reset, so every sub-env carries a real follower in every step
+  (v0's padding slots are gone); a copy whose reset leaves an agent out raises
+  ``RuntimeError``. Every copy must have the same ``possible_agents`` (for
+  ``random`` with an ``n_followers`` range: the same ``team_seed``).
 * **Subprocesses**: ``n_procs > 1`` spreads the copies over worker processes
   (``env_fn`` must then be picklable with cloudpickle, e.g. a
   :func:`functools.partial` or :class:`EnvFactory`). The results are identical to
@@ -79,7 +78,6 @@ class _CopyBlock:
             if list(e.possible_agents) != self.agents:
                 raise ValueError("every env copy must have the same possible_agents")
         self.n_slots = len(self.agents)
-        self._slot = {a: i for i, a in enumerate(self.agents)}
         self.obs_shape = first.observation_space(self.agents[0]).shape
         self._returns = np.zeros((len(self.envs), self.n_slots))
         self._lengths = np.zeros(len(self.envs), dtype=np.int64)
@@ -99,13 +97,12 @@ class _CopyBlock:
         self._returns[m] = 0.0
         self._lengths[m] = 0
         self._t_start[m] = time.perf_counter()
+        if list(env.agents) != self.agents:
+            raise RuntimeError(f"env copy {m} reset with agents {env.agents}, expected all of {self.agents}")
         base = m * self.n_slots
         for i, agent in enumerate(self.agents):
-            if agent in observations:
-                obs[base + i] = observations[agent]
-                infos[base + i] = dict(reset_infos.get(agent, {}))
-            else:
-                infos[base + i] = {"inactive": True}
+            obs[base + i] = observations[agent]
+            infos[base + i] = dict(reset_infos[agent])
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[dict]]:
         n = len(self.envs) * self.n_slots
@@ -115,17 +112,12 @@ class _CopyBlock:
         infos: list[dict] = [{} for _ in range(n)]
         for m, env in enumerate(self.envs):
             base = m * self.n_slots
-            active = env.agents
-            act = {a: actions[base + self._slot[a]] for a in active}
+            act = {a: actions[base + i] for i, a in enumerate(self.agents)}
             observations, rew, term, trunc, step_infos = env.step(act)
             self._lengths[m] += 1
             episode_over = not env.agents
             for i, agent in enumerate(self.agents):
                 k = base + i
-                if agent not in observations:  # absent follower this episode
-                    dones[k] = True
-                    infos[k] = {"inactive": True, "terminal_observation": obs[k].copy(), "TimeLimit.truncated": False}
-                    continue
                 obs[k] = observations[agent]
                 rewards[k] = rew[agent]
                 self._returns[m, i] += rew[agent]
@@ -191,7 +183,7 @@ class SwarmVecEnv(VecEnv):
             is unsafe once torch has started threads).
 
     The observation and action spaces are those of one agent. See the module
-    docstring for seeding, truncation and inactive slots.
+    docstring for seeding, truncation and fixed teams.
     """
 
     def __init__(self, env_fn: EnvFn, n_copies: int = 1, *, n_procs: int = 1, start_method: str | None = None) -> None:

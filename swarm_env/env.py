@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
 import warnings
+from collections.abc import Mapping
 from typing import Any
 
 import gymnasium
@@ -16,15 +18,17 @@ from swarm_env.geometry import StaticMap
 from swarm_env.metrics import EpisodeMetrics
 from swarm_env.observations import STATE_LIMIT, Capacity, ObservationBuilder
 from swarm_env.random_scenario import RandomScenarioConfig, config_from_kwargs, random_scenario
-from swarm_env.rewards import REWARD_TERMS, compute_rewards, slot_distance
-from swarm_env.scenario import Scenario
-from swarm_env.scenario_io import load_scenario
-from swarm_env.state import WorldState
+from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS, compute_rewards, slot_distance, touching_per_follower
+from swarm_env.scenario import RewardSpec, Scenario
+from swarm_env.scenario_io import _parse_reward, load_scenario
+from swarm_env.state import LEADER_ID, Contact, WorldState
 from swarm_env.world import World
 
 #: Turn angles (degrees) of the discrete motion primitives (paper 000), after action 0 = stop.
 PRIMITIVE_ANGLES_DEG = (0.0, 12.0, -12.0, 24.0, -24.0, 36.0, -36.0, 48.0, -48.0)
 ACTION_TYPES = ("continuous", "discrete")
+#: Named reward presets accepted by ``SwarmEnv(reward=...)``.
+REWARD_PRESETS = {"v1": RewardSpec(), "v0": RewardSpec.v0()}
 
 
 class SwarmEnv(ParallelEnv):
@@ -74,15 +78,45 @@ class SwarmEnv(ParallelEnv):
 
     ``state()`` returns a global state vector (``state_space``, float32 in
     ``[-2, 2]``) for centralised critics: every follower's normalised pose,
-    twist and slot, the leader, the humans, the time.
+    twist and slot, the leader, the humans, the time, and the map: each
+    follower's nearest static surface (distance and direction) and a 16 x 16
+    occupancy grid of the obstacles. Named slices: ``env.state_layout``
+    (:func:`swarm_env.observations.state_layout` documents each).
 
-    ## Rewards
+    ## Agents (fixed teams)
 
-    Per agent, the paper-000 cost shape ``-w_f * slot distance (m) - w_c *
-    new collisions`` plus optional clearance, smoothness and progress terms
-    (weights in the scenario's ``reward`` section; see
-    :mod:`swarm_env.rewards`). Each weighted term is reported in
-    ``infos[agent]["reward_terms"]``; rewards are Python floats.
+    ``possible_agents`` is fixed per env instance and every ``reset()`` makes
+    ``env.agents == env.possible_agents``: no agent is ever absent, so no padding
+    row reaches a learner, a normalisation statistic or a loss. For ``random``,
+    ``n_followers`` (default 4) may be a range ``(lo, hi)``: the team size is then
+    drawn **once, when the env is built**, from ``team_seed`` (default 0), and
+    every episode of that instance has it; build instances with different
+    ``team_seed`` values for a mix of team sizes.
+
+    ## Rewards (v1)
+
+    Per agent (see :mod:`swarm_env.rewards` for the formula; weights in the
+    scenario's ``reward`` section, or ``reward=`` here)::
+
+        r = - 1.0 * slot distance (m)
+            - 5.0 * contact onsets this step
+            - 2.0 * bodies in touch this step, per kind (robot, obstacle, human, wall)
+            - 1.0 * max(0, 1 - clearance / 0.2 m)
+
+    Every step of a contact is charged (v0 charged only its onset: under
+    ``pursuit`` on ``random`` only 1 contact step in 13 was penalised; now all
+    are), and the clearance term warns inside a 0.2 m margin (CrowdNav's
+    discomfort distance), where the lidar already sees the obstacle. Measured
+    with ``python benchmarks/reward_terms.py --episodes 20`` (``random``, seeds
+    1000-1019, per agent-step): under ``pursuit`` (no avoidance) 2.5 % of
+    agent-steps are in contact and 100 % of them are penalised (v0: 10.6 %);
+    contacts make 13 % of its penalty and clearance 9 % (v0: 7 % and 0). Under
+    ``vo`` (which avoids) the contact terms are 0 and the formation term is
+    91 % of the penalty: avoiding is worth it, and a policy that avoids is
+    scored mostly on its formation. Each weighted term is reported in
+    ``infos[agent]["reward_terms"]`` (they sum to the reward); rewards are
+    Python floats. ``reward="v0"`` gives the v0 reward (``-distance - 10 *
+    onsets``) for comparison with published numbers.
 
     ## Starting state
 
@@ -92,14 +126,27 @@ class SwarmEnv(ParallelEnv):
     their first waypoints. Fixed scenarios are deterministic; ``random`` draws
     a new map from the generator seeded by ``reset(seed)``.
 
+    ## Infos
+
+    ``reset()`` and ``step()`` give every agent the same keys (zeros at reset):
+    ``reward_terms`` (a dict of floats, one per :data:`swarm_env.rewards.REWARD_TERMS`),
+    ``slot_distance`` (m), ``contacts`` (a dict ``robot, obstacle, human, wall`` ->
+    number of bodies of that kind in touch during the step) and
+    ``collision_terminated`` (bool: this step ended the episode by a collision).
+
     ## Episode end
 
     All agents end together. ``terminations`` are ``True`` when the leader has
     reached the end of its path and every follower is within
-    ``world.settle_tolerance`` of its slot; ``truncations`` are ``True`` when
-    ``world.max_time`` (or ``max_cycles`` steps) is reached. Finished agents
-    leave ``env.agents``. ``episode_metrics()`` then reports the metrics of
-    :mod:`swarm_env.metrics`.
+    ``world.settle_tolerance`` of its slot, or, with
+    ``terminate_on_collision=True``, on the first step in which any follower
+    touches anything (the offending agents are those with non-zero
+    ``infos[a]["contacts"]``; ``env.terminal_contacts`` lists the contacts);
+    ``truncations`` are ``True`` at step ``env.max_steps`` (``world.max_time /
+    dt``, or ``max_cycles`` if smaller; known from construction). Finished
+    agents leave ``env.agents``. ``episode_metrics()`` then reports the metrics
+    of :mod:`swarm_env.metrics` and ``termination`` (``"formation"``,
+    ``"collision"`` or ``"time_limit"``).
 
     ## Arguments
 
@@ -108,17 +155,34 @@ class SwarmEnv(ParallelEnv):
     * ``render_mode``: ``None``, ``"human"`` (pygame window) or ``"rgb_array"``.
     * ``action_type``: ``"continuous"`` or ``"discrete"``.
     * ``max_cycles``: optional step limit on top of ``world.max_time``.
+    * ``terminate_on_collision``: end the episode (terminated) at the first
+      follower contact (default ``False``).
+    * ``reward``: ``None`` (the scenario's ``reward`` section, v1 defaults),
+      ``"v1"``, ``"v0"``, a :class:`~swarm_env.scenario.RewardSpec` or a mapping
+      of its fields.
+    * ``team_seed``: for ``random`` with an ``n_followers`` range, the seed of
+      the one team-size draw of this instance.
     * ``**knobs``: for ``scenario="random"`` only, the fields of
       :class:`~swarm_env.random_scenario.RandomScenarioConfig`
       (``n_followers``, ``n_obstacles``, ``n_humans``, ...).
 
+    ``metadata["render_fps"]`` is per instance: one frame per control step,
+    ``round(1 / dt)`` (2 on ``paper_cbs_switch``), never 0; the class value 10
+    is the default ``dt = 0.1 s``.
+
     ## Version history
 
+    * v1: fixed teams (``random`` draws its team size once per instance, default
+      4 followers); reset infos with the step infos' keys; public
+      ``max_steps``; reward v1 (every contact step charged, by kind; clearance
+      shaping on; ``terminate_on_collision``); ``state()`` includes the map;
+      the generator's slot targets never outrun the followers, and its world
+      grows with the team (up to 64 followers).
     * v0: initial release.
     """
 
     metadata = {
-        "name": "swarm_env_v0",
+        "name": "swarm_env_v1",
         "render_modes": ["human", "rgb_array"],
         "render_fps": 10,
         "is_parallelizable": True,
@@ -131,31 +195,52 @@ class SwarmEnv(ParallelEnv):
         render_mode: str | None = None,
         action_type: str = "continuous",
         max_cycles: int | None = None,
+        terminate_on_collision: bool = False,
+        reward: RewardSpec | Mapping[str, Any] | str | None = None,
+        team_seed: int = 0,
         **knobs: Any,
     ) -> None:
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be None or one of {self.metadata['render_modes']}, got {render_mode!r}")
         if action_type not in ACTION_TYPES:
             raise ValueError(f"action_type must be one of {ACTION_TYPES}, got {action_type!r}")
-        if max_cycles is not None and (not isinstance(max_cycles, int) or max_cycles < 1):
+        if max_cycles is not None and (isinstance(max_cycles, bool) or not isinstance(max_cycles, int) or max_cycles < 1):
             raise ValueError(f"max_cycles must be a positive int, got {max_cycles!r}")
+        if not isinstance(terminate_on_collision, bool):
+            raise ValueError(f"terminate_on_collision must be a bool, got {terminate_on_collision!r}")
+        if isinstance(team_seed, bool) or not isinstance(team_seed, (int, np.integer)) or team_seed < 0:
+            raise ValueError(f"team_seed must be an int >= 0, got {team_seed!r}")
+        reward_spec = _reward_spec(reward)
         self._random: RandomScenarioConfig | None = None
         if isinstance(scenario, str) and scenario == "random":
-            self._random = config_from_kwargs(**knobs)
+            cfg = config_from_kwargs(**knobs)
+            lo, hi = cfg.n_followers  # type: ignore[misc]
+            if lo != hi:  # one team size per env instance, so that agents == possible_agents always
+                cfg = dataclasses.replace(cfg, n_followers=int(np.random.default_rng(int(team_seed)).integers(lo, hi + 1)))
+            if reward_spec is not None:
+                cfg = dataclasses.replace(cfg, reward=reward_spec)
+            self._random = cfg
             template = random_scenario(np.random.default_rng(0), self._random)
         else:
             if knobs:
                 raise TypeError(f"unexpected keyword arguments {sorted(knobs)}: generator knobs apply to 'random' only")
             template = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+            if reward_spec is not None:
+                template = dataclasses.replace(template, reward=reward_spec)
         self._fixed = template if self._random is None else None
         self.render_mode = render_mode
         self.action_type = action_type
         self.max_cycles = max_cycles
+        self.terminate_on_collision = terminate_on_collision
+        self.reward_spec: RewardSpec = template.reward
+        #: The step at which every episode is truncated (``world.max_time / dt``, or ``max_cycles`` if smaller).
+        self.max_steps: int = _step_limit(template.world.max_time, template.world.dt, max_cycles)
         self.capacity = self._capacity(template)
         self.sensors = template.sensors
         self.scenario_name = "random" if self._random else template.name
         self._obs = ObservationBuilder(self.sensors, self.capacity)
         self.obs_layout = self._obs.layout
+        self.state_layout = self._obs.state_layout
 
         self.possible_agents = [f"follower_{i}" for i in range(self.capacity.max_followers)]
         self._agent_index = {a: i for i, a in enumerate(self.possible_agents)}
@@ -165,7 +250,10 @@ class SwarmEnv(ParallelEnv):
         self.state_space = gymnasium.spaces.Box(
             -STATE_LIMIT, STATE_LIMIT, (self._obs.state_size,), dtype=np.float32
         )
-        self.metadata = {**self.metadata, "render_fps": int(round(1.0 / template.world.dt))}
+        # One frame per control step: 1 / dt (2 on paper_cbs_switch's dt = 0.5 s), never 0.
+        self.metadata = {**self.metadata, "render_fps": max(1, int(round(1.0 / template.world.dt)))}
+        self.termination: str | None = None
+        self.terminal_contacts: tuple[Contact, ...] = ()
 
         self.agents: list[str] = []
         self._rng: np.random.Generator | None = None
@@ -200,9 +288,9 @@ class SwarmEnv(ParallelEnv):
             )
         cfg = self._random
         return Capacity(
-            max_followers=cfg.n_followers[1],
-            max_humans=cfg.n_humans[1],
-            world_size=cfg.world_size,
+            max_followers=cfg.n_followers[1],  # type: ignore[index]
+            max_humans=cfg.n_humans[1],  # type: ignore[index]
+            world_size=cfg.resolved_world_size(),
             max_time=cfg.max_time,
             speed_limit=max(cfg.max_speed, cfg.leader_speed, cfg.human_speed[1]),
         )
@@ -227,11 +315,11 @@ class SwarmEnv(ParallelEnv):
         scn = random_scenario(self._rng, self._random) if self._random is not None else self._fixed
         assert scn is not None
         self._world = World(scn, self._static_for(scn))
-        self.agents = self.possible_agents[: scn.robots.count]
+        assert scn.robots.count == len(self.possible_agents)  # fixed teams (see the class docstring)
+        self.agents = list(self.possible_agents)
         self._n = scn.robots.count
-        dt = scn.world.dt
-        steps_limit = int(math.floor(scn.world.max_time / dt + 1e-9))
-        self._max_steps = steps_limit if self.max_cycles is None else min(steps_limit, self.max_cycles)
+        self.termination = None
+        self.terminal_contacts = ()
         self._speed = np.array([scn.robots.max_speed, scn.robots.max_turn_rate])
         self._prim_duration = math.radians(max(abs(a) for a in PRIMITIVE_ANGLES_DEG)) / scn.robots.max_turn_rate
         self._state = self._world.snapshot()
@@ -244,7 +332,8 @@ class SwarmEnv(ParallelEnv):
             self._renderer.record(self._state)
         obs = self._obs.build(self._state)
         observations = {a: obs[i] for i, a in enumerate(self.agents)}
-        infos: dict[str, dict] = {a: {} for a in self.agents}
+        zeros = np.zeros(self._n)
+        infos = self._infos(self._prev_dist, {t: zeros for t in REWARD_TERMS}, np.zeros((self._n, len(CONTACT_GROUPS))), False)
         if self.render_mode == "human":
             self.render()
         return observations, infos
@@ -270,11 +359,15 @@ class SwarmEnv(ParallelEnv):
         self._state = state
         obs = self._obs.build(state)
         dist = slot_distance(state)
-        reward, terms = compute_rewards(state, state.scenario.reward, dist, self._prev_dist, norm, self._prev_action)
+        touching = touching_per_follower(state)
+        reward, terms = compute_rewards(
+            state, state.scenario.reward, dist, self._prev_dist, norm, self._prev_action, touching
+        )
         self._prev_dist, self._prev_action = dist, norm
         settled = bool((dist <= state.scenario.world.settle_tolerance).all())
-        terminated = bool(state.leader_done and settled)
-        truncated = bool(not terminated and state.step >= self._max_steps)
+        collided = self.terminate_on_collision and bool(touching.any())
+        terminated = bool((state.leader_done and settled) or collided)
+        truncated = bool(not terminated and state.step >= self.max_steps)
         self._metrics.update(state, time.perf_counter() - t0, dist)
         self._metrics.terminated = terminated
 
@@ -283,18 +376,31 @@ class SwarmEnv(ParallelEnv):
         rewards = dict(zip(agents, reward.tolist()))  # Python floats
         terminations = dict.fromkeys(agents, terminated)
         truncations = dict.fromkeys(agents, truncated)
-        per_term = [terms[t].tolist() for t in REWARD_TERMS]
-        infos = {
-            a: {"reward_terms": dict(zip(REWARD_TERMS, vals)), "slot_distance": d}
-            for a, d, *vals in zip(agents, dist.tolist(), *per_term)
-        }
+        infos = self._infos(dist, terms, touching, collided)
         if terminated or truncated:
+            self.termination = "collision" if collided else "formation" if terminated else "time_limit"
+            if collided:
+                self.terminal_contacts = tuple(c for c in state.touching if c.robot != LEADER_ID)
             self.agents = []
         if self._renderer is not None:
             self._renderer.record(state)
         if self.render_mode == "human":
             self.render()
         return observations, rewards, terminations, truncations, infos
+
+    def _infos(self, dist: np.ndarray, terms: dict[str, np.ndarray], touching: np.ndarray, collided: bool) -> dict:
+        """Per-agent infos; reset and step infos have the same keys (see the class docstring)."""
+        per_term = [terms[t].tolist() for t in REWARD_TERMS]
+        contacts = touching.astype(int).tolist()
+        return {
+            a: {
+                "reward_terms": dict(zip(REWARD_TERMS, vals)),
+                "slot_distance": d,
+                "contacts": dict(zip(CONTACT_GROUPS, c)),
+                "collision_terminated": collided,
+            }
+            for a, d, c, *vals in zip(self.agents, dist.tolist(), contacts, *per_term)
+        }
 
     def _normalised_actions(self, actions: dict[str, Any]) -> np.ndarray:
         """Validate the action dict and return (N, 2) normalised (v, omega) in [-1, 1]."""
@@ -367,7 +473,11 @@ class SwarmEnv(ParallelEnv):
         """Metrics of the current (or just finished) episode; see :mod:`swarm_env.metrics`."""
         if self._state is None:
             raise RuntimeError("call reset() before episode_metrics()")
-        return {"scenario": self._state.scenario.name, **self._metrics.result()}
+        out: dict[str, Any] = {"scenario": self._state.scenario.name, **self._metrics.result()}
+        out["termination"] = self.termination
+        if self.termination == "collision":
+            out["terminal_contacts"] = [dataclasses.asdict(c) for c in self.terminal_contacts]
+        return out
 
     def render(self) -> np.ndarray | None:
         if self.render_mode is None:
@@ -392,6 +502,24 @@ class SwarmEnv(ParallelEnv):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+def _reward_spec(reward: RewardSpec | Mapping[str, Any] | str | None) -> RewardSpec | None:
+    """``SwarmEnv(reward=...)``: a preset name, a :class:`RewardSpec`, a mapping of its fields, or None."""
+    if reward is None or isinstance(reward, RewardSpec):
+        return reward
+    if isinstance(reward, str):
+        if reward not in REWARD_PRESETS:
+            raise ValueError(f"reward must be one of {sorted(REWARD_PRESETS)}, a RewardSpec or a mapping, got {reward!r}")
+        return REWARD_PRESETS[reward]
+    if isinstance(reward, Mapping):
+        return _parse_reward("reward=", reward)
+    raise ValueError(f"reward must be one of {sorted(REWARD_PRESETS)}, a RewardSpec or a mapping, got {reward!r}")
+
+
+def _step_limit(max_time: float, dt: float, max_cycles: int | None) -> int:
+    steps = int(math.floor(max_time / dt + 1e-9))
+    return steps if max_cycles is None else min(steps, max_cycles)
 
 
 def _clone_space(space: gymnasium.spaces.Box) -> gymnasium.spaces.Box:

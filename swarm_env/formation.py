@@ -19,7 +19,11 @@ from typing import Sequence
 import numpy as np
 
 from swarm_env.geometry import StaticMap
-from swarm_env.scenario import FormationSpec
+from swarm_env.paths import PolylinePath, virtual_leader
+from swarm_env.scenario import FormationSpec, Scenario
+
+#: Extra clearance (m) beyond the robot radius kept between a slot target and obstacles.
+SLOT_MARGIN = 0.05
 
 __all__ = [
     "formation_offsets",
@@ -270,6 +274,17 @@ def next_switch_time(formations: Sequence[FormationSpec], t: float) -> float:
     return min(later) if later else math.inf
 
 
+def formation_start(path: Sequence[Sequence[float]] | np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """``(n, 3)`` starting poses ``(x, y, theta)`` on the slots of ``offsets`` around a leader
+    standing on ``path[0]`` and facing ``path[1]``, each follower facing the leader's heading
+    (no obstacle projection). The one rule for ``robots.start: formation``."""
+    p0 = np.asarray(path[0], dtype=np.float64)
+    p1 = np.asarray(path[1], dtype=np.float64)
+    heading = math.atan2(p1[1] - p0[1], p1[0] - p0[0])
+    xy = slot_targets(np.array([p0[0], p0[1], heading]), offsets, None, 0.0)
+    return np.column_stack([xy, np.full(len(xy), heading)])
+
+
 def slot_targets(
     leader_pose: np.ndarray, offsets: np.ndarray, static: StaticMap | None, clearance: float
 ) -> np.ndarray:
@@ -293,3 +308,37 @@ def slot_targets(
         if np.any(bad):
             out[bad] = static.project_free(out[bad], clearance)
     return out
+
+
+def virtual_slot_trajectory(
+    scn: Scenario, static: StaticMap, steps: int, raw: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """The slot targets a virtual leader gives at ``t = k * dt`` for ``k = 0..steps``.
+
+    Returns ``(slots (steps + 1, N, 2), formation index (steps + 1,))``: exactly what
+    :class:`~swarm_env.world.World` computes each step (the same leader, the same
+    offsets, the same projection out of obstacles with clearance ``radius +
+    SLOT_MARGIN``), for all steps at once. For a robot leader this is its *nominal*
+    motion (as if it tracked the path exactly). ``raw`` is a previous
+    :func:`unprojected_slot_trajectory` of the same scenario, to project it again
+    against another ``static`` without recomputing it.
+    """
+    pts, index = raw if raw is not None else unprojected_slot_trajectory(scn, steps)
+    slots = static.project_free(pts.reshape(-1, 2), scn.robots.radius + SLOT_MARGIN).reshape(pts.shape)
+    return slots, index
+
+
+def unprojected_slot_trajectory(scn: Scenario, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`virtual_slot_trajectory` before the projection out of obstacles."""
+    n = scn.robots.count
+    dt = scn.world.dt
+    line = PolylinePath(scn.leader.path)
+    offsets = [formation_offsets(f, n) for f in scn.formations]
+    raw = np.empty((steps + 1, n, 2))
+    index = np.empty(steps + 1, dtype=np.intp)
+    for k in range(steps + 1):
+        t = k * dt
+        pose = virtual_leader(line, scn.leader.speed, t, scn.leader.start_delay)[0]
+        index[k] = active_formation(scn.formations, t)
+        raw[k] = slot_targets(pose, offsets[index[k]], None, 0.0)
+    return raw, index

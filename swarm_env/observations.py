@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarm_env.geometry import cast_rays
+from swarm_env.geometry import StaticMap, cast_rays
 from swarm_env.scenario import SensorSpec
 from swarm_env.state import WorldState
 
@@ -62,6 +62,47 @@ def observation_layout(sensors: SensorSpec) -> dict[str, slice]:
         "humans": hu,
         "lidar": li,
     }
+
+
+#: Cells per side of the global state's occupancy grid of the static map.
+STATE_GRID = 16
+_GRID_SAMPLES = 4  # samples per cell side when measuring a cell's occupied fraction
+
+
+def state_layout(capacity: "Capacity") -> dict[str, slice]:
+    """Named slices of the global state vector (``env.state()``; ``env.state_layout``).
+
+    ======================  =======  ==========================================================
+    slice                   size     content
+    ======================  =======  ==========================================================
+    ``followers``           9 N      per follower: x / W, y / H, cos, sin of heading,
+                                     v and omega / (2 * speed limit), slot x / W, slot y / H,
+                                     present (1)
+    ``leader``              6        x / W, y / H, cos, sin, vx, vy / (2 * speed limit)
+    ``humans``              5 Hmax   per human slot: x / W, y / H, vx, vy / (2 * speed limit),
+                                     present (1/0; absent rows are 0)
+    ``time``                2        t / max_time, time to the next switch / max_time
+    ``follower_clearance``  3 N      per follower, the nearest static surface (obstacle or
+                                     wall): free distance / 5 m clipped to [0, 1], and the unit
+                                     normal (nx, ny) pointing away from it (world frame)
+    ``occupancy``           16 x 16  the static map: the occupied fraction of each cell of a
+                                     16 x 16 grid over the world (row-major, y up from the
+                                     bottom-left cell), constant during an episode
+    ======================  =======  ==========================================================
+    """
+    n, h = capacity.max_followers, capacity.max_humans
+    sizes = [("followers", 9 * n), ("leader", 6), ("humans", 5 * h), ("time", 2),
+             ("follower_clearance", 3 * n), ("occupancy", STATE_GRID * STATE_GRID)]
+    out: dict[str, slice] = {}
+    start = 0
+    for name, size in sizes:
+        out[name] = slice(start, start + size)
+        start += size
+    return out
+
+
+#: Distance (m) at which the state's follower clearance saturates at 1.
+STATE_CLEARANCE_RANGE = 5.0
 
 
 @dataclass(frozen=True)
@@ -100,9 +141,9 @@ class ObservationBuilder:
         self._ray_angles = 2.0 * np.pi * np.arange(k) / k
         self._columns: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._ray_owner: dict[int, np.ndarray] = {}
-        # Global state: per follower (x, y, cos, sin, v, omega, slot x, slot y, present),
-        # leader (x, y, cos, sin, vx, vy), per human (x, y, vx, vy, present), time, next switch.
-        self.state_size = 9 * capacity.max_followers + 6 + 5 * capacity.max_humans + 2
+        self.state_layout = state_layout(capacity)
+        self.state_size = self.state_layout["occupancy"].stop
+        self._grid: tuple[StaticMap, np.ndarray] | None = None  # (map, its occupancy grid), see _occupancy
 
     def _bounds(self) -> tuple[np.ndarray, np.ndarray]:
         high = np.empty(self.size, dtype=np.float32)
@@ -267,8 +308,27 @@ class ObservationBuilder:
             hum[:m, 2:4] = state.human_vel / self.vel_limit
             hum[:m, 4] = 1.0
         times = np.array([state.time / cap.max_time, min(state.next_switch_time - state.time, cap.max_time) / cap.max_time])
-        vec = np.concatenate([fol.ravel(), leader, hum.ravel(), times])
+        near = np.zeros((cap.max_followers, 3))
+        d, normal, _ = state.static.nearest_obstacles(state.follower_pose[:, :2])
+        near[:n, 0] = np.clip(d / STATE_CLEARANCE_RANGE, 0.0, 1.0)
+        near[:n, 1:] = normal
+        vec = np.concatenate([fol.ravel(), leader, hum.ravel(), times, near.ravel(), self._occupancy(state.static)])
         return np.clip(vec, -STATE_LIMIT, STATE_LIMIT).astype(np.float32)
+
+    def _occupancy(self, static: StaticMap) -> np.ndarray:
+        """The ``STATE_GRID``-square occupancy grid of ``static`` (computed once per map)."""
+        if self._grid is not None and self._grid[0] is static:
+            return self._grid[1]
+        w, h = static.size
+        k = STATE_GRID * _GRID_SAMPLES
+        xs = (np.arange(k) + 0.5) * (w / k)
+        ys = (np.arange(k) + 0.5) * (h / k)
+        pts = np.stack(np.meshgrid(xs, ys), axis=-1).reshape(-1, 2)  # row-major, y outer
+        inside = (static.distance(pts, walls=False) < 0.0).reshape(STATE_GRID, _GRID_SAMPLES, STATE_GRID, _GRID_SAMPLES)
+        grid = inside.mean(axis=(1, 3)).ravel()
+        grid.flags.writeable = False
+        self._grid = (static, grid)
+        return grid
 
 
 #: Bound of every global-state entry (positions are normalised by the world size).

@@ -4,16 +4,31 @@
 world per ``reset(seed)``); its knobs are the fields of
 :class:`RandomScenarioConfig`. The generator uses only the ``rng`` it is given, so
 the same generator state always gives the same :class:`~swarm_env.scenario.Scenario`.
-Every result passes :func:`swarm_env.scenario_io.scenario_from_dict` (it is built
-through it), and :func:`swarm_env.scenario_io.scenario_to_dict` turns it into a
-YAML file that loads back to the same scenario.
+Every result is a :class:`~swarm_env.scenario.Scenario` built directly and passed
+through :func:`swarm_env.scenario_io.validate_scenario`, the gate YAML files pass too;
+:func:`swarm_env.scenario_io.scenario_to_dict` turns it into a YAML file that loads
+back to the same scenario.
 
 What a generated world looks like (units m, s):
 
-* a leader (``leader_kind``) on a polyline of 2-4 waypoints with turns of at most
+* a world of ``world_size`` (by default ``auto``: 20 m x 20 m, grown for big
+  formations so that the formation fits beside the path; 64 followers in a
+  line take about 95 m);
+* a leader (``leader_kind``) on a path of 2-4 waypoints with turns of at most
   60 degrees, long enough to take about 70 % of ``max_time`` at ``leader_speed``
   (shorter when the world is too small), kept away from the walls by about the
   formation's radius so the formation fits beside it;
+* **feasible slot targets**: every corner is rounded by a circular arc (written
+  as a polyline with one vertex per step of travel) of radius at least
+  ``R = rho * v / (0.9 * max_speed - v)``, where ``rho`` is the largest slot
+  distance from the leader over the schedule and ``v`` the leader speed, so a
+  slot never has to move faster than ``0.9 * max_speed`` while the leader turns;
+  turns are drawn smaller where such an arc does not fit (a leader at
+  ``0.9 * max_speed`` or faster drives straight). A robot leader's turn rate is
+  capped at ``(0.9 * max_speed - v) / rho`` for the same reason. Obstacles whose
+  projection would make a slot jump faster than ``max_speed`` are dropped
+  (:func:`slot_speed_violations` is the check; formation switches are jumps by
+  design and excluded);
 * a formation schedule of ``1 + n_switches`` entries drawn from ``shapes``
   (consecutive entries differ when there is a choice), switching at times spread
   over the leader's travel;
@@ -37,7 +52,13 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env.formation import formation_offsets
+from swarm_env.formation import (
+    SLOT_MARGIN,
+    formation_offsets,
+    formation_start,
+    unprojected_slot_trajectory,
+    virtual_slot_trajectory,
+)
 from swarm_env.geometry import StaticMap
 from swarm_env.paths import PolylinePath
 from swarm_env.scenario import (
@@ -45,16 +66,27 @@ from swarm_env.scenario import (
     LEADER_KINDS,
     CircleObstacle,
     FormationSpec,
+    HumanSpec,
+    LeaderSpec,
     PolygonObstacle,
     RectangleObstacle,
     RewardSpec,
+    RobotSpec,
     Scenario,
     ScenarioError,
     SensorSpec,
+    WorldSpec,
 )
-from swarm_env.scenario_io import _obstacle_to_dict, _parse_reward, _parse_sensors, scenario_from_dict
+from swarm_env.scenario_io import _parse_reward, _parse_sensors, required_substeps, validate_scenario
 
-__all__ = ["RandomScenarioConfig", "random_scenario", "config_from_kwargs", "OBSTACLE_TYPES"]
+__all__ = [
+    "RandomScenarioConfig",
+    "random_scenario",
+    "config_from_kwargs",
+    "slot_speed_violations",
+    "OBSTACLE_TYPES",
+    "KNOB_LIMITS",
+]
 
 SOURCE = "random"
 OBSTACLE_TYPES = ("circle", "rectangle", "polygon")
@@ -67,12 +99,19 @@ _PATH_ATTEMPTS = 300
 _HUMAN_ATTEMPTS = 30
 _OBSTACLE_TRIES = 40  # candidates per requested obstacle
 _SAMPLE_STEP = 0.1  # m between the points that stand for a path in clearance tests
+_SLOT_SPEED_SHARE = 0.9  # slot targets move at most this share of max_speed while the leader turns
+_DEFAULT_WORLD = 20.0  # m, the side of an ``auto`` world for small formations
+_PATH_ROOM = 8.0  # m of path room an ``auto`` world keeps between the formation margins
+
+#: Upper bounds of the count knobs (inclusive): bounded work per reset whatever the input.
+KNOB_LIMITS = {"n_followers": 64, "n_obstacles": 100, "n_humans": 32, "n_switches": 8}
 
 
 # --------------------------------------------------------------------------- knob validation
 
 
 def _int_range(value: Any, name: str, minimum: int) -> tuple[int, int]:
+    maximum = KNOB_LIMITS[name]
     def is_int(v: Any) -> bool:
         return isinstance(v, (int, np.integer)) and not isinstance(v, (bool, np.bool_))
 
@@ -82,8 +121,8 @@ def _int_range(value: Any, name: str, minimum: int) -> tuple[int, int]:
         lo, hi = int(value[0]), int(value[1])
     else:
         raise ScenarioError(SOURCE, name, "an integer or an inclusive (lo, hi) pair of integers", value)
-    if lo < minimum or hi < lo:
-        raise ScenarioError(SOURCE, name, f"values >= {minimum} with lo <= hi", value)
+    if lo < minimum or hi > maximum or hi < lo:
+        raise ScenarioError(SOURCE, name, f"values in [{minimum}, {maximum}] with lo <= hi", value)
     return (lo, hi)
 
 
@@ -121,7 +160,8 @@ class RandomScenarioConfig:
     uniformly; a ``(lo, hi)`` float knob is drawn uniformly in ``[lo, hi]``.
 
     Attributes:
-        n_followers: number of followers.
+        n_followers: number of followers (at most 64). ``SwarmEnv`` draws a range once per
+            env instance (its ``team_seed``), so every episode of one env has the same team.
         n_obstacles: number of obstacles to place (fewer if the world is too crowded).
         obstacle_size: range of an obstacle's size (m): a circle's diameter, a rectangle's
             diagonal, the diameter of a polygon's circumscribed circle.
@@ -134,7 +174,9 @@ class RandomScenarioConfig:
         spacing: range of the formation spacing (m); raised to ``2 * radius + 0.1``.
         angle: range of the ``v``/``wedge`` arm half-opening (degrees).
         n_switches: number of formation switches after the first formation.
-        world_size: ``(W, H)`` (m).
+        world_size: ``(W, H)`` (m), or ``"auto"`` (the default): a square of
+            ``max(20, 2 * (rho + radius + 0.3) + 8)`` m where ``rho`` is the largest slot radius any
+            drawable formation of the largest team can have (see :meth:`resolved_world_size`).
         leader_kind: ``virtual`` or ``robot``.
         leader_speed: leader speed (m/s), at most ``max_speed``.
         max_time, dt, substeps: episode length and time stepping (see ``WorldSpec``).
@@ -144,7 +186,7 @@ class RandomScenarioConfig:
         sensors, reward: ``SensorSpec`` / ``RewardSpec`` or a mapping of their fields.
     """
 
-    n_followers: IntRange = (2, 8)
+    n_followers: IntRange = 4
     n_obstacles: IntRange = (3, 10)
     obstacle_size: tuple[float, float] = (0.3, 1.2)
     obstacle_types: tuple[str, ...] = OBSTACLE_TYPES
@@ -155,7 +197,7 @@ class RandomScenarioConfig:
     spacing: tuple[float, float] = (0.9, 1.3)
     angle: tuple[float, float] = (30.0, 60.0)
     n_switches: IntRange = (0, 2)
-    world_size: tuple[float, float] = (20.0, 20.0)
+    world_size: tuple[float, float] | str = "auto"
     leader_kind: str = "virtual"
     leader_speed: float = 0.4
     max_time: float = 60.0
@@ -179,7 +221,8 @@ class RandomScenarioConfig:
         put(self, "angle", _float_range(self.angle, "angle", positive=True))
         if not self.angle[1] < 180.0:
             raise ScenarioError(SOURCE, "angle", "a range of degrees within (0, 180)", self.angle)
-        put(self, "world_size", _float_range(self.world_size, "world_size", positive=True, ordered=False))
+        if self.world_size != "auto":
+            put(self, "world_size", _float_range(self.world_size, "world_size", positive=True, ordered=False))
         put(self, "obstacle_types", _names(self.obstacle_types, "obstacle_types", OBSTACLE_TYPES))
         put(self, "shapes", _names(self.shapes, "shapes", tuple(s for s in FORMATION_SHAPES if s != "custom")))
         if self.leader_kind not in LEADER_KINDS:
@@ -197,11 +240,29 @@ class RandomScenarioConfig:
         # The anti-tunnelling rule of scenario_io, for the fastest humans this config can draw.
         v_rel = 2.0 * max(self.max_speed, self.leader_speed) + (self.human_speed[1] if self.n_humans[1] else 0.0)
         r_min = min(self.radius, self.human_radius) if self.n_humans[1] else self.radius
-        need = max(1, math.ceil(v_rel * self.dt / r_min - 1e-9))
+        need = required_substeps(v_rel, r_min, self.dt)
         if self.substeps < need:
             raise ScenarioError(
                 SOURCE, "substeps", f"at least {need} (v_rel * dt / substeps <= r_min, v_rel = {v_rel:g} m/s)", self.substeps
             )
+
+
+    def resolved_world_size(self) -> tuple[float, float]:
+        """``world_size``, with ``"auto"`` resolved: big enough that the widest formation this
+        config can draw (largest team, largest spacing, any allowed shape and angle) fits
+        beside ``_PATH_ROOM`` m of leader path, and never smaller than 20 m x 20 m."""
+        if self.world_size != "auto":
+            return self.world_size  # type: ignore[return-value]
+        n = self.n_followers[1]  # type: ignore[index]
+        rho = 0.0
+        for shape in self.shapes:
+            for angle in (self.angle if shape in ("v", "wedge") else (45.0,)):
+                if shape == "wedge" and angle == 90.0:
+                    angle = 89.0
+                off = formation_offsets(FormationSpec(at=0.0, shape=shape, spacing=self.spacing[1], angle=angle), n)
+                rho = max(rho, float(np.max(np.hypot(off[:, 0], off[:, 1]), initial=0.0)))
+        side = round(max(_DEFAULT_WORLD, 2.0 * (rho + self.radius + 0.3) + _PATH_ROOM), 1)
+        return (side, side)
 
 
 def config_from_kwargs(**kwargs: Any) -> RandomScenarioConfig:
@@ -222,7 +283,7 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
     too small for the formation's starting slots).
     """
     cfg = config
-    W, H = cfg.world_size
+    W, H = cfg.resolved_world_size()
     r = cfg.radius
     n = _draw_int(rng, cfg.n_followers)
     n_obs = _draw_int(rng, cfg.n_obstacles)
@@ -231,9 +292,14 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
 
     formations = _draw_formations(rng, cfg, n_sw)
     offsets = [formation_offsets(f, n) for f in formations]
-    extent = max(float(np.max(np.linalg.norm(o, axis=1))) for o in offsets) + r
+    rho = max(float(np.max(np.hypot(o[:, 0], o[:, 1]), initial=0.0)) for o in offsets)  # largest slot radius
+    extent = rho + r
+    v_slot = _SLOT_SPEED_SHARE * cfg.max_speed - cfg.leader_speed  # what turning may add to a slot's speed
+    # Smallest corner radius that keeps every slot under v_slot + leader speed (inf: drive straight).
+    # The factor 1.1 covers the polyline's discrete heading steps (see _round_corners).
+    min_radius = 1.1 * rho * cfg.leader_speed / v_slot if v_slot > 0 else math.inf
 
-    path, start_xy = _draw_path(rng, cfg, offsets[0], extent)
+    path, start_xy = _draw_path(rng, cfg, (W, H), offsets[0], extent, min_radius)
     line = PolylinePath(path)
     # Switches are spread over the leader's actual travel time, one per stratum, so they
     # are strictly increasing and at least ~0.4 * travel / (n_sw + 1) apart.
@@ -248,40 +314,91 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
     if cfg.leader_kind == "robot":
         start_discs.append((np.asarray(path[0]), r))
 
-    humans = _draw_humans(rng, cfg, line, n_hum, start_discs)
+    humans = _draw_humans(rng, cfg, (W, H), line, n_hum, start_discs)
 
     # Clearance constraints for obstacles: sample points with the clearance each needs.
     pts = [_samples(line), np.array([p for p, _ in start_discs])]
     need = [np.full(len(pts[0]), leader_clear), np.array([rad + 0.3 for _, rad in start_discs])]
     for h in humans:
-        hp = _samples(PolylinePath(h["path"]))
+        hp = _samples(PolylinePath(h.path))
         pts.append(hp)
         need.append(np.full(len(hp), cfg.human_radius + 0.2))
-    obstacles = _draw_obstacles(rng, cfg, n_obs, line, extent, np.vstack(pts), np.concatenate(need))
+    obstacles = _draw_obstacles(rng, cfg, (W, H), n_obs, line, extent, np.vstack(pts), np.concatenate(need))
 
-    shapes = " -> ".join(f"{f.shape}@{f.at:g}s" for f in formations)
-    data = {
-        "name": "random",
-        "description": (
-            f"random: {n} followers behind a {cfg.leader_kind} leader ({line.length:.1f} m at "
-            f"{cfg.leader_speed:g} m/s), {len(obstacles)} obstacles, {len(humans)} humans; formations {shapes}"
+    # A robot leader turns at most as fast as keeps its outermost slot under the same speed share.
+    leader_turn = cfg.max_turn_rate
+    if cfg.leader_kind == "robot" and rho > 0:
+        leader_turn = min(leader_turn, max(v_slot, 0.05 * cfg.max_speed) / rho)
+    scn = Scenario(
+        name="random",
+        world=WorldSpec(size=(float(W), float(H)), dt=cfg.dt, substeps=cfg.substeps, max_time=cfg.max_time),
+        robots=RobotSpec(count=n, radius=r, max_speed=cfg.max_speed, max_turn_rate=cfg.max_turn_rate),
+        leader=LeaderSpec(
+            kind=cfg.leader_kind, path=path, speed=cfg.leader_speed, radius=r, max_turn_rate=round(leader_turn, 6)
         ),
-        "world": {"size": [W, H], "dt": cfg.dt, "substeps": cfg.substeps, "max_time": cfg.max_time},
-        "robots": {"count": n, "radius": r, "max_speed": cfg.max_speed, "max_turn_rate": cfg.max_turn_rate},
-        "leader": {
-            "kind": cfg.leader_kind,
-            "path": [list(p) for p in path],
-            "speed": cfg.leader_speed,
-            "radius": r,
-            "max_turn_rate": cfg.max_turn_rate,
-        },
-        "formations": [_formation_dict(f) for f in formations],
-        "obstacles": obstacles,
-        "humans": humans,
-        "sensors": {f.name: getattr(cfg.sensors, f.name) for f in fields(SensorSpec)},
-        "reward": {f.name: getattr(cfg.reward, f.name) for f in fields(RewardSpec)},
-    }
-    return scenario_from_dict(data, source=SOURCE)
+        formations=tuple(formations),
+        obstacles=(),
+        humans=tuple(humans),
+        sensors=cfg.sensors,
+        reward=cfg.reward,
+        source=SOURCE,
+    )
+    kept = _feasible_obstacles(scn, obstacles)
+    shapes = " -> ".join(f"{f.shape}@{f.at:g}s" for f in formations)
+    description = (
+        f"random: {n} followers behind a {cfg.leader_kind} leader ({line.length:.1f} m at "
+        f"{cfg.leader_speed:g} m/s), {len(kept)} obstacles, {len(humans)} humans; formations {shapes}"
+    )
+    return validate_scenario(dataclasses.replace(scn, obstacles=tuple(kept), description=description))
+
+
+def slot_speed_violations(scn: Scenario, static: StaticMap | None = None) -> np.ndarray:
+    """``(K, 2)`` rows ``(step, follower)`` where the slot target moves faster than
+    ``robots.max_speed`` between step ``step - 1`` and ``step`` (with a virtual leader's
+    exact motion, a robot leader's nominal one), over the whole episode.
+
+    Steps at which the formation switches are excluded: a switch is a new target by
+    design (the metrics time how long the followers take to settle on it). An empty
+    result means no follower is ever asked to move faster than it can.
+    """
+    static = static if static is not None else StaticMap.from_obstacles(scn.world.size, scn.obstacles)
+    steps = int(math.floor(scn.world.max_time / scn.world.dt + 1e-9))
+    slots, index = virtual_slot_trajectory(scn, static, steps)
+    return _violations(scn, slots, index)
+
+
+def _violations(scn: Scenario, slots: np.ndarray, index: np.ndarray) -> np.ndarray:
+    step = np.hypot(*np.moveaxis(np.diff(slots, axis=0), -1, 0))  # (steps, N)
+    too_fast = step > scn.robots.max_speed * scn.world.dt * (1.0 + 1e-9)
+    too_fast &= (index[1:] == index[:-1])[:, None]
+    k, i = np.nonzero(too_fast)
+    return np.column_stack([k + 1, i])
+
+
+def _feasible_obstacles(scn: Scenario, obstacles: list) -> list:
+    """``obstacles`` less those whose projection makes a slot jump faster than ``max_speed``.
+
+    A slot target that enters an obstacle is moved to the nearest free point; across
+    the obstacle's middle that point jumps to the other side. The obstacles that the
+    offending targets were pushed onto are dropped, until no such jump is left.
+    """
+    steps = int(math.floor(scn.world.max_time / scn.world.dt + 1e-9))
+    raw = unprojected_slot_trajectory(scn, steps)
+    clearance = scn.robots.radius + SLOT_MARGIN
+    kept = list(obstacles)
+    while kept:
+        static = StaticMap.from_obstacles(scn.world.size, kept)
+        slots, index = virtual_slot_trajectory(scn, static, steps, raw)
+        bad = _violations(scn, slots, index)
+        if not len(bad):
+            break
+        ends = np.concatenate([slots[bad[:, 0], bad[:, 1]], slots[bad[:, 0] - 1, bad[:, 1]]])
+        near = static.obstacle_distances(ends) < clearance + 1e-6
+        culprits = set(np.flatnonzero(near.any(axis=0)).tolist())
+        if not culprits:  # not an obstacle's doing (cannot happen with convex walls): keep the rest
+            break
+        kept = [o for k, o in enumerate(kept) if k not in culprits]
+    return kept
 
 
 # --------------------------------------------------------------------------- drawing
@@ -305,19 +422,27 @@ def _draw_formations(rng: np.random.Generator, cfg: RandomScenarioConfig, n_sw: 
 
 
 def _draw_path(
-    rng: np.random.Generator, cfg: RandomScenarioConfig, offsets0: np.ndarray, extent: float
-) -> tuple[list[tuple[float, float]], np.ndarray]:
-    """Leader waypoints (2-4, rounded to mm) and the followers' starting slot positions.
+    rng: np.random.Generator,
+    cfg: RandomScenarioConfig,
+    size: tuple[float, float],
+    offsets0: np.ndarray,
+    extent: float,
+    min_radius: float,
+) -> tuple[tuple[tuple[float, float], ...], np.ndarray]:
+    """The leader's path and the followers' starting slot positions.
 
-    The first heading is drawn first; the start point is then drawn where every
-    starting slot fits in the world, and the later waypoints must stay ``margin``
-    (about the formation's radius) from the walls.
+    2-4 waypoints (rounded to mm) are drawn first: the first heading, then the turns
+    (at most 60 degrees, and at most what a corner arc of ``min_radius`` fits in
+    half a segment), then the start point where every starting slot fits in the
+    world and every later waypoint stays ``margin`` (about the formation's radius)
+    from the walls. The corners are then rounded (:func:`_round_corners`).
     """
-    W, H = cfg.world_size
+    W, H = size
     r = cfg.radius
     # Keep the path about a formation radius from the walls, but never more than a
-    # fifth of the world (small worlds: slots near walls are projected inside).
-    margin = max(min(extent + 0.3, 0.2 * min(W, H)), r + 0.1)
+    # fifth of the world (small worlds: slots near walls are projected inside), or
+    # than leaves _PATH_ROOM of path box in a big world.
+    margin = max(min(extent + 0.3, max(0.2 * min(W, H), (min(W, H) - _PATH_ROOM) / 2)), r + 0.1)
     lo = np.array([margin, margin])
     hi = np.array([W - margin, H - margin])
     length = cfg.leader_speed * _TRAVEL_FRACTION * cfg.max_time
@@ -333,6 +458,11 @@ def _draw_path(
         turns = rng.uniform(-_MAX_TURN, _MAX_TURN, size=k - 2)
         if box is None:
             continue
+        # A corner arc of min_radius needs min_radius * tan(turn / 2) of each segment next to
+        # it; leave each segment at least one step of travel that is straight.
+        room = length / (k - 1) / 2.0 - cfg.leader_speed * cfg.dt
+        max_turn = 2.0 * math.atan(max(room, 0.0) / min_radius) if min_radius > 0 else _MAX_TURN
+        turns = np.clip(turns, -max_turn, max_turn)
         heads = heading + np.concatenate([[0.0], np.cumsum(turns)])
         disp = np.cumsum((length / (k - 1)) * np.column_stack([np.cos(heads), np.sin(heads)]), axis=0)
         p_lo = np.maximum(box[0], (lo - disp).max(axis=0))
@@ -341,9 +471,9 @@ def _draw_path(
             continue
         p0 = rng.uniform(p_lo, p_hi)
         arr = np.round(np.vstack([p0, p0 + disp]), 3)
-        start = _start_slots(arr, offsets0)
+        start = formation_start(arr, offsets0)[:, :2]
         if _discs_inside(start, r, W, H) and _discs_inside(arr[1:], margin - 1e-3, W, H):
-            return [(float(x), float(y)) for x, y in arr], start
+            return _round_corners(arr, min_radius, cfg.leader_speed * cfg.dt), start
     # Fallback (cramped worlds only): the straightest path that fits, along an axis or diagonal.
     best: tuple[float, np.ndarray] | None = None
     for heading in np.arange(8) * (math.pi / 4):
@@ -360,7 +490,39 @@ def _draw_path(
             SOURCE, "world_size", f"a world large enough for the formation's starting slots (radius {extent:.3g} m)", (W, H)
         )
     arr = best[1]
-    return [(float(x), float(y)) for x, y in arr], _start_slots(arr, offsets0)
+    return tuple((float(x), float(y)) for x, y in arr), formation_start(arr, offsets0)[:, :2]
+
+
+def _round_corners(points: np.ndarray, radius: float, travel: float) -> tuple[tuple[float, float], ...]:
+    """The polyline ``points`` with each interior corner replaced by a circular arc of ``radius``.
+
+    The arc is written as a polyline whose pieces are a little longer than ``travel``
+    (the leader's travel in one step), so the leader passes at most one vertex per step
+    and its heading turns by at most ``1.05 * travel / radius`` per step; a slot ``rho``
+    from the leader then moves at most ``travel * (1 + 1.05 * rho / radius)`` per step.
+    Arc points are not rounded (mm rounding would add heading noise larger than that).
+    """
+    if len(points) < 3 or not math.isfinite(radius) or radius <= 0:
+        return tuple((float(x), float(y)) for x, y in points)
+    out: list[np.ndarray] = [points[0]]
+    for j in range(1, len(points) - 1):
+        a, v, b = points[j - 1], points[j], points[j + 1]
+        u_in = (v - a) / np.linalg.norm(v - a)
+        u_out = (b - v) / np.linalg.norm(b - v)
+        turn = math.atan2(u_in[0] * u_out[1] - u_in[1] * u_out[0], float(u_in @ u_out))
+        if abs(turn) < 1e-9:
+            continue  # no corner
+        tangent = radius * math.tan(abs(turn) / 2.0)
+        side = 1.0 if turn > 0 else -1.0
+        normal = side * np.array([-u_in[1], u_in[0]])  # towards the arc's centre
+        centre = v - tangent * u_in + radius * normal
+        start_angle = math.atan2(-normal[1], -normal[0])
+        pieces = max(1, int(math.floor(radius * abs(turn) / (1.05 * travel))))
+        for q in range(pieces + 1):
+            ang = start_angle + side * abs(turn) * q / pieces
+            out.append(centre + radius * np.array([math.cos(ang), math.sin(ang)]))
+    out.append(points[-1])
+    return tuple((float(x), float(y)) for x, y in out)
 
 
 def _start_box(heading: float, offsets0: np.ndarray, rad: float, W: float, H: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -379,14 +541,15 @@ def _start_box(heading: float, offsets0: np.ndarray, rad: float, W: float, H: fl
 def _draw_humans(
     rng: np.random.Generator,
     cfg: RandomScenarioConfig,
+    size: tuple[float, float],
     line: PolylinePath,
     n_hum: int,
     start_discs: list[tuple[np.ndarray, float]],
-) -> list[dict]:
+) -> list[HumanSpec]:
     """Humans walking straight lines that cross the leader's path, timed to meet the leader there."""
-    W, H = cfg.world_size
+    W, H = size
     hr = cfg.human_radius
-    out: list[dict] = []
+    out: list[HumanSpec] = []
     starts: list[np.ndarray] = []
     for _ in range(n_hum):
         for _attempt in range(_HUMAN_ATTEMPTS):
@@ -410,9 +573,8 @@ def _draw_humans(
             t_meet = s_c / cfg.leader_speed
             delay = round(max(0.0, t_meet - before / speed), 1)
             starts.append(a)
-            out.append(
-                {"path": [a.tolist(), b.tolist()], "speed": speed, "radius": hr, "mode": "once", "start_delay": delay}
-            )
+            path = ((float(a[0]), float(a[1])), (float(b[0]), float(b[1])))
+            out.append(HumanSpec(path=path, speed=speed, radius=hr, mode="once", start_delay=delay))
             break
     return out
 
@@ -420,6 +582,7 @@ def _draw_humans(
 def _draw_obstacles(
     rng: np.random.Generator,
     cfg: RandomScenarioConfig,
+    size: tuple[float, float],
     n_obs: int,
     line: PolylinePath,
     extent: float,
@@ -433,13 +596,13 @@ def _draw_obstacles(
     otherwise measured exactly with :class:`StaticMap` (thin rectangles and
     polygons may come closer than their bounding circle).
     """
-    W, H = cfg.world_size
+    W, H = size
     gap = 2.0 * cfg.radius + 0.2  # a robot fits between two obstacles and between an obstacle and a wall
-    accepted: list[tuple[dict, np.ndarray, float]] = []  # (yaml dict, centre, bounding radius)
+    accepted: list[tuple[Any, np.ndarray, float]] = []  # (obstacle, centre, bounding radius)
     for _ in range(_OBSTACLE_TRIES * n_obs):
         if len(accepted) == n_obs:
             break
-        obj, centre, rho = _draw_obstacle(rng, cfg, line, extent)
+        obj, centre, rho = _draw_obstacle(rng, cfg, size, line, extent)
         if not (rho + gap <= centre[0] <= W - rho - gap and rho + gap <= centre[1] <= H - rho - gap):
             continue
         if any(math.dist(centre, c2) < rho + rho2 + gap for _, c2, rho2 in accepted):
@@ -451,17 +614,17 @@ def _draw_obstacles(
             dist = StaticMap.from_obstacles((W, H), [obj]).obstacle_distances(keep_pts)[:, 0]
             if np.any(dist < keep_clear):
                 continue
-        accepted.append((_obstacle_to_dict(obj), centre, rho))
+        accepted.append((obj, centre, rho))
     return [a[0] for a in accepted]
 
 
 def _draw_obstacle(
-    rng: np.random.Generator, cfg: RandomScenarioConfig, line: PolylinePath, extent: float
+    rng: np.random.Generator, cfg: RandomScenarioConfig, size: tuple[float, float], line: PolylinePath, extent: float
 ) -> tuple[CircleObstacle | RectangleObstacle | PolygonObstacle, np.ndarray, float]:
     """One candidate: ``(obstacle, centre, bounding radius)``, coordinates rounded to mm."""
-    W, H = cfg.world_size
-    size = float(rng.uniform(*cfg.obstacle_size))
-    rho = size / 2.0
+    W, H = size
+    diameter = float(rng.uniform(*cfg.obstacle_size))
+    rho = diameter / 2.0
     if float(rng.uniform()) < 0.7:
         # Beside the path, within the band the formation's slots sweep.
         s = float(rng.uniform(0.0, line.length))
@@ -481,7 +644,7 @@ def _draw_obstacle(
         alpha = float(rng.uniform(math.radians(20.0), math.radians(70.0)))
         obj = RectangleObstacle(
             center=(cx, cy),
-            size=(round(size * math.cos(alpha), 3), round(size * math.sin(alpha), 3)),
+            size=(round(diameter * math.cos(alpha), 3), round(diameter * math.sin(alpha), 3)),
             angle=round(float(rng.uniform(0.0, 180.0)), 1),
         )
     else:
@@ -495,14 +658,6 @@ def _draw_obstacle(
 
 
 # --------------------------------------------------------------------------- helpers
-
-
-def _start_slots(path: np.ndarray, offsets0: np.ndarray) -> np.ndarray:
-    """World positions of the first formation's slots around a leader on ``path[0]`` facing ``path[1]``."""
-    d = path[1] - path[0]
-    h = math.atan2(d[1], d[0])
-    c, s = math.cos(h), math.sin(h)
-    return path[0] + offsets0 @ np.array([[c, s], [-s, c]])
 
 
 def _discs_inside(xy: np.ndarray, rad: float, W: float, H: float) -> bool:
@@ -523,13 +678,6 @@ def _ray_room(p: np.ndarray, u: np.ndarray, want: float, margin: float, W: float
 def _samples(line: PolylinePath) -> np.ndarray:
     k = max(2, int(math.ceil(line.length / _SAMPLE_STEP)) + 1)
     return line.points_at(np.linspace(0.0, line.length, k))
-
-
-def _formation_dict(f: FormationSpec) -> dict:
-    d: dict[str, Any] = {"at": f.at, "shape": f.shape, "spacing": f.spacing}
-    if f.shape in ("v", "wedge"):
-        d["angle"] = f.angle
-    return d
 
 
 def _draw_int(rng: np.random.Generator, spec: tuple[int, int]) -> int:

@@ -174,21 +174,37 @@ class SensorSpec:
 
 @dataclass(frozen=True)
 class RewardSpec:
-    """Weights of the per-agent reward terms (see ``SwarmEnv``'s docstring).
+    """Weights of the per-agent reward terms (see :mod:`swarm_env.rewards` for the formula).
 
-    ``formation`` multiplies the distance to the slot target (m), ``collision``
-    the number of new collisions in the step (the two paper-000 terms);
-    ``clearance`` penalises intrusion below ``clearance_margin`` m of free
-    space; ``smoothness`` penalises the squared change of the normalised
-    action; ``progress`` rewards the decrease of the slot distance.
+    All weights are magnitudes (the env fixes each term's sign):
+
+    * ``formation`` multiplies the distance to the slot target (m);
+    * ``collision`` the number of contact *onsets* of the follower in the step
+      (the paper-000 event count);
+    * ``contact`` the number of bodies the follower *is touching* during the
+      step (obstacles, walls, humans, robots): charged on every step of a
+      contact, not only its first (reward v1);
+    * ``clearance`` the intrusion ``max(0, 1 - clearance / clearance_margin)``
+      into a margin of ``clearance_margin`` m of free space around the disc;
+    * ``smoothness`` the squared change of the normalised action;
+    * ``progress`` (a bonus) the decrease of the slot distance.
+
+    The defaults are reward v1 (see ``SwarmEnv``'s docstring for why);
+    :meth:`v0` gives the swarm_env_v0 weights (onsets only, no clearance).
     """
 
     formation: float = 1.0
-    collision: float = 10.0
-    clearance: float = 0.0
+    collision: float = 5.0
+    contact: float = 2.0
+    clearance: float = 1.0
     clearance_margin: float = 0.2
     smoothness: float = 0.0
     progress: float = 0.0
+
+    @classmethod
+    def v0(cls) -> "RewardSpec":
+        """The swarm_env_v0 reward: ``-formation distance - 10 * new contacts``, nothing else."""
+        return cls(formation=1.0, collision=10.0, contact=0.0, clearance=0.0, clearance_margin=0.2)
 
 
 @dataclass(frozen=True)

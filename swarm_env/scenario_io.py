@@ -83,6 +83,7 @@ The name ``random`` is not a file: random worlds come from
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 import numbers
@@ -94,7 +95,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from swarm_env.formation import formation_offsets
+from swarm_env.formation import formation_offsets, formation_start
 from swarm_env.geometry import StaticMap, convex_ccw
 from swarm_env.scenario import (
     FORMATION_SHAPES,
@@ -123,6 +124,8 @@ __all__ = [
     "scenario_from_dict",
     "scenario_to_dict",
     "min_substeps",
+    "required_substeps",
+    "validate_scenario",
     "start_poses",
 ]
 
@@ -131,21 +134,27 @@ BUILTIN_DIR: Path = Path(__file__).resolve().parent / "scenarios"
 
 RANDOM_NAME = "random"
 
-# Allowed keys per section; the first tuple of each pair is the required subset.
-_TOP_KEYS = ("name", "description", "world", "robots", "leader", "formations", "obstacles", "humans", "sensors", "reward")
+def _keys(cls: type) -> tuple[str, ...]:
+    """The YAML keys of a section: its dataclass's fields (one place for both, so they never drift)."""
+    names = tuple(f.name for f in dataclasses.fields(cls))
+    return ("type", *(n for n in names if n != "type")) if "type" in names else names
+
+
+# Allowed keys per section, from the dataclasses of swarm_env.scenario.
+_TOP_KEYS = tuple(k for k in _keys(Scenario) if k != "source")
 _TOP_REQUIRED = ("world", "robots", "leader", "formations")
-_WORLD_KEYS = ("size", "dt", "substeps", "max_time", "settle_tolerance")
-_ROBOT_KEYS = ("count", "radius", "max_speed", "max_turn_rate", "max_accel", "max_turn_accel", "wheelbase", "start")
-_LEADER_KEYS = ("kind", "path", "speed", "radius", "max_turn_rate", "lookahead", "start_delay")
-_FORMATION_KEYS = ("at", "shape", "spacing", "angle", "offsets", "columns")
+_WORLD_KEYS = _keys(WorldSpec)
+_ROBOT_KEYS = _keys(RobotSpec)
+_LEADER_KEYS = _keys(LeaderSpec)
+_FORMATION_KEYS = _keys(FormationSpec)
 _OBSTACLE_KEYS = {
-    "circle": ("type", "center", "radius"),
-    "rectangle": ("type", "center", "size", "angle"),
-    "polygon": ("type", "points"),
+    "circle": _keys(CircleObstacle),
+    "rectangle": _keys(RectangleObstacle),
+    "polygon": _keys(PolygonObstacle),
 }
-_HUMAN_KEYS = ("path", "speed", "radius", "mode", "start_delay")
-_SENSOR_KEYS = ("lidar_rays", "lidar_range", "neighbors", "humans")
-_REWARD_KEYS = ("formation", "collision", "clearance", "clearance_margin", "smoothness", "progress")
+_HUMAN_KEYS = _keys(HumanSpec)
+_SENSOR_KEYS = _keys(SensorSpec)
+_REWARD_KEYS = _keys(RewardSpec)
 
 # Slack for geometric comparisons of values people type with a few decimals.
 _EPS = 1e-9
@@ -215,11 +224,11 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
     description = _string(src, data.get("description", ""), "description")
 
     world = _parse_world(src, data["world"])
-    robots = _parse_robots(src, data["robots"], world)
-    leader = _parse_leader(src, data["leader"], world)
+    robots = _parse_robots(src, data["robots"])
+    leader = _parse_leader(src, data["leader"])
     formations = _parse_formations(src, data["formations"], robots)
-    obstacles = _parse_list(src, data.get("obstacles", []), "obstacles", lambda v, k: _parse_obstacle(src, v, k, world))
-    humans = _parse_list(src, data.get("humans", []), "humans", lambda v, k: _parse_human(src, v, k, world))
+    obstacles = _parse_list(src, data.get("obstacles", []), "obstacles", lambda v, k: _parse_obstacle(src, v, k))
+    humans = _parse_list(src, data.get("humans", []), "humans", lambda v, k: _parse_human(src, v, k))
     sensors = _parse_sensors(src, data.get("sensors", {}))
     reward = _parse_reward(src, data.get("reward", {}))
 
@@ -236,6 +245,22 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         description=description,
         source=src,
     )
+    return validate_scenario(scn)
+
+
+def validate_scenario(scn: Scenario) -> Scenario:
+    """The semantic gate every scenario passes, from a file, a dict or the ``random`` generator.
+
+    Checks what types and ranges cannot: geometry inside the world, distinct waypoints,
+    convex polygons, the formation schedule, slot spacing, free starting poses, the
+    leader's speed and the anti-tunnelling rule (the list in this module's docstring).
+    Returns ``scn`` unchanged, or raises :class:`ScenarioError` naming ``scn.source``
+    and the key path.
+    """
+    src = scn.source
+    _check_world(src, scn)
+    _check_geometry(src, scn)
+    _check_schedule(src, scn)
     _cross_check(src, scn)
     return scn
 
@@ -303,7 +328,14 @@ def scenario_to_dict(scn: Scenario) -> dict[str, Any]:
 def min_substeps(scn: Scenario) -> int:
     """The smallest ``world.substeps`` that satisfies the anti-tunnelling rule for ``scn``."""
     v_rel, r_min = _tunnel_terms(scn)
-    return max(1, math.ceil(v_rel * scn.world.dt / r_min - 1e-9))
+    return required_substeps(v_rel, r_min, scn.world.dt)
+
+
+def required_substeps(v_rel: float, r_min: float, dt: float) -> int:
+    """The anti-tunnelling rule (the one place it is written; pymunk has no continuous collision
+    detection): the smallest ``substeps`` with ``v_rel * dt / substeps <= 0.5 * (2 * r_min)``,
+    for the largest closing speed ``v_rel`` (m/s) and the smallest disc radius ``r_min`` (m)."""
+    return max(1, math.ceil(v_rel * dt / r_min - 1e-9))
 
 
 # --------------------------------------------------------------------------- file loading
@@ -363,13 +395,11 @@ def _parse_world(src: str, value: Any) -> WorldSpec:
     dt = _number(src, m.get("dt", WorldSpec.dt), "world.dt", positive=True)
     substeps = _integer(src, m.get("substeps", WorldSpec.substeps), "world.substeps", minimum=1)
     max_time = _number(src, m.get("max_time", WorldSpec.max_time), "world.max_time", positive=True)
-    if max_time < dt:
-        raise ScenarioError(src, "world.max_time", f"at least one control period (world.dt = {dt})", max_time)
     tol = _number(src, m.get("settle_tolerance", WorldSpec.settle_tolerance), "world.settle_tolerance", positive=True)
     return WorldSpec(size=size, dt=dt, substeps=substeps, max_time=max_time, settle_tolerance=tol)
 
 
-def _parse_robots(src: str, value: Any, world: WorldSpec) -> RobotSpec:
+def _parse_robots(src: str, value: Any) -> RobotSpec:
     m = _mapping(src, value, "robots")
     _check_keys(src, m, "robots", _ROBOT_KEYS, ("count",))
     count = _integer(src, m["count"], "robots.count", minimum=1)
@@ -395,9 +425,7 @@ def _parse_robots(src: str, value: Any, world: WorldSpec) -> RobotSpec:
         parsed = []
         for i, p in enumerate(poses):
             key = f"robots.start[{i}]"
-            vals = _numbers(src, p, key, 3, "[x, y, theta_rad]")
-            _inside(src, (vals[0], vals[1]), radius, world, key, "follower disc")
-            parsed.append(vals)
+            parsed.append(_numbers(src, p, key, 3, "[x, y, theta_rad]"))
         start = tuple(parsed)
     return RobotSpec(
         count=count,
@@ -411,7 +439,7 @@ def _parse_robots(src: str, value: Any, world: WorldSpec) -> RobotSpec:
     )
 
 
-def _parse_leader(src: str, value: Any, world: WorldSpec) -> LeaderSpec:
+def _parse_leader(src: str, value: Any) -> LeaderSpec:
     m = _mapping(src, value, "leader")
     _check_keys(src, m, "leader", _LEADER_KEYS, ("kind", "path", "speed"))
     kind = _choice(src, m["kind"], "leader.kind", LEADER_KINDS)
@@ -420,9 +448,7 @@ def _parse_leader(src: str, value: Any, world: WorldSpec) -> LeaderSpec:
     max_turn = _number(src, m.get("max_turn_rate", LeaderSpec.max_turn_rate), "leader.max_turn_rate", positive=True)
     lookahead = _number(src, m.get("lookahead", LeaderSpec.lookahead), "leader.lookahead", positive=True)
     delay = _number(src, m.get("start_delay", LeaderSpec.start_delay), "leader.start_delay", nonnegative=True)
-    # A virtual leader is a point; a robot leader's whole disc must fit in the world.
-    margin = radius if kind == "robot" else 0.0
-    path = _path(src, m["path"], "leader.path", world, margin, "robot leader disc" if kind == "robot" else "waypoint")
+    path = _path(src, m["path"], "leader.path")
     return LeaderSpec(
         kind=kind, path=path, speed=speed, radius=radius, max_turn_rate=max_turn, lookahead=lookahead, start_delay=delay
     )
@@ -433,29 +459,15 @@ def _parse_formations(src: str, value: Any, robots: RobotSpec) -> tuple[Formatio
     if not items:
         raise ScenarioError(src, "formations", "at least one formation entry (the one active at t = 0)", [])
     out: list[FormationSpec] = []
-    prev_at = -math.inf
     for i, item in enumerate(items):
         key = f"formations[{i}]"
         m = _mapping(src, item, key)
         _check_keys(src, m, key, _FORMATION_KEYS, ("at", "shape"))
         at = _number(src, m["at"], f"{key}.at", nonnegative=True)
-        if i == 0 and at != 0.0:
-            raise ScenarioError(src, f"{key}.at", "0.0 for the first formation (one must be active from the start)", at)
-        if at <= prev_at:
-            raise ScenarioError(src, f"{key}.at", f"a time strictly after the previous entry's at = {prev_at}", at)
-        prev_at = at
         shape = _choice(src, m["shape"], f"{key}.shape", FORMATION_SHAPES)
         spacing = _number(src, m.get("spacing", FormationSpec.spacing), f"{key}.spacing", positive=True)
         angle = _number(src, m.get("angle", FormationSpec.angle), f"{key}.angle")
-        if not 0.0 < angle < 180.0:
-            raise ScenarioError(src, f"{key}.angle", "an arm half-opening in degrees within (0, 180)", angle)
-        if shape == "wedge" and angle == 90.0:
-            raise ScenarioError(
-                src, f"{key}.angle", "a wedge half-opening other than 90 degrees (its rows would coincide)", angle
-            )
         columns = _integer(src, m.get("columns", FormationSpec.columns), f"{key}.columns", minimum=0)
-        if columns and shape != "grid":
-            raise ScenarioError(src, f"{key}.columns", f"no columns for shape {shape!r} (only 'grid' uses them)", columns)
         offsets = None
         if shape == "custom":
             if "offsets" not in m or m["offsets"] is None:
@@ -479,7 +491,7 @@ def _parse_formations(src: str, value: Any, robots: RobotSpec) -> tuple[Formatio
     return tuple(out)
 
 
-def _parse_obstacle(src: str, value: Any, key: str, world: WorldSpec) -> Obstacle:
+def _parse_obstacle(src: str, value: Any, key: str) -> Obstacle:
     m = _mapping(src, value, key)
     if "type" not in m:
         raise ScenarioError(
@@ -490,12 +502,10 @@ def _parse_obstacle(src: str, value: Any, key: str, world: WorldSpec) -> Obstacl
     _check_keys(src, m, key, allowed, allowed[:-1] if kind == "rectangle" else allowed)
     if kind == "circle":
         center = _point(src, m["center"], f"{key}.center")
-        _inside(src, center, 0.0, world, f"{key}.center", "obstacle centre")
         radius = _number(src, m["radius"], f"{key}.radius", positive=True)
         return CircleObstacle(center=center, radius=radius)
     if kind == "rectangle":
         center = _point(src, m["center"], f"{key}.center")
-        _inside(src, center, 0.0, world, f"{key}.center", "obstacle centre")
         size = _point(src, m["size"], f"{key}.size")
         for i, s in enumerate(size):
             if s <= 0:
@@ -506,19 +516,17 @@ def _parse_obstacle(src: str, value: Any, key: str, world: WorldSpec) -> Obstacl
     if len(pts) < 3:
         raise ScenarioError(src, f"{key}.points", "at least 3 [x, y] vertices of a convex polygon", f"{len(pts)} points")
     points = tuple(_point(src, p, f"{key}.points[{j}]") for j, p in enumerate(pts))
-    for j, p in enumerate(points):
-        _inside(src, p, 0.0, world, f"{key}.points[{j}]", "polygon vertex")
     return PolygonObstacle(points=_convex_ccw(src, points, f"{key}.points"))
 
 
-def _parse_human(src: str, value: Any, key: str, world: WorldSpec) -> HumanSpec:
+def _parse_human(src: str, value: Any, key: str) -> HumanSpec:
     m = _mapping(src, value, key)
     _check_keys(src, m, key, _HUMAN_KEYS, ("path",))
     speed = _number(src, m.get("speed", HumanSpec.speed), f"{key}.speed", positive=True)
     radius = _number(src, m.get("radius", HumanSpec.radius), f"{key}.radius", positive=True)
     mode = _choice(src, m.get("mode", HumanSpec.mode), f"{key}.mode", HUMAN_MODES)
     delay = _number(src, m.get("start_delay", HumanSpec.start_delay), f"{key}.start_delay", nonnegative=True)
-    path = _path(src, m["path"], f"{key}.path", world, radius, "human disc")
+    path = _path(src, m["path"], f"{key}.path")
     return HumanSpec(path=path, speed=speed, radius=radius, mode=mode, start_delay=delay)
 
 
@@ -546,6 +554,59 @@ def _parse_reward(src: str, value: Any) -> RewardSpec:
 # --------------------------------------------------------------------------- cross-section checks
 
 
+def _check_world(src: str, scn: Scenario) -> None:
+    w = scn.world
+    if w.max_time < w.dt:
+        raise ScenarioError(src, "world.max_time", f"at least one control period (world.dt = {w.dt})", w.max_time)
+
+
+def _check_geometry(src: str, scn: Scenario) -> None:
+    """Every point of the scenario inside the world (discs by their radius); paths of distinct
+    waypoints; polygons convex, stored counter-clockwise."""
+    world, r = scn.world, scn.robots
+    if r.start != "formation":
+        for i, pose in enumerate(r.start):
+            _inside(src, (pose[0], pose[1]), r.radius, world, f"robots.start[{i}]", "follower disc")
+    ld = scn.leader
+    # A virtual leader is a point; a robot leader's whole disc must fit in the world.
+    robot = ld.kind == "robot"
+    _check_path(src, ld.path, "leader.path", world, ld.radius if robot else 0.0, "robot leader disc" if robot else "waypoint")
+    for k, o in enumerate(scn.obstacles):
+        key = f"obstacles[{k}]"
+        if isinstance(o, PolygonObstacle):
+            for j, p in enumerate(o.points):
+                _inside(src, p, 0.0, world, f"{key}.points[{j}]", "polygon vertex")
+            if _convex_ccw(src, o.points, f"{key}.points") != tuple(o.points):
+                raise ScenarioError(src, f"{key}.points", "convex polygon vertices in counter-clockwise order", list(o.points))
+        else:
+            _inside(src, o.center, 0.0, world, f"{key}.center", "obstacle centre")
+    for j, h in enumerate(scn.humans):
+        _check_path(src, h.path, f"humans[{j}].path", world, h.radius, "human disc")
+
+
+def _check_schedule(src: str, scn: Scenario) -> None:
+    """The formation schedule: first at 0, strictly increasing; shape parameters that apply."""
+    prev_at = -math.inf
+    for i, f in enumerate(scn.formations):
+        key = f"formations[{i}]"
+        if i == 0 and f.at != 0.0:
+            raise ScenarioError(src, f"{key}.at", "0.0 for the first formation (one must be active from the start)", f.at)
+        if f.at <= prev_at:
+            raise ScenarioError(src, f"{key}.at", f"a time strictly after the previous entry's at = {prev_at}", f.at)
+        prev_at = f.at
+        if not 0.0 < f.angle < 180.0:
+            raise ScenarioError(src, f"{key}.angle", "an arm half-opening in degrees within (0, 180)", f.angle)
+        if f.shape == "wedge" and f.angle == 90.0:
+            raise ScenarioError(
+                src, f"{key}.angle", "a wedge half-opening other than 90 degrees (its rows would coincide)", f.angle
+            )
+        if f.columns and f.shape != "grid":
+            raise ScenarioError(src, f"{key}.columns", f"no columns for shape {f.shape!r} (only 'grid' uses them)", f.columns)
+        if f.shape == "custom" and (f.offsets is None or len(f.offsets) != scn.robots.count):
+            got = "none" if f.offsets is None else f"{len(f.offsets)} offsets"
+            raise ScenarioError(src, f"{key}.offsets", f"one [x, y] offset per follower (robots.count = {scn.robots.count})", got)
+
+
 def _tunnel_terms(scn: Scenario) -> tuple[float, float]:
     """``(v_rel, r_min)`` of the anti-tunnelling rule (see the module docstring)."""
     v_max = max(scn.robots.max_speed, scn.leader.speed)
@@ -564,8 +625,8 @@ def _cross_check(src: str, scn: Scenario) -> None:
         )
 
     v_rel, r_min = _tunnel_terms(scn)
-    if v_rel * w.dt / w.substeps > r_min + _EPS:
-        need = min_substeps(scn)
+    need = min_substeps(scn)
+    if w.substeps < need:
         raise ScenarioError(
             src,
             "world.substeps",
@@ -627,13 +688,7 @@ def start_poses(scn: Scenario) -> np.ndarray:
     r = scn.robots
     if r.start != "formation":
         return np.asarray(r.start, dtype=np.float64).reshape(-1, 3)
-    p0 = np.asarray(scn.leader.path[0], dtype=np.float64)
-    p1 = np.asarray(scn.leader.path[1], dtype=np.float64)
-    heading = math.atan2(p1[1] - p0[1], p1[0] - p0[0])
-    c, s = math.cos(heading), math.sin(heading)
-    off = np.asarray(formation_offsets(scn.formations[0], r.count), dtype=np.float64)
-    xy = p0 + off @ np.array([[c, s], [-s, c]])
-    return np.column_stack([xy, np.full(len(xy), heading)])
+    return formation_start(scn.leader.path, formation_offsets(scn.formations[0], r.count))
 
 
 def _check_start(src: str, scn: Scenario) -> None:
@@ -716,16 +771,20 @@ def _convex_ccw(src: str, points: Sequence[Point], key: str) -> tuple[Point, ...
     return tuple((float(x), float(y)) for x, y in np.asarray(out, dtype=np.float64))
 
 
-def _path(src: str, value: Any, key: str, world: WorldSpec, margin: float, what: str) -> tuple[Point, ...]:
+def _path(src: str, value: Any, key: str) -> tuple[Point, ...]:
     pts = _sequence(src, value, key, "a list of at least 2 [x, y] waypoints")
     if len(pts) < 2:
         raise ScenarioError(src, key, "at least 2 [x, y] waypoints", f"{len(pts)} points")
-    path = tuple(_point(src, p, f"{key}[{i}]") for i, p in enumerate(pts))
+    return tuple(_point(src, p, f"{key}[{i}]") for i, p in enumerate(pts))
+
+
+def _check_path(src: str, path: Sequence[Point], key: str, world: WorldSpec, margin: float, what: str) -> None:
+    if len(path) < 2:
+        raise ScenarioError(src, key, "at least 2 [x, y] waypoints", f"{len(path)} points")
     for i, p in enumerate(path):
         _inside(src, p, margin, world, f"{key}[{i}]", what)
         if i and math.dist(p, path[i - 1]) < 1e-9:
             raise ScenarioError(src, f"{key}[{i}]", "a waypoint different from the previous one", list(p))
-    return path
 
 
 def _inside(src: str, p: Point, margin: float, world: WorldSpec, key: str, what: str) -> None:

@@ -29,7 +29,8 @@ LEADER_ID = -1
 
 @dataclass(frozen=True)
 class Contact:
-    """The onset of a contact in the last step.
+    """A contact of the last step: its onset (``WorldState.contacts``) or a pair in touch
+    (``WorldState.touching``).
 
     ``robot`` is a follower index or :data:`LEADER_ID`; ``other`` is the index of
     the other robot (follower index or ``LEADER_ID``), human, obstacle, or wall
@@ -65,6 +66,9 @@ class WorldState:
     contacts: tuple[Contact, ...]  # contact onsets during the last step
     static: StaticMap
     scenario: Scenario
+    # Every pair in touch at some time during the last step (onsets included), sorted like
+    # ``contacts``; the per-step contact penalty of reward v1 counts these.
+    touching: tuple[Contact, ...] = ()
     # Derived arrays computed on first use and shared by the readers of this snapshot.
     _derived: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 

@@ -13,9 +13,11 @@
 * obstacles and the four walls are static shapes;
 * a ``virtual`` leader is not in the space at all (it collides with nothing).
 
-Contacts are counted as *onsets* per control step: a pair that touches during
-a step and did not touch during the previous step is one new contact, however
-long it stays in touch.
+Contacts are reported two ways per control step: *onsets* (a pair that touches
+during a step and did not touch during the previous step is one new contact,
+however long it stays in touch; what the metrics count as collisions) and the
+pairs *in touch* at some time during the step (what reward v1 charges every
+step).
 
 Everything is deterministic: bodies are created in a fixed order, the step
 size and substeps are fixed, and nothing here draws random numbers.
@@ -52,8 +54,7 @@ _ROBOT_MASS = 10.0  # kg; equal masses, so two robots pushing each other split t
 COLLISION_SLOP = 0.005
 #: The leader's arrival tolerance at the end of its path (m).
 LEADER_GOAL_TOLERANCE = 0.2
-#: Extra clearance (m) beyond the robot radius kept between a slot target and obstacles.
-SLOT_MARGIN = 0.05
+SLOT_MARGIN = formation_lib.SLOT_MARGIN  # re-exported: the slot projection's clearance beyond the radius
 
 
 # Body property accessors, called directly: pymunk's Body routes every attribute assignment
@@ -315,6 +316,7 @@ class World:
         self._touched_step: set[tuple[str, int, int]] = set()
         self._touched_prev: set[tuple[str, int, int]] = set()
         self._onsets: tuple[Contact, ...] = ()
+        self._touching_step: tuple[Contact, ...] = ()
         for robot_type in (_FOLLOWER, _LEADER):
             for other in (_FOLLOWER, _LEADER, _HUMAN, _OBSTACLE, _WALL):
                 if robot_type == _LEADER and other == _FOLLOWER:
@@ -436,6 +438,7 @@ class World:
         new = self._touched_step - self._touched_prev
         self._touched_prev = self._touched_step
         self._onsets = tuple(Contact(kind, i, j) for kind, i, j in sorted(new))  # type: ignore[arg-type]
+        self._touching_step = tuple(Contact(kind, i, j) for kind, i, j in sorted(self._touched_step))  # type: ignore[arg-type]
 
     def _move_humans(self, t: float) -> None:
         if not self._human_bodies:
@@ -551,6 +554,7 @@ class World:
             formation_index=self.formation_index,
             next_switch_time=formation_lib.next_switch_time(self.scenario.formations, self.time),
             contacts=self._onsets,
+            touching=self._touching_step,
             static=self.static,
             scenario=self.scenario,
         )

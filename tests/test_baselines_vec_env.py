@@ -109,18 +109,32 @@ def test_termination_is_not_reported_as_truncation():
     np.testing.assert_array_equal(obs, 0.0)  # already the next episode's first observation
 
 
-def test_absent_followers_are_inactive_slots():
-    venv = make_vec_env("random", 1, n_followers=(1, 2), n_obstacles=0, n_humans=0, world_size=(10.0, 10.0))
-    assert venv.n_slots == 2
-    seed = next(s for s in range(50) if SwarmEnv("random", n_followers=(1, 2), n_obstacles=0, n_humans=0, world_size=(10.0, 10.0)).reset(seed=s)[0].keys() == {"follower_0"})
-    venv.seed(seed)
-    obs = venv.reset()
-    assert venv.reset_infos[1] == {"inactive": True}
-    np.testing.assert_array_equal(obs[1], 0.0)
-    obs, rewards, dones, infos = venv.step(np.ones((2, 2), np.float32))
-    assert infos[1]["inactive"] and dones[1] and rewards[1] == 0.0 and not infos[1]["TimeLimit.truncated"]
-    assert not dones[0] and "inactive" not in infos[0]
+class _AgentDeathEnv(_TerminatingEnv):
+    """A stand-in whose reset leaves one possible agent out (what swarm_env_v0's random did)."""
+
+    def reset(self, seed=None, options=None):
+        self.agents, self.t = ["follower_0"], 0
+        return {"follower_0": np.zeros(52, np.float32)}, {"follower_0": {}}
+
+
+def test_team_range_gives_every_slot_a_real_follower():
+    kwargs = dict(n_followers=(2, 8), team_seed=5, n_obstacles=0, n_humans=0)
+    venv = make_vec_env("random", 2, **kwargs)
+    n = len(SwarmEnv("random", **kwargs).possible_agents)
+    assert venv.n_slots == n and venv.num_envs == 2 * n
+    venv.seed(3)
+    venv.reset()
+    assert all("reward_terms" in info for info in venv.reset_infos)  # real reset infos, no padding rows
+    for _ in range(3):
+        obs, rewards, dones, infos = venv.step(np.ones((2 * n, 2), np.float32))
+        assert all("slot_distance" in info for info in infos) and not dones.any()
     venv.close()
+
+
+def test_a_copy_that_leaves_an_agent_out_is_refused():
+    venv = SwarmVecEnv(_AgentDeathEnv, 1)
+    with pytest.raises(RuntimeError, match="expected all of"):
+        venv.reset()
 
 
 def test_subprocess_copies_step_identically_to_in_process():

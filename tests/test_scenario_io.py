@@ -14,7 +14,7 @@ import yaml
 from swarm_env.formation import formation_offsets, slot_targets
 from swarm_env.geometry import StaticMap
 from swarm_env.paths import PolylinePath, human_states, virtual_leader
-from swarm_env.scenario import PolygonObstacle, Scenario, ScenarioError
+from swarm_env.scenario import PolygonObstacle, RewardSpec, Scenario, ScenarioError
 from swarm_env.scenario_io import (
     BUILTIN_DIR,
     list_scenarios,
@@ -208,7 +208,7 @@ def test_polygon_is_stored_counter_clockwise() -> None:
 def test_empty_optional_sections_take_defaults() -> None:
     text = yaml.safe_dump(_minimal()) + "sensors:\nreward:\n"
     scn = scenario_from_dict(yaml.safe_load(text))
-    assert scn.sensors.lidar_rays == 16 and scn.reward.collision == 10.0
+    assert scn.sensors.lidar_rays == 16 and scn.reward == RewardSpec()
 
 
 def test_numpy_values_are_accepted() -> None:
