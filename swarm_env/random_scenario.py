@@ -323,7 +323,6 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
         hp = _samples(PolylinePath(h.path))
         pts.append(hp)
         need.append(np.full(len(hp), cfg.human_radius + 0.2))
-    obstacles = _draw_obstacles(rng, cfg, (W, H), n_obs, line, extent, np.vstack(pts), np.concatenate(need))
 
     # A robot leader turns at most as fast as keeps its outermost slot under the same speed share.
     leader_turn = cfg.max_turn_rate
@@ -343,7 +342,16 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
         reward=cfg.reward,
         source=SOURCE,
     )
-    kept = _feasible_obstacles(scn, obstacles)
+    steps = int(math.floor(cfg.max_time / cfg.dt + 1e-9))
+    raw = unprojected_slot_trajectory(scn, steps)
+
+    def slots_can_follow(obstacle: Any) -> bool:  # this obstacle alone makes no slot jump (see _feasible_obstacles)
+        return not len(_violations(scn, *virtual_slot_trajectory(scn, StaticMap.from_obstacles((W, H), [obstacle]), steps, raw)))
+
+    obstacles = _draw_obstacles(
+        rng, cfg, (W, H), n_obs, line, extent, np.vstack(pts), np.concatenate(need), slots_can_follow
+    )
+    kept = _feasible_obstacles(scn, obstacles, raw)
     shapes = " -> ".join(f"{f.shape}@{f.at:g}s" for f in formations)
     description = (
         f"random: {n} followers behind a {cfg.leader_kind} leader ({line.length:.1f} m at "
@@ -375,15 +383,16 @@ def _violations(scn: Scenario, slots: np.ndarray, index: np.ndarray) -> np.ndarr
     return np.column_stack([k + 1, i])
 
 
-def _feasible_obstacles(scn: Scenario, obstacles: list) -> list:
+def _feasible_obstacles(scn: Scenario, obstacles: list, raw: tuple[np.ndarray, np.ndarray]) -> list:
     """``obstacles`` less those whose projection makes a slot jump faster than ``max_speed``.
 
     A slot target that enters an obstacle is moved to the nearest free point; across
-    the obstacle's middle that point jumps to the other side. The obstacles that the
-    offending targets were pushed onto are dropped, until no such jump is left.
+    the obstacle's middle that point jumps to the other side. Candidates that do so
+    alone are refused while sampling; here the obstacles that the offending targets
+    of the whole map were pushed onto are dropped, until no such jump is left.
+    ``raw`` is the scenario's :func:`unprojected_slot_trajectory`.
     """
-    steps = int(math.floor(scn.world.max_time / scn.world.dt + 1e-9))
-    raw = unprojected_slot_trajectory(scn, steps)
+    steps = raw[0].shape[0] - 1
     clearance = scn.robots.radius + SLOT_MARGIN
     kept = list(obstacles)
     while kept:
@@ -588,7 +597,8 @@ def _draw_obstacles(
     extent: float,
     keep_pts: np.ndarray,
     keep_clear: np.ndarray,
-) -> list[dict]:
+    slots_can_follow: Any,
+) -> list[Any]:
     """Rejection-sample up to ``n_obs`` obstacles, at most ``_OBSTACLE_TRIES * n_obs`` candidates.
 
     A candidate must keep ``keep_clear[i]`` from each ``keep_pts[i]``: accepted at
@@ -614,6 +624,8 @@ def _draw_obstacles(
             dist = StaticMap.from_obstacles((W, H), [obj]).obstacle_distances(keep_pts)[:, 0]
             if np.any(dist < keep_clear):
                 continue
+        if not slots_can_follow(obj):
+            continue
         accepted.append((obj, centre, rho))
     return [a[0] for a in accepted]
 

@@ -42,7 +42,9 @@ def _reference(builder: ObservationBuilder, state: WorldState) -> np.ndarray:
             ("humans", sens.humans, state.human_pos, state.human_vel, list(range(len(state.human_pos)))),
         ]
         for name, k, p, v, ids in groups:
-            ids = sorted(ids, key=lambda j: (np.hypot(*(p[j] - me)), j))[:k]
+            # Nearest first, ties by index; the distance is sqrt(dx^2 + dy^2) computed as the builder
+            # does (np.hypot rounds differently and may order two equidistant slots the other way).
+            ids = sorted(ids, key=lambda j: (float(np.sqrt(np.add.reduce((p[j] - me) ** 2))), j))[:k]
             for slot, j in enumerate(ids):
                 col = lay[name].start + 5 * slot
                 out[i, col:col + 2] = body(p[j] - me)

@@ -12,7 +12,7 @@ import yaml
 from swarm_env.formation import formation_offsets
 from swarm_env.geometry import StaticMap
 from swarm_env.paths import PolylinePath
-from swarm_env.random_scenario import RandomScenarioConfig, config_from_kwargs, random_scenario
+from swarm_env.random_scenario import RandomScenarioConfig, config_from_kwargs, random_scenario, slot_speed_violations
 from swarm_env.scenario import RewardSpec, ScenarioError, SensorSpec
 from swarm_env.scenario_io import load_scenario, scenario_from_dict, scenario_to_dict, start_poses
 
@@ -56,12 +56,14 @@ def test_hundred_seeds_are_valid_and_sound(leader_kind: str) -> None:
         # Re-validation through the file format raises nothing and changes nothing.
         assert scenario_from_dict(scenario_to_dict(scn), scn.source) == scn
         assert scn.leader.kind == leader_kind
-        assert 2 <= scn.robots.count <= 8 and 0 <= len(scn.humans) <= 3 and len(scn.obstacles) <= 10
+        assert scn.robots.count == 4 and 0 <= len(scn.humans) <= 3 and len(scn.obstacles) <= 10
         assert 1 <= len(scn.formations) <= 3
         assert all(f.shape in cfg.shapes for f in scn.formations)
         assert all(a.shape != b.shape for a, b in zip(scn.formations, scn.formations[1:]))
         path = PolylinePath(scn.leader.path)
-        assert 2 <= len(scn.leader.path) <= 4
+        # 2-4 drawn waypoints; corners rounded into arcs of many short pieces.
+        assert len(scn.leader.path) == 2 or len(scn.leader.path) > 4
+        assert len(slot_speed_violations(scn)) == 0
         travel = path.length / scn.leader.speed
         assert travel <= 0.7 * scn.world.max_time + 0.05
         assert all(f.at < travel + 1e-6 for f in scn.formations)
@@ -106,11 +108,11 @@ def test_default_worlds_get_what_was_asked_for() -> None:
         lengths.append(PolylinePath(scn.leader.path).length)
         assert scn.robots.count == 5
     assert sum(c == (8, 2) for c in counts) >= 48
-    # In a roomy world the path is full length (the leader needs ~70 % of max_time); only a
-    # long starting column may force a shorter one.
+    # In a roomy world the path is full length (the leader needs ~70 % of max_time) less what
+    # rounding its corners cuts off; only a long starting column may force a shorter one.
     full = 0.4 * 0.7 * 60.0
     assert max(lengths) <= full + 0.01
-    assert sum(abs(length - full) < 0.01 for length in lengths) >= 45
+    assert sum(length > 0.9 * full for length in lengths) >= 45
 
 
 def test_saved_random_world_loads_back(tmp_path) -> None:
