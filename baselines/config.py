@@ -179,7 +179,7 @@ def add_dataclass_options(parser: "argparse.ArgumentParser", cls: type, *, requi
     """
     import argparse
 
-    from baselines.demos import parse_env_item
+    from swarm_env.cli import parse_env_item
 
     def env_item(text: str) -> tuple[str, Any]:
         try:

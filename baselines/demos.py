@@ -368,21 +368,6 @@ def load_demos(path: str | Path) -> Demos:
 # --------------------------------------------------------------------------- command line
 
 
-def parse_env_item(item: str) -> tuple[str, Any]:
-    """``"n_humans=[0,2]"`` -> ``("n_humans", [0, 2])`` (the value parsed as YAML); ``ValueError`` otherwise."""
-    import yaml
-
-    key, sep, value = item.partition("=")
-    if not sep or not key.isidentifier():
-        raise ValueError(f"--env expects KEY=VALUE (e.g. n_followers=4), got {item!r}")
-    return key, yaml.safe_load(value)
-
-
-def parse_env_items(items: Iterable[str]) -> dict[str, Any]:
-    """``["n_followers=2", "n_humans=[0,2]"]`` -> keyword arguments (values parsed as YAML)."""
-    return dict(parse_env_item(item) for item in items)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="python -m baselines.demos", description=__doc__.split("\n\n")[0])
     parser.add_argument("--expert", default="vo", help="policy spec of the expert: vo, cbs_rrt, vo:KEY=VALUE, ... (default: vo)")
@@ -397,6 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     from baselines.config import parse_seeds
+    from swarm_env.cli import parse_env_items
     from swarm_env.policies import PolicyError, UnknownPolicyError
 
     args = build_parser().parse_args(argv)

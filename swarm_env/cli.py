@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
@@ -100,10 +101,42 @@ def cmd_validate(args: argparse.Namespace) -> int:
     return status
 
 
+ENV_HELP = ("a SwarmEnv keyword argument or random-generator knob, the value read as YAML "
+            "(e.g. n_followers=16, n_humans=[0,3], terminate_on_collision=true, reward=v0); repeatable")
+
+
+def parse_env_item(item: str) -> tuple[str, Any]:
+    """``"n_humans=[0,2]"`` -> ``("n_humans", [0, 2])`` (the value parsed as YAML); ``ValueError`` otherwise."""
+    import yaml
+
+    key, sep, value = item.partition("=")
+    if not sep or not key.isidentifier():
+        raise ValueError(f"--env expects KEY=VALUE (e.g. n_followers=4), got {item!r}")
+    try:
+        return key, yaml.safe_load(value)
+    except yaml.YAMLError as exc:
+        raise ValueError(f"--env {key}: the value is not valid YAML ({' '.join(str(exc).split())})") from None
+
+
+def parse_env_items(items: Iterable[str]) -> dict[str, Any]:
+    """``["n_followers=2", "n_humans=[0,2]"]`` -> keyword arguments (values parsed as YAML)."""
+    return dict(parse_env_item(item) for item in items)
+
+
 def cmd_run(args: argparse.Namespace) -> int:
     from swarm_env.evaluation import evaluate
 
     env_kwargs: dict[str, Any] = {"action_type": args.action_type, "max_cycles": args.max_cycles}
+    try:
+        env_kwargs.update(parse_env_items(args.env))
+        from swarm_env.env import SwarmEnv
+
+        SwarmEnv(args.scenario, **env_kwargs).close()  # bad keyword arguments fail here, before any output
+    except ScenarioError:
+        raise  # main() reports it
+    except (TypeError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     if args.render == "human":
         env_kwargs["render_mode"] = "human"
     writer = None
@@ -180,6 +213,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.max_cycles is not None:
         env_kwargs["max_cycles"] = args.max_cycles
     try:
+        env_kwargs.update(parse_env_items(args.env))
         if args.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {args.workers}")
         if args.fps <= 0:
@@ -244,6 +278,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--seed", type=int, default=0, help="seed of the first episode; episode k uses seed+k")
     r.add_argument("--action-type", choices=["continuous", "discrete"], default="continuous")
     r.add_argument("--max-cycles", type=int, help="stop each episode after this many steps (default: max_time)")
+    r.add_argument("--env", action="append", default=[], metavar="KEY=VALUE", help=ENV_HELP)
     r.add_argument("--json", help="write {scenario, policy, episodes, summary} to this file")
     r.add_argument("--video", help="write an .mp4 (or .gif) of all episodes to this file")
     r.add_argument("--fps", type=float, default=20.0, help="video frames per second")
@@ -279,6 +314,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--workers", type=int, default=1, help="processes running (policy, scenario) jobs in parallel")
     e.add_argument("--action-type", choices=["continuous", "discrete"], default="continuous")
     e.add_argument("--max-cycles", type=int, help="stop each episode after this many steps (default: max_time)")
+    e.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
+                   help=ENV_HELP + "; generator knobs apply to the random scenario only")
     e.add_argument("--out", metavar="DIR", help="write DIR/leaderboard.md, .csv and .json")
     e.add_argument("--videos", action="store_true", help="also write DIR/videos/<policy>__<scenario>__seed<k>.mp4 "
                    "of each policy's worst episode per scenario (most collisions, then failure, then formation error)")

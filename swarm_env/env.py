@@ -504,6 +504,18 @@ class SwarmEnv(ParallelEnv):
             self._renderer = None
 
 
+def env_kwargs_for(scenario: Any, kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    """``kwargs`` as they apply to ``scenario``: generator knobs (the fields of
+    :class:`~swarm_env.random_scenario.RandomScenarioConfig`) are kept for ``"random"``
+    only, everything else (``max_cycles``, ``reward``, ``terminate_on_collision``, ...)
+    for every scenario. What ``swarm-env run/evaluate --env KEY=VALUE`` use, so one
+    set of options can be applied to a list of scenarios."""
+    if isinstance(scenario, str) and scenario == "random":
+        return dict(kwargs)
+    knobs = {f.name for f in dataclasses.fields(RandomScenarioConfig)}
+    return {k: v for k, v in kwargs.items() if k not in knobs}
+
+
 def _reward_spec(reward: RewardSpec | Mapping[str, Any] | str | None) -> RewardSpec | None:
     """``SwarmEnv(reward=...)``: a preset name, a :class:`RewardSpec`, a mapping of its fields, or None."""
     if reward is None or isinstance(reward, RewardSpec):

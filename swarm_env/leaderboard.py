@@ -50,7 +50,7 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env.env import SwarmEnv
+from swarm_env.env import SwarmEnv, env_kwargs_for
 from swarm_env.evaluation import run_episode, summarize
 from swarm_env.policies import PolicyError, UnknownPolicyError, load_policy, registered_policies
 from swarm_env.scenario_io import RANDOM_NAME
@@ -192,7 +192,7 @@ def validate_inputs(policies: Sequence[str], scenarios: Sequence[str], env_kwarg
         raise ValueError("env_kwargs must not set render_mode: episodes run headless; record_worst_videos renders")
     for scenario in scenarios:
         try:
-            SwarmEnv(scenario, **kwargs).close()
+            SwarmEnv(scenario, **env_kwargs_for(scenario, kwargs)).close()
         except TypeError as exc:  # e.g. random-generator knobs with a fixed scenario
             raise ValueError(f"scenario {scenario!r}: {exc}") from None
 
@@ -214,7 +214,7 @@ class _JobResult:
 
 def _run_job(job: _Job, on_episode: Callable[[], None]) -> _JobResult:
     """Play one (policy, scenario) job with one fresh env and policy; ``on_episode`` ticks progress."""
-    env = SwarmEnv(job.scenario, **job.env_kwargs)
+    env = SwarmEnv(job.scenario, **env_kwargs_for(job.scenario, job.env_kwargs))
     try:
         try:
             policy = load_policy(job.policy, env)
@@ -303,7 +303,8 @@ def run_leaderboard(
     * ``seeds``: one sequence for every scenario, a mapping scenario -> seeds, or ``None``
       for :func:`default_seeds` (see :func:`resolve_seeds`).
     * ``env_kwargs``: passed to every :class:`~swarm_env.env.SwarmEnv` (``action_type``,
-      ``max_cycles``, random-generator knobs when every scenario is ``random``); not ``render_mode``.
+      ``max_cycles``, ``reward``, ...; random-generator knobs go to ``random`` only, see
+      :func:`swarm_env.env.env_kwargs_for`); not ``render_mode``.
     * ``workers``: jobs (one per policy x scenario) run in a ``spawn`` process pool of this
       size when > 1; the metrics equal those of ``workers=1``.
     * ``progress``: a tqdm bar over episodes on stderr.
@@ -560,7 +561,7 @@ def record_worst_videos(
             name += "-" + hashlib.sha1(f"{policy}\0{scenario}".encode()).hexdigest()[:8]
         used.add(name)
         path = out / f"{name}.mp4"
-        env = SwarmEnv(scenario, **{**board.env_kwargs, "render_mode": "rgb_array"})
+        env = SwarmEnv(scenario, **{**env_kwargs_for(scenario, board.env_kwargs), "render_mode": "rgb_array"})
         try:
             pol = load_policy(policy, env)
             with VideoWriter(path, fps=fps) as writer:

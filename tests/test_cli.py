@@ -116,3 +116,31 @@ def test_run_rejects_a_bad_policy_argument(capsys: pytest.CaptureFixture[str]) -
     assert main(["run", "--scenario", "paper_vo_0", "--policy", "pursuit:fast", "--max-cycles", "2"]) == 2
     err = capsys.readouterr().err
     assert "policy 'pursuit'" in err and "'fast'" in err
+
+
+def test_run_takes_env_keyword_arguments_and_generator_knobs(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run.json"
+    code = main(["run", "--scenario", "random", "--policy", "pursuit", "--max-cycles", "5", "--json", str(out),
+                 "--env", "n_followers=6", "--env", "n_humans=[0,1]", "--env", "reward=v0"])
+    assert code == 0
+    episode = json.loads(out.read_text())["episodes"][0]
+    assert len(episode["per_robot"]) == 6 + 1  # the leader and 6 followers
+    capsys.readouterr()
+    assert main(["run", "--scenario", "paper_vo_0", "--env", "n_followers=6", "--max-cycles", "2"]) == 2
+    assert "generator knobs apply to 'random' only" in capsys.readouterr().err
+    assert main(["run", "--scenario", "random", "--env", "n_followers", "--max-cycles", "2"]) == 2
+    assert "--env expects KEY=VALUE" in capsys.readouterr().err
+    assert main(["run", "--scenario", "random", "--env", "n_followers=99", "--max-cycles", "2"]) == 2
+    assert "n_followers: expected values in [1, 64]" in capsys.readouterr().err
+
+
+def test_evaluate_applies_generator_knobs_to_random_only(capsys: pytest.CaptureFixture[str], tmp_path: Path) -> None:
+    code = main(["evaluate", "--policies", "pursuit", "--scenarios", "random", "paper_vo_0", "--seeds", "0",
+                 "--max-cycles", "5", "--env", "n_followers=3", "--env", "terminate_on_collision=true",
+                 "--out", str(tmp_path), "--quiet"])
+    assert code == 0
+    rows = json.loads((tmp_path / "leaderboard.json").read_text())
+    text = json.dumps(rows)
+    assert '"random"' in text and '"paper_vo_0"' in text
+    assert main(["evaluate", "--policies", "pursuit", "--scenarios", "random", "--seeds", "0",
+                 "--env", "n_followers=0"]) == 2
