@@ -240,11 +240,14 @@ def paper_table(name: str, metrics: dict[str, Any]) -> str:
 
 # ---------------------------------------------------------------------------- random sweep
 def run_random(seeds: range, knobs: dict[str, Any], expert_kwargs: dict[str, Any] | None = None) -> list[dict[str, Any]]:
-    """One episode per seed of the ``random`` generator; a compact row per episode."""
-    env = SwarmEnv("random", **knobs)
+    """One episode per seed of the ``random`` generator; a compact row per episode.
+
+    Each episode gets its own env with ``team_seed=seed``, so an ``n_followers`` range gives a
+    mix of team sizes (swarm_env_v1 draws the team once per env instance)."""
     policy = VOExpert(**(expert_kwargs or {}))
     rows = []
     for seed in seeds:
+        env = SwarmEnv("random", team_seed=seed, **knobs)
         m = run_episode(env, policy, seed)
         scn = env.world_state().scenario
         rows.append(
@@ -263,13 +266,13 @@ def run_random(seeds: range, knobs: dict[str, Any], expert_kwargs: dict[str, Any
                 "policy_stats": m["policy_stats"],
             }
         )
-    env.close()
+        env.close()
     return rows
 
 
 def contacts_of(seed: int, knobs: dict[str, Any], expert_kwargs: dict[str, Any] | None = None) -> list[dict[str, Any]]:
     """Replay an episode and list its contact onsets with their time (for the failure notes)."""
-    env = SwarmEnv("random", **knobs)
+    env = SwarmEnv("random", team_seed=seed, **knobs)
     policy = VOExpert(**(expert_kwargs or {}))
     obs, _ = env.reset(seed=seed)
     policy.reset(env, seed)
@@ -287,7 +290,7 @@ def save_video(seed: int, knobs: dict[str, Any], path: Path, expert_kwargs: dict
     """Replay an episode with rendering and write it as an mp4 (the same episode: all is seeded)."""
     from swarm_env.video import VideoWriter
 
-    env = SwarmEnv("random", render_mode="rgb_array", **knobs)
+    env = SwarmEnv("random", render_mode="rgb_array", team_seed=seed, **knobs)
     policy = VOExpert(**(expert_kwargs or {}))
     path.parent.mkdir(parents=True, exist_ok=True)
     with VideoWriter(path, fps=env.metadata["render_fps"]) as video:
@@ -398,7 +401,7 @@ def render_doc(results: dict[str, Any], out: Path, doc: Path) -> str:
         lines += [
             "## Random scenarios",
             "",
-            f"{n} episodes of `swarm_env.parallel_env(\"random\", n_followers=(2, 8), n_humans=(0, 3))` "
+            f"{n} episodes of `swarm_env.parallel_env(\"random\", n_followers=(2, 8), n_humans=(0, 3), team_seed=seed)` "
             f"(seeds {eps[0]['seed']}–{eps[-1]['seed']};",
             "3–10 obstacles of all types, 0–2 formation switches, a virtual leader, 60 s).",
             "",

@@ -42,14 +42,19 @@ seconds and radians, except the two ``angle`` fields, which are degrees.
     humans:                     # walk kinematically, ignore robots
       - {path: [[14, 10], [4, 10]], speed: 0.5, radius: 0.3, mode: once, start_delay: 0}
     sensors: {lidar_rays: 16, lidar_range: 5.0, neighbors: 3, humans: 2}
-    reward: {formation: 1.0, collision: 10.0, clearance: 0.0, clearance_margin: 0.2,
-             smoothness: 0.0, progress: 0.0}
+    reward: {formation: 1.0, collision: 5.0, contact: 2.0, clearance: 1.0,
+             clearance_margin: 0.2, smoothness: 0.0, progress: 0.0}   # reward v1 defaults
 
 Formation shapes: ``v``, ``line``, ``column``, ``wedge``, ``diamond``, ``circle``,
 ``grid`` (``columns``: int >= 0, 0 = automatic) and ``custom`` (``offsets``: one
 ``[x, y]`` per follower in the leader frame, x forward, y left). ``spacing`` (m)
 is the distance between neighbouring slots, ``angle`` (degrees, in (0, 180)) the
 half-opening of the ``v``/``wedge`` arms from the leader's backward axis.
+
+Parsing checks types and ranges section by section; then :func:`validate_scenario`,
+the one semantic gate (also passed by every scenario the ``random`` generator builds),
+checks the rules below. The allowed keys of each section are the fields of its
+dataclass in :mod:`swarm_env.scenario`.
 
 Validation fails loudly: every problem raises :class:`~swarm_env.scenario.ScenarioError`
 naming the source (file path, or ``<dict>``), the key path (``robots.max_speed``,
