@@ -103,9 +103,8 @@ class SwarmEnv(ParallelEnv):
             - 2.0 * bodies in touch this step, per kind (robot, obstacle, human, wall)
             - 1.0 * max(0, 1 - clearance / 0.2 m)
 
-    Every step of a contact is charged (v0 charged only its onset: under
-    ``pursuit`` on ``random`` only 1 contact step in 13 was penalised; now all
-    are), and the clearance term warns inside a 0.2 m margin (CrowdNav's
+    Every step of a contact is charged (v0 charged only its onset), and the
+    clearance term warns inside a 0.2 m margin (CrowdNav's
     discomfort distance), where the lidar already sees the obstacle. Measured
     with ``python benchmarks/reward_terms.py --episodes 20`` (``random``, seeds
     1000-1019, per agent-step): under ``pursuit`` (no avoidance) 2.5 % of

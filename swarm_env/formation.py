@@ -274,14 +274,21 @@ def next_switch_time(formations: Sequence[FormationSpec], t: float) -> float:
     return min(later) if later else math.inf
 
 
-def formation_start(path: Sequence[Sequence[float]] | np.ndarray, offsets: np.ndarray) -> np.ndarray:
+def formation_start(
+    path: Sequence[Sequence[float]] | np.ndarray,
+    offsets: np.ndarray,
+    static: StaticMap | None = None,
+    clearance: float = 0.0,
+) -> np.ndarray:
     """``(n, 3)`` starting poses ``(x, y, theta)`` on the slots of ``offsets`` around a leader
-    standing on ``path[0]`` and facing ``path[1]``, each follower facing the leader's heading
-    (no obstacle projection). The one rule for ``robots.start: formation``."""
+    standing on ``path[0]`` and facing ``path[1]``, each follower facing the leader's heading.
+    The one rule for ``robots.start: formation``: the world starts the followers there with the
+    slots moved out of obstacles (``static``, ``clearance``: see :func:`slot_targets`); scenario
+    validation checks the unprojected slots (``static=None``)."""
     p0 = np.asarray(path[0], dtype=np.float64)
     p1 = np.asarray(path[1], dtype=np.float64)
     heading = math.atan2(p1[1] - p0[1], p1[0] - p0[0])
-    xy = slot_targets(np.array([p0[0], p0[1], heading]), offsets, None, 0.0)
+    xy = slot_targets(np.array([p0[0], p0[1], heading]), offsets, static, clearance)
     return np.column_stack([xy, np.full(len(xy), heading)])
 
 

@@ -290,7 +290,7 @@ class World:
             self.space.add(self._leader_body, shape)
 
         self.formation_index = formation_lib.active_formation(scenario.formations, 0.0)
-        starts = self._start_poses(pose0)
+        starts = self._start_poses()
         self._bodies: list[pymunk.Body] = []
         for i, (x, y, th) in enumerate(starts):
             body = _unit_body((float(x), float(y)), float(th), robots.radius, (robots.max_accel, robots.max_turn_accel))
@@ -373,14 +373,11 @@ class World:
             self._init_shape(shapes[idx], _OBSTACLE, idx)
             self.space.add(shapes[idx])
 
-    def _start_poses(self, leader_pose: np.ndarray) -> np.ndarray:
+    def _start_poses(self) -> np.ndarray:
         start = self.scenario.robots.start
         if start == "formation":
-            slots = formation_lib.slot_targets(
-                leader_pose, self._offsets[self.formation_index], self.static, self._slot_clearance
-            )
-            heading = np.full((self.n, 1), leader_pose[2])
-            return np.hstack([slots, heading])
+            offsets = self._offsets[self.formation_index]
+            return formation_lib.formation_start(self.scenario.leader.path, offsets, self.static, self._slot_clearance)
         return np.asarray(start, dtype=float).reshape(self.n, 3)
 
     # ------------------------------------------------------------------ contacts
