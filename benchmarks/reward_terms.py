@@ -1,4 +1,4 @@
-"""Where the reward comes from: each term of ``infos[a]["reward_terms"]`` per agent-step, by policy.
+"""Where the reward comes from: each reward term of the infos (``reward_<term>``) per agent-step, by policy.
 
 Run: ``OPENBLAS_NUM_THREADS=1 python benchmarks/reward_terms.py [--episodes 20] [--reward v1]``.
 For each policy it plays ``random`` (default knobs) on seeds 1000.. and prints the mean of every
@@ -15,7 +15,7 @@ import numpy as np
 
 import swarm_env
 from swarm_env.policies import load_policy
-from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS
+from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS, contact_counts, reward_terms
 
 
 def measure(policy_name: str, reward: str, seeds: range) -> dict[str, float]:
@@ -29,10 +29,10 @@ def measure(policy_name: str, reward: str, seeds: range) -> dict[str, float]:
         while env.agents:
             obs, _, _, _, infos = env.step(policy.act(obs, env.world_state()))
             for info in infos.values():
-                terms = info["reward_terms"]
+                terms = reward_terms(info)
                 for t, v in terms.items():
                     sums[t] += v
-                touching = sum(info["contacts"].values()) > 0
+                touching = sum(contact_counts(info).values()) > 0
                 contact_steps += touching
                 charged = terms["collision"] < 0 or any(terms[f"contact_{g}"] < 0 for g in CONTACT_GROUPS)
                 penalised += touching and charged

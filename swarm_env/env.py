@@ -18,7 +18,15 @@ from swarm_env.geometry import StaticMap
 from swarm_env.metrics import EpisodeMetrics
 from swarm_env.observations import STATE_LIMIT, Capacity, ObservationBuilder
 from swarm_env.random_scenario import RandomScenarioConfig, config_from_kwargs, random_scenario
-from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS, compute_rewards, slot_distance, touching_per_follower
+from swarm_env.rewards import (
+    CONTACT_GROUPS,
+    INFO_CONTACT_KEYS,
+    INFO_REWARD_KEYS,
+    REWARD_TERMS,
+    compute_rewards,
+    slot_distance,
+    touching_per_follower,
+)
 from swarm_env.scenario import RewardSpec, Scenario
 from swarm_env.scenario_io import _parse_reward, load_scenario
 from swarm_env.state import LEADER_ID, Contact, WorldState
@@ -112,8 +120,8 @@ class SwarmEnv(ParallelEnv):
     contacts make 13 % of its penalty and clearance 9 % (v0: 7 % and 0). Under
     ``vo`` (which avoids) the contact terms are 0 and the formation term is
     91 % of the penalty: avoiding is worth it, and a policy that avoids is
-    scored mostly on its formation. Each weighted term is reported in
-    ``infos[agent]["reward_terms"]`` (they sum to the reward); rewards are
+    scored mostly on its formation. Each weighted term is reported in the
+    infos as ``reward_<term>`` (they sum to the reward); rewards are
     Python floats. ``reward="v0"`` gives the v0 reward (``-distance - 10 *
     onsets``) for comparison with published numbers.
 
@@ -127,11 +135,15 @@ class SwarmEnv(ParallelEnv):
 
     ## Infos
 
-    ``reset()`` and ``step()`` give every agent the same keys (zeros at reset):
-    ``reward_terms`` (a dict of floats, one per :data:`swarm_env.rewards.REWARD_TERMS`),
-    ``slot_distance`` (m), ``contacts`` (a dict ``robot, obstacle, human, wall`` ->
-    number of bodies of that kind in touch during the step) and
-    ``collision_terminated`` (bool: this step ended the episode by a collision).
+    ``reset()`` and ``step()`` give every agent the same flat keys (zeros at
+    reset), one number each, so that TorchRL and BenchMARL can make tensors of
+    them: ``reward_<term>`` for each of :data:`swarm_env.rewards.REWARD_TERMS`
+    (``reward_formation``, ``reward_collision``, ``reward_contact_robot``, ...;
+    floats that sum to the reward), ``slot_distance`` (m), ``contacts_<kind>``
+    for ``robot, obstacle, human, wall`` (int: bodies of that kind in touch
+    during the step) and ``collision_terminated`` (bool: this step ended the
+    episode by a collision). :func:`swarm_env.rewards.reward_terms` and
+    :func:`~swarm_env.rewards.contact_counts` read them back as dicts.
 
     ## Episode end
 
@@ -140,7 +152,7 @@ class SwarmEnv(ParallelEnv):
     ``world.settle_tolerance`` of its slot, or, with
     ``terminate_on_collision=True``, on the first step in which any follower
     touches anything (the offending agents are those with non-zero
-    ``infos[a]["contacts"]``; ``env.terminal_contacts`` lists the contacts);
+    ``contacts_*`` infos; ``env.terminal_contacts`` lists the contacts);
     ``truncations`` are ``True`` at step ``env.max_steps`` (``world.max_time /
     dt``, or ``max_cycles`` if smaller; known from construction). Finished
     agents leave ``env.agents``. ``episode_metrics()`` then reports the metrics
@@ -389,17 +401,12 @@ class SwarmEnv(ParallelEnv):
 
     def _infos(self, dist: np.ndarray, terms: dict[str, np.ndarray], touching: np.ndarray, collided: bool) -> dict:
         """Per-agent infos; reset and step infos have the same keys (see the class docstring)."""
-        per_term = [terms[t].tolist() for t in REWARD_TERMS]
-        contacts = touching.astype(int).tolist()
-        return {
-            a: {
-                "reward_terms": dict(zip(REWARD_TERMS, vals)),
-                "slot_distance": d,
-                "contacts": dict(zip(CONTACT_GROUPS, c)),
-                "collision_terminated": collided,
-            }
-            for a, d, c, *vals in zip(self.agents, dist.tolist(), contacts, *per_term)
-        }
+        # One flat row of numbers per agent: reward terms, slot distance, contacts, collision flag.
+        columns = [terms[t].tolist() for t in REWARD_TERMS]
+        columns.append(dist.tolist())
+        columns += touching.T.astype(int).tolist()
+        columns.append([collided] * len(self.agents))
+        return {a: dict(zip(_INFO_KEYS, row)) for a, row in zip(self.agents, zip(*columns))}
 
     def _normalised_actions(self, actions: dict[str, Any]) -> np.ndarray:
         """Validate the action dict and return (N, 2) normalised (v, omega) in [-1, 1]."""
@@ -478,7 +485,14 @@ class SwarmEnv(ParallelEnv):
             out["terminal_contacts"] = [dataclasses.asdict(c) for c in self.terminal_contacts]
         return out
 
-    def render(self) -> np.ndarray | None:
+    def render(self, mode: str | None = None) -> np.ndarray | None:
+        """Render the current state in ``render_mode`` (set at construction, PettingZoo style).
+
+        ``mode`` exists only for callers that pass the mode again (RLlib's PettingZoo wrapper
+        calls ``render(render_mode)``); it must then equal ``render_mode``.
+        """
+        if mode is not None and mode != self.render_mode:
+            raise ValueError(f"render mode {mode!r} differs from the env's render_mode {self.render_mode!r}, set at construction")
         if self.render_mode is None:
             gymnasium.logger.warn("render() called with render_mode=None; pass render_mode to the constructor")
             return None
@@ -501,6 +515,9 @@ class SwarmEnv(ParallelEnv):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+_INFO_KEYS = (*INFO_REWARD_KEYS, "slot_distance", *INFO_CONTACT_KEYS, "collision_terminated")
 
 
 def env_kwargs_for(scenario: Any, kwargs: Mapping[str, Any]) -> dict[str, Any]:

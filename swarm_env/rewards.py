@@ -17,8 +17,10 @@ step: a contact that lasts 13 steps is charged 13 times (under reward v0 it was
 charged once, at its onset). ``clearance_i`` is the free distance between the
 follower's disc and the nearest obstacle, wall, human or other robot. Weights
 come from :class:`~swarm_env.scenario.RewardSpec`. Every term of
-:data:`REWARD_TERMS` is reported in ``infos[agent]["reward_terms"]`` and they
-sum to the reward.
+:data:`REWARD_TERMS` is reported in the agent's infos as ``reward_<term>``
+(:data:`INFO_REWARD_KEYS`; :func:`reward_terms` reads them back as a dict) and
+they sum to the reward. Infos are flat (one number per key) because TorchRL's
+and BenchMARL's PettingZoo wrappers turn every info value into a tensor.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import numpy as np
 from swarm_env.scenario import RewardSpec
 from swarm_env.state import LEADER_ID, WorldState
 
-#: What a follower can touch, in the order of the ``contact_*`` terms and of ``infos[a]["contacts"]``.
+#: What a follower can touch, in the order of the ``contact_*`` terms and of the ``contacts_*`` infos.
 CONTACT_GROUPS = ("robot", "obstacle", "human", "wall")
 _GROUP_OF_KIND = {"robot_robot": 0, "robot_obstacle": 1, "robot_human": 2, "robot_wall": 3}
 REWARD_TERMS = (
@@ -39,6 +41,22 @@ REWARD_TERMS = (
     "smoothness",
     "progress",
 )
+
+
+#: The infos keys of the reward terms (``infos[agent]["reward_formation"]``, ...), in REWARD_TERMS order.
+INFO_REWARD_KEYS = tuple(f"reward_{t}" for t in REWARD_TERMS)
+#: The infos keys of the bodies in touch during the step, per kind (``infos[agent]["contacts_robot"]``, ...).
+INFO_CONTACT_KEYS = tuple(f"contacts_{g}" for g in CONTACT_GROUPS)
+
+
+def reward_terms(info: dict) -> dict[str, float]:
+    """``{term: value}`` of one agent's infos (the ``reward_<term>`` keys), in REWARD_TERMS order."""
+    return {t: info[k] for t, k in zip(REWARD_TERMS, INFO_REWARD_KEYS)}
+
+
+def contact_counts(info: dict) -> dict[str, int]:
+    """``{kind: bodies in touch}`` of one agent's infos (the ``contacts_<kind>`` keys)."""
+    return {g: info[k] for g, k in zip(CONTACT_GROUPS, INFO_CONTACT_KEYS)}
 
 
 def slot_distance(state: WorldState) -> np.ndarray:
@@ -69,21 +87,36 @@ def _per_follower(state: WorldState, contacts: tuple) -> np.ndarray:
     return counts
 
 
-def clearance(state: WorldState) -> np.ndarray:
-    """(N,) free distance from each follower's disc to the nearest other body or static surface (m)."""
+def clearance(state: WorldState, below: float = np.inf) -> np.ndarray:
+    """(N,) free distance from each follower's disc to the nearest other body or static surface (m).
+
+    Exact where the result is below ``below``; elsewhere it may be any value ``>= below``
+    (the static clearance of a follower whose cheap lower bound is already ``>= below`` is
+    not computed: the clearance reward only needs the followers inside its margin).
+    """
     pos = state.follower_pose[:, :2]
     r = state.follower_radius
-    best = state.static.distance(pos) - r
-    others = [np.column_stack([pos, r])]
+    static = state.static
+    if np.isfinite(below):
+        best = static.distance_lower_bound(pos) - r  # <= the exact static clearance
+        near = np.flatnonzero(best < below)
+        if len(near):
+            best[near] = static.distance(pos[near]) - r[near]
+    else:
+        best = static.distance(pos) - r
+    if len(pos) > 1:
+        gap = state.follower_distances() - r[:, None]  # a new array (the distances are shared read-only)
+        gap -= r[None, :]
+        np.fill_diagonal(gap, np.inf)  # not oneself
+        np.minimum(best, gap.min(axis=1), out=best)
     if state.leader_is_robot:
-        others.append(np.array([[*state.leader_pose[:2], state.leader_radius]]))
+        d = pos - state.leader_pose[:2]
+        np.minimum(best, np.sqrt(np.add.reduce(d * d, axis=1)) - r - state.leader_radius, out=best)
     if len(state.human_pos):
-        others.append(np.column_stack([state.human_pos, state.human_radius]))
-    discs = np.vstack(others)
-    gap = np.linalg.norm(pos[:, None, :] - discs[None, :, :2], axis=2) - r[:, None] - discs[None, :, 2]
-    n = len(pos)
-    gap[np.arange(n), np.arange(n)] = np.inf  # not oneself
-    return np.minimum(best, gap.min(axis=1))
+        d = pos[:, None, :] - state.human_pos[None, :, :]
+        gap = np.sqrt(np.add.reduce(d * d, axis=2)) - r[:, None] - state.human_radius[None, :]
+        np.minimum(best, gap.min(axis=1), out=best)
+    return best
 
 
 def compute_rewards(
@@ -104,19 +137,21 @@ def compute_rewards(
     """
     if touching is None:
         touching = touching_per_follower(state)
-    terms = {
-        "formation": -spec.formation * dist,
-        "collision": -spec.collision * new_contacts_per_follower(state),
-    }
+    zero = np.zeros_like(dist)
+    zero.flags.writeable = False  # shared by every term whose weight is 0 (they are reported, not summed)
+    terms = {"formation": -spec.formation * dist if spec.formation else zero}
+    terms["collision"] = -spec.collision * new_contacts_per_follower(state) if spec.collision and state.contacts else zero
+    touched = spec.contact and bool(state.touching)
     for g, name in enumerate(CONTACT_GROUPS):
-        terms[f"contact_{name}"] = -spec.contact * touching[:, g]
-    terms["clearance"] = np.zeros_like(dist)
+        terms[f"contact_{name}"] = -spec.contact * touching[:, g] if touched else zero
+    terms["clearance"] = zero
     if spec.clearance:
-        intrusion = np.clip(1.0 - clearance(state) / spec.clearance_margin, 0.0, None)
+        intrusion = np.clip(1.0 - clearance(state, below=spec.clearance_margin) / spec.clearance_margin, 0.0, None)
         terms["clearance"] = -spec.clearance * intrusion
-    terms["smoothness"] = -spec.smoothness * np.add.reduce((action - prev_action) ** 2, axis=1)
-    terms["progress"] = spec.progress * (prev_dist - dist)
-    total = np.zeros_like(dist)
-    for name in REWARD_TERMS:
-        total += terms[name]
+    terms["smoothness"] = -spec.smoothness * np.add.reduce((action - prev_action) ** 2, axis=1) if spec.smoothness else zero
+    terms["progress"] = spec.progress * (prev_dist - dist) if spec.progress else zero
+    total = zero.copy()
+    for term in terms.values():
+        if term is not zero:
+            total += term
     return total, terms

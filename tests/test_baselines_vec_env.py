@@ -124,7 +124,7 @@ def test_team_range_gives_every_slot_a_real_follower():
     assert venv.n_slots == n and venv.num_envs == 2 * n
     venv.seed(3)
     venv.reset()
-    assert all("reward_terms" in info for info in venv.reset_infos)  # real reset infos, no padding rows
+    assert all("reward_formation" in info for info in venv.reset_infos)  # real reset infos, no padding rows
     for _ in range(3):
         obs, rewards, dones, infos = venv.step(np.ones((2 * n, 2), np.float32))
         assert all("slot_distance" in info for info in infos) and not dones.any()

@@ -10,7 +10,7 @@ from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, render
 from pettingzoo.utils.conversions import parallel_to_aec
 
 import swarm_env
-from swarm_env.rewards import REWARD_TERMS
+from swarm_env.rewards import REWARD_TERMS, reward_terms
 
 SCENARIOS = swarm_env.list_scenarios()
 # The whole-episode tests use few cycles on the long scenarios to keep the suite fast.
@@ -75,8 +75,8 @@ def test_observations_inside_space_over_an_episode() -> None:
         obs, rewards, terms, truncs, infos = env.step({a: env.action_space(a).sample() for a in env.agents})
         for a in rewards:
             assert type(rewards[a]) is float and type(terms[a]) is bool and type(truncs[a]) is bool
-            assert tuple(infos[a]["reward_terms"]) == REWARD_TERMS
-            assert abs(sum(infos[a]["reward_terms"].values()) - rewards[a]) < 1e-9
+            assert tuple(reward_terms(infos[a])) == REWARD_TERMS
+            assert abs(sum(reward_terms(infos[a]).values()) - rewards[a]) < 1e-9
 
 
 def test_episode_ends_for_all_agents_together() -> None:

@@ -10,7 +10,7 @@ from swarm_env.env import SwarmEnv
 from swarm_env.formation import virtual_slot_trajectory
 from swarm_env.geometry import StaticMap
 from swarm_env.random_scenario import KNOB_LIMITS, RandomScenarioConfig, random_scenario, slot_speed_violations
-from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS
+from swarm_env.rewards import INFO_CONTACT_KEYS, INFO_REWARD_KEYS, REWARD_TERMS, contact_counts, reward_terms
 from swarm_env.scenario import RewardSpec, ScenarioError
 from tests.test_physics import _drive, _scenario
 
@@ -58,15 +58,17 @@ def test_default_random_team_is_four_followers() -> None:
 def test_reset_infos_have_the_step_infos_keys(name: str) -> None:
     env = swarm_env.parallel_env(name, max_cycles=4)
     _, reset_infos = env.reset(seed=1)
+    expected = [*INFO_REWARD_KEYS, "slot_distance", *INFO_CONTACT_KEYS, "collision_terminated"]
     for a, info in reset_infos.items():
-        assert tuple(info["reward_terms"]) == REWARD_TERMS and set(info["reward_terms"].values()) == {0.0}
-        assert tuple(info["contacts"]) == CONTACT_GROUPS and info["collision_terminated"] is False
-        assert info["slot_distance"] >= 0.0
-    _, _, _, _, step_infos = _step_random(env)
+        assert list(info) == expected
+        assert set(reward_terms(info).values()) == {0.0} and set(contact_counts(info).values()) == {0}
+        assert info["collision_terminated"] is False and info["slot_distance"] >= 0.0
+    _, rewards, _, _, step_infos = _step_random(env)
     for a in env.possible_agents:
-        assert set(step_infos[a]) == set(reset_infos[a])
-        assert tuple(step_infos[a]["reward_terms"]) == tuple(reset_infos[a]["reward_terms"])
-        assert tuple(step_infos[a]["contacts"]) == tuple(reset_infos[a]["contacts"])
+        assert list(step_infos[a]) == expected  # the same keys, in the same order
+        # Flat: one number per key (TorchRL and BenchMARL make a tensor of every info value).
+        assert all(isinstance(v, (int, float, bool)) for v in step_infos[a].values())
+        assert abs(sum(reward_terms(step_infos[a]).values()) - rewards[a]) < 1e-9
 
 
 @pytest.mark.parametrize("name,max_cycles", [("paper_vo_0", None), ("paper_cbs_switch", None), ("random", 17)])
@@ -108,20 +110,20 @@ def _head_on(**kwargs) -> tuple[SwarmEnv, list]:
 
 def test_every_contact_step_is_penalised_once_per_body_in_touch() -> None:
     env, infos = _head_on()
-    touching = [i["follower_0"]["contacts"]["robot"] for i in infos]
+    touching = [i["follower_0"]["contacts_robot"] for i in infos]
     assert sum(touching) > 30  # they keep pushing each other for seconds
     for info in infos:
         for a in ("follower_0", "follower_1"):
-            n = info[a]["contacts"]["robot"]
-            assert info[a]["reward_terms"]["contact_robot"] == -2.0 * n
-    onset_steps = [k for k, i in enumerate(infos) if i["follower_0"]["reward_terms"]["collision"] < 0]
+            n = info[a]["contacts_robot"]
+            assert info[a]["reward_contact_robot"] == -2.0 * n
+    onset_steps = [k for k, i in enumerate(infos) if i["follower_0"]["reward_collision"] < 0]
     assert len(onset_steps) == 1 and touching[onset_steps[0]] == 1  # the onset is charged on top, once
     assert env.episode_metrics()["collisions"]["robot_robot"] == 1  # metrics still count onsets
 
 
 def test_reward_v0_keyword_charges_onsets_only() -> None:
     _, infos = _head_on(reward="v0")
-    totals = {t: sum(i["follower_0"]["reward_terms"][t] for i in infos) for t in REWARD_TERMS}
+    totals = {t: sum(reward_terms(i["follower_0"])[t] for i in infos) for t in REWARD_TERMS}
     assert totals["collision"] == -10.0
     assert all(totals[t] == 0.0 for t in REWARD_TERMS if t.startswith("contact_") or t == "clearance")
     assert SwarmEnv("paper_vo_0", reward="v0").reward_spec == RewardSpec.v0()
@@ -133,7 +135,7 @@ def test_reward_v0_keyword_charges_onsets_only() -> None:
 
 def test_clearance_shaping_is_on_by_default_and_zero_when_clear() -> None:
     env, infos = _head_on()
-    clear = [i["follower_0"]["reward_terms"]["clearance"] for i in infos]
+    clear = [i["follower_0"]["reward_clearance"] for i in infos]
     assert clear[0] == 0.0  # 4 m apart
     assert min(clear) == pytest.approx(-1.0, abs=0.05)  # in touch: no clearance left
     assert RewardSpec().clearance > 0 and RewardSpec().clearance_margin == 0.2
@@ -144,7 +146,7 @@ def test_terminate_on_collision_ends_the_episode_for_all_with_the_offenders_in_i
     last = infos[-1]
     assert env.agents == [] and len(infos) < 100
     assert all(info["collision_terminated"] for info in last.values())
-    assert all(info["contacts"]["robot"] == 1 for info in last.values())  # both are the offenders
+    assert all(info["contacts_robot"] == 1 for info in last.values())  # both are the offenders
     assert not any(info["collision_terminated"] for step in infos[:-1] for info in step.values())
     metrics = env.episode_metrics()
     assert metrics["termination"] == "collision"
@@ -255,3 +257,32 @@ def test_generated_scenarios_pass_the_yaml_gate() -> None:
     for seed in range(10):
         scn = random_scenario(np.random.default_rng(seed), RandomScenarioConfig(n_followers=(2, 12)))
         assert scenario_from_dict(scenario_to_dict(scn), source=scn.source) == scn
+
+
+def test_the_clearance_reward_screen_changes_no_value() -> None:
+    from swarm_env.policies import load_policy
+    from swarm_env.rewards import clearance
+
+    inside = 0
+    for seed, kind in ((0, "virtual"), (1, "robot")):
+        env = swarm_env.parallel_env("random", n_followers=8, n_humans=3, leader_kind=kind, max_cycles=300)
+        obs, _ = env.reset(seed=seed)
+        policy = load_policy("pursuit", env)
+        policy.reset(env, seed)
+        while env.agents:
+            obs, *_ = env.step(policy.act(obs, env.world_state()))
+            full, fast = clearance(env.world_state()), clearance(env.world_state(), below=0.2)
+            near = full < 0.2
+            inside += int(near.sum())
+            np.testing.assert_array_equal(fast[near], full[near])  # exact inside the margin
+            assert np.all(fast[~near] >= 0.2)  # and known to be outside it elsewhere
+    assert inside > 50  # pursuit really brushes things
+
+
+def test_render_accepts_its_own_mode_positionally() -> None:
+    # RLlib's PettingZoo wrapper calls env.render(render_mode).
+    env = swarm_env.parallel_env("paper_vo_0", render_mode="rgb_array", max_cycles=2)
+    env.reset(seed=0)
+    assert env.render("rgb_array").shape[2] == 3
+    with pytest.raises(ValueError, match="differs from the env's render_mode"):
+        env.render("human")
