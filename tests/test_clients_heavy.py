@@ -13,15 +13,13 @@ and on ``random`` with a team-size range, and checks what the library collected 
 from __future__ import annotations
 
 import importlib.util
-import sys
-import types
-from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
 import swarm_env
+from tests.test_clients import leaf_keys, load_example, one_torch_thread  # noqa: F401 (an autouse fixture)
 
 pytestmark = [
     pytest.mark.clients,
@@ -30,37 +28,10 @@ pytestmark = [
     pytest.mark.filterwarnings("ignore:PettingZoo in TorchRL is tested:UserWarning"),
 ]
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-
 CASES = [
     pytest.param("paper_vo_0", {}, id="paper_vo_0"),
     pytest.param("random", {"n_followers": (2, 8), "team_seed": 1}, id="random-range"),
 ]
-
-
-def load_example(name: str) -> types.ModuleType:
-    """Import ``examples/<name>.py`` (not a package) as a module."""
-    spec = importlib.util.spec_from_file_location(f"swarm_env_example_{name}", EXAMPLES / f"{name}.py")
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-@pytest.fixture(autouse=True)
-def one_torch_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
-
-
-def leaf_keys(d: dict, prefix: tuple = ()) -> set[tuple]:
-    keys: set[tuple] = set()
-    for k, v in d.items():
-        keys |= leaf_keys(v, prefix + (k,)) if isinstance(v, dict) else {prefix + (k,)}
-    return keys
 
 
 def agents_of(name: str, kw: dict) -> list[str]:
