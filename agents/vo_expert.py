@@ -54,7 +54,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.guidance import pure_pursuit, vo_select_batch
+from swarm_env.guidance import pure_pursuit
+from swarm_env.safety import AvoidanceParams, safe_follower_twists
 from swarm_env.policies import parse_policy_kwargs
 from swarm_env.state import WorldState
 
@@ -133,34 +134,29 @@ class VOExpert:
         escape: bool = True,
         full_turn: bool = True,
     ) -> None:
-        for name, value in (("time_gap", time_gap), ("horizon", horizon), ("tau", tau)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name, value in (("arrive_radius", arrive_radius), ("margin", margin), ("human_margin", human_margin)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        if horizon_static is not None and not horizon_static > 0:
-            raise ValueError(f"horizon_static must be > 0 or None, got {horizon_static!r}")
-        if int(n_v) < 1 or int(n_w) < 1:
-            raise ValueError(f"n_v and n_w must be >= 1, got {n_v!r}, {n_w!r}")
+        if not (isinstance(time_gap, (int, float)) and math.isfinite(time_gap) and time_gap > 0):
+            raise ValueError(f"time_gap must be a finite number > 0, got {time_gap!r}")
+        if not (isinstance(arrive_radius, (int, float)) and math.isfinite(arrive_radius) and arrive_radius >= 0):
+            raise ValueError(f"arrive_radius must be a finite number >= 0, got {arrive_radius!r}")
+        # The avoidance itself is swarm_env.safety's (shared with the SafetyShield wrapper); it checks its own values.
+        self.avoidance = AvoidanceParams(
+            horizon=horizon, horizon_static=horizon_static, margin=margin, human_margin=human_margin, n_v=int(n_v),
+            n_w=int(n_w), tau=tau, w_pref=w_pref, w_heading=w_heading, side_bias=side_bias,
+            reciprocal=bool(reciprocal), escape=bool(escape),
+        )
         self.time_gap = float(time_gap)
         self.feed_forward = bool(feed_forward)
         self.arrive_radius = float(arrive_radius)
-        self.horizon = float(horizon)
-        self.horizon_static = None if horizon_static is None else float(horizon_static)
-        self.margin = float(margin)
-        self.human_margin = float(human_margin)
-        self.n_v = int(n_v)
-        self.n_w = int(n_w)
-        self.tau = float(tau)
-        self.w_pref = float(w_pref)
-        self.w_heading = float(w_heading)
-        self.side_bias = float(side_bias)
-        self.reciprocal = bool(reciprocal)
-        self.escape = bool(escape)
         self.full_turn = bool(full_turn)
         self._index: dict[str, int] = {}
         self._reset_stats()
+
+    def __getattr__(self, name: str) -> Any:
+        """The avoidance parameters read through: ``expert.horizon`` is ``expert.avoidance.horizon``."""
+        avoidance = self.__dict__.get("avoidance")
+        if avoidance is not None and name in AvoidanceParams.names():
+            return getattr(avoidance, name)
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     # ------------------------------------------------------------------ Policy protocol
     def reset(self, env: "SwarmEnv", seed: int | None) -> None:
@@ -193,59 +189,7 @@ class VOExpert:
         """The commanded twists ``(N, 2)`` ``(v, omega)`` of all followers, with the per
         follower flags ``feasible`` (a safe candidate existed) and ``escaped`` (turned
         in place towards open space). Pure: reads ``state`` only."""
-        robots = state.scenario.robots
-        v_max, w_max = float(robots.max_speed), float(robots.max_turn_rate)
-        pose = state.follower_pose
-        n = len(pose)
-        preferred = self.preferred_twists(state)
-
-        # Everything a follower may have to avoid, as one disc list: followers, robot leader, humans.
-        has_leader = state.leader_is_robot
-        n_h = len(state.human_pos)
-        n_d = n + int(has_leader) + n_h
-        discs = np.empty((n_d, 3))
-        vel = np.empty((n_d, 2))
-        discs[:n, :2] = pose[:, :2]
-        discs[:n, 2] = state.follower_radius
-        vel[:n] = state.follower_vel
-        k = n
-        if has_leader:
-            discs[k, :2] = state.leader_pose[:2]
-            discs[k, 2] = state.leader_radius
-            vel[k] = state.leader_vel
-            k += 1
-        if n_h:
-            discs[k:, :2] = state.human_pos
-            discs[k:, 2] = state.human_radius + self.human_margin
-            vel[k:] = state.human_vel
-        mask = np.ones((n, n_d), dtype=bool)
-        mask[np.arange(n), np.arange(n)] = False  # not itself
-        recip = np.zeros(n_d, dtype=bool)
-        recip[:n] = self.reciprocal
-        res = vo_select_batch(
-            pose,
-            state.follower_radius,
-            preferred,
-            discs,
-            vel,
-            state.static,
-            v_max,
-            w_max,
-            disc_mask=mask,
-            reciprocal=recip,
-            velocity=state.follower_vel,
-            horizon=self.horizon,
-            horizon_static=self.horizon_static,
-            margin=self.margin,
-            n_v=self.n_v,
-            n_w=self.n_w,
-            tau=self.tau,
-            w_pref=self.w_pref,
-            w_heading=self.w_heading,
-            side_bias=self.side_bias,
-            escape=self.escape,
-            allow_still_overlap=True,
-        )
+        res = safe_follower_twists(state, self.preferred_twists(state), self.avoidance)
         return res.twist, res.feasible, res.escaped
 
     def preferred_twists(self, state: WorldState) -> np.ndarray:

@@ -362,7 +362,7 @@ class SwarmEnv(ParallelEnv):
             raise RuntimeError("call reset() before step()")
         if not self.agents:
             raise RuntimeError("the episode is over: call reset() before step()")
-        norm = self._normalised_actions(actions)
+        norm = self.normalised_actions(actions)
         command = norm * self._speed
         t0 = time.perf_counter()
         self._world.step(command)
@@ -408,8 +408,10 @@ class SwarmEnv(ParallelEnv):
         columns.append([collided] * len(self.agents))
         return {a: dict(zip(_INFO_KEYS, row)) for a, row in zip(self.agents, zip(*columns))}
 
-    def _normalised_actions(self, actions: dict[str, Any]) -> np.ndarray:
-        """Validate the action dict and return (N, 2) normalised (v, omega) in [-1, 1]."""
+    def normalised_actions(self, actions: dict[str, Any]) -> np.ndarray:
+        """Validate an action dict of the live agents and return it as ``(N, 2)`` normalised
+        ``(v, omega)`` in ``[-1, 1]`` (rows in ``env.agents`` order; discrete primitives mapped to
+        their twist), what :meth:`step` applies. Raises ``ValueError`` as :meth:`step` does."""
         if not isinstance(actions, dict):
             raise ValueError(f"actions must be a dict agent -> action, got {type(actions).__name__}")
         agents = self.agents

@@ -287,7 +287,8 @@ def formation_start(
     validation checks the unprojected slots (``static=None``)."""
     p0 = np.asarray(path[0], dtype=np.float64)
     p1 = np.asarray(path[1], dtype=np.float64)
-    heading = math.atan2(p1[1] - p0[1], p1[0] - p0[0])
+    d = p1 - p0
+    heading = float(np.arctan2(d[1], d[0]))  # as PolylinePath computes it (math.atan2 can differ by an ulp)
     xy = slot_targets(np.array([p0[0], p0[1], heading]), offsets, static, clearance)
     return np.column_stack([xy, np.full(len(xy), heading)])
 

@@ -23,8 +23,9 @@ Policies are found by name in the Python entry-point group
 ``swarm_env.policies``. An entry point names a factory
 ``factory(env: SwarmEnv, arg: str | None) -> Policy``; the spec string
 ``"name:arg"`` (e.g. ``ppo:runs/best.zip``) passes ``arg`` to it. This package
-registers ``random``, ``zero`` and ``pursuit`` (pure pursuit to the slot, no
-avoidance); the experts (``vo``, ``cbs_rrt``) and RL
+registers ``random``, ``zero``, ``pursuit`` (pure pursuit to the slot, no
+avoidance) and ``shield:SPEC`` (any policy run through the VO safety layer of
+:mod:`swarm_env.safety`); the experts (``vo``, ``cbs_rrt``) and RL
 loaders register themselves from their own packages.
 """
 
@@ -185,7 +186,75 @@ def parse_policy_kwargs(name: str, arg: str | None, cls: type) -> dict[str, Any]
     return kwargs
 
 
-_BUILTIN: dict[str, Callable[..., Any]] = {"random": RandomPolicy, "zero": ZeroPolicy, "pursuit": PursuitPolicy}
+class ShieldedPolicy:
+    """``shield:SPEC``: the policy ``SPEC`` with every action replaced by the nearest safe one.
+
+    The same safety layer as :class:`swarm_env.wrappers.SafetyShield` (one function,
+    :func:`swarm_env.safety.shield_actions`), applied at execution time to any registered
+    policy, e.g. ``shield:pursuit`` or ``shield:ppo:runs/x``. The shield reads the
+    privileged world state, like the experts. ``stats()`` reports the interventions
+    (they land in the leaderboard's ``policy_stats``).
+    """
+
+    def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
+        from swarm_env.safety import AvoidanceParams
+
+        if not arg:
+            raise ValueError("policy 'shield' wraps another policy: write shield:SPEC, e.g. shield:pursuit")
+        if env.action_type != "continuous":
+            raise PolicyError("policy 'shield' needs action_type='continuous': it replaces actions by safe twists")
+        self.inner = load_policy(arg, env)
+        self.spec = arg
+        self.params = AvoidanceParams(w_heading=0.0)
+        self._reset_stats()
+
+    def _reset_stats(self) -> None:
+        self._interventions = 0
+        self._agent_steps = 0
+        self._correction = 0.0
+        self._infeasible = 0
+
+    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+        self.inner.reset(env, seed)
+        self._reset_stats()
+
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
+        from swarm_env.safety import shield_actions
+
+        actions = self.inner.act(observations, state)
+        n = state.n_followers
+        wanted = np.zeros((n, 2))
+        rows = {a: int(a.rsplit("_", 1)[1]) for a in actions}
+        for a, i in rows.items():
+            wanted[i] = np.clip(np.asarray(actions[a], dtype=np.float64).reshape(2), -1.0, 1.0)
+        shield = shield_actions(state, wanted, self.params)
+        live = list(rows.values())
+        self._interventions += int(shield.intervened[live].sum())
+        self._correction += float(shield.correction[live].sum())
+        self._infeasible += int(np.count_nonzero(~shield.feasible[live]))
+        self._agent_steps += len(live)
+        return {a: shield.actions[i] for a, i in rows.items()}
+
+    def stats(self) -> dict[str, Any]:
+        inner = self.inner.stats() if callable(getattr(self.inner, "stats", None)) else None
+        steps = self._agent_steps
+        out: dict[str, Any] = {
+            "shield_interventions": self._interventions,
+            "shield_intervention_rate": self._interventions / steps if steps else 0.0,
+            "shield_mean_correction": self._correction / steps if steps else 0.0,
+            "shield_infeasible": self._infeasible,
+        }
+        if inner:
+            out["inner"] = inner
+        return out
+
+
+_BUILTIN: dict[str, Callable[..., Any]] = {
+    "random": RandomPolicy,
+    "zero": ZeroPolicy,
+    "pursuit": PursuitPolicy,
+    "shield": ShieldedPolicy,
+}
 
 
 def registered_policies() -> dict[str, str]:

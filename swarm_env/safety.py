@@ -1,0 +1,160 @@
+"""Collision avoidance of the followers as one function of the world state: the VO safety rule.
+
+:func:`safe_follower_twists` takes each follower's preferred twist and returns the safe twist
+closest to it, from the velocity-obstacle search of :func:`swarm_env.guidance.vo_select_batch`
+(paper 003, Sec. II-D) against everything a follower may hit: the other followers (avoided
+reciprocally: each takes half), a robot leader, the humans (with an extra margin, since they
+do not avoid robots) and the static map. A preferred twist that is already safe comes back
+unchanged. It is the one implementation behind the ``vo`` expert
+(:class:`agents.vo_expert.VOExpert`, which prefers pure pursuit of its slot) and the safety
+layer any learner can use (:class:`swarm_env.wrappers.SafetyShield`, which prefers the
+learner's action).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from swarm_env.guidance import VOBatchResult, vo_select_batch
+from swarm_env.state import WorldState
+
+__all__ = ["AvoidanceParams", "ShieldResult", "safe_follower_twists", "shield_actions"]
+
+# A correction smaller than this (in normalised action units) is float noise, not an intervention.
+_INTERVENTION_EPS = 1e-9
+
+
+@dataclass(frozen=True)
+class AvoidanceParams:
+    """Parameters of the VO search (see :func:`swarm_env.guidance.vo_select` for each).
+
+    ``margin`` (m) is added to every combined radius, ``human_margin`` (m) to the humans'
+    radii on top; ``n_v`` x ``n_w`` is the candidate grid (plus the preferred twist,
+    standing still and driving straight); ``horizon`` (s) how far ahead a candidate must
+    be collision-free (``horizon_static`` for the static map, ``None`` = ``horizon``);
+    ``tau`` (s) how long a candidate is assumed held; ``w_pref``, ``w_heading`` and
+    ``side_bias`` weigh the penalty of a candidate (distance to the preferred twist,
+    heading consistency, a keep-right tie breaker); ``reciprocal``: followers avoid each
+    other reciprocally; ``escape``: a blocked follower turns in place towards open space.
+    """
+
+    horizon: float = 3.0
+    horizon_static: float | None = None
+    margin: float = 0.05
+    human_margin: float = 0.05
+    n_v: int = 7
+    n_w: int = 11
+    tau: float = 1.0
+    w_pref: float = 1.0
+    w_heading: float = 0.5
+    side_bias: float = 0.0
+    reciprocal: bool = True
+    escape: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("horizon", "tau"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        for name in ("margin", "human_margin", "w_pref", "w_heading", "side_bias"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if self.horizon_static is not None and not self.horizon_static > 0:
+            raise ValueError(f"horizon_static must be > 0 or None, got {self.horizon_static!r}")
+        if int(self.n_v) < 1 or int(self.n_w) < 1:
+            raise ValueError(f"n_v and n_w must be >= 1, got {self.n_v!r}, {self.n_w!r}")
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        return tuple(f.name for f in fields(cls))
+
+
+def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: AvoidanceParams = AvoidanceParams()) -> VOBatchResult:
+    """The safe twist closest to each follower's ``preferred`` ``(N, 2)`` ``(v, omega)``.
+
+    Pure: reads ``state`` only. ``result.twist`` ``(N, 2)`` are the answers (within the
+    robots' limits), ``result.feasible`` says whether a safe candidate existed (if not,
+    the least dangerous one, or an escape turn, is returned), ``result.preferred_safe``
+    whether the preferred twist itself was safe (then it is returned unchanged unless a
+    heading term makes another candidate cheaper).
+    """
+    robots = state.scenario.robots
+    pose = state.follower_pose
+    n = len(pose)
+    has_leader = state.leader_is_robot
+    n_h = len(state.human_pos)
+    n_d = n + int(has_leader) + n_h
+    discs = np.empty((n_d, 3))
+    vel = np.empty((n_d, 2))
+    discs[:n, :2] = pose[:, :2]
+    discs[:n, 2] = state.follower_radius
+    vel[:n] = state.follower_vel
+    k = n
+    if has_leader:
+        discs[k, :2] = state.leader_pose[:2]
+        discs[k, 2] = state.leader_radius
+        vel[k] = state.leader_vel
+        k += 1
+    if n_h:
+        discs[k:, :2] = state.human_pos
+        discs[k:, 2] = state.human_radius + params.human_margin
+        vel[k:] = state.human_vel
+    mask = np.ones((n, n_d), dtype=bool)
+    mask[np.arange(n), np.arange(n)] = False  # not itself
+    recip = np.zeros(n_d, dtype=bool)
+    recip[:n] = params.reciprocal  # the robot leader and the humans are avoided fully
+    return vo_select_batch(
+        pose,
+        state.follower_radius,
+        np.asarray(preferred, dtype=np.float64),
+        discs,
+        vel,
+        state.static,
+        float(robots.max_speed),
+        float(robots.max_turn_rate),
+        disc_mask=mask,
+        reciprocal=recip,
+        velocity=state.follower_vel,
+        horizon=params.horizon,
+        horizon_static=params.horizon_static,
+        margin=params.margin,
+        n_v=int(params.n_v),
+        n_w=int(params.n_w),
+        tau=params.tau,
+        w_pref=params.w_pref,
+        w_heading=params.w_heading,
+        side_bias=params.side_bias,
+        escape=params.escape,
+        allow_still_overlap=True,
+    )
+
+
+@dataclass(frozen=True)
+class ShieldResult:
+    """What :func:`shield_actions` did, per follower: the executed ``actions`` ``(N, 2)``
+    float32, the ``correction`` ``(N,)`` (Euclidean distance between the wanted and the
+    executed normalised action), ``intervened`` ``(N,)`` bool and ``feasible`` ``(N,)``
+    bool (a safe candidate existed)."""
+
+    actions: np.ndarray
+    correction: np.ndarray
+    intervened: np.ndarray
+    feasible: np.ndarray
+
+
+def shield_actions(state: WorldState, wanted: np.ndarray, params: AvoidanceParams) -> ShieldResult:
+    """The safety layer: normalised actions ``wanted`` ``(N, 2)`` in ``[-1, 1]`` -> the nearest
+    safe ones (:func:`safe_follower_twists` on ``wanted * (max_speed, max_turn_rate)``).
+    An action that is already safe is returned bit for bit."""
+    wanted = np.asarray(wanted, dtype=np.float64)
+    robots = state.scenario.robots
+    limits = np.array([robots.max_speed, robots.max_turn_rate])
+    result = safe_follower_twists(state, wanted * limits, params)
+    safe = np.clip(result.twist / limits, -1.0, 1.0)
+    correction = np.hypot(safe[:, 0] - wanted[:, 0], safe[:, 1] - wanted[:, 1])
+    intervened = correction > _INTERVENTION_EPS
+    executed = np.where(intervened[:, None], safe, wanted).astype(np.float32)
+    return ShieldResult(executed, np.where(intervened, correction, 0.0), intervened, np.asarray(result.feasible, dtype=bool))

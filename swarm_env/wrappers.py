@@ -1,0 +1,123 @@
+"""PettingZoo wrappers of :class:`~swarm_env.env.SwarmEnv`.
+
+:class:`SafetyShield` is the safety layer any learner can use, in training and at execution:
+each follower's action is replaced by the nearest safe twist of the velocity-obstacle search
+the ``vo`` expert uses (:func:`swarm_env.safety.safe_follower_twists`: one implementation),
+and every intervention is reported.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from pettingzoo.utils.wrappers import BaseParallelWrapper
+
+from swarm_env.safety import AvoidanceParams, shield_actions
+
+__all__ = ["SafetyShield", "SHIELD_INFO_KEYS"]
+
+#: The infos keys the shield adds for every agent (at reset too, where they are False / 0.0 / True).
+SHIELD_INFO_KEYS = ("shield_intervened", "shield_correction", "shield_feasible")
+
+
+class SafetyShield(BaseParallelWrapper):
+    """Replace each follower's action by the nearest safe twist (a VO safety layer).
+
+    Before every step the learner's actions are turned into twists ``(v, omega)``, and
+    :func:`~swarm_env.safety.safe_follower_twists` returns for each follower the safe
+    twist closest to its own (unchanged when it is already safe) against the other
+    followers, a robot leader, the humans and the static map over ``params.horizon``
+    seconds; the env then steps with those. Observations, rewards and the episode are the
+    wrapped env's: a learner trained through the shield is rewarded for what was executed.
+
+    Infos gain, per agent (the same keys at reset):
+
+    * ``shield_intervened`` (bool): the executed action differs from the learner's;
+    * ``shield_correction`` (float): the size of the change, the Euclidean distance
+      between the two normalised actions (``[-1, 1]^2`` units, at most ``2 * sqrt(2)``);
+    * ``shield_feasible`` (bool): a safe candidate existed (if not, the least
+      dangerous candidate, or a turn in place towards open space, was executed).
+
+    ``episode_metrics()`` adds ``shield``: ``{"interventions", "intervention_rate",
+    "mean_correction", "max_correction", "infeasible", "agent_steps"}`` over the episode,
+    plus ``per_agent`` interventions. ``last_safe_actions`` holds the actions executed
+    in the last step.
+
+    Args:
+        env: a :class:`~swarm_env.env.SwarmEnv` with ``action_type="continuous"`` (or a
+            wrapper of one).
+        params: the VO search's :class:`~swarm_env.safety.AvoidanceParams` (the ``vo``
+            expert's defaults); ``w_heading`` is set to 0 by default so the answer is the
+            candidate nearest to the learner's twist, not one that also keeps a heading.
+    """
+
+    def __init__(self, env: Any, params: AvoidanceParams | None = None) -> None:
+        super().__init__(env)
+        base = env.unwrapped
+        if getattr(base, "action_type", None) != "continuous":
+            raise ValueError("SafetyShield needs action_type='continuous': it replaces actions by safe twists (v, omega)")
+        self.params = params if params is not None else AvoidanceParams(w_heading=0.0)
+        self.metadata = env.metadata
+        self.last_safe_actions: dict[str, np.ndarray] = {}
+        self._reset_counts()
+
+    def _reset_counts(self) -> None:
+        n = len(self.env.possible_agents)
+        self._interventions = np.zeros(n, dtype=np.int64)
+        self._correction_sum = 0.0
+        self._correction_max = 0.0
+        self._infeasible = 0
+        self._agent_steps = 0
+
+    def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        obs, infos = self.env.reset(seed=seed, options=options)
+        self._reset_counts()
+        self.last_safe_actions = {}
+        for info in infos.values():
+            info.update(shield_intervened=False, shield_correction=0.0, shield_feasible=True)
+        return obs, infos
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        base = self.env.unwrapped
+        agents = list(base.agents)
+        wanted = base.normalised_actions(actions)  # (N, 2) in [-1, 1], validated as step() would
+        shield = shield_actions(base.world_state(), wanted, self.params)
+        self.last_safe_actions = {a: shield.actions[i] for i, a in enumerate(agents)}
+        obs, rewards, terms, truncs, infos = self.env.step(self.last_safe_actions)
+
+        index = [base.possible_agents.index(a) for a in agents]
+        self._interventions[index] += shield.intervened
+        self._correction_sum += float(shield.correction.sum())
+        self._correction_max = max(self._correction_max, float(shield.correction.max(initial=0.0)))
+        self._infeasible += int(np.count_nonzero(~shield.feasible))
+        self._agent_steps += len(agents)
+        for i, a in enumerate(agents):
+            infos[a].update(
+                shield_intervened=bool(shield.intervened[i]),
+                shield_correction=float(shield.correction[i]),
+                shield_feasible=bool(shield.feasible[i]),
+            )
+        return obs, rewards, terms, truncs, infos
+
+    def render(self, mode: str | None = None) -> Any:
+        return self.env.render(mode) if mode is not None else self.env.render()
+
+    def episode_metrics(self) -> dict[str, Any]:
+        """The wrapped env's :meth:`~swarm_env.env.SwarmEnv.episode_metrics` plus ``shield``."""
+        out = dict(self.env.episode_metrics())
+        steps = self._agent_steps
+        total = int(self._interventions.sum())
+        out["shield"] = {
+            "interventions": total,
+            "intervention_rate": total / steps if steps else 0.0,
+            "mean_correction": self._correction_sum / steps if steps else 0.0,
+            "max_correction": self._correction_max,
+            "infeasible": self._infeasible,
+            "agent_steps": steps,
+            "per_agent": dict(zip(self.env.possible_agents, self._interventions.tolist())),
+        }
+        return out
+
+    def world_state(self) -> Any:
+        return self.env.world_state()
