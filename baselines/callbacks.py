@@ -22,6 +22,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 from baselines.model_io import SB3Policy, save_model
 from swarm_env.env import SwarmEnv
 from swarm_env.evaluation import run_episode, summarize
+from swarm_env.policies import ShieldedPolicy
 
 #: Model selection score = formation error (m) + this many metres per collision (lower is better).
 COLLISION_COST_M = 0.1
@@ -91,8 +92,10 @@ class EvalCallback(BaseCallback):
         seeds: Sequence[int],
         run_dir: Path,
         vecnorm: VecNormalize | None,
+        shield: bool = False,
     ) -> None:
         super().__init__()
+        self.shield = shield
         self.every = every
         self.scenario = scenario
         self.env_kwargs = env_kwargs
@@ -123,7 +126,9 @@ class EvalCallback(BaseCallback):
             self.evaluate()
 
     def evaluate(self) -> dict[str, Any]:
-        policy = SB3Policy(self.model, _frozen_normalizer(self.vecnorm), name="current model")
+        policy: Any = SB3Policy(self.model, _frozen_normalizer(self.vecnorm), name="current model")
+        if self.shield:  # scored as it acts in training: through the safety layer
+            policy = ShieldedPolicy.around(policy)
         env = SwarmEnv(self.scenario, **self.env_kwargs)
         try:
             episodes = [run_episode(env, policy, s) for s in self.seeds]

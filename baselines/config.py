@@ -53,6 +53,9 @@ class TrainConfig:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     #: Action space of the followers: continuous or discrete (SAC/TD3/DDPG need continuous).
     action_type: str = "continuous"
+    #: Act through the VO safety layer (swarm_env.wrappers.SafetyShield) in training and evaluation; score the
+    #: result as shield:ppo:RUN_DIR.
+    shield: bool = False
     #: Training budget in agent-steps (SB3 timesteps: one follower acting once).
     total_steps: int = 2_000_000
     #: Seed of the algorithm (torch, action sampling) and of the training worlds.

@@ -140,7 +140,7 @@ def train(cfg: TrainConfig) -> Path:
     (run_dir / "versions.json").write_text(json.dumps(package_versions(), indent=2) + "\n")
 
     env_kwargs = _env_kwargs(cfg)
-    venv: Any = make_vec_env(cfg.scenario, cfg.n_copies, n_procs=cfg.n_procs, **env_kwargs)
+    venv: Any = make_vec_env(cfg.scenario, cfg.n_copies, n_procs=cfg.n_procs, shield=cfg.shield, **env_kwargs)
     vecnorm = None
     if cfg.norm_obs or cfg.norm_reward:
         venv = vecnorm = VecNormalize(venv, norm_obs=cfg.norm_obs, norm_reward=cfg.norm_reward, gamma=cfg.gamma)
@@ -157,7 +157,9 @@ def train(cfg: TrainConfig) -> Path:
     callbacks = []
     evaluator = None
     if cfg.eval_every:
-        evaluator = EvalCallback(cfg.eval_every, cfg.scenario, env_kwargs, parse_seeds(cfg.eval_seeds), run_dir, vecnorm)
+        evaluator = EvalCallback(
+            cfg.eval_every, cfg.scenario, env_kwargs, parse_seeds(cfg.eval_seeds), run_dir, vecnorm, shield=cfg.shield
+        )
         callbacks.append(evaluator)
     if cfg.checkpoint_every:
         callbacks.append(CheckpointCallback(cfg.checkpoint_every, run_dir, vecnorm))

@@ -62,9 +62,16 @@ class EnvFactory:
 
     scenario: str = "random"
     kwargs: dict[str, Any] = field(default_factory=dict)
+    #: Wrap the env in :class:`swarm_env.wrappers.SafetyShield` (the learner acts through the VO safety layer).
+    shield: bool = False
 
     def __call__(self) -> SwarmEnv:
-        return SwarmEnv(self.scenario, **self.kwargs)
+        env = SwarmEnv(self.scenario, **self.kwargs)
+        if self.shield:
+            from swarm_env.wrappers import SafetyShield
+
+            return SafetyShield(env)  # type: ignore[return-value]  (a ParallelEnv with SwarmEnv's attributes)
+        return env
 
 
 class _CopyBlock:
@@ -334,14 +341,16 @@ def make_vec_env(
     *,
     n_procs: int = 1,
     seed: int | None = None,
+    shield: bool = False,
     **env_kwargs: Any,
 ) -> SwarmVecEnv:
-    """Build a :class:`SwarmVecEnv` of ``SwarmEnv(scenario, **env_kwargs)`` copies.
+    """Build a :class:`SwarmVecEnv` of ``SwarmEnv(scenario, **env_kwargs)`` copies (each in a
+    :class:`~swarm_env.wrappers.SafetyShield` with ``shield``).
 
     ``seed`` (optional) is passed to :meth:`SwarmVecEnv.seed` so the first reset is
     reproducible even without an SB3 algorithm doing it.
     """
-    venv = SwarmVecEnv(EnvFactory(scenario, dict(env_kwargs)), n_copies, n_procs=n_procs)
+    venv = SwarmVecEnv(EnvFactory(scenario, dict(env_kwargs), shield), n_copies, n_procs=n_procs)
     if seed is not None:
         venv.seed(seed)
     return venv

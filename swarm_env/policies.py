@@ -203,10 +203,20 @@ class ShieldedPolicy:
             raise ValueError("policy 'shield' wraps another policy: write shield:SPEC, e.g. shield:pursuit")
         if env.action_type != "continuous":
             raise PolicyError("policy 'shield' needs action_type='continuous': it replaces actions by safe twists")
-        self.inner = load_policy(arg, env)
-        self.spec = arg
+        self.inner: Any = load_policy(arg, env)
         self.params = AvoidanceParams(w_heading=0.0)
         self._reset_stats()
+
+    @classmethod
+    def around(cls, inner: Any) -> "ShieldedPolicy":
+        """The shield around a policy object (e.g. a model being trained) instead of a spec."""
+        from swarm_env.safety import AvoidanceParams
+
+        self = cls.__new__(cls)
+        self.inner = inner if isinstance(inner, Policy) else PredictPolicy(inner)
+        self.params = AvoidanceParams(w_heading=0.0)
+        self._reset_stats()
+        return self
 
     def _reset_stats(self) -> None:
         self._interventions = 0
