@@ -2,10 +2,15 @@
 
 A saved model is a directory (or its ``model.zip``) holding::
 
-    model.zip          the SB3 model (``model.save``)
+    policy.safetensors + policy.json   the policy network and its observation statistics as
+                                       tensors and JSON (baselines.safe_io): loading cannot run code
+    model.zip          the SB3 model (``model.save``), for resuming and warm starts
     vecnormalize.pkl   optional: the VecNormalize statistics the model was trained with
 
-:func:`load_model` reads both; :class:`SB3Policy` feeds each follower's
+A policy spec loads the safe files when the directory has them (every directory that
+:func:`save_model` writes does) and falls back to ``model.zip`` + ``vecnormalize.pkl``
+(pickles: only for files you trust) for older ones. :func:`load_model` reads the
+pickled pair, for training. :class:`SB3Policy` feeds each follower's
 observation through the same normalisation, then ``model.predict`` on the
 stacked batch (parameter sharing), deterministic by default. ``bc`` models are
 PPO-format checkpoints whose policy network was trained by behaviour cloning
@@ -79,12 +84,16 @@ def resolve_model_path(path: str | Path) -> Path:
 
 
 def save_model(model: "BaseAlgorithm", directory: str | Path, vecnorm: "VecNormalize | None" = None) -> Path:
-    """Write ``model.zip`` (and ``vecnormalize.pkl`` if given) into ``directory``; returns the directory."""
+    """Write the policy as tensors + JSON (:func:`baselines.safe_io.save_policy`), and ``model.zip``
+    (and ``vecnormalize.pkl`` if given) for training, into ``directory``; returns the directory."""
+    from baselines.safe_io import save_policy
+
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     model.save(out / MODEL_FILE)
     if vecnorm is not None:
         vecnorm.save(str(out / VECNORM_FILE))
+    save_policy(model, out, type(model).__name__.lower(), vecnorm)
     return out
 
 
@@ -153,10 +162,23 @@ def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
     # A policy loaded by name is for scoring, so the process gets one torch thread; load_model itself
     # (used by training's --init-from) leaves the thread count alone.
     torch.set_num_threads(1)
-    try:
-        model, vecnorm = load_model(path, algo)  # type: ignore[arg-type]
-    except FileNotFoundError as exc:
-        raise PolicyError(str(exc)) from None
+    from baselines.safe_io import has_safe_policy, load_policy_dir
+
+    where = Path(path).expanduser()  # type: ignore[arg-type]
+    model: Any
+    if has_safe_policy(where):  # tensors + JSON: nothing to unpickle
+        try:
+            model, vecnorm, saved_algo = load_policy_dir(where)
+        except ValueError as exc:
+            raise PolicyError(f"policy {algo}:{path}: {exc}") from None
+        family = {"bc": "ppo"}.get(algo, algo)
+        if {"bc": "ppo"}.get(saved_algo, saved_algo) != family:
+            raise PolicyError(f"policy {algo}:{path}: {where} holds a {saved_algo} policy; load it as {saved_algo}:{path}")
+    else:
+        try:
+            model, vecnorm = load_model(path, algo)  # type: ignore[arg-type]
+        except FileNotFoundError as exc:
+            raise PolicyError(str(exc)) from None
     policy = SB3Policy(model, vecnorm, name=f"{algo}:{path}")
     policy.reset(env, None)  # shape checks now, so a mismatch is reported before any episode runs
     return policy

@@ -1,0 +1,220 @@
+"""Policies saved as tensors plus JSON: a format whose loading cannot run code.
+
+A policy directory in this format holds::
+
+    policy.safetensors   every tensor of the SB3 policy network (safetensors: data only)
+    policy.json          what is needed to rebuild it: the algorithm, the observation and action
+                         spaces, SB3's policy_kwargs, and the observation normalisation statistics
+
+SB3's own ``model.zip`` stores parts of the model with cloudpickle and ``VecNormalize`` pickles
+itself; unpickling either can run arbitrary code. :func:`save_policy` writes the network and the
+statistics in this format beside them (``baselines.model_io.save_model`` does it for every saved
+model), and :func:`load_policy_dir` rebuilds the policy from it with no pickle involved, for
+scoring. Training state (optimizer, replay buffer, schedules) is not part of the format: resuming
+or warm-starting training still reads ``model.zip``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import gymnasium
+import numpy as np
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.base_class import BaseAlgorithm
+    from stable_baselines3.common.vec_env import VecNormalize
+
+FORMAT = "swarm_env.sb3-policy/1"
+WEIGHTS_FILE = "policy.safetensors"
+CONFIG_FILE = "policy.json"
+
+__all__ = ["FORMAT", "WEIGHTS_FILE", "CONFIG_FILE", "ObsNormalizer", "save_policy", "load_policy_dir", "has_safe_policy"]
+
+
+class ObsNormalizer:
+    """``VecNormalize.normalize_obs`` from saved statistics: ``clip((obs - mean) / sqrt(var + eps), +-clip)``
+    as float32, the same arithmetic as stable-baselines3, without a pickled VecNormalize."""
+
+    def __init__(self, mean: np.ndarray, var: np.ndarray, epsilon: float, clip_obs: float) -> None:
+        self.mean = np.asarray(mean, dtype=np.float64)
+        self.var = np.asarray(var, dtype=np.float64)
+        self.epsilon = float(epsilon)
+        self.clip_obs = float(clip_obs)
+
+    def normalize_obs(self, obs: np.ndarray) -> np.ndarray:
+        return np.clip((obs - self.mean) / np.sqrt(self.var + self.epsilon), -self.clip_obs, self.clip_obs).astype(np.float32)
+
+
+def has_safe_policy(directory: str | Path) -> bool:
+    """Whether ``directory`` holds a policy in this format."""
+    d = Path(directory)
+    return (d / WEIGHTS_FILE).is_file() and (d / CONFIG_FILE).is_file()
+
+
+def save_policy(model: "BaseAlgorithm", directory: str | Path, algo: str, vecnorm: "VecNormalize | None" = None) -> Path:
+    """Write ``policy.safetensors`` and ``policy.json`` for ``model`` (trained with ``algo``) into ``directory``.
+
+    Both files are written to a temporary name in ``directory`` and renamed, so a reader never
+    sees half a file. Returns the directory.
+    """
+    from safetensors.torch import save_file
+
+    out = Path(directory)
+    out.mkdir(parents=True, exist_ok=True)
+    tensors = {k: v.detach().cpu().contiguous() for k, v in model.policy.state_dict().items()}
+    config: dict[str, Any] = {
+        "format": FORMAT,
+        "algo": algo,
+        "observation_space": _space_to_json(model.observation_space),
+        "action_space": _space_to_json(model.action_space),
+        "policy_kwargs": _jsonable(model.policy_kwargs),
+        "normalization": _normalization_to_json(vecnorm),
+    }
+    with _atomic(out / WEIGHTS_FILE) as tmp:
+        save_file(tensors, str(tmp))
+    with _atomic(out / CONFIG_FILE) as tmp:
+        tmp.write_text(json.dumps(config, indent=1) + "\n")
+    return out
+
+
+def load_policy_dir(directory: str | Path) -> tuple[Any, ObsNormalizer | None, str]:
+    """Rebuild ``(SB3 policy on CPU, observation normalizer or None, algo)`` from ``directory``.
+
+    Raises ``ValueError`` naming the file and what is wrong (unknown format, a missing key,
+    tensors that do not fit the network).
+    """
+    from safetensors.torch import load_file
+
+    from baselines.model_io import algorithm_class
+
+    d = Path(directory)
+    cfg_path = d / CONFIG_FILE
+    try:
+        config = json.loads(cfg_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{cfg_path}: not a readable JSON policy description ({exc})") from None
+    if not isinstance(config, dict) or config.get("format") != FORMAT:
+        raise ValueError(f"{cfg_path}: format: expected {FORMAT!r}, got {config.get('format') if isinstance(config, dict) else config!r}")
+    try:
+        algo = str(config["algo"])
+        obs_space = _space_from_json(config["observation_space"])
+        act_space = _space_from_json(config["action_space"])
+        kwargs = dict(config["policy_kwargs"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{cfg_path}: {exc}") from None
+    policy_class = algorithm_class(algo).policy_aliases["MlpPolicy"]
+    policy = policy_class(obs_space, act_space, lambda _: 0.0, **kwargs)
+    try:
+        state = load_file(str(d / WEIGHTS_FILE), device="cpu")
+        policy.load_state_dict(state, strict=True)
+    except Exception as exc:  # noqa: BLE001 - safetensors and torch raise many types; all mean "bad file"
+        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the network of {cfg_path.name} ({exc})") from None
+    policy.set_training_mode(False)
+    return policy, _normalization_from_json(config.get("normalization"), cfg_path), algo
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+class _atomic:
+    """A temporary path in the target's directory, renamed onto the target on success."""
+
+    def __init__(self, target: Path) -> None:
+        self.target = target
+
+    def __enter__(self) -> Path:
+        fd, name = tempfile.mkstemp(prefix=f".{self.target.name}.", dir=self.target.parent)
+        os.close(fd)
+        self.tmp = Path(name)
+        return self.tmp
+
+    def __exit__(self, exc_type: Any, *_: Any) -> None:
+        if exc_type is None:
+            os.replace(self.tmp, self.target)
+        else:
+            self.tmp.unlink(missing_ok=True)
+
+
+def _space_to_json(space: gymnasium.Space) -> dict[str, Any]:
+    if isinstance(space, gymnasium.spaces.Box):
+        return {"type": "Box", "shape": list(space.shape), "dtype": str(space.dtype),
+                "low": space.low.ravel().tolist(), "high": space.high.ravel().tolist()}
+    if isinstance(space, gymnasium.spaces.Discrete):
+        return {"type": "Discrete", "n": int(space.n), "start": int(space.start)}
+    raise ValueError(f"cannot describe a {type(space).__name__} space in {CONFIG_FILE}")
+
+
+def _space_from_json(d: dict[str, Any]) -> gymnasium.Space:
+    if d["type"] == "Box":
+        shape = tuple(int(v) for v in d["shape"])
+        low = np.asarray(d["low"], dtype=d["dtype"]).reshape(shape)
+        high = np.asarray(d["high"], dtype=d["dtype"]).reshape(shape)
+        return gymnasium.spaces.Box(low, high, shape, dtype=d["dtype"])
+    if d["type"] == "Discrete":
+        return gymnasium.spaces.Discrete(int(d["n"]), start=int(d.get("start", 0)))
+    raise ValueError(f"unknown space type {d['type']!r}")
+
+
+def _jsonable(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, (bool, int, str)) or value is None:
+        return value
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    raise ValueError(f"policy_kwargs value {value!r} ({type(value).__name__}) has no JSON form")
+
+
+def _normalization_to_json(vecnorm: "VecNormalize | None") -> dict[str, Any] | None:
+    if vecnorm is None or not vecnorm.norm_obs:
+        return None
+    rms = vecnorm.obs_rms
+    return {"mean": np.asarray(rms.mean, dtype=np.float64).tolist(), "var": np.asarray(rms.var, dtype=np.float64).tolist(),
+            "count": float(rms.count), "epsilon": float(vecnorm.epsilon), "clip_obs": float(vecnorm.clip_obs)}
+
+
+def _normalization_from_json(d: dict[str, Any] | None, source: Path) -> ObsNormalizer | None:
+    if d is None:
+        return None
+    try:
+        return ObsNormalizer(np.asarray(d["mean"]), np.asarray(d["var"]), d["epsilon"], d["clip_obs"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{source}: normalization: {exc}") from None
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m baselines.safe_io DIR [DIR ...] [--algo ppo]``: write the tensors + JSON files
+    beside the ``model.zip`` / ``vecnormalize.pkl`` of older run directories.
+
+    Converting unpickles those files once: run it only on files you trust (your own runs).
+    """
+    import argparse
+    import sys
+
+    from baselines.model_io import load_model
+
+    parser = argparse.ArgumentParser(prog="python -m baselines.safe_io", description=main.__doc__.split("\n\n")[0])
+    parser.add_argument("dirs", nargs="+", help="run or checkpoint directories holding model.zip")
+    parser.add_argument("--algo", default="ppo", help="the algorithm that saved them (ppo, sac, a2c, td3, ddpg; bc = ppo)")
+    args = parser.parse_args(argv)
+    for d in args.dirs:
+        try:
+            model, vecnorm = load_model(d, args.algo)
+        except (FileNotFoundError, ValueError) as exc:
+            print(f"error: {d}: {exc}", file=sys.stderr)
+            return 2
+        out = save_policy(model, Path(d) if Path(d).is_dir() else Path(d).parent, type(model).__name__.lower(), vecnorm)
+        print(f"wrote {out / WEIGHTS_FILE} and {out / CONFIG_FILE}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
