@@ -262,14 +262,11 @@ def load_run_policy(directory: str | Path) -> MAPPOPolicy:
     import torch
     from safetensors.torch import load_file
 
+    from baselines.safe_io import read_description
+
     d = Path(directory).expanduser()
     cfg_path = d / CONFIG_FILE
-    try:
-        meta = json.loads(cfg_path.read_text())
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{cfg_path}: not a readable MAPPO policy description ({exc})") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise ValueError(f"{cfg_path}: format: expected {FORMAT!r}")
+    meta = read_description(cfg_path, FORMAT)
     hidden = [int(h) for h in meta["config"]["hidden"]]
     obs_rms = RunningMeanStd.from_json(meta["obs_rms"])
     actor = _mlp([obs_rms.mean.shape[0], *hidden, 2])

@@ -95,12 +95,7 @@ def load_policy_dir(directory: str | Path) -> tuple[Any, ObsNormalizer | None, s
 
     d = Path(directory)
     cfg_path = d / CONFIG_FILE
-    try:
-        config = json.loads(cfg_path.read_text())
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{cfg_path}: not a readable JSON policy description ({exc})") from None
-    if not isinstance(config, dict) or config.get("format") != FORMAT:
-        raise ValueError(f"{cfg_path}: format: expected {FORMAT!r}, got {config.get('format') if isinstance(config, dict) else config!r}")
+    config = read_description(cfg_path, FORMAT)
     try:
         algo = str(config["algo"])
         obs_space = _space_from_json(config["observation_space"])
@@ -117,6 +112,18 @@ def load_policy_dir(directory: str | Path) -> tuple[Any, ObsNormalizer | None, s
         raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the network of {cfg_path.name} ({exc})") from None
     policy.set_training_mode(False)
     return policy, _normalization_from_json(config.get("normalization"), cfg_path), algo
+
+
+def read_description(path: Path, fmt: str) -> dict[str, Any]:
+    """The JSON object in ``path`` whose ``format`` is ``fmt``, or a ``ValueError`` naming the file."""
+    try:
+        config = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not a readable JSON policy description ({exc})") from None
+    got = config.get("format") if isinstance(config, dict) else config
+    if got != fmt:
+        raise ValueError(f"{path}: format: expected {fmt!r}, got {got!r}")
+    return config
 
 
 # --------------------------------------------------------------------------- helpers
