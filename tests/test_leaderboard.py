@@ -278,3 +278,25 @@ def test_baselines_evaluate_help() -> None:
 def test_na_row_in_a_markdown_cell_escapes_pipes() -> None:
     board = Leaderboard(["p"], ["s"], {"s": [0]}, {}, [Row("p", "s", [0], None, "no | way\nat all")], [])
     assert "| `p` | n/a: no \\| way at all |" in board.to_markdown()
+
+
+def test_paired_differences_pair_by_seed(tmp_path, capsys) -> None:
+    import json as _json
+
+    from swarm_env import paired
+
+    def ep(policy, seed, collisions, err):
+        return {"policy": policy, "scenario": "random", "seed": seed,
+                "metrics": {"collisions": {"total": collisions}, "formation_error": {"mean": err}, "success": False}}
+
+    # Large between-world variance, a constant paired difference of -1 collision.
+    base = [ep("pursuit", s, 10 * s, 0.5) for s in range(6)]
+    better = [ep("mine", s, 10 * s - 1, 0.5) for s in range(6)]
+    doc = {"policies": ["pursuit", "mine"], "episodes": base + better}
+    d = paired.paired_differences(doc, "mine", "pursuit")
+    assert d["collisions"]["mean"] == -1.0 and d["collisions"]["ci95"] == 0.0 and d["collisions"]["n"] == 6
+    assert d["collisions"]["excludes_zero"] and not d["formation_error"]["excludes_zero"]
+    path = tmp_path / "lb.json"
+    path.write_text(_json.dumps(doc))
+    assert paired.main([str(path)]) == 0 and "`mine` | 6 | -1.000 ± 0.000 *" in capsys.readouterr().out
+    assert paired.main([str(path), "--baseline", "nobody"]) == 2
