@@ -28,7 +28,9 @@ Data split (as the SB3 baselines): training worlds are the generator streams of 
 
 A run directory ``<runs_dir>/<run_name>/`` holds ``config.json``, ``versions.json``,
 ``policy.safetensors`` + ``policy.json`` (actor, critic and normalisation statistics as
-tensors and JSON: loading runs no code), ``best/``, ``eval.csv`` and ``train.csv``. Load it
+tensors and JSON: loading runs no code), ``best/``, ``eval.csv`` (validation, streamed),
+``train.csv`` (losses, action std, contact rate per update), ``learning_curve.png`` and
+``summary.json``. Load it
 with ``mappo:<run dir>`` (or ``mappo:<run dir>/best``) anywhere a policy spec is accepted.
 """
 
@@ -53,7 +55,8 @@ WEIGHTS_FILE = "policy.safetensors"
 CONFIG_FILE = "policy.json"
 #: Model selection: a collision costs as much as this many metres of mean formation error.
 COLLISION_COST_M = 1.0
-EVAL_COLUMNS = ("agent_steps", "wall_s", "score", "formation_error", "collisions", "collisions_ci95", "success_rate")
+EVAL_COLUMNS = ("agent_steps", "wall_s", "score", "formation_error", "formation_error_ci95", "collisions",
+                "collisions_ci95", "success_rate")
 
 
 @dataclass
@@ -378,6 +381,8 @@ def train(cfg: MAPPOConfig) -> Path:
     t0 = time.perf_counter()
     steps_done = 0
     next_eval = cfg.eval_every if cfg.eval_every else None
+    with open(run_dir / "eval.csv", "w", newline="") as fh:
+        csv.writer(fh).writerow(EVAL_COLUMNS)
     train_log = open(run_dir / "train.csv", "w", newline="")
     train_csv = csv.writer(train_log)
     train_csv.writerow(["agent_steps", "wall_s", "policy_loss", "value_loss", "entropy", "std", "mean_reward", "collisions_per_agent_step"])
@@ -388,9 +393,12 @@ def train(cfg: MAPPOConfig) -> Path:
         frozen = RunningMeanStd.from_json(obs_rms.to_json())
         s = evaluate(MAPPOPolicy(actor, frozen), cfg, eval_seeds)
         row = {"agent_steps": steps_done, "wall_s": round(time.perf_counter() - t0, 1), "score": s["score"],
-               "formation_error": s["formation_error"]["mean"], "collisions": s["collisions"]["mean"],
+               "formation_error": s["formation_error"]["mean"], "formation_error_ci95": s["formation_error"]["ci95"],
+               "collisions": s["collisions"]["mean"],
                "collisions_ci95": s["collisions"]["ci95"], "success_rate": s["success_rate"]["mean"]}
         history.append(row)
+        with open(run_dir / "eval.csv", "a", newline="") as fh:  # streamed: the learning curve so far
+            csv.writer(fh).writerow([row[c] for c in EVAL_COLUMNS])
         if row["score"] < best:
             best = row["score"]
             save_run_policy(run_dir / "best", actor, log_std, critic, obs_rms, state_rms, cfg)
@@ -490,14 +498,12 @@ def train(cfg: MAPPOConfig) -> Path:
         evaluate_and_keep()
     wall = time.perf_counter() - t0
     save_run_policy(run_dir, actor, log_std, critic, obs_rms, state_rms, cfg)
-    with open(run_dir / "eval.csv", "w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(EVAL_COLUMNS)
-        for row in history:
-            writer.writerow([row[c] for c in EVAL_COLUMNS])
     summary = {"agent_steps": steps_done, "wall_s": round(wall, 1), "steps_per_s": round(steps_done / wall, 1),
                "best_score": best, "final": history[-1]}
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    from baselines.plots import plot_learning_curve
+
+    plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
     return run_dir
 
 

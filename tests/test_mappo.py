@@ -49,7 +49,8 @@ def test_running_statistics_match_numpy() -> None:
 
 def test_a_tiny_run_is_complete_and_loads_as_a_policy(tmp_path) -> None:
     run = mappo.train(_cfg(tmp_path))
-    for name in ("config.json", "versions.json", "policy.safetensors", "policy.json", "eval.csv", "train.csv", "summary.json"):
+    for name in ("config.json", "versions.json", "policy.safetensors", "policy.json", "eval.csv", "train.csv", "summary.json",
+                 "learning_curve.png"):
         assert (run / name).is_file(), name
     assert (run / "best" / "policy.safetensors").is_file()
     summary = json.loads((run / "summary.json").read_text())
