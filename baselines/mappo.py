@@ -385,7 +385,8 @@ def train(cfg: MAPPOConfig) -> Path:
         csv.writer(fh).writerow(EVAL_COLUMNS)
     train_log = open(run_dir / "train.csv", "w", newline="")
     train_csv = csv.writer(train_log)
-    train_csv.writerow(["agent_steps", "wall_s", "policy_loss", "value_loss", "entropy", "std", "mean_reward", "collisions_per_agent_step"])
+    train_csv.writerow(["agent_steps", "wall_s", "policy_loss", "value_loss", "entropy", "std", "mean_reward",
+                        "contacts_per_agent_step", "first_ratio_error"])
     bar = tqdm(total=n_updates * batch, unit="step", disable=not cfg.progress, desc=kind)
 
     def evaluate_and_keep() -> None:
@@ -405,7 +406,9 @@ def train(cfg: MAPPOConfig) -> Path:
 
     try:
         for _update in range(n_updates):
-            buf_obs = np.zeros((cfg.n_steps, m, n, obs_dim), np.float32)
+            # The actor's inputs as normalised when the actions were drawn: the update must see the same
+            # inputs, or the probability ratio starts away from 1 (the statistics move during a rollout).
+            buf_x = np.zeros((cfg.n_steps, m * n, obs_dim), np.float32)
             buf_crit = []
             buf_act = np.zeros((cfg.n_steps, m * n, 2), np.float32)
             buf_logp = np.zeros((cfg.n_steps, m * n), np.float32)
@@ -424,7 +427,7 @@ def train(cfg: MAPPOConfig) -> Path:
                     action = mean + std * torch.randn(mean.shape, generator=gen)
                     logp = torch.distributions.Normal(mean, std).log_prob(action).sum(-1)
                     value = critic(cin).squeeze(-1)
-                buf_obs[t], buf_act[t], buf_logp[t], buf_val[t] = obs, action.numpy(), logp.numpy(), value.numpy()
+                buf_x[t], buf_act[t], buf_logp[t], buf_val[t] = x.numpy(), action.numpy(), logp.numpy(), value.numpy()
                 buf_crit.append(cin)
                 env_action = np.clip(action.numpy(), -1.0, 1.0).reshape(m, n, 2)
                 for k, e in enumerate(envs):
@@ -452,7 +455,7 @@ def train(cfg: MAPPOConfig) -> Path:
             ret = adv + buf_val
 
             # ---- PPO update on the flattened (step, follower) samples
-            b_x = torch.as_tensor(obs_rms.normalize(buf_obs).reshape(-1, obs_dim))
+            b_x = torch.as_tensor(buf_x.reshape(-1, obs_dim))
             b_c = torch.cat(buf_crit)
             b_a = torch.as_tensor(buf_act.reshape(-1, 2))
             b_logp = torch.as_tensor(buf_logp.reshape(-1))
@@ -461,6 +464,7 @@ def train(cfg: MAPPOConfig) -> Path:
             size = b_x.shape[0]
             mb = max(1, size // cfg.n_minibatches)
             stats = []
+            ratio0 = None  # the first minibatch's ratio: exactly 1 before any update (checked by the tests)
             for _epoch in range(cfg.n_epochs):
                 order = torch.randperm(size, generator=gen)
                 for start in range(0, size, mb):
@@ -469,6 +473,8 @@ def train(cfg: MAPPOConfig) -> Path:
                     dist = torch.distributions.Normal(mean, log_std.exp().expand_as(mean))
                     logp = dist.log_prob(b_a[idx]).sum(-1)
                     ratio = (logp - b_logp[idx]).exp()
+                    if ratio0 is None:
+                        ratio0 = float((ratio.detach() - 1.0).abs().max())
                     a = b_adv[idx]
                     a = (a - a.mean()) / (a.std() + 1e-8)
                     pg = -torch.min(ratio * a, ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range) * a).mean()
@@ -484,7 +490,7 @@ def train(cfg: MAPPOConfig) -> Path:
             bar.update(batch)
             s = np.mean(stats, axis=0)
             train_csv.writerow([steps_done, round(time.perf_counter() - t0, 1), f"{s[0]:.5f}", f"{s[1]:.5f}", f"{s[2]:.4f}",
-                                f"{float(log_std.detach().exp().mean()):.4f}", f"{buf_rew.mean():.5f}", f"{contacts / batch:.5f}"])
+                                f"{float(log_std.detach().exp().mean()):.4f}", f"{buf_rew.mean():.5f}", f"{contacts / batch:.5f}", f"{ratio0:.2e}"])
             train_log.flush()
             if next_eval is not None and steps_done >= next_eval:
                 next_eval += cfg.eval_every

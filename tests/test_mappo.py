@@ -95,3 +95,11 @@ def test_bad_input_is_refused(tmp_path, capsys) -> None:
     (bad / "policy.json").write_text("{}")
     with pytest.raises(PolicyError, match="format: expected"):
         load_policy(f"mappo:{bad}", SwarmEnv("random", **TINY_ENV))
+
+
+def test_the_update_starts_on_the_policy_that_collected_the_data(tmp_path) -> None:
+    import csv
+
+    run = mappo.train(_cfg(tmp_path, eval_every=0))
+    rows = list(csv.DictReader(open(run / "train.csv")))
+    assert rows and all(float(r["first_ratio_error"]) < 1e-5 for r in rows)
