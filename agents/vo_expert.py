@@ -133,6 +133,7 @@ class VOExpert:
         reciprocal: bool = True,
         escape: bool = True,
         full_turn: bool = True,
+        w_current: float = 0.0,
     ) -> None:
         if not (isinstance(time_gap, (int, float)) and math.isfinite(time_gap) and time_gap > 0):
             raise ValueError(f"time_gap must be a finite number > 0, got {time_gap!r}")
@@ -142,7 +143,7 @@ class VOExpert:
         self.avoidance = AvoidanceParams(
             horizon=horizon, horizon_static=horizon_static, margin=margin, human_margin=human_margin, n_v=int(n_v),
             n_w=int(n_w), tau=tau, w_pref=w_pref, w_heading=w_heading, side_bias=side_bias,
-            reciprocal=bool(reciprocal), escape=bool(escape),
+            reciprocal=bool(reciprocal), escape=bool(escape), w_current=w_current,
         )
         self.time_gap = float(time_gap)
         self.feed_forward = bool(feed_forward)

@@ -177,8 +177,8 @@ def add_dataclass_options(parser: "argparse.ArgumentParser", cls: type, *, requi
     Help text = the field's ``#:`` comment plus its default; options left out
     are absent from the parsed namespace (``argparse.SUPPRESS``), so the
     dataclass's own defaults apply. Bools get ``--x/--no-x``, ints accept
-    ``2e6``, tuples take several ints, and a field named ``env_kwargs`` becomes
-    a repeatable ``--env KEY=VALUE`` (YAML values) collected as a list of pairs.
+    ``2e6``, tuples take several ints, and a field named ``env_kwargs`` (``x_env_kwargs``)
+    becomes a repeatable ``--env KEY=VALUE`` (``--x-env``; YAML values) collected as a list of pairs.
     """
     import argparse
 
@@ -196,8 +196,9 @@ def add_dataclass_options(parser: "argparse.ArgumentParser", cls: type, *, requi
         default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
         shown = list(default) if isinstance(default, tuple) else default
         kwargs: dict[str, Any] = {"help": f"{helps.get(f.name, '')} (default: {shown})", "default": argparse.SUPPRESS}
-        if f.name == "env_kwargs":
-            parser.add_argument("--env", dest="env_kwargs", type=env_item, action="append", metavar="KEY=VALUE", **kwargs)
+        if f.name.endswith("env_kwargs"):  # env_kwargs -> --env, train_env_kwargs -> --train-env
+            env_flag = "--" + f.name[: -len("_kwargs")].replace("_", "-")
+            parser.add_argument(env_flag, dest=f.name, type=env_item, action="append", metavar="KEY=VALUE", **kwargs)
         elif isinstance(default, bool):
             parser.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
         elif isinstance(default, int):

@@ -4,7 +4,9 @@
 
     python -m baselines.mappo --scenario random --total-steps 2e6 --seed 0                  # MAPPO
     python -m baselines.mappo --scenario random --total-steps 2e6 --seed 0 --critic local   # IPPO
-    python -m baselines.mappo --scenario random --total-steps 2e6 --seed 0 --shield         # through the safety layer
+    python -m baselines.mappo ... --shield teach --imitation-coef 1.0   # the safety layer as a teacher
+    python -m baselines.mappo ... --shield execute                      # trained through the safety layer
+    python -m baselines.mappo ... --residual vo --shield execute        # a learned correction of vo
 
 A small PyTorch implementation in the CleanRL spirit, written to read top to bottom. The
 actor maps one follower's observation to a Gaussian over its normalised twist (parameter
@@ -13,25 +15,39 @@ MAPPO, Yu et al. 2022: the global ``env.state()`` joined to the follower's own o
 the "agent-specific global state") or **local** (``critic="local"``, IPPO: the observation
 alone). Observations and states are normalised by running statistics, rewards by a running
 estimate of the return's scale; truncated episodes are bootstrapped from the value of their
-last state. With ``shield`` every copy is a :class:`swarm_env.wrappers.SafetyShield`, so the
-learner is trained on what the safety layer executes (score the result as ``shield:mappo:DIR``).
+last state; the update sees the actor inputs exactly as normalised when the actions were
+drawn (``train.csv``'s ``first_ratio_error`` stays 0).
 
-Why not BenchMARL or TorchRL: both run here (``docs/clients.md``), but BenchMARL pins an old
-TorchRL and pulls a CUDA torch unless installed by hand, and neither can use this repository's
-evaluation path during training; a 300-line trainer keeps the baseline in the default
-install, deterministic, and scored by the same ``run_episode`` as the leaderboard.
+Options that the shipped baselines use (docs/baselines.md gives their commands and results):
 
-Data split (as the SB3 baselines): training worlds are the generator streams of seeds
-``100 * seed + copy`` (below 500), model selection uses validation seeds ``500-549``
-(every ``eval_every`` agent-steps; the best score is kept in ``best/``), and the test seeds
-``1000-1049`` are left to the leaderboard.
+* ``pretrain`` (default ``vo``): a DAgger warm start of the actor from that expert
+  (:mod:`baselines.imitation`, a few minutes) so that PPO starts from a policy that holds its
+  slot; the observation statistics are then fixed. ``--pretrain none`` starts from scratch.
+* ``shield``: the VO safety layer of :mod:`swarm_env.safety`. ``execute``: every copy is a
+  :class:`swarm_env.wrappers.SafetyShield`, the env executes the safe actions and the policy is
+  scored through it. ``teach``: the env executes the learner's own actions, but the shield
+  computes the safe action nearest to each sampled one; ``intervention_coef`` charges the size
+  of that correction as a reward penalty, and ``imitation_coef`` adds a loss pulling the actor's
+  mean to the safe action wherever the shield intervened (decayed to 0 over the first
+  ``imitation_anneal`` of the training), so that the policy learns to act safely *alone*.
+* ``residual`` (e.g. ``vo``): the executed action is ``clip(expert + residual_scale *
+  clip(sample))``; the actor reads the observation and the expert's action (privileged at
+  execution, like the expert).
+* Reward shaping goes through the env's reward (``--env 'reward={approach: 5.0}'``: the
+  anticipatory clearance term of :mod:`swarm_env.rewards`).
+
+Data split: PPO's worlds are the generator streams of seeds ``100 * seed + copy``; DAgger's
+seeds ``10000 + 1000 * seed`` onwards; model selection uses validation seeds ``500-549``
+(every ``eval_every`` agent-steps, collisions costing 1 m each; the best is kept in ``best/``);
+the test seeds ``1000-1049`` are left to the leaderboard.
 
 A run directory ``<runs_dir>/<run_name>/`` holds ``config.json``, ``versions.json``,
 ``policy.safetensors`` + ``policy.json`` (actor, critic and normalisation statistics as
-tensors and JSON: loading runs no code), ``best/``, ``eval.csv`` (validation, streamed),
-``train.csv`` (losses, action std, contact rate per update), ``learning_curve.png`` and
-``summary.json``. Load it
-with ``mappo:<run dir>`` (or ``mappo:<run dir>/best``) anywhere a policy spec is accepted.
+tensors and JSON: loading runs no code; :mod:`baselines.mappo_policy`), ``best/``,
+``pretrain.csv`` (DAgger rounds), ``eval.csv`` (validation, streamed), ``train.csv`` (losses,
+action std, contact and intervention rates per update, time spent in rollouts and updates),
+``learning_curve.png`` and ``summary.json``. Load it with ``mappo:<run dir>`` (or
+``mappo:<run dir>/best``) anywhere a policy spec is accepted.
 """
 
 from __future__ import annotations
@@ -48,30 +64,55 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env.state import WorldState
+from baselines.mappo_policy import MAPPOPolicy, ResidualPolicy, residual_action, save_run_policy
+from baselines.ppo_core import RunningMeanStd, gae, mlp, ppo_policy_loss
 
-FORMAT = "swarm_env.mappo/1"
-WEIGHTS_FILE = "policy.safetensors"
-CONFIG_FILE = "policy.json"
 #: Model selection: a collision costs as much as this many metres of mean formation error.
 COLLISION_COST_M = 1.0
 EVAL_COLUMNS = ("agent_steps", "wall_s", "score", "formation_error", "formation_error_ci95", "collisions",
                 "collisions_ci95", "success_rate")
+TRAIN_COLUMNS = ("agent_steps", "wall_s", "rollout_s", "update_s", "policy_loss", "value_loss", "imitation_loss",
+                 "entropy", "std", "mean_reward", "contacts_per_agent_step", "intervention_rate", "first_ratio_error")
+SHIELD_MODES = ("off", "teach", "execute")
 
 
 @dataclass
 class MAPPOConfig:
-    """Everything that defines a MAPPO/IPPO run."""
+    """Everything that defines a MAPPO/IPPO run (each field is a command-line option)."""
 
     #: Built-in scenario name, a YAML path, or "random".
     scenario: str = "random"
     #: Extra SwarmEnv keyword arguments / random-generator knobs, as KEY=VALUE (YAML values).
     env_kwargs: dict[str, Any] = field(default_factory=dict)
+    #: More KEY=VALUE for the training worlds only (e.g. a training reward or denser crowds); validation uses env_kwargs.
+    train_env_kwargs: dict[str, Any] = field(default_factory=dict)
     #: Critic input: central (MAPPO: env.state() + own observation) or local (IPPO: own observation).
     critic: str = "central"
-    #: Train and evaluate through the VO safety layer (swarm_env.wrappers.SafetyShield).
-    shield: bool = False
-    #: Training budget in agent-steps (one follower acting once).
+    #: DAgger warm start of the actor from this expert policy ("none": from scratch).
+    pretrain: str = "vo"
+    #: DAgger rounds (the first driven by the expert).
+    pretrain_rounds: int = 5
+    #: Episodes per DAgger round.
+    pretrain_episodes: int = 25
+    #: Fitting epochs after each DAgger round.
+    pretrain_epochs: int = 10
+    #: The VO safety layer: off, teach (corrections as penalty and imitation targets), execute (the env runs them).
+    shield: str = "off"
+    #: Reward penalty per unit of shield correction (normalised action distance), with a shield.
+    intervention_coef: float = 0.0
+    #: Weight of the loss pulling the actor's mean to the shield's safe action where it intervened.
+    imitation_coef: float = 0.0
+    #: Fraction of the training over which imitation_coef decays linearly to 0 (0: constant).
+    imitation_anneal: float = 0.0
+    #: Teaching shield: weight of staying close to the current twist (commits to one side when avoiding).
+    teach_w_current: float = 0.0
+    #: Teaching shield: keep-right tie breaker (consistent sides in head-on encounters).
+    teach_side_bias: float = 0.0
+    #: Residual learning: the actor adds a bounded correction to this expert's action (e.g. vo).
+    residual: str | None = None
+    #: Largest residual correction (normalised action units).
+    residual_scale: float = 0.5
+    #: Training budget in agent-steps (one follower acting once), after the warm start.
     total_steps: int = 2_000_000
     #: Seed of the networks, the action sampling and the training worlds.
     seed: int = 0
@@ -101,6 +142,8 @@ class MAPPOConfig:
     hidden: tuple[int, ...] = (128, 128)
     #: Initial log standard deviation of the actions (on the [-1, 1] action range).
     log_std_init: float = -0.5
+    #: Updates that train the critic alone before the actor learns (lets a warm-started actor keep its skill).
+    critic_warmup: int = 0
     #: Evaluate every this many agent-steps (0 = only at the end).
     eval_every: int = 400_000
     #: Validation seeds, e.g. 500-549.
@@ -117,194 +160,48 @@ class MAPPOConfig:
     def __post_init__(self) -> None:
         if self.critic not in ("central", "local"):
             raise ValueError(f"critic must be 'central' or 'local', got {self.critic!r}")
+        if self.shield not in SHIELD_MODES:
+            raise ValueError(f"shield must be one of {', '.join(SHIELD_MODES)}, got {self.shield!r}")
+        if self.pretrain in ("", "none", "None"):
+            self.pretrain = "none"
         for name in ("total_steps", "n_copies", "n_steps", "n_epochs", "n_minibatches", "torch_threads"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
+        for name in ("pretrain_rounds", "pretrain_episodes", "pretrain_epochs", "critic_warmup", "eval_every"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{name} must be an int >= 0, got {value!r}")
+        for name in ("intervention_coef", "imitation_coef", "residual_scale"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if not 0.0 <= self.imitation_anneal <= 1.0:
+            raise ValueError(f"imitation_anneal must be in [0, 1], got {self.imitation_anneal!r}")
+        if self.shield == "off" and (self.intervention_coef or self.imitation_coef):
+            raise ValueError("intervention_coef and imitation_coef need a shield (--shield teach or execute)")
+        if self.residual and self.pretrain != "none":
+            raise ValueError("a residual policy starts from its expert (zero correction): use --pretrain none")
         self.hidden = tuple(int(h) for h in self.hidden)
+
+    @property
+    def kind(self) -> str:
+        return "mappo" if self.critic == "central" else "ippo"
 
     def to_json(self) -> str:
         return json.dumps(dataclasses.asdict(self), indent=2)
 
 
-# --------------------------------------------------------------------------- normalisation
+# --------------------------------------------------------------------------- evaluation
 
 
-class RunningMeanStd:
-    """Running mean and variance of batches (Chan et al.'s parallel update), in float64."""
-
-    def __init__(self, shape: tuple[int, ...], epsilon: float = 1e-8, clip: float = 10.0) -> None:
-        self.mean = np.zeros(shape)
-        self.var = np.ones(shape)
-        self.count = 1e-4
-        self.epsilon = epsilon
-        self.clip = clip
-
-    def update(self, batch: np.ndarray) -> None:
-        x = np.asarray(batch, dtype=np.float64).reshape(-1, *self.mean.shape)
-        b_mean, b_var, n = x.mean(axis=0), x.var(axis=0), x.shape[0]
-        delta = b_mean - self.mean
-        total = self.count + n
-        self.mean = self.mean + delta * n / total
-        self.var = (self.var * self.count + b_var * n + delta**2 * self.count * n / total) / total
-        self.count = total
-
-    def normalize(self, x: np.ndarray) -> np.ndarray:
-        return np.clip((x - self.mean) / np.sqrt(self.var + self.epsilon), -self.clip, self.clip).astype(np.float32)
-
-    def to_json(self) -> dict[str, Any]:
-        return {"mean": self.mean.tolist(), "var": self.var.tolist(), "count": self.count, "epsilon": self.epsilon, "clip": self.clip}
-
-    @classmethod
-    def from_json(cls, d: dict[str, Any]) -> "RunningMeanStd":
-        rms = cls(tuple(np.asarray(d["mean"]).shape), float(d["epsilon"]), float(d["clip"]))
-        rms.mean, rms.var, rms.count = np.asarray(d["mean"], dtype=np.float64), np.asarray(d["var"], dtype=np.float64), float(d["count"])
-        return rms
-
-
-# --------------------------------------------------------------------------- networks
-
-
-def _mlp(sizes: list[int]) -> Any:
-    import torch.nn as nn
-
-    layers: list[Any] = []
-    for i in range(len(sizes) - 1):
-        layers.append(nn.Linear(sizes[i], sizes[i + 1]))
-        if i < len(sizes) - 2:
-            layers.append(nn.Tanh())
-    return nn.Sequential(*layers)
-
-
-def make_networks(obs_dim: int, state_dim: int, cfg: MAPPOConfig) -> tuple[Any, Any, Any]:
-    """``(actor mean MLP, log_std parameter, critic MLP)``; the critic sees ``state + obs`` (central) or ``obs``."""
-    import torch
-
-    actor = _mlp([obs_dim, *cfg.hidden, 2])
-    log_std = torch.nn.Parameter(torch.full((2,), float(cfg.log_std_init)))
-    critic_in = obs_dim + (state_dim if cfg.critic == "central" else 0)
-    critic = _mlp([critic_in, *cfg.hidden, 1])
-    return actor, log_std, critic
-
-
-def gae(rewards: np.ndarray, values: np.ndarray, dones: np.ndarray, last_values: np.ndarray, gamma: float, lam: float) -> np.ndarray:
-    """Generalised advantage estimates ``(T, B)``.
-
-    ``rewards``, ``values``, ``dones`` are ``(T, B)``: ``dones[t]`` means the episode ended
-    after step ``t`` (a truncated episode's bootstrap is already folded into its last
-    reward), ``last_values`` ``(B,)`` the values after the last step.
-    """
-    T = len(rewards)
-    adv = np.zeros_like(rewards, dtype=np.float64)
-    last = np.zeros(rewards.shape[1])
-    for t in reversed(range(T)):
-        next_value = last_values if t == T - 1 else values[t + 1]
-        live = 1.0 - dones[t]
-        delta = rewards[t] + gamma * next_value * live - values[t]
-        last = delta + gamma * lam * live * last
-        adv[t] = last
-    return adv
-
-
-# --------------------------------------------------------------------------- the policy as a swarm_env policy
-
-
-class MAPPOPolicy:
-    """A trained actor controlling every follower (deterministic: the Gaussian's mean)."""
-
-    def __init__(self, actor: Any, obs_rms: RunningMeanStd, name: str = "mappo") -> None:
-        self.actor = actor
-        self.obs_rms = obs_rms
-        self.name = name
-
-    def reset(self, env: Any, seed: int | None) -> None:
-        from swarm_env.policies import PolicyError
-
-        agent = env.possible_agents[0]
-        want = self.obs_rms.mean.shape
-        have = env.observation_space(agent).shape
-        if want != have:
-            raise PolicyError(f"{self.name} was trained on observations of shape {want}, this env gives {have}")
-        if env.unwrapped.action_type != "continuous":
-            raise PolicyError(f"{self.name} acts in the continuous action space; this env is {env.unwrapped.action_type!r}")
-
-    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
-        import torch
-
-        agents = list(observations)
-        if not agents:
-            return {}
-        x = torch.as_tensor(self.obs_rms.normalize(np.stack([observations[a] for a in agents])))
-        with torch.no_grad():
-            mean = self.actor(x).numpy()
-        action = np.clip(mean, -1.0, 1.0).astype(np.float32)
-        return {a: action[i] for i, a in enumerate(agents)}
-
-
-def save_run_policy(directory: Path, actor: Any, log_std: Any, critic: Any, obs_rms: RunningMeanStd,
-                    state_rms: RunningMeanStd, cfg: MAPPOConfig) -> Path:
-    """Write ``policy.safetensors`` (actor, log_std, critic) and ``policy.json`` into ``directory``."""
-    from safetensors.torch import save_file
-
-    from baselines.safe_io import _atomic
-
-    directory.mkdir(parents=True, exist_ok=True)
-    tensors = {f"actor.{k}": v.detach().contiguous() for k, v in actor.state_dict().items()}
-    tensors.update({f"critic.{k}": v.detach().contiguous() for k, v in critic.state_dict().items()})
-    tensors["log_std"] = log_std.detach().contiguous()
-    meta = {"format": FORMAT, "config": dataclasses.asdict(cfg), "obs_rms": obs_rms.to_json(), "state_rms": state_rms.to_json()}
-    with _atomic(directory / WEIGHTS_FILE) as tmp:
-        save_file(tensors, str(tmp))
-    with _atomic(directory / CONFIG_FILE) as tmp:
-        tmp.write_text(json.dumps(meta) + "\n")
-    return directory
-
-
-def load_run_policy(directory: str | Path) -> MAPPOPolicy:
-    """The actor of a saved run as a :class:`MAPPOPolicy` (no pickle involved)."""
-    import torch
-    from safetensors.torch import load_file
-
-    from baselines.safe_io import read_description
-
-    d = Path(directory).expanduser()
-    cfg_path = d / CONFIG_FILE
-    meta = read_description(cfg_path, FORMAT)
-    hidden = [int(h) for h in meta["config"]["hidden"]]
-    obs_rms = RunningMeanStd.from_json(meta["obs_rms"])
-    actor = _mlp([obs_rms.mean.shape[0], *hidden, 2])
-    try:
-        tensors = load_file(str(d / WEIGHTS_FILE), device="cpu")
-        actor.load_state_dict({k[len("actor."):]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
-    except Exception as exc:  # noqa: BLE001 - any failure here means a bad file
-        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {cfg_path.name} ({exc})") from None
-    actor.eval()
-    torch.set_num_threads(1)  # scoring a small MLP on a few observations: threads only add overhead
-    return MAPPOPolicy(actor, obs_rms, name=f"mappo:{directory}")
-
-
-def make_policy(env: Any, arg: str | None = None) -> MAPPOPolicy:
-    """Entry point ``mappo:PATH`` (a run directory or its ``best/``)."""
-    from swarm_env.policies import PolicyError
-
-    if not arg:
-        raise PolicyError("policy 'mappo' needs a run directory: mappo:PATH")
-    try:
-        policy = load_run_policy(arg)
-    except (FileNotFoundError, ValueError) as exc:
-        raise PolicyError(f"policy mappo:{arg}: {exc}") from None
-    policy.reset(env, None)
-    return policy
-
-
-# --------------------------------------------------------------------------- training
-
-
-def _make_env(cfg: MAPPOConfig) -> Any:
+def make_env(cfg: MAPPOConfig, shielded: bool) -> Any:
+    """One training env: a SwarmEnv of the run's scenario (``env_kwargs`` then ``train_env_kwargs``),
+    wrapped in the safety layer if ``shielded``."""
     from swarm_env.env import SwarmEnv
 
-    env = SwarmEnv(cfg.scenario, **cfg.env_kwargs)
-    if cfg.shield:
+    env = SwarmEnv(cfg.scenario, **{**cfg.env_kwargs, **cfg.train_env_kwargs})
+    if shielded:
         from swarm_env.wrappers import SafetyShield
 
         env = SafetyShield(env)
@@ -312,18 +209,277 @@ def _make_env(cfg: MAPPOConfig) -> Any:
 
 
 def evaluate(policy: MAPPOPolicy, cfg: MAPPOConfig, seeds: list[int]) -> dict[str, Any]:
-    """Score ``policy`` on ``seeds`` with the leaderboard's episode loop (through the shield if ``cfg.shield``)."""
+    """Score ``policy`` on ``seeds`` with the leaderboard's episode loop, through the shield when the run
+    executes through it (``shield="execute"``); ``score`` is formation error + 1 m per collision."""
     from swarm_env.env import SwarmEnv
     from swarm_env.evaluation import run_episode, summarize
     from swarm_env.policies import ShieldedPolicy
 
     env = SwarmEnv(cfg.scenario, **cfg.env_kwargs)
-    scored: Any = ShieldedPolicy.around(policy) if cfg.shield else policy
+    scored: Any = ShieldedPolicy.around(policy) if cfg.shield == "execute" else policy
     episodes = [run_episode(env, scored, s) for s in seeds]
     env.close()
     s = summarize(episodes)
     s["score"] = s["formation_error"]["mean"] + COLLISION_COST_M * s["collisions"]["mean"]
     return s
+
+
+# --------------------------------------------------------------------------- training
+
+
+@dataclass
+class Batch:
+    """One rollout of ``T`` steps of ``B = copies x followers`` agents, as the update needs it."""
+
+    actor_in: np.ndarray  # (T, B, D) actor inputs, normalised as when the actions were drawn
+    critic_in: list[Any]  # T tensors (B, C)
+    actions: np.ndarray  # (T, B, 2) sampled actions (before clipping)
+    logp: np.ndarray  # (T, B)
+    values: np.ndarray  # (T, B)
+    rewards: np.ndarray  # (T, B) scaled, bootstraps folded in
+    dones: np.ndarray  # (T, B)
+    safe: np.ndarray  # (T, B, 2) the shield's actions (teach/execute)
+    intervened: np.ndarray  # (T, B) float 0/1
+    contacts: int = 0
+
+    @classmethod
+    def empty(cls, t: int, b: int, d: int) -> "Batch":
+        return cls(np.zeros((t, b, d), np.float32), [], np.zeros((t, b, 2), np.float32), np.zeros((t, b), np.float32),
+                   np.zeros((t, b)), np.zeros((t, b)), np.zeros((t, b)), np.zeros((t, b, 2), np.float32),
+                   np.zeros((t, b), np.float32))
+
+
+class Trainer:
+    """The state of one run: env copies, networks, statistics; :meth:`collect` then :meth:`update`."""
+
+    def __init__(self, cfg: MAPPOConfig, run_dir: Path) -> None:
+        import torch
+
+        self.cfg = cfg
+        self.run_dir = run_dir
+        torch.set_num_threads(cfg.torch_threads)
+        torch.manual_seed(cfg.seed)
+        torch.use_deterministic_algorithms(True)
+        self.gen = torch.Generator().manual_seed(cfg.seed)
+        self.envs = [make_env(cfg, cfg.shield == "execute") for _ in range(cfg.n_copies)]
+        base = self.envs[0].unwrapped
+        self.agents = list(base.possible_agents)
+        self.n, self.m = len(self.agents), cfg.n_copies
+        self.obs_dim = base.observation_space(self.agents[0]).shape[0] + (2 if cfg.residual else 0)
+        self.state_dim = base.state_space.shape[0] if cfg.critic == "central" else 0
+        self.actor = mlp([self.obs_dim, *cfg.hidden, 2])
+        self.log_std = torch.nn.Parameter(torch.full((2,), float(cfg.log_std_init)))
+        self.critic = mlp([self.obs_dim + self.state_dim, *cfg.hidden, 1])
+        if cfg.residual:  # start at the expert: a zero correction
+            with torch.no_grad():
+                self.actor[-1].weight.mul_(0.01)
+                self.actor[-1].bias.zero_()
+        self.obs_rms = RunningMeanStd((self.obs_dim,))
+        self.state_rms = RunningMeanStd((max(self.state_dim, 1),))
+        self.ret_rms = RunningMeanStd(())
+        self.experts: list[Any] = []
+        if cfg.residual:
+            from swarm_env.policies import load_policy
+
+            self.experts = [load_policy(cfg.residual, e.unwrapped) for e in self.envs]
+        self.shield_params: Any = None
+        if cfg.shield == "teach":
+            from swarm_env.safety import AvoidanceParams
+
+            # The SafetyShield wrapper's defaults, plus the optional consistency terms of a teacher.
+            self.shield_params = AvoidanceParams(w_heading=0.0, w_current=cfg.teach_w_current,
+                                                 side_bias=cfg.teach_side_bias)
+        self.pretrain_log: list[dict[str, float]] = []
+
+    # ---------------------------------------------------------------- warm start
+    def pretrain(self) -> None:
+        """DAgger from ``cfg.pretrain`` (worlds 10000 + 1000 * seed on), then fixed observation statistics."""
+        from baselines.imitation import DaggerSettings, dagger
+
+        cfg = self.cfg
+        settings = DaggerSettings(expert=cfg.pretrain, rounds=cfg.pretrain_rounds, episodes=cfg.pretrain_episodes,
+                                  epochs=cfg.pretrain_epochs, first_seed=10_000 + 1000 * cfg.seed)
+        env = make_env(cfg, False)
+        self.pretrain_log = dagger(env, self.actor, self.obs_rms, settings, self.gen, progress=cfg.progress)
+        env.close()
+
+    # ---------------------------------------------------------------- rollouts
+    def _inputs(self, k: int, obs: dict[str, np.ndarray]) -> np.ndarray:
+        """Actor inputs (N, D) of copy ``k``: the observations (and for a residual, the expert's actions)."""
+        x = np.stack([obs[a] for a in self.agents])
+        if not self.cfg.residual:
+            return x
+        env = self.envs[k]
+        base = self.experts[k].act(obs, env.unwrapped.world_state())
+        self.base_actions[k] = np.stack([base[a] for a in self.agents])
+        return np.concatenate([x, self.base_actions[k]], axis=1)
+
+    def _state(self, k: int) -> np.ndarray:
+        return self.envs[k].state() if self.state_dim else np.zeros(1, np.float32)
+
+    def start(self) -> None:
+        m, n = self.m, self.n
+        self.base_actions = np.zeros((m, n, 2), np.float32)
+        self.inputs = np.zeros((m, n, self.obs_dim), np.float32)
+        self.states = np.zeros((m, max(self.state_dim, 1)), np.float32)
+        self.returns = np.zeros((m, n))
+        for k, e in enumerate(self.envs):
+            obs, _ = e.reset(seed=100 * self.cfg.seed + k)
+            for ex in self.experts[k:k + 1]:
+                ex.reset(e.unwrapped, None)
+            self.inputs[k], self.states[k] = self._inputs(k, obs), self._state(k)
+
+    def critic_input(self, inputs: np.ndarray, states: np.ndarray) -> Any:
+        import torch
+
+        x = self.obs_rms.normalize(inputs).reshape(-1, self.obs_dim)
+        if self.state_dim:
+            x = np.concatenate([np.repeat(self.state_rms.normalize(states), self.n, axis=0), x], axis=1)
+        return torch.as_tensor(x)
+
+    def collect(self) -> Batch:
+        """One rollout of ``n_steps`` steps of every copy."""
+        import torch
+
+        cfg, m, n = self.cfg, self.m, self.n
+        batch = Batch.empty(cfg.n_steps, m * n, self.obs_dim)
+        for t in range(cfg.n_steps):
+            self.obs_rms.update(self.inputs.reshape(-1, self.obs_dim))
+            if self.state_dim:
+                self.state_rms.update(self.states)
+            x = torch.as_tensor(self.obs_rms.normalize(self.inputs).reshape(-1, self.obs_dim))
+            cin = self.critic_input(self.inputs, self.states)
+            with torch.no_grad():
+                mean = self.actor(x)
+                std = self.log_std.exp().expand_as(mean)
+                action = mean + std * torch.randn(mean.shape, generator=self.gen)
+                logp = torch.distributions.Normal(mean, std).log_prob(action).sum(-1)
+                value = self.critic(cin).squeeze(-1)
+            batch.actor_in[t], batch.actions[t], batch.logp[t], batch.values[t] = x.numpy(), action.numpy(), logp.numpy(), value.numpy()
+            batch.critic_in.append(cin)
+            sampled = np.clip(action.numpy(), -1.0, 1.0).reshape(m, n, 2)
+            env_action = residual_action(self.base_actions, sampled, cfg.residual_scale) if cfg.residual else sampled
+            for k, e in enumerate(self.envs):
+                self._step_copy(k, e, env_action[k], batch, t)
+        return batch
+
+    def _step_copy(self, k: int, env: Any, action: np.ndarray, batch: Batch, t: int) -> None:
+        import torch
+
+        cfg, n, agents = self.cfg, self.n, self.agents
+        cols = slice(k * n, (k + 1) * n)
+        correction = None
+        if cfg.shield == "teach":
+            from swarm_env.safety import shield_actions
+
+            res = shield_actions(env.unwrapped.world_state(), action, self.shield_params)
+            batch.safe[t, cols], batch.intervened[t, cols], correction = res.actions, res.intervened, res.correction
+        obs, rewards, terms, truncs, infos = env.step({a: action[i] for i, a in enumerate(agents)})
+        rew = np.array([rewards[a] for a in agents])
+        if cfg.shield == "execute":
+            correction = np.array([infos[a]["shield_correction"] for a in agents])
+            batch.safe[t, cols] = np.stack([env.last_safe_actions[a] for a in agents])
+            batch.intervened[t, cols] = correction > 0
+        if correction is not None and cfg.intervention_coef:
+            rew = rew - cfg.intervention_coef * correction
+        batch.contacts += sum(infos[a]["contacts_robot"] + infos[a]["contacts_obstacle"] + infos[a]["contacts_human"]
+                              + infos[a]["contacts_wall"] for a in agents)
+        self.returns[k] = self.returns[k] * cfg.gamma + rew
+        self.ret_rms.update(self.returns[k])
+        scaled = np.clip(rew / np.sqrt(self.ret_rms.var + self.ret_rms.epsilon), -10.0, 10.0)
+        done = not env.agents
+        if done:
+            if any(truncs.values()) and not any(terms.values()):  # bootstrap a cut-off episode
+                last_in = self._inputs(k, obs)
+                with torch.no_grad():
+                    scaled = scaled + cfg.gamma * self.critic(
+                        self.critic_input(last_in[None], self._state(k)[None])).squeeze(-1).numpy()
+            self.returns[k] = 0.0
+            obs, _ = env.reset()
+            for ex in self.experts[k:k + 1]:
+                ex.reset(env.unwrapped, None)
+        batch.rewards[t, cols] = scaled
+        batch.dones[t, cols] = float(done)
+        self.inputs[k], self.states[k] = self._inputs(k, obs), self._state(k)
+
+    # ---------------------------------------------------------------- update
+    def update(self, batch: Batch, optim: Any, update_index: int, n_updates: int) -> dict[str, float]:
+        """PPO epochs over the rollout (critic only during the warm-up updates)."""
+        import torch
+
+        cfg = self.cfg
+        with torch.no_grad():
+            last_val = self.critic(self.critic_input(self.inputs, self.states)).squeeze(-1).numpy()
+        adv = gae(batch.rewards, batch.values, batch.dones, last_val, cfg.gamma, cfg.gae_lambda)
+        ret = adv + batch.values
+        b_x = torch.as_tensor(batch.actor_in.reshape(-1, self.obs_dim))
+        b_c = torch.cat(batch.critic_in)
+        b_a = torch.as_tensor(batch.actions.reshape(-1, 2))
+        b_logp = torch.as_tensor(batch.logp.reshape(-1))
+        b_adv = torch.as_tensor(adv.reshape(-1), dtype=torch.float32)
+        b_ret = torch.as_tensor(ret.reshape(-1), dtype=torch.float32)
+        b_safe = torch.as_tensor(batch.safe.reshape(-1, 2))
+        b_int = torch.as_tensor(batch.intervened.reshape(-1))
+        im_coef = cfg.imitation_coef
+        if cfg.imitation_anneal:
+            im_coef *= max(0.0, 1.0 - update_index / (cfg.imitation_anneal * n_updates))
+        actor_learns = update_index >= cfg.critic_warmup
+        params = [*self.actor.parameters(), self.log_std, *self.critic.parameters()]
+        size = b_x.shape[0]
+        mb = max(1, size // cfg.n_minibatches)
+        stats = []
+        ratio0 = None  # the first minibatch's |ratio - 1|: 0 before any update (checked by the tests)
+        for _epoch in range(cfg.n_epochs):
+            order = torch.randperm(size, generator=self.gen)
+            for start in range(0, size, mb):
+                idx = order[start:start + mb]
+                mean = self.actor(b_x[idx])
+                dist = torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
+                pg, ratio_err = ppo_policy_loss(dist.log_prob(b_a[idx]).sum(-1), b_logp[idx], b_adv[idx], cfg.clip_range)
+                if ratio0 is None:
+                    ratio0 = ratio_err
+                v_loss = 0.5 * (self.critic(b_c[idx]).squeeze(-1) - b_ret[idx]).pow(2).mean()
+                entropy = dist.entropy().sum(-1).mean()
+                # The imitation term averages over the whole minibatch (zero where the shield let the action
+                # pass), so its weight relative to PPO's loss is the intervention rate times imitation_coef.
+                im = (b_int[idx] * (mean - b_safe[idx]).pow(2).sum(-1)).sum() / len(idx)
+                loss = cfg.vf_coef * v_loss
+                if actor_learns:
+                    loss = loss + pg - cfg.ent_coef * entropy + im_coef * im
+                optim.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
+                optim.step()
+                stats.append((pg.item(), v_loss.item(), im.item(), entropy.item()))
+        s = np.mean(stats, axis=0)
+        return {"policy_loss": s[0], "value_loss": s[1], "imitation_loss": s[2], "entropy": s[3],
+                "std": float(self.log_std.detach().exp().mean()), "first_ratio_error": ratio0 or 0.0}
+
+    # ---------------------------------------------------------------- outputs
+    def policy(self) -> MAPPOPolicy:
+        """The current actor as a deterministic policy (with frozen copies of the statistics)."""
+        if self.cfg.residual:
+            from swarm_env.policies import load_policy
+
+            expert = load_policy(self.cfg.residual, self.envs[0].unwrapped)
+            return ResidualPolicy(self.actor, self.obs_rms.copy(), expert, self.cfg.residual_scale)
+        return MAPPOPolicy(self.actor, self.obs_rms.copy())
+
+    def save(self, directory: Path) -> Path:
+        return save_run_policy(directory, self.actor, self.log_std, self.critic, self.obs_rms, self.state_rms, self.cfg)
+
+    def close(self) -> None:
+        for e in self.envs:
+            e.close()
+
+
+def _write_row(path: Path, columns: tuple[str, ...], row: dict[str, Any]) -> None:
+    with open(path, "a", newline="") as fh:  # streamed: readable while the run goes on
+        csv.writer(fh).writerow([row[c] for c in columns])
+
+
+def _fmt(x: Any) -> Any:
+    return f"{x:.6g}" if isinstance(x, float) else x
 
 
 def train(cfg: MAPPOConfig) -> Path:
@@ -334,178 +490,79 @@ def train(cfg: MAPPOConfig) -> Path:
     from baselines.config import parse_seeds
     from baselines.train import package_versions
 
-    torch.set_num_threads(cfg.torch_threads)
-    torch.manual_seed(cfg.seed)
-    torch.use_deterministic_algorithms(True)
-    kind = "mappo" if cfg.critic == "central" else "ippo"
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    run_dir = Path(cfg.runs_dir) / (cfg.run_name or f"{kind}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}")
+    run_dir = Path(cfg.runs_dir) / (cfg.run_name or f"{cfg.kind}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}")
     if (run_dir / "config.json").exists():
         raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name")
+    eval_seeds = parse_seeds(cfg.eval_seeds)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
     (run_dir / "versions.json").write_text(json.dumps(package_versions(), indent=2) + "\n")
-    eval_seeds = parse_seeds(cfg.eval_seeds)
+    for name, columns in (("eval.csv", EVAL_COLUMNS), ("train.csv", TRAIN_COLUMNS)):
+        with open(run_dir / name, "w", newline="") as fh:
+            csv.writer(fh).writerow(columns)
 
-    envs = [_make_env(cfg) for _ in range(cfg.n_copies)]
-    agents = list(envs[0].possible_agents)
-    n, m = len(agents), cfg.n_copies
-    obs_dim = envs[0].observation_space(agents[0]).shape[0]
-    state_dim = envs[0].state_space.shape[0]
-    actor, log_std, critic = make_networks(obs_dim, state_dim, cfg)
-    params = [*actor.parameters(), log_std, *critic.parameters()]
+    t0 = time.perf_counter()
+    trainer = Trainer(cfg, run_dir)
+    if cfg.pretrain != "none":
+        trainer.pretrain()
+        with open(run_dir / "pretrain.csv", "w", newline="") as fh:
+            w = csv.DictWriter(fh, fieldnames=list(trainer.pretrain_log[0]))
+            w.writeheader()
+            w.writerows(trainer.pretrain_log)
+    pretrain_s = time.perf_counter() - t0
+    params = [*trainer.actor.parameters(), trainer.log_std, *trainer.critic.parameters()]
     optim = torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    obs_rms, state_rms, ret_rms = RunningMeanStd((obs_dim,)), RunningMeanStd((state_dim,)), RunningMeanStd(())
-    returns = np.zeros((m, n))
-
-    def observe(e: Any, o: dict) -> tuple[np.ndarray, np.ndarray]:
-        return np.stack([o[a] for a in agents]), e.state()
-
-    obs = np.zeros((m, n, obs_dim), np.float32)
-    states = np.zeros((m, state_dim), np.float32)
-    for k, e in enumerate(envs):
-        o, _ = e.reset(seed=100 * cfg.seed + k)
-        obs[k], states[k] = observe(e, o)
-
-    def critic_input(o: np.ndarray, s: np.ndarray) -> Any:
-        x = obs_rms.normalize(o).reshape(-1, obs_dim)
-        if cfg.critic == "central":
-            x = np.concatenate([np.repeat(state_rms.normalize(s), n, axis=0), x], axis=1)
-        return torch.as_tensor(x)
-
-    batch = cfg.n_steps * m * n
-    n_updates = max(1, cfg.total_steps // batch)
+    batch_size = cfg.n_steps * trainer.m * trainer.n
+    n_updates = max(1, cfg.total_steps // batch_size)
     best = float("inf")
     history: list[dict[str, Any]] = []
-    t0 = time.perf_counter()
     steps_done = 0
-    next_eval = cfg.eval_every if cfg.eval_every else None
-    with open(run_dir / "eval.csv", "w", newline="") as fh:
-        csv.writer(fh).writerow(EVAL_COLUMNS)
-    train_log = open(run_dir / "train.csv", "w", newline="")
-    train_csv = csv.writer(train_log)
-    train_csv.writerow(["agent_steps", "wall_s", "policy_loss", "value_loss", "entropy", "std", "mean_reward",
-                        "contacts_per_agent_step", "first_ratio_error"])
-    bar = tqdm(total=n_updates * batch, unit="step", disable=not cfg.progress, desc=kind)
 
     def evaluate_and_keep() -> None:
         nonlocal best
-        frozen = RunningMeanStd.from_json(obs_rms.to_json())
-        s = evaluate(MAPPOPolicy(actor, frozen), cfg, eval_seeds)
+        s = evaluate(trainer.policy(), cfg, eval_seeds)
         row = {"agent_steps": steps_done, "wall_s": round(time.perf_counter() - t0, 1), "score": s["score"],
                "formation_error": s["formation_error"]["mean"], "formation_error_ci95": s["formation_error"]["ci95"],
-               "collisions": s["collisions"]["mean"],
-               "collisions_ci95": s["collisions"]["ci95"], "success_rate": s["success_rate"]["mean"]}
+               "collisions": s["collisions"]["mean"], "collisions_ci95": s["collisions"]["ci95"],
+               "success_rate": s["success_rate"]["mean"]}
         history.append(row)
-        with open(run_dir / "eval.csv", "a", newline="") as fh:  # streamed: the learning curve so far
-            csv.writer(fh).writerow([row[c] for c in EVAL_COLUMNS])
+        _write_row(run_dir / "eval.csv", EVAL_COLUMNS, row)
         if row["score"] < best:
             best = row["score"]
-            save_run_policy(run_dir / "best", actor, log_std, critic, obs_rms, state_rms, cfg)
+            trainer.save(run_dir / "best")
 
+    trainer.start()
+    if cfg.eval_every:
+        evaluate_and_keep()  # the starting point (after the warm start)
+    next_eval = cfg.eval_every or None
+    bar = tqdm(total=n_updates * batch_size, unit="step", disable=not cfg.progress, desc=cfg.kind)
     try:
-        for _update in range(n_updates):
-            # The actor's inputs as normalised when the actions were drawn: the update must see the same
-            # inputs, or the probability ratio starts away from 1 (the statistics move during a rollout).
-            buf_x = np.zeros((cfg.n_steps, m * n, obs_dim), np.float32)
-            buf_crit = []
-            buf_act = np.zeros((cfg.n_steps, m * n, 2), np.float32)
-            buf_logp = np.zeros((cfg.n_steps, m * n), np.float32)
-            buf_val = np.zeros((cfg.n_steps, m * n))
-            buf_rew = np.zeros((cfg.n_steps, m * n))
-            buf_done = np.zeros((cfg.n_steps, m * n))
-            contacts = 0
-            for t in range(cfg.n_steps):
-                obs_rms.update(obs.reshape(-1, obs_dim))
-                state_rms.update(states)
-                x = torch.as_tensor(obs_rms.normalize(obs).reshape(-1, obs_dim))
-                cin = critic_input(obs, states)
-                with torch.no_grad():
-                    mean = actor(x)
-                    std = log_std.exp().expand_as(mean)
-                    action = mean + std * torch.randn(mean.shape, generator=gen)
-                    logp = torch.distributions.Normal(mean, std).log_prob(action).sum(-1)
-                    value = critic(cin).squeeze(-1)
-                buf_x[t], buf_act[t], buf_logp[t], buf_val[t] = x.numpy(), action.numpy(), logp.numpy(), value.numpy()
-                buf_crit.append(cin)
-                env_action = np.clip(action.numpy(), -1.0, 1.0).reshape(m, n, 2)
-                for k, e in enumerate(envs):
-                    o, r, term, trunc, info = e.step({a: env_action[k, i] for i, a in enumerate(agents)})
-                    rew = np.array([r[a] for a in agents])
-                    contacts += sum(sum(info[a][f"contacts_{g}"] for g in ("robot", "obstacle", "human", "wall")) for a in agents)
-                    returns[k] = returns[k] * cfg.gamma + rew
-                    ret_rms.update(returns[k])
-                    done = not e.agents
-                    o_next, s_next = observe(e, o)
-                    scaled = np.clip(rew / np.sqrt(ret_rms.var + ret_rms.epsilon), -10.0, 10.0)
-                    if done:
-                        if any(trunc.values()) and not any(term.values()):  # bootstrap a cut-off episode
-                            with torch.no_grad():
-                                scaled = scaled + cfg.gamma * critic(critic_input(o_next[None], s_next[None])).squeeze(-1).numpy()
-                        returns[k] = 0.0
-                        o2, _ = e.reset()
-                        o_next, s_next = observe(e, o2)
-                    buf_rew[t, k * n:(k + 1) * n] = scaled
-                    buf_done[t, k * n:(k + 1) * n] = float(done)
-                    obs[k], states[k] = o_next, s_next
-            with torch.no_grad():
-                last_val = critic(critic_input(obs, states)).squeeze(-1).numpy()
-            adv = gae(buf_rew, buf_val, buf_done, last_val, cfg.gamma, cfg.gae_lambda)
-            ret = adv + buf_val
-
-            # ---- PPO update on the flattened (step, follower) samples
-            b_x = torch.as_tensor(buf_x.reshape(-1, obs_dim))
-            b_c = torch.cat(buf_crit)
-            b_a = torch.as_tensor(buf_act.reshape(-1, 2))
-            b_logp = torch.as_tensor(buf_logp.reshape(-1))
-            b_adv = torch.as_tensor(adv.reshape(-1), dtype=torch.float32)
-            b_ret = torch.as_tensor(ret.reshape(-1), dtype=torch.float32)
-            size = b_x.shape[0]
-            mb = max(1, size // cfg.n_minibatches)
-            stats = []
-            ratio0 = None  # the first minibatch's ratio: exactly 1 before any update (checked by the tests)
-            for _epoch in range(cfg.n_epochs):
-                order = torch.randperm(size, generator=gen)
-                for start in range(0, size, mb):
-                    idx = order[start:start + mb]
-                    mean = actor(b_x[idx])
-                    dist = torch.distributions.Normal(mean, log_std.exp().expand_as(mean))
-                    logp = dist.log_prob(b_a[idx]).sum(-1)
-                    ratio = (logp - b_logp[idx]).exp()
-                    if ratio0 is None:
-                        ratio0 = float((ratio.detach() - 1.0).abs().max())
-                    a = b_adv[idx]
-                    a = (a - a.mean()) / (a.std() + 1e-8)
-                    pg = -torch.min(ratio * a, ratio.clamp(1 - cfg.clip_range, 1 + cfg.clip_range) * a).mean()
-                    v_loss = 0.5 * (critic(b_c[idx]).squeeze(-1) - b_ret[idx]).pow(2).mean()
-                    entropy = dist.entropy().sum(-1).mean()
-                    loss = pg + cfg.vf_coef * v_loss - cfg.ent_coef * entropy
-                    optim.zero_grad()
-                    loss.backward()
-                    torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
-                    optim.step()
-                    stats.append((pg.item(), v_loss.item(), entropy.item()))
-            steps_done += batch
-            bar.update(batch)
-            s = np.mean(stats, axis=0)
-            train_csv.writerow([steps_done, round(time.perf_counter() - t0, 1), f"{s[0]:.5f}", f"{s[1]:.5f}", f"{s[2]:.4f}",
-                                f"{float(log_std.detach().exp().mean()):.4f}", f"{buf_rew.mean():.5f}", f"{contacts / batch:.5f}", f"{ratio0:.2e}"])
-            train_log.flush()
+        for u in range(n_updates):
+            t_roll = time.perf_counter()
+            batch = trainer.collect()
+            t_upd = time.perf_counter()
+            stats = trainer.update(batch, optim, u, n_updates)
+            steps_done += batch_size
+            bar.update(batch_size)
+            row = {"agent_steps": steps_done, "wall_s": round(time.perf_counter() - t0, 1),
+                   "rollout_s": round(t_upd - t_roll, 3), "update_s": round(time.perf_counter() - t_upd, 3),
+                   "mean_reward": float(batch.rewards.mean()), "contacts_per_agent_step": batch.contacts / batch_size,
+                   "intervention_rate": float(batch.intervened.mean()), **stats}
+            _write_row(run_dir / "train.csv", TRAIN_COLUMNS, {k: _fmt(v) for k, v in row.items()})
             if next_eval is not None and steps_done >= next_eval:
                 next_eval += cfg.eval_every
                 evaluate_and_keep()
     finally:
         bar.close()
-        train_log.close()
-        for e in envs:
-            e.close()
+        trainer.close()
     if not history or history[-1]["agent_steps"] != steps_done:
         evaluate_and_keep()
     wall = time.perf_counter() - t0
-    save_run_policy(run_dir, actor, log_std, critic, obs_rms, state_rms, cfg)
-    summary = {"agent_steps": steps_done, "wall_s": round(wall, 1), "steps_per_s": round(steps_done / wall, 1),
-               "best_score": best, "final": history[-1]}
+    trainer.save(run_dir)
+    summary = {"agent_steps": steps_done, "wall_s": round(wall, 1), "pretrain_s": round(pretrain_s, 1),
+               "steps_per_s": round(steps_done / (wall - pretrain_s), 1), "best_score": best,
+               "best": min(history, key=lambda r: r["score"]), "final": history[-1]}
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     from baselines.plots import plot_learning_curve
 
@@ -523,8 +580,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = vars(build_parser().parse_args(argv))
-    if "env_kwargs" in args:
-        args["env_kwargs"] = dict(args["env_kwargs"])
+    for name in ("env_kwargs", "train_env_kwargs"):
+        if name in args:
+            args[name] = dict(args[name])
     try:
         cfg = MAPPOConfig(**args)
         run = train(cfg)

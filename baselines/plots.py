@@ -64,3 +64,49 @@ def plot_learning_curve(
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def plot_methods_learning_curves(
+    runs: Mapping[str, list[str | Path]],
+    out_png: str | Path,
+    *,
+    title: str = "",
+    references: Mapping[str, Mapping[str, float]] | None = None,
+) -> Path:
+    """Validation formation error and collisions per episode against agent-steps for several methods,
+    each trained with several seeds: ``runs`` maps a method name to its seeds' ``eval.csv`` files.
+
+    Each method is drawn as the mean over its seeds (a line) and the band between the seeds' lowest and
+    highest value at each evaluation (shaded); seeds are compared at the evaluations they all reached.
+    ``references`` draws horizontal lines as in :func:`plot_learning_curve`.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+    for i, (method, paths) in enumerate(runs.items()):
+        curves = [read_eval_csv(p) for p in paths]
+        n = min(len(c["agent_steps"]) for c in curves)
+        steps = np.array(curves[0]["agent_steps"][:n]) / 1e6
+        for ax, key in ((axes[0], "formation_error"), (axes[1], "collisions")):
+            values = np.array([c[key][:n] for c in curves])
+            ax.plot(steps, values.mean(axis=0), color=f"C{i}", marker="o", ms=2.5, label=f"{method} ({len(curves)} seeds)")
+            ax.fill_between(steps, values.min(axis=0), values.max(axis=0), color=f"C{i}", alpha=0.2)
+    for ax, key, label in ((axes[0], "formation_error", "formation error (m)"), (axes[1], "collisions", "collisions per episode")):
+        for j, (name, values) in enumerate((references or {}).items()):
+            if key in values:
+                ax.axhline(values[key], ls="--", lw=1, color=f"C{len(runs) + j}", label=name)
+        ax.set_xlabel("agent-steps (millions)")
+        ax.set_ylabel(label)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    out = Path(out_png)
+    fig.savefig(out, dpi=110)
+    plt.close(fig)
+    return out

@@ -966,6 +966,8 @@ def vo_select_batch(
     velocity: np.ndarray | None = None,
     reciprocal: np.ndarray | bool = False,
     fast: bool = True,
+    current: np.ndarray | None = None,
+    w_current: float = 0.0,
 ) -> VOBatchResult:
     """:func:`vo_select` for ``N`` robots in one vectorised pass (same rules, same answers).
 
@@ -1205,6 +1207,13 @@ def vo_select_batch(
     dw_ = (twists[..., 1] - pw[:, None]) / (omega_max if omega_max > 0 else 1.0)
     head = np.abs(wrap_angle(theta[:, None] + twists[..., 1] * tau - gh[:, None])) / math.pi
     penalty = w_pref * np.hypot(dv_, dw_) + w_heading * head + side_bias * np.maximum(dw_, 0.0)
+    if w_current and current is not None:
+        # Commitment: among the alternatives to the preferred twist, prefer those close to the twist the
+        # robot is driving now, so that an avoidance manoeuvre, once begun, is kept (no left-right flips).
+        cur = np.asarray(current, dtype=np.float64).reshape(n, 2)
+        dcv = (twists[..., 0] - cur[:, :1]) / (v_max if v_max > 0 else 1.0)
+        dcw = (twists[..., 1] - cur[:, 1:]) / (omega_max if omega_max > 0 else 1.0)
+        penalty[:, 1:] += w_current * np.hypot(dcv, dcw)[:, 1:]
     pts = None  # (N, g1, K+1, 2) trajectories, built when more than the preferred twists are tested
 
     def all_points() -> np.ndarray:

@@ -29,6 +29,14 @@ only the timings (``wall_time``, ``policy_time``, ``policy_stats``) differ.
 
 A policy that refuses a scenario (a :class:`~swarm_env.policies.PolicyError`,
 e.g. ``vo`` with ``action_type="discrete"``) gives a row marked ``n/a: reason``.
+
+Training seeds. A learned method shipped with several training seeds (a factory with
+``training_runs``, see :func:`swarm_env.policies.training_runs`) is named by its bare name,
+e.g. ``mappo``: each seed (``mappo:s0``, ``mappo:s1``, ...) is played as its own job and
+gets its own *member* row (``Row.method`` names the method), and the method row aggregates
+them: per metric, the mean of the seeds' means with a Student-t 95 % interval across
+seeds (:func:`aggregate_training_seeds`). The Markdown table shows the method row; the CSV
+and JSON hold both.
 """
 
 from __future__ import annotations
@@ -51,8 +59,8 @@ from typing import Any
 import numpy as np
 
 from swarm_env.env import SwarmEnv, env_kwargs_for
-from swarm_env.evaluation import run_episode, summarize
-from swarm_env.policies import PolicyError, UnknownPolicyError, load_policy, registered_policies
+from swarm_env.evaluation import mean_ci95_t, run_episode, summarize
+from swarm_env.policies import PolicyError, UnknownPolicyError, load_policy, registered_policies, training_runs
 from swarm_env.scenario_io import RANDOM_NAME
 
 #: Seeds of a fixed scenario when none are given (deterministic up to the policy's own randomness).
@@ -316,7 +324,9 @@ def run_leaderboard(
     kwargs = dict(env_kwargs or {})
     validate_inputs(policies, scenarios, kwargs)
     seed_map = resolve_seeds(scenarios, seeds)
-    jobs = [_Job(p, s, tuple(seed_map[s]), kwargs) for p in policies for s in scenarios]
+    members = {p: training_runs(p) for p in policies}
+    jobs = [_Job(m, s, tuple(seed_map[s]), kwargs) for p in policies for m in members[p] for s in scenarios]
+    method_of = {m: p for p in policies for m in members[p] if len(members[p]) > 1}
 
     from tqdm.auto import tqdm
 
@@ -334,34 +344,76 @@ def run_leaderboard(
 
     rows: list[Row] = []
     episodes: list[dict[str, Any]] = []
+    by_job: dict[tuple[str, str], Row] = {}
     for job, result in zip(jobs, results):
+        method = method_of.get(job.policy)
         if result.na_reason is not None:
-            rows.append(Row(job.policy, job.scenario, list(job.seeds), None, result.na_reason))
-            continue
-        rows.append(Row(job.policy, job.scenario, list(job.seeds), summarize(result.episodes)))
-        episodes.extend({"policy": job.policy, "scenario": job.scenario, "seed": ep["seed"], "metrics": ep} for ep in result.episodes)
+            row = Row(job.policy, job.scenario, list(job.seeds), None, result.na_reason, method=method)
+        else:
+            row = Row(job.policy, job.scenario, list(job.seeds), summarize(result.episodes), method=method)
+            extra = {"method": method} if method else {}
+            episodes.extend({"policy": job.policy, **extra, "scenario": job.scenario, "seed": ep["seed"], "metrics": ep}
+                            for ep in result.episodes)
+        by_job[(job.policy, job.scenario)] = row
+    for p in policies:  # policies outer, scenarios inner; a method row before its members' rows
+        for s in scenarios:
+            if len(members[p]) > 1:
+                rows.append(method_row(p, [by_job[(m, s)] for m in members[p]]))
+            rows.extend(by_job[(m, s)] for m in members[p])
     return Leaderboard(list(policies), list(scenarios), seed_map, kwargs, rows, episodes, wall, workers)
+
+
+def aggregate_training_seeds(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """One summary across training seeds: per metric (the keys of :data:`METRICS`), the mean of
+    the seeds' means and its Student-t 95 % half-width across seeds
+    (:func:`~swarm_env.evaluation.mean_ci95_t`; ``n`` counts seeds); ``episodes`` is the total
+    and ``training_seeds`` the number of seeds."""
+    out: dict[str, Any] = {"episodes": sum(int(s["episodes"]) for s in summaries), "training_seeds": len(summaries)}
+    for m in METRICS:
+        out[m.key] = mean_ci95_t((s.get(m.key) or {}).get("mean") for s in summaries)
+    return out
+
+
+def method_row(method: str, member_rows: Sequence[Row]) -> Row:
+    """The row of a method from its training seeds' rows (n/a if any seed refused the scenario)."""
+    first = member_rows[0]
+    refused = [r for r in member_rows if r.summary is None]
+    if refused:
+        return Row(method, first.scenario, first.seeds, None, refused[0].na_reason, members=[r.policy for r in member_rows])
+    return Row(method, first.scenario, first.seeds, aggregate_training_seeds([r.summary for r in member_rows]),
+               members=[r.policy for r in member_rows])
 
 
 # --------------------------------------------------------------------------- aggregation
 @dataclass
 class Row:
     """One policy on one scenario: ``summary`` (:func:`swarm_env.evaluation.summarize`) or, if the policy
-    refused the scenario, ``na_reason``."""
+    refused the scenario, ``na_reason``.
+
+    A learned method's training seeds each have a *member* row (``method`` names the method, e.g.
+    ``mappo`` for ``mappo:s1``); the method's own row lists them in ``members`` and its summary is
+    :func:`aggregate_training_seeds` of theirs (intervals across seeds, not episodes)."""
 
     policy: str
     scenario: str
     seeds: list[int]
     summary: dict[str, Any] | None
     na_reason: str | None = None
+    method: str | None = None
+    members: list[str] | None = None
 
     @property
     def status(self) -> str:
         return "ok" if self.na_reason is None else f"n/a: {self.na_reason}"
 
     def to_dict(self) -> dict[str, Any]:
-        return {"policy": self.policy, "scenario": self.scenario, "seeds": self.seeds, "status": self.status,
-                "na_reason": self.na_reason, "summary": self.summary}
+        out = {"policy": self.policy, "scenario": self.scenario, "seeds": self.seeds, "status": self.status,
+               "na_reason": self.na_reason, "summary": self.summary}
+        if self.method is not None:
+            out["method"] = self.method
+        if self.members is not None:
+            out["members"] = self.members
+        return out
 
 
 def badness(episode: Mapping[str, Any]) -> tuple[float, bool, float]:
@@ -408,15 +460,19 @@ class Leaderboard:
         raise KeyError(f"no row for policy {policy!r} on scenario {scenario!r}")
 
     def episodes_of(self, policy: str, scenario: str) -> list[dict[str, Any]]:
-        """The ``run_episode`` metrics of one row's episodes, in seed order."""
-        return [e["metrics"] for e in self.episodes if e["policy"] == policy and e["scenario"] == scenario]
+        """The ``run_episode`` metrics of one row's episodes, in seed order (a method's: every
+        training seed's, seed by seed)."""
+        return [e["metrics"] for e in self.episodes
+                if (e["policy"] == policy or e.get("method") == policy) and e["scenario"] == scenario]
 
     def worst_episodes(self, per_scenario: bool = True) -> list[dict[str, Any]]:
         """The worst episode (by :func:`badness`, the first seed on ties) of each policy x scenario
-        (``per_scenario=True``) or of each policy over all scenarios; entries of :attr:`episodes`."""
+        (``per_scenario=True``) or of each policy over all scenarios; entries of :attr:`episodes`.
+        A method's training seeds count as one policy (its worst episode over all of them)."""
         groups: dict[tuple[str, ...], list[dict[str, Any]]] = {}
         for e in self.episodes:
-            key = (e["policy"], e["scenario"]) if per_scenario else (e["policy"],)
+            who = e.get("method") or e["policy"]  # a method's seeds compete for its one worst episode
+            key = (who, e["scenario"]) if per_scenario else (who,)
             groups.setdefault(key, []).append(e)
         # max() keeps the first of equal keys: ties go to the earliest seed
         return [max(group, key=lambda e: badness(e["metrics"])) for group in groups.values()]
@@ -430,27 +486,36 @@ class Leaderboard:
             "row's N episodes (no ± when N = 1); settle time averages the formation switches that settled (switches that "
             "never settled are left out); – = nothing to average; n/a = the policy refuses the scenario.",
         ]
+        trained = sorted({r.policy: len(r.members) for r in self.rows if r.members}.items())
+        if trained:
+            lines[0] += (" Rows marked (k seeds) are learned methods trained with k seeds: each cell is the mean of the "
+                         "seeds' per-episode means ± a Student-t 95 % half-width across the seeds (the spread between "
+                         "training runs); the CSV and JSON also hold one row per seed.")
         for scenario in self.scenarios:
             seeds = self.seeds[scenario]
             lines += ["", f"### {scenario} — seeds {format_seeds(seeds)} (N = {len(seeds)})", ""]
             lines.append("| policy | " + " | ".join(m.label for m in cols) + " |")
             lines.append("|---|" + "---:|" * len(cols))
-            for r in (r for r in self.rows if r.scenario == scenario):
+            for r in (r for r in self.rows if r.scenario == scenario and r.method is None):
                 if r.summary is None:
                     cells = [f"n/a: {r.na_reason}"] + [""] * (len(cols) - 1)
                 else:
                     cells = [_fmt_stat(r.summary.get(m.key), m.digits) for m in cols]
-                lines.append("| " + " | ".join(_md_cell(c) for c in [f"`{r.policy}`", *cells]) + " |")
+                label = f"`{r.policy}`" + (f" ({len(r.members)} seeds)" if r.members else "")
+                lines.append("| " + " | ".join(_md_cell(c) for c in [label, *cells]) + " |")
         return "\n".join(lines) + "\n"
 
     def csv_rows(self) -> list[dict[str, Any]]:
-        """The CSV table as dicts: policy, scenario, status, episodes, seeds, then
-        ``<metric>_mean``, ``<metric>_ci95``, ``<metric>_n`` per metric (empty when n/a)."""
+        """The CSV table as dicts: policy, scenario, status, episodes, seeds, method (the method a
+        training seed's row belongs to), training_seeds (on a method's row: how many), then
+        ``<metric>_mean``, ``<metric>_ci95``, ``<metric>_n`` per metric (empty when n/a; on a
+        method's row the interval and ``n`` are across training seeds)."""
         out = []
         for r in self.rows:
             d: dict[str, Any] = {"policy": r.policy, "scenario": r.scenario, "status": r.status,
                                  "episodes": 0 if r.summary is None else r.summary["episodes"],
-                                 "seeds": format_seeds(r.seeds)}
+                                 "seeds": format_seeds(r.seeds), "method": r.method,
+                                 "training_seeds": len(r.members) if r.members else None}
             for m in self.metrics:
                 stat = (r.summary or {}).get(m.key) or {}
                 d[f"{m.key}_mean"] = stat.get("mean")
@@ -491,7 +556,8 @@ class Leaderboard:
     def from_json(cls, path: str | os.PathLike[str]) -> Leaderboard:
         """Read a file written by :meth:`to_json` (e.g. to record videos later)."""
         doc = json.loads(Path(path).read_text())
-        rows = [Row(r["policy"], r["scenario"], r["seeds"], r["summary"], r["na_reason"]) for r in doc["rows"]]
+        rows = [Row(r["policy"], r["scenario"], r["seeds"], r["summary"], r["na_reason"], r.get("method"), r.get("members"))
+                for r in doc["rows"]]
         return cls(doc["policies"], doc["scenarios"], doc["seeds"], doc["env_kwargs"], rows, doc["episodes"],
                    doc.get("wall_time", 0.0), doc.get("workers", 1))
 

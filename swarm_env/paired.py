@@ -30,18 +30,28 @@ METRICS = {
 
 
 def paired_differences(doc: dict[str, Any], policy: str, baseline: str, scenario: str | None = None) -> dict[str, dict]:
-    """``{metric: {"mean", "ci95", "n", "excludes_zero"}}`` of ``policy - baseline`` over their shared episodes."""
-    by_key: dict[str, dict[tuple, dict]] = {}
+    """``{metric: {"mean", "ci95", "n", "excludes_zero"}}`` of ``policy - baseline`` over their shared episodes.
+
+    A learned method with several training seeds (episodes carrying ``"method"``) is one policy here:
+    its value on a world is the mean over its seeds' episodes on that world, so the interval is over
+    worlds (the spread between training seeds is the leaderboard's method row)."""
+    by_key: dict[str, dict[tuple, list[dict]]] = {}
     for e in doc["episodes"]:
         if scenario is None or e["scenario"] == scenario:
-            by_key.setdefault(e["policy"], {})[(e["scenario"], e["seed"])] = e["metrics"]
+            who = e.get("method") or e["policy"]
+            by_key.setdefault(who, {}).setdefault((e["scenario"], e["seed"]), []).append(e["metrics"])
     if policy not in by_key or baseline not in by_key:
         raise ValueError(f"no episodes of {policy if policy not in by_key else baseline!r} in the leaderboard"
                          + (f" on {scenario!r}" if scenario else ""))
     shared = sorted(set(by_key[policy]) & set(by_key[baseline]))
+
+    def value(who: str, key: tuple, read: Any) -> float:
+        runs = by_key[who][key]
+        return sum(read(m) for m in runs) / len(runs)
+
     out = {}
     for name, read in METRICS.items():
-        diffs = [read(by_key[policy][k]) - read(by_key[baseline][k]) for k in shared]
+        diffs = [value(policy, k, read) - value(baseline, k, read) for k in shared]
         stats = mean_ci95(diffs)
         mean, half = stats["mean"], stats["ci95"]
         stats["excludes_zero"] = bool(mean is not None and half is not None and abs(mean) > half)

@@ -275,6 +275,34 @@ def registered_policies() -> dict[str, str]:
     return dict(sorted(found.items()))
 
 
+def _factory(name: str) -> Callable[..., Any]:
+    """The factory registered as ``name`` (entry points first, then the built-ins)."""
+    for ep in entry_points(group=ENTRY_POINT_GROUP, name=name):
+        return ep.load()
+    factory = _BUILTIN.get(name)
+    if factory is None:
+        known = ", ".join(registered_policies())
+        raise UnknownPolicyError(f"unknown policy {name!r}; registered policies: {known}")
+    return factory
+
+
+def training_runs(spec: str) -> tuple[str, ...]:
+    """The specs a leaderboard plays for ``spec``: one per shipped training seed of a learned method.
+
+    A factory that has a ``training_runs`` attribute (a tuple of its arguments, e.g.
+    ``("s0", "s1", "s2")``) stands for a method trained with several seeds: its bare name
+    (``"mappo"``) expands to ``("mappo:s0", "mappo:s1", "mappo:s2")``, and the leaderboard
+    reports each seed and the mean across them. Any other spec (a policy without training
+    seeds, or one with an argument such as ``mappo:s1`` or ``mappo:runs/x``) is itself:
+    ``(spec,)``. Raises :class:`UnknownPolicyError` for an unregistered name.
+    """
+    name, _, arg = spec.partition(":")
+    runs = getattr(_factory(name), "training_runs", None)
+    if arg or not runs:
+        return (spec,)
+    return tuple(f"{name}:{r}" for r in runs)
+
+
 def load_policy(spec: str | Any, env: "SwarmEnv") -> Policy:
     """Build a policy from ``"name"`` / ``"name:arg"`` or wrap a model object.
 
@@ -286,15 +314,7 @@ def load_policy(spec: str | Any, env: "SwarmEnv") -> Policy:
             return spec
         return PredictPolicy(spec)
     name, _, arg = spec.partition(":")
-    factory: Callable[..., Any] | None = None
-    for ep in entry_points(group=ENTRY_POINT_GROUP, name=name):
-        factory = ep.load()
-        break
-    if factory is None:
-        factory = _BUILTIN.get(name)
-    if factory is None:
-        known = ", ".join(registered_policies())
-        raise UnknownPolicyError(f"unknown policy {name!r}; registered policies: {known}")
+    factory = _factory(name)
     try:
         policy = factory(env, arg or None)
     except PolicyError:

@@ -10,12 +10,17 @@ penalty for every step it spends in contact and a clearance shaping term::
           - w_clearance  * max(0, 1 - clearance_i / margin)  (0 when clear by margin)
           - w_smoothness * |a_i - a_i_prev|^2                (normalised action)
           + w_progress   * (|p_i - slot_i|_prev - |p_i - slot_i|)
+          - w_approach   * max(0, 1 - approach_gap_i / approach_margin)
 
 ``touching_i[kind]`` is the number of bodies of that kind (``robot``,
 ``obstacle``, ``human``, ``wall``) the follower touched at some time during the
 step: a contact that lasts 13 steps is charged 13 times (under reward v0 it was
 charged once, at its onset). ``clearance_i`` is the free distance between the
-follower's disc and the nearest obstacle, wall, human or other robot. Weights
+follower's disc and the nearest obstacle, wall, human or other robot;
+``approach_gap_i`` (:func:`approach_gap`) the smallest gap it will have to another
+moving body within ``approach_horizon`` seconds if both keep their velocities (off
+in v1: a shaping term for training, which warns seconds before a contact where
+clearance warns centimetres before). Weights
 come from :class:`~swarm_env.scenario.RewardSpec`. Every term of
 :data:`REWARD_TERMS` is reported in the agent's infos as ``reward_<term>``
 (:data:`INFO_REWARD_KEYS`; :func:`reward_terms` reads them back as a dict) and
@@ -40,6 +45,7 @@ REWARD_TERMS = (
     "clearance",
     "smoothness",
     "progress",
+    "approach",
 )
 
 
@@ -119,6 +125,39 @@ def clearance(state: WorldState, below: float = np.inf) -> np.ndarray:
     return best
 
 
+def approach_gap(state: WorldState, horizon: float) -> np.ndarray:
+    """(N,) the smallest surface gap (m) between each follower and any other moving body (the other
+    followers, a robot leader, the humans) at their closest point of approach within ``horizon``
+    seconds, both moving on at their current velocities (``inf`` with nothing else moving around).
+
+    For a pair at relative position ``p`` and velocity ``v`` the closest approach is at
+    ``t* = clip(-p.v / |v|^2, 0, horizon)`` and the gap is ``|p + v t*| - r_i - r_j``: the current gap
+    when they separate, less when they close in. Negative values mean a predicted overlap.
+    """
+    pos = state.follower_pose[:, :2]
+    n = len(pos)
+    parts_p, parts_v, parts_r = [pos], [state.follower_vel], [state.follower_radius]
+    if state.leader_is_robot:
+        parts_p.append(state.leader_pose[None, :2])
+        parts_v.append(np.asarray(state.leader_vel, dtype=float)[None])
+        parts_r.append(np.array([state.leader_radius]))
+    if len(state.human_pos):
+        parts_p.append(state.human_pos)
+        parts_v.append(state.human_vel)
+        parts_r.append(state.human_radius)
+    other_p, other_v, other_r = np.concatenate(parts_p), np.concatenate(parts_v), np.concatenate(parts_r)
+    if len(other_p) == 1:
+        return np.full(n, np.inf)
+    p = other_p[None, :, :] - pos[:, None, :]
+    v = other_v[None, :, :] - state.follower_vel[:, None, :]
+    vv = np.add.reduce(v * v, axis=2)
+    t = np.clip(-np.add.reduce(p * v, axis=2) / np.maximum(vv, 1e-12), 0.0, horizon)
+    c = p + v * t[:, :, None]
+    gap = np.sqrt(np.add.reduce(c * c, axis=2)) - state.follower_radius[:, None] - other_r[None, :]
+    gap[np.arange(n), np.arange(n)] = np.inf  # not oneself
+    return gap.min(axis=1)
+
+
 def compute_rewards(
     state: WorldState,
     spec: RewardSpec,
@@ -150,6 +189,9 @@ def compute_rewards(
         terms["clearance"] = -spec.clearance * intrusion
     terms["smoothness"] = -spec.smoothness * np.add.reduce((action - prev_action) ** 2, axis=1) if spec.smoothness else zero
     terms["progress"] = spec.progress * (prev_dist - dist) if spec.progress else zero
+    terms["approach"] = zero
+    if spec.approach:
+        terms["approach"] = -spec.approach * np.clip(1.0 - approach_gap(state, spec.approach_horizon) / spec.approach_margin, 0.0, None)
     total = zero.copy()
     for term in terms.values():
         if term is not zero:

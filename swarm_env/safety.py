@@ -52,13 +52,14 @@ class AvoidanceParams:
     side_bias: float = 0.0
     reciprocal: bool = True
     escape: bool = True
+    w_current: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("horizon", "tau"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name in ("margin", "human_margin", "w_pref", "w_heading", "side_bias"):
+        for name in ("margin", "human_margin", "w_pref", "w_heading", "side_bias", "w_current"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
@@ -129,6 +130,8 @@ def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: Avoid
         side_bias=params.side_bias,
         escape=params.escape,
         allow_still_overlap=True,
+        current=state.follower_twist,
+        w_current=params.w_current,
     )
 
 

@@ -187,7 +187,13 @@ class RewardSpec:
     * ``clearance`` the intrusion ``max(0, 1 - clearance / clearance_margin)``
       into a margin of ``clearance_margin`` m of free space around the disc;
     * ``smoothness`` the squared change of the normalised action;
-    * ``progress`` (a bonus) the decrease of the slot distance.
+    * ``progress`` (a bonus) the decrease of the slot distance;
+    * ``approach`` the intrusion ``max(0, 1 - gap / approach_margin)`` of the
+      smallest surface gap to another moving body (follower, robot leader,
+      human) at their closest point of approach within ``approach_horizon``
+      seconds, both keeping their current velocities: an anticipatory clearance
+      that warns of a contact before it happens (0 in v1; a training-time
+      shaping term of the learned baselines).
 
     The defaults are reward v1 (see ``SwarmEnv``'s docstring for why);
     :meth:`v0` gives the swarm_env_v0 weights (onsets only, no clearance).
@@ -200,6 +206,9 @@ class RewardSpec:
     clearance_margin: float = 0.2
     smoothness: float = 0.0
     progress: float = 0.0
+    approach: float = 0.0
+    approach_horizon: float = 2.0
+    approach_margin: float = 0.5
 
     @classmethod
     def v0(cls) -> "RewardSpec":

@@ -43,7 +43,8 @@ seconds and radians, except the two ``angle`` fields, which are degrees.
       - {path: [[14, 10], [4, 10]], speed: 0.5, radius: 0.3, mode: once, start_delay: 0}
     sensors: {lidar_rays: 16, lidar_range: 5.0, neighbors: 3, humans: 2}
     reward: {formation: 1.0, collision: 5.0, contact: 2.0, clearance: 1.0,
-             clearance_margin: 0.2, smoothness: 0.0, progress: 0.0}   # reward v1 defaults
+             clearance_margin: 0.2, smoothness: 0.0, progress: 0.0,  # reward v1 defaults
+             approach: 0.0, approach_horizon: 2.0, approach_margin: 0.5}
 
 Formation shapes: ``v``, ``line``, ``column``, ``wedge``, ``diamond``, ``circle``,
 ``grid`` (``columns``: int >= 0, 0 = automatic) and ``custom`` (``offsets``: one
@@ -553,6 +554,9 @@ def _parse_reward(src: str, value: Any) -> RewardSpec:
     d = RewardSpec()
     # Weights are magnitudes: the sign of each term is fixed by the env (penalty or bonus).
     vals = {k: _number(src, m.get(k, getattr(d, k)), f"reward.{k}", nonnegative=True) for k in _REWARD_KEYS}
+    for k in ("clearance_margin", "approach_margin"):  # divisors of their terms
+        if not vals[k] > 0:
+            raise ScenarioError(src, f"reward.{k}", "a number > 0 (m)", vals[k])
     return RewardSpec(**vals)
 
 

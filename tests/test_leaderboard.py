@@ -300,3 +300,61 @@ def test_paired_differences_pair_by_seed(tmp_path, capsys) -> None:
     path.write_text(_json.dumps(doc))
     assert paired.main([str(path)]) == 0 and "`mine` | 6 | -1.000 ± 0.000 *" in capsys.readouterr().out
     assert paired.main([str(path), "--baseline", "nobody"]) == 2
+
+
+# --------------------------------------------------------------------------- methods with training seeds
+@pytest.fixture()
+def trio(monkeypatch: pytest.MonkeyPatch) -> str:
+    """A fake learned method with three 'training seeds' (pursuit with three time gaps)."""
+    from swarm_env import policies
+
+    def factory(env: Any, arg: str | None = None) -> Any:
+        return policies.PursuitPolicy(env, {"s0": "0.3", "s1": "0.5", "s2": "0.9"}[arg or "s0"])
+
+    factory.training_runs = ("s0", "s1", "s2")
+    monkeypatch.setitem(policies._BUILTIN, "trio", factory)
+    return "trio"
+
+
+def test_a_method_is_played_per_training_seed_and_aggregated_across_seeds(trio: str, tmp_path: Path) -> None:
+    from swarm_env.policies import training_runs
+
+    assert training_runs("trio") == ("trio:s0", "trio:s1", "trio:s2")
+    assert training_runs("trio:s1") == ("trio:s1",) and training_runs("pursuit") == ("pursuit",)
+    board = run_leaderboard(["trio", "pursuit"], ["random"], {"random": [1000, 1001]}, env_kwargs=SHORT, progress=False)
+    assert [(r.policy, r.method, r.members) for r in board.rows] == [
+        ("trio", None, ["trio:s0", "trio:s1", "trio:s2"]),
+        ("trio:s0", "trio", None), ("trio:s1", "trio", None), ("trio:s2", "trio", None),
+        ("pursuit", None, None),
+    ]
+    method, *members = board.rows[:4]
+    for key in ("formation_error", "collisions", "sim_time"):
+        means = [m.summary[key]["mean"] for m in members]
+        mean, sd = statistics.fmean(means), statistics.stdev(means)
+        assert method.summary[key]["mean"] == pytest.approx(mean, rel=1e-12)
+        assert method.summary[key]["ci95"] == pytest.approx(4.303 * sd / math.sqrt(3), rel=1e-9, abs=1e-12)
+        assert method.summary[key]["n"] == 3
+    assert method.summary["episodes"] == 6 and method.summary["training_seeds"] == 3
+    assert len(set(m.summary["formation_error"]["mean"] for m in members)) == 3  # the seeds really differ
+    assert len(board.episodes_of("trio", "random")) == 6
+    assert {e["method"] for e in board.episodes if e["policy"].startswith("trio")} == {"trio"}
+
+    md = board.to_markdown()
+    assert "| `trio` (3 seeds) |" in md and "trio:s0" not in md and "Student-t" in md
+    with board.to_csv(tmp_path / "lb.csv").open() as f:
+        parsed = list(csv.DictReader(f))
+    assert [(r["policy"], r["method"], r["training_seeds"]) for r in parsed] == [
+        ("trio", "", "3"), ("trio:s0", "trio", ""), ("trio:s1", "trio", ""), ("trio:s2", "trio", ""), ("pursuit", "", "")]
+    back = Leaderboard.from_json(board.to_json(tmp_path / "lb.json"))
+    assert back.to_markdown() == md
+    (worst,) = [w for w in board.worst_episodes() if w.get("method") == "trio"]  # one worst episode per method
+
+    from swarm_env import paired
+
+    doc = json.loads((tmp_path / "lb.json").read_text())
+    d = paired.paired_differences(doc, "trio", "pursuit", "random")
+    per_world = [statistics.fmean(e["metrics"]["formation_error"]["mean"] for e in board.episodes
+                                  if e.get("method") == "trio" and e["seed"] == s) for s in (1000, 1001)]
+    base = [e["metrics"]["formation_error"]["mean"] for e in board.episodes if e["policy"] == "pursuit"]
+    assert d["formation_error"]["n"] == 2
+    assert d["formation_error"]["mean"] == pytest.approx(statistics.fmean(a - b for a, b in zip(per_world, base)))

@@ -1,7 +1,9 @@
-"""MAPPO / IPPO (baselines.mappo): the estimator, the statistics, a tiny run end to end, determinism."""
+"""MAPPO / IPPO (baselines.mappo): the estimator, the statistics, DAgger, tiny runs end to end in every
+mode (central/local critic, shield off/teach/execute, residual), determinism, the saved files."""
 
 from __future__ import annotations
 
+import csv
 import json
 
 import numpy as np
@@ -10,17 +12,20 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
-from baselines import mappo  # noqa: E402
+from baselines import mappo, mappo_policy  # noqa: E402
+from baselines.ppo_core import RunningMeanStd, gae  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.evaluation import run_episode  # noqa: E402
-from swarm_env.policies import PolicyError, load_policy  # noqa: E402
+from swarm_env.policies import PolicyError, ShieldedPolicy, load_policy  # noqa: E402
 
-TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 0, "max_cycles": 30}
+TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 1, "max_cycles": 30}
+TINY_PRETRAIN = {"pretrain_rounds": 2, "pretrain_episodes": 2, "pretrain_epochs": 1}
 
 
 def _cfg(tmp_path, **overrides) -> mappo.MAPPOConfig:
     base = dict(env_kwargs=dict(TINY_ENV), total_steps=1024, n_copies=2, n_steps=32, n_epochs=2, hidden=(16, 16),
-                eval_every=512, eval_seeds="500-501", runs_dir=str(tmp_path), run_name="tiny", progress=False)
+                eval_every=512, eval_seeds="500-501", runs_dir=str(tmp_path), run_name="tiny", progress=False,
+                **TINY_PRETRAIN)
     return mappo.MAPPOConfig(**{**base, **overrides})
 
 
@@ -28,41 +33,76 @@ def test_gae_matches_a_hand_computation() -> None:
     r = np.array([[1.0], [1.0], [1.0]])
     v = np.array([[0.5], [0.5], [0.5]])
     done = np.array([[0.0], [1.0], [0.0]])  # the episode ends after step 1; step 2 starts a new one
-    adv = mappo.gae(r, v, done, np.array([2.0]), gamma=0.9, lam=0.8)
+    adv = gae(r, v, done, np.array([2.0]), gamma=0.9, lam=0.8)
     d2 = 1.0 + 0.9 * 2.0 - 0.5
     d1 = 1.0 - 0.5  # no bootstrap across the end
     d0 = 1.0 + 0.9 * 0.5 - 0.5
     np.testing.assert_allclose(adv[:, 0], [d0 + 0.9 * 0.8 * d1, d1, d2])
 
 
-def test_running_statistics_match_numpy() -> None:
+def test_running_statistics_match_numpy_and_freeze() -> None:
     rng = np.random.default_rng(0)
     data = rng.normal(3.0, 2.0, (1000, 4))
-    rms = mappo.RunningMeanStd((4,))
+    rms = RunningMeanStd((4,))
     for chunk in np.array_split(data, 7):
         rms.update(chunk)
     np.testing.assert_allclose(rms.mean, data.mean(axis=0), rtol=1e-6)
     np.testing.assert_allclose(rms.var, data.var(axis=0), rtol=1e-3)
-    again = mappo.RunningMeanStd.from_json(json.loads(json.dumps(rms.to_json())))
+    again = RunningMeanStd.from_json(json.loads(json.dumps(rms.to_json())))
     np.testing.assert_array_equal(again.normalize(data), rms.normalize(data))
+    rms.frozen = True
+    rms.update(data + 100.0)
+    np.testing.assert_array_equal(again.normalize(data), rms.normalize(data))
+    with pytest.raises(ValueError, match="finite"):
+        RunningMeanStd.from_json({**rms.to_json(), "var": [1.0, -1.0, 1.0, 1.0]})
+
+
+def test_dagger_warm_start_fits_the_expert_and_freezes_the_statistics() -> None:
+    import torch
+
+    from baselines.imitation import DaggerSettings, dagger
+    from baselines.ppo_core import mlp
+
+    from baselines.imitation import rollouts
+    from swarm_env.policies import load_policy
+
+    torch.manual_seed(0)
+    env = SwarmEnv("random", **TINY_ENV)
+    dim = env.observation_space("follower_0").shape[0]
+    actor, untrained = mlp([dim, 32, 32, 2]), mlp([dim, 32, 32, 2])
+    rms = RunningMeanStd((dim,))
+    settings = DaggerSettings(expert="pursuit", rounds=3, episodes=3, epochs=30)
+    log = dagger(env, actor, rms, settings, torch.Generator().manual_seed(0))
+    assert [r["round"] for r in log] == [0, 1, 2] and log[0]["samples"] == 3 * 2 * 30 < log[-1]["samples"]
+    assert rms.frozen
+    # On worlds it never saw, the student is far closer to the expert than an untrained network.
+    obs, labels = rollouts(env, load_policy("pursuit", env), [900, 901], None)
+    with torch.no_grad():
+        x = torch.as_tensor(rms.normalize(obs))
+        err, err0 = (((net(x).numpy() - labels) ** 2).sum(1).mean() for net in (actor, untrained))
+    assert err < 0.25 * err0
 
 
 def test_a_tiny_run_is_complete_and_loads_as_a_policy(tmp_path) -> None:
     run = mappo.train(_cfg(tmp_path))
-    for name in ("config.json", "versions.json", "policy.safetensors", "policy.json", "eval.csv", "train.csv", "summary.json",
-                 "learning_curve.png"):
+    for name in ("config.json", "versions.json", "policy.safetensors", "policy.json", "eval.csv", "train.csv",
+                 "pretrain.csv", "summary.json", "learning_curve.png"):
         assert (run / name).is_file(), name
     assert (run / "best" / "policy.safetensors").is_file()
     summary = json.loads((run / "summary.json").read_text())
     assert summary["agent_steps"] == 1024 and summary["final"]["agent_steps"] == 1024
+    evals = list(csv.DictReader(open(run / "eval.csv")))
+    assert [int(r["agent_steps"]) for r in evals] == [0, 512, 1024]  # the warm start is the first point
+    rows = list(csv.DictReader(open(run / "train.csv")))
+    assert len(rows) == 8 and all(float(r["rollout_s"]) > 0 and float(r["update_s"]) > 0 for r in rows)
     env = SwarmEnv("random", **TINY_ENV)
     policy = load_policy(f"mappo:{run}", env)
     result = run_episode(env, policy, seed=1000)
     assert result["steps"] == 30 and np.isfinite(result["formation_error"]["mean"])
-    with pytest.raises(PolicyError, match="trained on observations of shape"):
+    with pytest.raises(PolicyError, match="trained on inputs of size"):
         load_policy(f"mappo:{run}", SwarmEnv("random", **TINY_ENV, sensors={"lidar_rays": 8}))
-    with pytest.raises(PolicyError, match="needs a run directory"):
-        load_policy("mappo", env)
+    with pytest.raises(PolicyError, match="policy.json"):
+        load_policy(f"mappo:{tmp_path / 'nowhere'}", env)
 
 
 def test_the_same_seed_trains_the_same_network_and_another_seed_does_not(tmp_path) -> None:
@@ -76,18 +116,50 @@ def test_the_same_seed_trains_the_same_network_and_another_seed_does_not(tmp_pat
     assert any(not np.array_equal(ta[k], tc[k]) for k in ta)
 
 
-@pytest.mark.parametrize("overrides", [{"critic": "local"}, {"shield": True}])
-def test_ippo_and_the_shielded_variant_train(tmp_path, overrides) -> None:
+@pytest.mark.parametrize("overrides", [
+    {"critic": "local"},
+    {"shield": "execute", "intervention_coef": 1.0},
+    {"shield": "teach", "intervention_coef": 1.0, "imitation_coef": 1.0, "imitation_anneal": 0.5},
+    {"residual": "vo", "pretrain": "none", "shield": "execute", "critic": "local"},
+])
+def test_every_mode_trains_and_plays(tmp_path, overrides) -> None:
     run = mappo.train(_cfg(tmp_path, total_steps=512, eval_every=0, **overrides))
-    assert json.loads((run / "config.json").read_text())[next(iter(overrides))] == next(iter(overrides.values()))
-    spec = f"shield:mappo:{run}" if overrides.get("shield") else f"mappo:{run}"
-    result = run_episode(SwarmEnv("random", **TINY_ENV), load_policy(spec, SwarmEnv("random", **TINY_ENV)), seed=1001)
+    config = json.loads((run / "config.json").read_text())
+    assert all(config[k] == v for k, v in overrides.items())
+    rows = list(csv.DictReader(open(run / "train.csv")))
+    if overrides.get("shield", "off") != "off":
+        assert any(float(r["intervention_rate"]) > 0 for r in rows)  # the shield did correct some actions
+    if overrides.get("shield") == "teach":
+        assert any(float(r["imitation_loss"]) > 0 for r in rows)
+    env = SwarmEnv("random", **TINY_ENV)
+    policy = load_policy(f"mappo:{run}", env)
+    assert isinstance(policy, mappo_policy.ResidualPolicy) == bool(overrides.get("residual"))
+    result = run_episode(env, ShieldedPolicy.around(policy), seed=1001)
     assert result["steps"] == 30
+
+
+def test_a_residual_policy_starts_at_its_expert(tmp_path) -> None:
+    """The residual actor starts with a (near) zero correction: the first policy acts like vo."""
+    run = mappo.train(_cfg(tmp_path, total_steps=128, n_steps=16, eval_every=0, residual="vo", pretrain="none",
+                           critic="local", learning_rate=0.0))
+    env = SwarmEnv("random", **TINY_ENV)
+    residual, vo = load_policy(f"mappo:{run}", env), load_policy("vo", env)
+    obs, _ = env.reset(seed=3)
+    for p in (residual, vo):
+        p.reset(env, 3)
+    a, b = residual.act(obs, env.world_state()), vo.act(obs, env.world_state())
+    assert all(np.abs(a[k] - b[k]).max() < 0.02 for k in a)
 
 
 def test_bad_input_is_refused(tmp_path, capsys) -> None:
     with pytest.raises(ValueError, match="critic must be"):
         mappo.MAPPOConfig(critic="global")
+    with pytest.raises(ValueError, match="shield must be"):
+        mappo.MAPPOConfig(shield="on")
+    with pytest.raises(ValueError, match="need a shield"):
+        mappo.MAPPOConfig(imitation_coef=1.0)
+    with pytest.raises(ValueError, match="pretrain none"):
+        mappo.MAPPOConfig(residual="vo")
     assert mappo.main(["--total-steps", "0", "--runs-dir", str(tmp_path)]) == 2
     assert "total_steps must be a positive int" in capsys.readouterr().err
     bad = tmp_path / "bad"
@@ -98,8 +170,43 @@ def test_bad_input_is_refused(tmp_path, capsys) -> None:
 
 
 def test_the_update_starts_on_the_policy_that_collected_the_data(tmp_path) -> None:
-    import csv
-
-    run = mappo.train(_cfg(tmp_path, eval_every=0))
+    run = mappo.train(_cfg(tmp_path, eval_every=0, pretrain="none"))
     rows = list(csv.DictReader(open(run / "train.csv")))
     assert rows and all(float(r["first_ratio_error"]) < 1e-5 for r in rows)
+
+
+def test_a_learned_policy_plays_the_same_episode_bit_for_bit_in_other_processes(tmp_path) -> None:
+    """Learned rows of a leaderboard reproduce: one torch thread, deterministic algorithms, a fixed
+    batch; other processes (another hash seed, another BLAS thread setting, a 2-worker leaderboard)
+    give every metric but the timings bit for bit."""
+    import os
+    import subprocess
+    import sys
+
+    from swarm_env.leaderboard import TIMING_KEYS, run_leaderboard
+
+    run = mappo.train(_cfg(tmp_path, total_steps=512, eval_every=0))
+    spec = f"mappo:{run}"
+    env_kwargs = {k: v for k, v in TINY_ENV.items()}
+    here = run_leaderboard([spec, "pursuit"], ["random"], [1000, 1001], env_kwargs=env_kwargs, progress=False)
+
+    def behaviour(board) -> list:
+        return [json.dumps({k: v for k, v in e["metrics"].items() if k not in TIMING_KEYS}, sort_keys=True)
+                for e in board.episodes]
+
+    code = (
+        "import json, sys\n"
+        "from swarm_env.leaderboard import run_leaderboard\n"
+        f"b = run_leaderboard({[spec, 'pursuit']!r}, ['random'], [1000, 1001], env_kwargs={env_kwargs!r}, "
+        "workers=int(sys.argv[1]), progress=False)\n"
+        "json.dump(b.to_dict(), sys.stdout)\n"
+    )
+    from swarm_env.leaderboard import Leaderboard
+
+    for hashseed, threads, workers in (("1", "1", 1), ("999", "2", 2)):
+        env = {**os.environ, "PYTHONHASHSEED": hashseed, "OPENBLAS_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}
+        out = subprocess.run([sys.executable, "-c", code, str(workers)], env=env, capture_output=True, text=True,
+                             check=True, timeout=300)
+        doc = json.loads(out.stdout)
+        there = Leaderboard(doc["policies"], doc["scenarios"], doc["seeds"], doc["env_kwargs"], [], doc["episodes"])
+        assert behaviour(there) == behaviour(here)

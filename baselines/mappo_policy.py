@@ -1,0 +1,235 @@
+"""Trained MAPPO/IPPO actors as swarm_env policies, their files, and the shipped checkpoints.
+
+A run directory of :mod:`baselines.mappo` (and each of its ``best/``) holds::
+
+    policy.safetensors   actor, log_std and critic tensors (safetensors: data only)
+    policy.json          {"format", "config" (the run's MAPPOConfig), "obs_rms", "state_rms"}
+
+Loading reads those two files and nothing else: no pickle, no code. The policy acts with the
+actor's mean (deterministic), on one torch thread, so an episode is the same bit for bit in
+any process (``tests/test_mappo.py`` checks it across processes).
+
+Policy specs (entry points of the ``swarm_env.policies`` group):
+
+* ``ippo``, ``mappo``, ``mappo_shielded``, ``residual_vo`` — the shipped methods
+  (``baselines/checkpoints/<method>/s<k>``), each trained with three seeds: the bare name is
+  seed 0 for ``swarm-env run`` and all three seeds for a leaderboard
+  (:func:`swarm_env.policies.training_runs`), ``NAME:s1`` one seed, ``NAME:PATH`` any run
+  directory of :mod:`baselines.mappo` (or its ``best/``; a residual run brings its expert along). ``mappo_shielded`` and ``residual_vo`` execute through the safety layer
+  (:class:`swarm_env.policies.ShieldedPolicy`), as they were trained; ``mappo_shielded_bare``
+  is ``mappo_shielded``'s networks acting alone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from baselines.ppo_core import RunningMeanStd, mlp
+from swarm_env.state import WorldState
+
+FORMAT = "swarm_env.mappo/1"
+WEIGHTS_FILE = "policy.safetensors"
+CONFIG_FILE = "policy.json"
+#: Where the shipped runs live: ``CHECKPOINTS / <method> / s<k>``.
+CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
+#: The training seeds shipped for every method.
+SHIPPED_SEEDS = ("s0", "s1", "s2")
+
+__all__ = ["MAPPOPolicy", "ResidualPolicy", "save_run_policy", "load_run_policy", "shipped_run"]
+
+
+class MAPPOPolicy:
+    """A trained actor controlling every follower with its Gaussian's mean (deterministic)."""
+
+    def __init__(self, actor: Any, obs_rms: RunningMeanStd, name: str = "mappo") -> None:
+        self.actor = actor
+        self.obs_rms = obs_rms
+        self.name = name
+
+    def reset(self, env: Any, seed: int | None) -> None:
+        from swarm_env.policies import PolicyError
+
+        base = env.unwrapped
+        have = base.observation_space(base.possible_agents[0]).shape[0] + self.extra_inputs
+        want = self.obs_rms.mean.shape[0]
+        if want != have:
+            raise PolicyError(f"{self.name} was trained on inputs of size {want}, this env gives {have}")
+        if base.action_type != "continuous":
+            raise PolicyError(f"{self.name} acts in the continuous action space; this env is {base.action_type!r}")
+
+    #: Inputs the actor reads beyond the observation (a residual actor also reads its expert's action).
+    extra_inputs = 0
+
+    def mean_actions(self, inputs: np.ndarray) -> np.ndarray:
+        """The actor's mean for a batch of raw (unnormalised) inputs, clipped to ``[-1, 1]``."""
+        import torch
+
+        with torch.no_grad():
+            mean = self.actor(torch.as_tensor(self.obs_rms.normalize(inputs))).numpy()
+        return np.clip(mean, -1.0, 1.0)
+
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
+        agents = list(observations)
+        if not agents:
+            return {}
+        action = self.mean_actions(np.stack([observations[a] for a in agents])).astype(np.float32)
+        return {a: action[i] for i, a in enumerate(agents)}
+
+
+class ResidualPolicy(MAPPOPolicy):
+    """``clip(expert action + scale * actor mean)``: a bounded learned correction of an expert.
+
+    The actor reads the observation and the expert's action; the expert (e.g. ``vo``) reads the
+    privileged world state, so this policy is privileged at execution like the expert.
+    """
+
+    extra_inputs = 2
+
+    def __init__(self, actor: Any, obs_rms: RunningMeanStd, expert: Any, scale: float, name: str = "residual") -> None:
+        super().__init__(actor, obs_rms, name)
+        self.expert = expert
+        self.scale = float(scale)
+
+    def reset(self, env: Any, seed: int | None) -> None:
+        super().reset(env, seed)
+        self.expert.reset(env, seed)
+
+    def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
+        agents = list(observations)
+        if not agents:
+            return {}
+        base_actions = self.expert.act(observations, state)
+        base = np.stack([np.asarray(base_actions[a], dtype=np.float32) for a in agents])
+        inputs = np.concatenate([np.stack([observations[a] for a in agents]), base], axis=1)
+        action = residual_action(base, self.mean_actions(inputs), self.scale).astype(np.float32)
+        return {a: action[i] for i, a in enumerate(agents)}
+
+
+def residual_action(base: np.ndarray, residual: np.ndarray, scale: float) -> np.ndarray:
+    """The executed action of a residual policy: ``clip(base + scale * clip(residual, -1, 1), -1, 1)``."""
+    return np.clip(base + scale * np.clip(residual, -1.0, 1.0), -1.0, 1.0)
+
+
+# --------------------------------------------------------------------------- files
+
+
+def save_run_policy(directory: Path, actor: Any, log_std: Any, critic: Any, obs_rms: RunningMeanStd,
+                    state_rms: RunningMeanStd, config: Any) -> Path:
+    """Write ``policy.safetensors`` (actor, log_std, critic) and ``policy.json`` into ``directory``, atomically."""
+    from safetensors.torch import save_file
+
+    from baselines.safe_io import _atomic
+
+    directory.mkdir(parents=True, exist_ok=True)
+    tensors = {f"actor.{k}": v.detach().contiguous() for k, v in actor.state_dict().items()}
+    tensors.update({f"critic.{k}": v.detach().contiguous() for k, v in critic.state_dict().items()})
+    tensors["log_std"] = log_std.detach().contiguous()
+    meta = {"format": FORMAT, "config": dataclasses.asdict(config), "obs_rms": obs_rms.to_json(),
+            "state_rms": state_rms.to_json()}
+    with _atomic(directory / WEIGHTS_FILE) as tmp:
+        save_file(tensors, str(tmp))
+    with _atomic(directory / CONFIG_FILE) as tmp:
+        tmp.write_text(json.dumps(meta) + "\n")
+    return directory
+
+
+def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd]:
+    """``(config dict, actor module, observation statistics)`` of a saved run directory.
+
+    Raises ``FileNotFoundError`` or ``ValueError`` (naming the file) for a missing or bad file.
+    """
+    import torch
+    from safetensors.torch import load_file
+
+    from baselines.safe_io import read_description
+
+    d = Path(directory).expanduser()
+    meta = read_description(d / CONFIG_FILE, FORMAT)
+    try:
+        config = dict(meta["config"])
+        hidden = [int(h) for h in config["hidden"]]
+        obs_rms = RunningMeanStd.from_json(meta["obs_rms"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{d / CONFIG_FILE}: not a run description of baselines.mappo ({exc})") from None
+    actor = mlp([obs_rms.mean.shape[0], *hidden, 2])
+    try:
+        tensors = load_file(str(d / WEIGHTS_FILE), device="cpu")
+        actor.load_state_dict({k[len("actor."):]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
+    except FileNotFoundError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - any failure here means a bad file
+        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({exc})") from None
+    actor.eval()
+    torch.set_num_threads(1)  # a small MLP on a few observations: threads only add overhead (and float noise)
+    return config, actor, obs_rms
+
+
+def load_run_policy(directory: str | Path, env: Any | None = None, name: str | None = None) -> MAPPOPolicy:
+    """The actor of a saved run as a policy (a :class:`ResidualPolicy` for a residual run, whose
+    expert is built for ``env``). No pickle involved."""
+    config, actor, obs_rms = read_run(directory)
+    label = name or f"mappo:{directory}"
+    expert_spec = config.get("residual")
+    if expert_spec:
+        from swarm_env.policies import load_policy
+
+        if env is None:
+            raise ValueError(f"{directory}: a residual run needs the env to build its expert {expert_spec!r}")
+        return ResidualPolicy(actor, obs_rms, load_policy(expert_spec, env), float(config["residual_scale"]), name=label)
+    return MAPPOPolicy(actor, obs_rms, name=label)
+
+
+# --------------------------------------------------------------------------- entry points
+
+
+def _load(env: Any, path: str | Path, name: str) -> MAPPOPolicy:
+    from swarm_env.policies import PolicyError
+
+    try:
+        policy = load_run_policy(path, env, name=name)
+    except (FileNotFoundError, ValueError) as exc:
+        raise PolicyError(f"policy {name}: {exc}") from None
+    policy.reset(env, None)
+    return policy
+
+
+def shipped_run(method: str, seed: str) -> Path:
+    """The directory of a shipped run: ``baselines/checkpoints/<method>/<seed>``."""
+    return CHECKPOINTS / method / seed
+
+
+def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str) -> Callable[..., Any]:
+    def factory(env: Any, arg: str | None = None) -> Any:
+        from swarm_env.policies import ShieldedPolicy
+
+        run = shipped_run(checkpoints, arg) if arg in (None, *SHIPPED_SEEDS) else Path(arg)
+        if arg is None:
+            run = shipped_run(checkpoints, SHIPPED_SEEDS[0])
+        label = method if arg is None else f"{method}:{arg}"
+        policy = _load(env, run, label)
+        return ShieldedPolicy.around(policy) if shielded else policy
+
+    factory.training_runs = SHIPPED_SEEDS  # type: ignore[attr-defined]
+    factory.__name__ = factory.__qualname__ = f"make_{method}"
+    factory.__doc__ = doc
+    return factory
+
+
+make_ippo = _method_factory("ippo", "ippo", False, "Entry point ``ippo[:s<k>|:PATH]``: the shipped IPPO runs.")
+make_mappo = _method_factory(
+    "mappo", "mappo", False,
+    "Entry point ``mappo[:s<k>|:PATH]``: the shipped MAPPO runs, or any run directory of baselines.mappo.")
+make_mappo_shielded = _method_factory(
+    "mappo_shielded", "mappo_shielded", True,
+    "Entry point ``mappo_shielded[:s<k>|:PATH]``: the shipped shield-trained MAPPO runs, executed through the shield.")
+make_mappo_shielded_bare = _method_factory(
+    "mappo_shielded_bare", "mappo_shielded", False,
+    "Entry point ``mappo_shielded_bare[:s<k>|:PATH]``: ``mappo_shielded``'s networks acting alone (no shield).")
+make_residual_vo = _method_factory(
+    "residual_vo", "residual_vo", True,
+    "Entry point ``residual_vo[:s<k>|:PATH]``: ``vo`` plus a learned bounded correction, through the shield.")
