@@ -207,9 +207,8 @@ def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str) -> 
     def factory(env: Any, arg: str | None = None) -> Any:
         from swarm_env.policies import ShieldedPolicy
 
-        run = shipped_run(checkpoints, arg) if arg in (None, *SHIPPED_SEEDS) else Path(arg)
-        if arg is None:
-            run = shipped_run(checkpoints, SHIPPED_SEEDS[0])
+        # No argument: the first training seed; ``s<k>``: that shipped seed; anything else: a run directory.
+        run = shipped_run(checkpoints, arg or SHIPPED_SEEDS[0]) if arg in (None, *SHIPPED_SEEDS) else Path(arg)
         label = method if arg is None else f"{method}:{arg}"
         policy = _load(env, run, label)
         return ShieldedPolicy.around(policy) if shielded else policy
