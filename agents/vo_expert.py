@@ -56,7 +56,7 @@ import numpy as np
 
 from swarm_env.guidance import pure_pursuit
 from swarm_env.safety import AvoidanceParams, safe_follower_twists
-from swarm_env.policies import parse_policy_kwargs
+from swarm_env.policies import STATE, parse_policy_kwargs
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -311,3 +311,6 @@ def make_policy(env: "SwarmEnv", arg: str | None = None) -> VOExpert:
     if env.action_type != "continuous":
         policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
     return policy
+
+
+make_policy.acts_on = STATE  # type: ignore[attr-defined]

@@ -30,6 +30,7 @@ from typing import Any, Callable
 import numpy as np
 
 from baselines.ppo_core import RunningMeanStd, mlp
+from swarm_env.policies import OBSERVATIONS, STATE
 from swarm_env.state import WorldState
 
 FORMAT = "swarm_env.mappo/1"
@@ -203,7 +204,8 @@ def shipped_run(method: str, seed: str) -> Path:
     return CHECKPOINTS / method / seed
 
 
-def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str) -> Callable[..., Any]:
+def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str, acts_on: str = OBSERVATIONS
+                    ) -> Callable[..., Any]:
     def factory(env: Any, arg: str | None = None) -> Any:
         from swarm_env.policies import ShieldedPolicy
 
@@ -214,6 +216,8 @@ def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str) -> 
         return ShieldedPolicy.around(policy) if shielded else policy
 
     factory.training_runs = SHIPPED_SEEDS  # type: ignore[attr-defined]
+    # The shield reads the privileged state: a shielded method acts on more than its observations.
+    factory.acts_on = f"{acts_on} + shield" if shielded else acts_on  # type: ignore[attr-defined]
     factory.__name__ = factory.__qualname__ = f"make_{method}"
     factory.__doc__ = doc
     return factory
@@ -231,4 +235,5 @@ make_mappo_shielded_bare = _method_factory(
     "Entry point ``mappo_shielded_bare[:s<k>|:PATH]``: ``mappo_shielded``'s networks acting alone (no shield).")
 make_residual_vo = _method_factory(
     "residual_vo", "residual_vo", True,
-    "Entry point ``residual_vo[:s<k>|:PATH]``: ``vo`` plus a learned bounded correction, through the shield.")
+    "Entry point ``residual_vo[:s<k>|:PATH]``: ``vo`` plus a learned bounded correction, through the shield.",
+    acts_on=STATE)

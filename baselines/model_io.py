@@ -28,7 +28,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.policies import PolicyError
+from swarm_env.policies import OBSERVATIONS, PolicyError
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -197,3 +197,9 @@ def make_bc_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
 def make_sac_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
     """Entry point ``sac:PATH``: a SAC model."""
     return _make("sac", env, arg)
+
+
+# What the leaderboard's "acts on" column says: the networks read each follower's own observation.
+make_ppo_policy.acts_on = OBSERVATIONS  # type: ignore[attr-defined]
+make_bc_policy.acts_on = OBSERVATIONS  # type: ignore[attr-defined]
+make_sac_policy.acts_on = OBSERVATIONS  # type: ignore[attr-defined]

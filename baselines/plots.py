@@ -110,3 +110,54 @@ def plot_methods_learning_curves(
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+def shipped_eval_csvs(methods: list[str]) -> dict[str, list[Path]]:
+    """Each shipped method's training seeds' ``eval.csv`` (``baselines/checkpoints/<method>/s<k>/``)."""
+    from baselines.mappo_policy import CHECKPOINTS
+
+    found = {m: sorted((CHECKPOINTS / m).glob("s*/eval.csv")) for m in methods}
+    missing = [m for m, paths in found.items() if not paths]
+    if missing:
+        raise ValueError(f"no shipped eval.csv under {CHECKPOINTS} for: {', '.join(missing)}")
+    return found
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m baselines.plots``: the learning curves of the shipped methods in one figure."""
+    import argparse
+    import sys
+
+    parser = argparse.ArgumentParser(
+        prog="python -m baselines.plots",
+        description="Validation learning curves (mean and min-max band over training seeds) of shipped methods, "
+                    "with reference policies scored on the same validation worlds.")
+    parser.add_argument("--methods", nargs="+", default=["ippo", "mappo", "mappo_shielded", "residual_vo"])
+    parser.add_argument("--references", nargs="*", default=["vo", "pursuit"], help="policies drawn as levels")
+    parser.add_argument("--reference-seeds", default="500-549", help="the validation seeds of the runs")
+    parser.add_argument("--workers", type=int, default=1)
+    parser.add_argument("--out", required=True, help="PNG to write")
+    args = parser.parse_args(argv)
+    from swarm_env.leaderboard import parse_seeds, run_leaderboard
+
+    try:
+        runs = shipped_eval_csvs(args.methods)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    references = {}
+    if args.references:
+        board = run_leaderboard(args.references, ["random"], {"random": parse_seeds(args.reference_seeds)},
+                                workers=args.workers, progress=True)
+        references = {f"{r.policy} (same worlds)": {"formation_error": r.summary["formation_error"]["mean"],
+                                                    "collisions": r.summary["collisions"]["mean"]} for r in board.rows}
+    # A shield-taught run is validated (and selected) acting alone, without the shield.
+    labels = {m: f"{m} (acting alone)" if m == "mappo_shielded" else m for m in runs}
+    out = plot_methods_learning_curves({labels[m]: p for m, p in runs.items()}, args.out,
+                                       title=f"validation seeds {args.reference_seeds}", references=references)
+    print(out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -60,7 +60,9 @@ import numpy as np
 
 from swarm_env.env import SwarmEnv, env_kwargs_for
 from swarm_env.evaluation import mean_ci95_t, run_episode, summarize
-from swarm_env.policies import PolicyError, UnknownPolicyError, load_policy, registered_policies, training_runs
+from swarm_env.policies import (
+    PolicyError, UnknownPolicyError, acts_on, load_policy, registered_policies, training_runs,
+)
 from swarm_env.scenario_io import RANDOM_NAME
 
 #: Seeds of a fixed scenario when none are given (deterministic up to the policy's own randomness).
@@ -484,7 +486,10 @@ class Leaderboard:
         lines = [
             "Each cell: mean ± 95 % confidence half-width (1.96·s/√N, normal approximation) over the "
             "row's N episodes (no ± when N = 1); settle time averages the formation switches that settled (switches that "
-            "never settled are left out); – = nothing to average; n/a = the policy refuses the scenario.",
+            "never settled are left out); – = nothing to average; n/a = the policy refuses the scenario. \"acts on\": "
+            "`observations` = each follower's own observation only (deployable with on-board sensing); `state` = the "
+            "privileged world state, like the experts; `+ shield` = executed through the VO safety layer, which "
+            "reads the state.",
         ]
         trained = sorted({r.policy: len(r.members) for r in self.rows if r.members}.items())
         if trained:
@@ -494,15 +499,15 @@ class Leaderboard:
         for scenario in self.scenarios:
             seeds = self.seeds[scenario]
             lines += ["", f"### {scenario} — seeds {format_seeds(seeds)} (N = {len(seeds)})", ""]
-            lines.append("| policy | " + " | ".join(m.label for m in cols) + " |")
-            lines.append("|---|" + "---:|" * len(cols))
+            lines.append("| policy | acts on | " + " | ".join(m.label for m in cols) + " |")
+            lines.append("|---|---|" + "---:|" * len(cols))
             for r in (r for r in self.rows if r.scenario == scenario and r.method is None):
                 if r.summary is None:
                     cells = [f"n/a: {r.na_reason}"] + [""] * (len(cols) - 1)
                 else:
                     cells = [_fmt_stat(r.summary.get(m.key), m.digits) for m in cols]
                 label = f"`{r.policy}`" + (f" ({len(r.members)} seeds)" if r.members else "")
-                lines.append("| " + " | ".join(_md_cell(c) for c in [label, *cells]) + " |")
+                lines.append("| " + " | ".join(_md_cell(c) for c in [label, acts_on(r.policy), *cells]) + " |")
         return "\n".join(lines) + "\n"
 
     def csv_rows(self) -> list[dict[str, Any]]:

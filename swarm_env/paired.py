@@ -34,12 +34,13 @@ def paired_differences(doc: dict[str, Any], policy: str, baseline: str, scenario
 
     A learned method with several training seeds (episodes carrying ``"method"``) is one policy here:
     its value on a world is the mean over its seeds' episodes on that world, so the interval is over
-    worlds (the spread between training seeds is the leaderboard's method row)."""
+    worlds (the spread between training seeds is the leaderboard's method row). One seed of it is
+    named as played (``"mappo:s1"``)."""
     by_key: dict[str, dict[tuple, list[dict]]] = {}
     for e in doc["episodes"]:
         if scenario is None or e["scenario"] == scenario:
-            who = e.get("method") or e["policy"]
-            by_key.setdefault(who, {}).setdefault((e["scenario"], e["seed"]), []).append(e["metrics"])
+            for who in {e["policy"], e.get("method") or e["policy"]}:
+                by_key.setdefault(who, {}).setdefault((e["scenario"], e["seed"]), []).append(e["metrics"])
     if policy not in by_key or baseline not in by_key:
         raise ValueError(f"no episodes of {policy if policy not in by_key else baseline!r} in the leaderboard"
                          + (f" on {scenario!r}" if scenario else ""))
@@ -64,10 +65,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("leaderboard", help="a leaderboard.json written by swarm-env evaluate --out")
     parser.add_argument("--baseline", default="pursuit", help="the policy every other one is compared with")
     parser.add_argument("--scenario", help="only this scenario's episodes (default: all)")
+    parser.add_argument("--per-seed", action="store_true",
+                        help="also one row per training seed of each learned method (e.g. mappo:s0)")
     args = parser.parse_args(argv)
     try:
         doc = json.loads(Path(args.leaderboard).read_text())
-        policies = [p for p in doc["policies"] if p != args.baseline]
+        policies = []
+        for p in doc["policies"]:
+            seeds = sorted({e["policy"] for e in doc["episodes"] if e.get("method") == p}) if args.per_seed else []
+            policies += [q for q in (p, *seeds) if q != args.baseline]
         print(f"paired differences (policy - {args.baseline}), mean ± 95 % CI" + (f", {args.scenario}" if args.scenario else ""))
         print("| policy | n | collisions / ep | formation error (m) | success |")
         print("|---|---:|---:|---:|---:|")

@@ -61,8 +61,15 @@ class Policy(Protocol):
     def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]: ...
 
 
+#: What a policy acts on, for the leaderboard's "acts on" column (a factory's ``acts_on`` attribute,
+#: see :func:`acts_on`).
+OBSERVATIONS, STATE, NOTHING = "observations", "state", "nothing"
+
+
 class RandomPolicy:
     """Uniformly random actions from each agent's action space (seeded by ``reset``)."""
+
+    acts_on = NOTHING
 
     def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
         if arg:
@@ -81,6 +88,8 @@ class RandomPolicy:
 
 class ZeroPolicy:
     """Every follower stands still (continuous ``[0, 0]`` or the discrete stop primitive)."""
+
+    acts_on = NOTHING
 
     def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
         if arg:
@@ -103,6 +112,8 @@ class PursuitPolicy:
     reference point for what the experts' avoidance layers add. ``arg`` is the
     time gap in seconds (default 0.5): the speed command is ``distance / gap``.
     """
+
+    acts_on = STATE
 
     def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
         try:
@@ -301,6 +312,24 @@ def training_runs(spec: str) -> tuple[str, ...]:
     if arg or not runs:
         return (spec,)
     return tuple(f"{name}:{r}" for r in runs)
+
+
+def acts_on(spec: str) -> str:
+    """What the policy ``spec`` reads when it acts: ``"observations"`` (each follower's own
+    observation: deployable on robots with their own sensors), ``"state"`` (the privileged
+    ``WorldState``, like the experts), ``"nothing"``, or ``"?"`` for a factory that does not say
+    (its ``acts_on`` attribute) or is not installed. ``shield:SPEC`` and a policy executed through
+    the safety layer read the state (the shield does) and say so: ``"observations + shield"``.
+    """
+    name, _, arg = spec.partition(":")
+    try:
+        factory = _factory(name)
+    except UnknownPolicyError:
+        return "?"
+    if factory is ShieldedPolicy:
+        inner = acts_on(arg) if arg else "?"
+        return inner if inner == STATE else f"{inner} + shield"
+    return str(getattr(factory, "acts_on", "?"))
 
 
 def load_policy(spec: str | Any, env: "SwarmEnv") -> Policy:

@@ -131,8 +131,9 @@ def test_markdown_table(board: Leaderboard) -> None:
     fe = board.row("pursuit", "random").summary["formation_error"]
     line = next(line for line in md.splitlines() if line.startswith("| `pursuit` |") and f"{fe['mean']:.3f}" in line)
     assert f"{fe['mean']:.3f} ± {fe['ci95']:.3f}" in line
-    assert line.count("|") == 9  # policy + 7 metric columns
-    assert "| `random` |" in md
+    assert line.count("|") == 10  # policy, acts on, 7 metric columns
+    assert line.startswith("| `pursuit` | state |")
+    assert "| `random` | nothing |" in md
 
 
 def test_csv_parses_back_to_the_summaries(board: Leaderboard, tmp_path: Path) -> None:
@@ -169,7 +170,7 @@ def test_refused_scenario_gives_an_na_row(tmp_path: Path) -> None:
     assert pursuit.status.startswith("n/a: ")  # refuses in reset(), not in its factory
     assert zero.status == "ok" and zero.summary["episodes"] == 2
     assert {e["policy"] for e in board.episodes} == {"zero"}
-    assert "| `vo` | n/a: " in board.to_markdown()
+    assert "| `vo` | state | n/a: " in board.to_markdown()
     with board.to_csv(tmp_path / "na.csv").open() as f:
         parsed = {r["policy"]: r for r in csv.DictReader(f)}
     assert parsed["vo"]["status"].startswith("n/a: ") and parsed["vo"]["formation_error_mean"] == ""
@@ -277,7 +278,7 @@ def test_baselines_evaluate_help() -> None:
 
 def test_na_row_in_a_markdown_cell_escapes_pipes() -> None:
     board = Leaderboard(["p"], ["s"], {"s": [0]}, {}, [Row("p", "s", [0], None, "no | way\nat all")], [])
-    assert "| `p` | n/a: no \\| way at all |" in board.to_markdown()
+    assert "| `p` | ? | n/a: no \\| way at all |" in board.to_markdown()
 
 
 def test_paired_differences_pair_by_seed(tmp_path, capsys) -> None:
@@ -316,7 +317,8 @@ def trio(monkeypatch: pytest.MonkeyPatch) -> str:
     return "trio"
 
 
-def test_a_method_is_played_per_training_seed_and_aggregated_across_seeds(trio: str, tmp_path: Path) -> None:
+def test_a_method_is_played_per_training_seed_and_aggregated_across_seeds(
+        trio: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from swarm_env.policies import training_runs
 
     assert training_runs("trio") == ("trio:s0", "trio:s1", "trio:s2")
@@ -340,7 +342,7 @@ def test_a_method_is_played_per_training_seed_and_aggregated_across_seeds(trio: 
     assert {e["method"] for e in board.episodes if e["policy"].startswith("trio")} == {"trio"}
 
     md = board.to_markdown()
-    assert "| `trio` (3 seeds) |" in md and "trio:s0" not in md and "Student-t" in md
+    assert "| `trio` (3 seeds) | ? |" in md and "trio:s0" not in md and "Student-t" in md  # trio does not say
     with board.to_csv(tmp_path / "lb.csv").open() as f:
         parsed = list(csv.DictReader(f))
     assert [(r["policy"], r["method"], r["training_seeds"]) for r in parsed] == [
@@ -358,3 +360,9 @@ def test_a_method_is_played_per_training_seed_and_aggregated_across_seeds(trio: 
     base = [e["metrics"]["formation_error"]["mean"] for e in board.episodes if e["policy"] == "pursuit"]
     assert d["formation_error"]["n"] == 2
     assert d["formation_error"]["mean"] == pytest.approx(statistics.fmean(a - b for a, b in zip(per_world, base)))
+    one = paired.paired_differences(doc, "trio:s1", "pursuit", "random")  # one training seed, as played
+    seed1 = [e["metrics"]["formation_error"]["mean"] for e in board.episodes if e["policy"] == "trio:s1"]
+    assert one["formation_error"]["mean"] == pytest.approx(statistics.fmean(a - b for a, b in zip(seed1, base)))
+    assert paired.main([str(tmp_path / "lb.json"), "--per-seed"]) == 0
+    out = capsys.readouterr().out
+    assert all(f"| `{name}` | 2 |" in out for name in ("trio", "trio:s0", "trio:s1", "trio:s2"))

@@ -210,3 +210,41 @@ def test_a_learned_policy_plays_the_same_episode_bit_for_bit_in_other_processes(
         doc = json.loads(out.stdout)
         there = Leaderboard(doc["policies"], doc["scenarios"], doc["seeds"], doc["env_kwargs"], [], doc["episodes"])
         assert behaviour(there) == behaviour(here)
+
+
+def test_a_finished_clean_run_ships_with_its_records_and_a_readme(tmp_path) -> None:
+    from baselines import ship
+
+    run = mappo.train(_cfg(tmp_path, total_steps=512, eval_every=256))
+    versions = json.loads((run / "versions.json").read_text())
+    dest = tmp_path / "checkpoints"
+    if versions["git_dirty"] is not False:  # a developer's tree: the rule must refuse it by default
+        with pytest.raises(ship.ShipError, match="git_dirty"):
+            ship.ship_run(run, "mappo", "s0", dest=dest)
+    versions["git_dirty"] = False
+    (run / "versions.json").write_text(json.dumps(versions))
+    target = ship.ship_run(run, "mappo", "s0", dest=dest)
+    assert sorted(p.name for p in target.iterdir()) == sorted(
+        ["policy.safetensors", "policy.json", *ship.RECORDS, "pretrain.csv"])
+    assert (target / "policy.safetensors").read_bytes() == (run / "best" / "policy.safetensors").read_bytes()
+    shipped_again = ship.ship_run(run, "mappo", "s0", dest=dest)  # replaces the old copy whole
+    assert shipped_again == target and not list(target.parent.glob(".*"))
+    readme = ship.write_method_readme("mappo", dest=dest).read_text()
+    assert "python -m baselines.mappo" in readme and "centralised" in readme
+    t = ship.time_breakdown(target)
+    assert t["rollout"] > 0 and t["update"] > 0 and t["wall"] >= t["rollout"] + t["update"]
+    policy = load_policy(f"mappo:{target}", SwarmEnv("random", **TINY_ENV))
+    assert policy.mean_actions(np.zeros((1, policy.obs_rms.mean.shape[0]))).shape == (1, 2)
+    (run / "summary.json").unlink()
+    with pytest.raises(ship.ShipError, match="summary.json: missing"):
+        ship.ship_run(run, "mappo", "s1", dest=dest)
+
+
+def test_what_each_policy_acts_on_is_declared() -> None:
+    from swarm_env.policies import acts_on
+
+    assert [acts_on(s) for s in ("ippo", "mappo", "mappo_shielded_bare", "ppo", "bc:x")] == ["observations"] * 5
+    assert acts_on("mappo_shielded") == "observations + shield" and acts_on("shield:ppo") == "observations + shield"
+    assert acts_on("residual_vo") == "state + shield"
+    assert [acts_on(s) for s in ("vo", "cbs_rrt", "pursuit", "shield:pursuit")] == ["state"] * 4
+    assert acts_on("random") == "nothing" and acts_on("no_such_policy") == "?"

@@ -69,7 +69,7 @@ from agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
 from agents.cbs_rrt.timed_path import TimedPath
 from swarm_env.guidance import pure_pursuit
 from swarm_env.paths import human_states
-from swarm_env.policies import parse_policy_kwargs
+from swarm_env.policies import STATE, parse_policy_kwargs
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -739,3 +739,6 @@ def make_policy(env: "SwarmEnv", arg: str | None = None) -> CBSRRTExpert:
     if env.action_type != "continuous":
         policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
     return policy
+
+
+make_policy.acts_on = STATE  # type: ignore[attr-defined]
