@@ -1,7 +1,14 @@
-"""RL baselines for swarm-env (stable-baselines3 + torch): training, imitation, evaluation.
+"""RL baselines for swarm-env (torch, stable-baselines3): training, imitation, evaluation.
 
 Installed with the ``rl`` extra (``pip install -e '.[rl]'``). Modules, one job each:
 
+* :mod:`baselines.ppo_core`, :mod:`baselines.mappo`, :mod:`baselines.imitation` — ``python -m
+  baselines.mappo``: MAPPO/IPPO in PyTorch (shared actor, central or local critic), a DAgger warm
+  start, the VO safety layer as executor or teacher, residual policies.
+* :mod:`baselines.mappo_policy` — MAPPO runs and the shipped methods (``ippo``, ``mappo``,
+  ``mappo_shielded``, ``mappo_shielded_bare``, ``residual_vo``) as policies, from tensors + JSON.
+* :mod:`baselines.ship` — ``python -m baselines.ship``: a finished run into ``checkpoints/<method>/s<k>``
+  with its records and README.
 * :mod:`baselines.vec_env` — our SB3 ``VecEnv`` bridge: M env copies as M x N
   sub-environments with parameter sharing, seeded through SB3, with correct
   truncation info, optionally in subprocesses.
