@@ -248,3 +248,23 @@ def test_what_each_policy_acts_on_is_declared() -> None:
     assert acts_on("residual_vo") == "state + shield"
     assert [acts_on(s) for s in ("vo", "cbs_rrt", "pursuit", "shield:pursuit")] == ["state"] * 4
     assert acts_on("random") == "nothing" and acts_on("no_such_policy") == "?"
+
+
+def test_validation_in_a_background_process_gives_the_same_run(tmp_path) -> None:
+    """eval_workers=1 scores saved snapshots in another process: the same eval.csv (but the clock), the same
+    selected model and final networks, and no snapshot left behind."""
+    from safetensors.numpy import load_file
+
+    here = mappo.train(_cfg(tmp_path, run_name="here"))
+    there = mappo.train(_cfg(tmp_path, run_name="there", eval_workers=1))
+
+    def rows(run):
+        return [{k: v for k, v in r.items() if k != "wall_s"} for r in csv.DictReader(open(run / "eval.csv"))]
+
+    assert rows(here) == rows(there) and len(rows(here)) == 3
+    for sub in ("best", "."):
+        a, b = load_file(str(here / sub / "policy.safetensors")), load_file(str(there / sub / "policy.safetensors"))
+        assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
+    a, b = (json.loads((run / "best" / "policy.json").read_text()) for run in (here, there))
+    assert {k: v for k, v in a.items() if k != "config"} == {k: v for k, v in b.items() if k != "config"}
+    assert not (there / "evals").exists() and not list(there.glob("best.*"))
