@@ -245,16 +245,15 @@ def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str,
 
 
 def _replace_dir(src: Path, dst: Path) -> None:
-    """Make ``dst`` a copy of ``src``, swapping it in whole (a reader never sees half a model)."""
+    """Make ``dst`` a copy of ``src``, swapped in whole (a reader never sees half a model)."""
     import shutil
 
-    tmp, old = dst.with_name(dst.name + ".tmp"), dst.with_name(dst.name + ".old")
+    from baselines.safe_io import swap_in_dir
+
+    tmp = dst.with_name(f".{dst.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     shutil.copytree(src, tmp)
-    if dst.exists():
-        dst.rename(old)
-    tmp.rename(dst)
-    shutil.rmtree(old, ignore_errors=True)
+    swap_in_dir(tmp, dst)
 
 
 # --------------------------------------------------------------------------- training

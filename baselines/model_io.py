@@ -16,8 +16,9 @@ stacked batch (parameter sharing), deterministic by default. ``bc`` models are
 PPO-format checkpoints whose policy network was trained by behaviour cloning
 (see :mod:`baselines.bc`).
 
-With no argument (``ppo``, ``bc``) the shipped checkpoint in
-``baselines/checkpoints/`` is loaded.
+Every spec needs a path: the v0 checkpoints that ``ppo`` and ``bc`` once loaded without one
+were retired in issue 10 (trained on swarm_env_v0 from an uncommitted tree; superseded by the
+shipped methods of :mod:`baselines.mappo_policy`), and a bare name says so.
 """
 
 from __future__ import annotations
@@ -39,9 +40,10 @@ if TYPE_CHECKING:
 
 MODEL_FILE = "model.zip"
 VECNORM_FILE = "vecnormalize.pkl"
-CHECKPOINT_DIR = Path(__file__).resolve().parent / "checkpoints"
-#: Shipped checkpoints, loaded when a policy spec has no argument.
-SHIPPED = {"ppo": CHECKPOINT_DIR / "ppo_random", "bc": CHECKPOINT_DIR / "bc_vo_random"}
+#: What a bare ``ppo`` / ``bc`` says since their v0 checkpoints were retired.
+RETIRED = ("the v0 checkpoint that {algo!r} loaded without a path was retired (trained on swarm_env_v0 from an "
+           "uncommitted tree); give a run directory, {algo}:PATH, or use a shipped method: ippo, mappo, "
+           "mappo_shielded, residual_vo (docs/baselines.md)")
 
 
 def _running_mean_std_base() -> type:
@@ -150,11 +152,11 @@ class SB3Policy:
 
 
 def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
-    path: Path | str | None = arg
     if not arg:
-        if algo not in SHIPPED:
-            raise PolicyError(f"policy {algo!r} needs a model path: {algo}:PATH (a run directory or a .zip)")
-        path = SHIPPED[algo]
+        if algo in ("ppo", "bc"):
+            raise PolicyError(f"policy {algo!r}: " + RETIRED.format(algo=algo))
+        raise PolicyError(f"policy {algo!r} needs a model path: {algo}:PATH (a run directory or a .zip)")
+    path = arg
     import torch
 
     # Scoring runs the MLP on a handful of observations per step, where torch's thread pool only adds
@@ -185,12 +187,12 @@ def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
 
 
 def make_ppo_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
-    """Entry point ``ppo[:PATH]``: a PPO model (default: the shipped ``checkpoints/ppo_random``)."""
+    """Entry point ``ppo:PATH``: a PPO model saved by ``python -m baselines.train``."""
     return _make("ppo", env, arg)
 
 
 def make_bc_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
-    """Entry point ``bc[:PATH]``: a behaviour-cloned policy (default: the shipped ``checkpoints/bc_vo_random``)."""
+    """Entry point ``bc:PATH``: a behaviour-cloned policy saved by ``python -m baselines.bc``."""
     return _make("bc", env, arg)
 
 

@@ -148,6 +148,20 @@ class _atomic:
             self.tmp.unlink(missing_ok=True)
 
 
+def swap_in_dir(new: Path, target: Path) -> Path:
+    """Replace the directory ``target`` by the finished directory ``new`` (same parent): the old one is moved
+    aside before ``new`` is renamed in, so a reader finds the old or the new directory whole, never a mix."""
+    import shutil
+
+    old = target.with_name(f".{target.name}.old")
+    shutil.rmtree(old, ignore_errors=True)
+    if target.exists():
+        target.rename(old)
+    new.rename(target)
+    shutil.rmtree(old, ignore_errors=True)
+    return target
+
+
 def _space_to_json(space: gymnasium.Space) -> dict[str, Any]:
     if isinstance(space, gymnasium.spaces.Box):
         return {"type": "Box", "shape": list(space.shape), "dtype": str(space.dtype),

@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from baselines.mappo_policy import CHECKPOINTS, CONFIG_FILE, WEIGHTS_FILE
+from baselines.safe_io import swap_in_dir
 
 #: Records copied from the run directory (the ones marked optional may be absent).
 RECORDS = ("config.json", "versions.json", "summary.json", "eval.csv", "train.csv", "learning_curve.png")
@@ -94,13 +95,7 @@ def ship_run(run_dir: str | os.PathLike[str], method: str, seed: str, *, dest: P
     staging.mkdir(parents=True)
     for f in files:
         shutil.copy2(f, staging / f.name)
-    old = target.with_name(f".{seed}.old")
-    shutil.rmtree(old, ignore_errors=True)
-    if target.exists():
-        target.rename(old)
-    staging.rename(target)
-    shutil.rmtree(old, ignore_errors=True)
-    return target
+    return swap_in_dir(staging, target)
 
 
 def time_breakdown(seed_dir: Path) -> dict[str, float]:

@@ -4,7 +4,7 @@
 
 Plays ``vo`` on ``random`` worlds (training seeds 10000-10059, held-out 10060-10074: the DAgger
 warm start's seed range), records every follower's observation and ``vo``'s normalised action,
-fits an MLP of each requested size by MSE regression (the loss of :mod:`baselines.imitation`)
+fits an MLP of each requested size with DAgger's own fitting (:func:`baselines.imitation.fit`)
 and prints the training and held-out MSE. A held-out error that does not fall with capacity says
 the clone's limit is not the network's size.
 """
@@ -13,23 +13,6 @@ from __future__ import annotations
 
 import argparse
 import time
-
-import numpy as np
-
-
-def collect(env, expert, seeds: range) -> tuple[np.ndarray, np.ndarray]:
-    """Every follower observation visited while ``expert`` drives, and its action there."""
-    agents = list(env.possible_agents)
-    xs, ys = [], []
-    for seed in seeds:
-        obs, _ = env.reset(seed=seed)
-        expert.reset(env, seed)
-        while env.agents:
-            action = expert.act(obs, env.world_state())
-            xs.append(np.stack([obs[a] for a in agents]))
-            ys.append(np.stack([action[a] for a in agents]))
-            obs, *_ = env.step(action)
-    return np.concatenate(xs), np.concatenate(ys).astype(np.float32)
 
 
 def main() -> None:
@@ -42,6 +25,7 @@ def main() -> None:
 
     import torch
 
+    from baselines.imitation import DaggerSettings, fit, rollouts
     from baselines.ppo_core import RunningMeanStd, mlp
     from swarm_env.env import SwarmEnv
     from swarm_env.policies import load_policy
@@ -51,27 +35,21 @@ def main() -> None:
     env = SwarmEnv("random")
     expert = load_policy("vo", env)
     t0 = time.perf_counter()
-    x_train, y_train = collect(env, expert, range(10_000, 10_000 + args.train_worlds))
+    # The expert drives (no student): the samples of DAgger's first round.
+    x_train, y_train = rollouts(env, expert, list(range(10_000, 10_000 + args.train_worlds)), None)
     held = 10_000 + args.train_worlds
-    x_test, y_test = collect(env, expert, range(held, held + args.test_worlds))
+    x_test, y_test = rollouts(env, expert, list(range(held, held + args.test_worlds)), None)
     print(f"{len(x_train):,} training and {len(x_test):,} held-out samples in {time.perf_counter() - t0:.0f} s")
     rms = RunningMeanStd((x_train.shape[1],))
     rms.update(x_train)
+    settings = DaggerSettings(epochs=args.epochs)
     xtr, ytr = torch.as_tensor(rms.normalize(x_train)).float(), torch.as_tensor(y_train)
     xte, yte = torch.as_tensor(rms.normalize(x_test)).float(), torch.as_tensor(y_test)
     for spec in args.hidden:
         hidden = [int(h) for h in spec.split(",")]
         net = mlp([xtr.shape[1], *hidden, 2])
-        optim = torch.optim.Adam(net.parameters(), lr=1e-3)
         t0 = time.perf_counter()
-        for _ in range(args.epochs):
-            order = torch.randperm(len(xtr))
-            for start in range(0, len(xtr), 512):
-                idx = order[start:start + 512]
-                loss = (net(xtr[idx]) - ytr[idx]).pow(2).sum(-1).mean()
-                optim.zero_grad()
-                loss.backward()
-                optim.step()
+        fit(net, rms, x_train, y_train, settings, torch.Generator().manual_seed(0))  # DAgger's own fitting
         with torch.no_grad():
             mse_train = (net(xtr) - ytr).pow(2).sum(-1).mean().item()
             mse_test = (net(xte) - yte).pow(2).sum(-1).mean().item()

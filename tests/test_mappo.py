@@ -267,4 +267,4 @@ def test_validation_in_a_background_process_gives_the_same_run(tmp_path) -> None
         assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a)
     a, b = (json.loads((run / "best" / "policy.json").read_text()) for run in (here, there))
     assert {k: v for k, v in a.items() if k != "config"} == {k: v for k, v in b.items() if k != "config"}
-    assert not (there / "evals").exists() and not list(there.glob("best.*"))
+    assert not (there / "evals").exists() and not list(there.glob(".best.*"))

@@ -70,19 +70,6 @@ def test_the_safe_policy_acts_like_the_pickled_model(run) -> None:
     assert algo == "ppo"
 
 
-@pytest.mark.parametrize("name", ["ppo_random", "ppo_from_bc", "bc_vo_random"])
-def test_shipped_checkpoints_load_safely_and_unchanged(name) -> None:
-    torch.set_num_threads(1)
-    d = model_io.CHECKPOINT_DIR / name
-    assert safe_io.has_safe_policy(d)
-    model, vecnorm = model_io.load_model(d)  # our own pickles, trusted here for the comparison only
-    policy, norm, _ = safe_io.load_policy_dir(d)
-    obs = np.random.default_rng(1).uniform(-4, 4, (64, 52)).astype(np.float32)
-    expected, _ = model.predict(vecnorm.normalize_obs(obs), deterministic=True)
-    got, _ = policy.predict(norm.normalize_obs(obs), deterministic=True)
-    np.testing.assert_array_equal(expected, got)
-
-
 def test_bad_safe_files_are_clear_errors(run, tmp_path) -> None:
     import shutil
 
