@@ -363,12 +363,28 @@ class SwarmEnv(ParallelEnv):
         if not self.agents:
             raise RuntimeError("the episode is over: call reset() before step()")
         norm = self.normalised_actions(actions)
-        command = norm * self._speed
+        agents = self.agents
         t0 = time.perf_counter()
-        self._world.step(command)
+        out = self._advance(norm)
+        obs = self._obs.build(out.state)
+        infos = self._infos(out.dist, out.terms, out.touching, out.collided)
+        self._account(out, time.perf_counter() - t0)
+        observations = dict(zip(agents, obs))  # row views of one fresh array
+        rewards = dict(zip(agents, out.reward.tolist()))  # Python floats
+        terminations = dict.fromkeys(agents, out.terminated)
+        truncations = dict.fromkeys(agents, out.truncated)
+        if self.render_mode == "human":
+            self.render()
+        return observations, rewards, terminations, truncations, infos
+
+    def _advance(self, norm: np.ndarray) -> "StepOutcome":
+        """One step of everything but the observations and the metrics: the physics with the
+        ``(N, 2)`` normalised actions ``norm``, the rewards and the episode end. :meth:`step` and
+        the batched engine (:mod:`swarm_env.vector`) both call it, then :meth:`_account`."""
+        assert self._world is not None
+        self._world.step(norm * self._speed)
         state = self._world.snapshot()
         self._state = state
-        obs = self._obs.build(state)
         dist = slot_distance(state)
         touching = touching_per_follower(state)
         reward, terms = compute_rewards(
@@ -379,33 +395,23 @@ class SwarmEnv(ParallelEnv):
         collided = self.terminate_on_collision and bool(touching.any())
         terminated = bool((state.leader_done and settled) or collided)
         truncated = bool(not terminated and state.step >= self.max_steps)
-        self._metrics.update(state, time.perf_counter() - t0, dist)
-        self._metrics.terminated = terminated
+        return StepOutcome(state, reward, terms, dist, touching, collided, terminated, truncated)
 
-        agents = self.agents
-        observations = dict(zip(agents, obs))  # row views of one fresh array
-        rewards = dict(zip(agents, reward.tolist()))  # Python floats
-        terminations = dict.fromkeys(agents, terminated)
-        truncations = dict.fromkeys(agents, truncated)
-        infos = self._infos(dist, terms, touching, collided)
-        if terminated or truncated:
-            self.termination = "collision" if collided else "formation" if terminated else "time_limit"
-            if collided:
-                self.terminal_contacts = tuple(c for c in state.touching if c.robot != LEADER_ID)
+    def _account(self, out: "StepOutcome", wall_time: float) -> None:
+        """Metrics, episode bookkeeping and the renderer's record of the step :meth:`_advance` made."""
+        self._metrics.update(out.state, wall_time, out.dist)
+        self._metrics.terminated = out.terminated
+        if out.terminated or out.truncated:
+            self.termination = "collision" if out.collided else "formation" if out.terminated else "time_limit"
+            if out.collided:
+                self.terminal_contacts = tuple(c for c in out.state.touching if c.robot != LEADER_ID)
             self.agents = []
         if self._renderer is not None:
-            self._renderer.record(state)
-        if self.render_mode == "human":
-            self.render()
-        return observations, rewards, terminations, truncations, infos
+            self._renderer.record(out.state)
 
     def _infos(self, dist: np.ndarray, terms: dict[str, np.ndarray], touching: np.ndarray, collided: bool) -> dict:
         """Per-agent infos; reset and step infos have the same keys (see the class docstring)."""
-        # One flat row of numbers per agent: reward terms, slot distance, contacts, collision flag.
-        columns = [terms[t].tolist() for t in REWARD_TERMS]
-        columns.append(dist.tolist())
-        columns += touching.T.astype(int).tolist()
-        columns.append([collided] * len(self.agents))
+        columns = [c.tolist() for c in info_columns(dist, terms, touching, collided)]
         return {a: dict(zip(_INFO_KEYS, row)) for a, row in zip(self.agents, zip(*columns))}
 
     def normalised_actions(self, actions: dict[str, Any]) -> np.ndarray:
@@ -433,7 +439,8 @@ class SwarmEnv(ParallelEnv):
                 return self._clip_actions(out)
         out = np.zeros((self._n, 2))
         if self.action_type == "discrete":
-            for i, a in enumerate(self.agents):
+            ks = []
+            for a in self.agents:
                 k = actions[a]
                 if isinstance(k, np.ndarray) and k.size == 1:
                     k = k.item()
@@ -441,10 +448,8 @@ class SwarmEnv(ParallelEnv):
                     PRIMITIVE_ANGLES_DEG
                 ):
                     raise ValueError(f"{a}: discrete action must be an int in [0, {len(PRIMITIVE_ANGLES_DEG)}], got {k!r}")
-                if k > 0:
-                    omega = math.radians(PRIMITIVE_ANGLES_DEG[k - 1]) / self._prim_duration
-                    out[i] = (1.0, omega / self._speed[1])
-            return out
+                ks.append(int(k))
+            return self.primitive_actions(np.array(ks))
         for i, a in enumerate(self.agents):
             try:
                 arr = np.asarray(actions[a], dtype=np.float64)
@@ -456,6 +461,17 @@ class SwarmEnv(ParallelEnv):
                 raise ValueError(f"{a}: action must be finite, got {arr.tolist()}")
             out[i] = arr
         return self._clip_actions(out)
+
+    def primitive_actions(self, k: np.ndarray) -> np.ndarray:
+        """``(N, 2)`` normalised twists of the discrete motion primitives ``k`` ``(N,)`` (ints in
+        ``[0, 9]``, already checked): 0 stops, ``k > 0`` drives at full speed turning by
+        ``PRIMITIVE_ANGLES_DEG[k - 1]`` over one primitive duration."""
+        out = np.zeros((len(k), 2))
+        for i, kk in enumerate(k.tolist()):
+            if kk > 0:
+                omega = math.radians(PRIMITIVE_ANGLES_DEG[kk - 1]) / self._prim_duration
+                out[i] = (1.0, omega / self._speed[1])
+        return out
 
     def _clip_actions(self, out: np.ndarray) -> np.ndarray:
         if np.abs(out).max(initial=0.0) > 1.0:
@@ -519,7 +535,31 @@ class SwarmEnv(ParallelEnv):
             self._renderer = None
 
 
+@dataclasses.dataclass(frozen=True)
+class StepOutcome:
+    """What one step produced besides the observations (see :meth:`SwarmEnv._advance`)."""
+
+    state: WorldState
+    reward: np.ndarray  # (N,)
+    terms: dict[str, np.ndarray]  # REWARD_TERMS -> (N,)
+    dist: np.ndarray  # (N,) slot distances (m)
+    touching: np.ndarray  # (N, len(CONTACT_GROUPS)) bodies in touch during the step
+    collided: bool  # the step ended the episode by a collision (terminate_on_collision)
+    terminated: bool
+    truncated: bool
+
+
 _INFO_KEYS = (*INFO_REWARD_KEYS, "slot_distance", *INFO_CONTACT_KEYS, "collision_terminated")
+
+
+def info_columns(dist: np.ndarray, terms: dict[str, np.ndarray], touching: np.ndarray, collided: bool) -> list[np.ndarray]:
+    """The per-agent infos of a step as ``(N,)`` arrays, one per key of ``_INFO_KEYS`` in order:
+    reward terms and slot distance (float64), contacts per group (int64), the collision flag (bool)."""
+    columns = [terms[t] for t in REWARD_TERMS]
+    columns.append(dist)
+    columns += list(touching.T.astype(np.int64))
+    columns.append(np.full(len(dist), collided))
+    return columns
 
 
 def env_kwargs_for(scenario: Any, kwargs: Mapping[str, Any]) -> dict[str, Any]:

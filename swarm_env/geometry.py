@@ -1,5 +1,5 @@
-"""Static geometry: obstacles and walls as numpy arrays, signed clearance,
-projection to free space, and vectorised lidar ray casting.
+"""Static geometry: obstacles and walls as numpy arrays, signed clearance and
+projection to free space (the lidar is :mod:`swarm_env.lidar`).
 
 Everything here is pure numpy (no pymunk, no pygame) and float64. Units are
 metres and radians (rectangle ``angle`` in degrees, as in scenario files). The
@@ -185,7 +185,6 @@ class StaticMap:
     poly_counts: np.ndarray = field(init=False, repr=False)
     obstacle_count: int = field(init=False)
     _flat: dict = field(init=False, repr=False)
-    _ray_w: np.ndarray = field(init=False, repr=False)
     _proj_cache: dict = field(init=False, repr=False)
     _chunk: int = field(init=False, repr=False)
     _bound: np.ndarray = field(init=False, repr=False)
@@ -255,7 +254,6 @@ class StaticMap:
             "off": col(offsets), "P": P, "M": mmax,
         }
         put(self, "_flat", flat)
-        put(self, "_ray_w", _frozen(self._build_ray_weights().T))  # (columns, 8)
         put(self, "_proj_cache", {})
         # distance() handles points in blocks whose (edges, points) temporaries stay under
         # 96 KiB: measured ~3x faster per point than one big block (large temporaries are
@@ -327,32 +325,6 @@ class StaticMap:
             polygons=tuple(polygons),
             polygon_ids=np.array(polygon_ids, dtype=np.int64),
         )
-
-    def _build_ray_weights(self) -> np.ndarray:
-        """Weights turning per-ray features into every static ray test with one matmul.
-
-        Ray features (see :func:`_ray_features`): ``[dx, dy, ox, oy, 1, o x d, o . d, |o|^2]``.
-        Columns: for each segment ``a + u e`` the denominator ``d x e``, ``(a-o) x e`` and
-        ``(a-o) x d`` (so ``t = col1/col0``, ``u = col2/col0``); for each static circle
-        ``b = (c-o) . d`` and ``|c-o|^2 - r^2``; for each padded polygon edge
-        ``n . o - offset`` (the origin-inside test).
-        """
-        seg = self.segments
-        ax, ay = seg[:, 0], seg[:, 1]
-        ex, ey = seg[:, 2] - ax, seg[:, 3] - ay
-        S = len(seg)
-        w_seg = np.zeros((8, 3 * S))
-        w_seg[0, :S], w_seg[1, :S] = ey, -ex  # d x e
-        w_seg[2, S:2 * S], w_seg[3, S:2 * S], w_seg[4, S:2 * S] = -ey, ex, ax * ey - ay * ex  # (a-o) x e
-        w_seg[0, 2 * S:], w_seg[1, 2 * S:], w_seg[5, 2 * S:] = -ay, ax, -1.0  # (a-o) x d
-        return np.hstack([w_seg, _circle_ray_weights(self.circles), self._poly_inside_weights()])
-
-    def _poly_inside_weights(self) -> np.ndarray:
-        f = self._flat
-        w = np.zeros((8, len(f["nx"]) if f["P"] else 0))
-        if f["P"]:  # edge-major columns, like _flat
-            w[2], w[3], w[4] = f["nx"][:, 0], f["ny"][:, 0], -f["off"][:, 0]
-        return w
 
     # -- signed distance -----------------------------------------------------------------------
 
@@ -967,102 +939,3 @@ def _corner_candidates(circ: np.ndarray, circ_o: np.ndarray, seg: np.ndarray, se
             m = ok & (t >= 0) & (t <= 1)
             out.append(a[m] + t[m, None] * e[m])
     return np.vstack(out)
-
-
-# ----------------------------------------------------------------------------------------------
-# Lidar
-# ----------------------------------------------------------------------------------------------
-
-
-def _circle_ray_weights(circles: np.ndarray) -> np.ndarray:
-    """Ray-feature weights (see ``StaticMap._build_ray_weights``) giving, per circle,
-    ``b = (c - o) . d`` and ``cc = |c - o|^2 - r^2``: an ``(8, 2C)`` array."""
-    C = len(circles)
-    w = np.zeros((8, 2 * C))
-    cx, cy, r = circles[:, 0], circles[:, 1], circles[:, 2]
-    w[0, :C], w[1, :C], w[6, :C] = cx, cy, -1.0
-    w[2, C:], w[3, C:], w[4, C:], w[7, C:] = -2.0 * cx, -2.0 * cy, cx * cx + cy * cy - r * r, 1.0
-    return w
-
-
-def cast_rays(
-    origins: np.ndarray,
-    angles: np.ndarray,
-    max_range: float,
-    static: StaticMap,
-    discs: np.ndarray | None = None,
-    exclude: np.ndarray | None = None,
-) -> np.ndarray:
-    """Vectorised lidar.
-
-    ``origins`` ``(R, 2)`` ray start points, ``angles`` ``(R,)`` world-frame ray
-    directions (radians), ``discs`` ``(D, 3)`` moving discs ``(x, y, r)`` (robots,
-    humans), ``exclude`` ``(R,)`` int index into ``discs`` to ignore for that ray (the
-    robot's own body; ``-1`` = none).
-
-    Returns ``(R,)`` float64 distance from the origin to the first hit among
-    ``static.segments`` (obstacle edges and walls), ``static.circles`` and ``discs``,
-    clipped to ``max_range`` (``max_range`` where nothing is hit). A ray starting
-    inside a disc, circle or polygon reports 0 (except for the excluded disc). Rays
-    parallel to a segment do not hit it (its neighbouring edges are hit instead).
-
-    Every static test is one ``(3S + 2K + P*Mmax, 8) @ (8, R)`` matmul with weights
-    precomputed in the :class:`StaticMap`; discs add a ``(2D, 8) @ (8, R)`` one.
-    Intermediate arrays are ``(columns, R)`` so that the reductions run over the
-    leading axis (much faster in numpy than over a short trailing one).
-    """
-    o = np.asarray(origins, dtype=np.float64)
-    ang = np.asarray(angles, dtype=np.float64)
-    R = len(o)
-    ox, oy = o[:, 0], o[:, 1]
-    dx, dy = np.cos(ang), np.sin(ang)
-    # Ray features [dx, dy, ox, oy, 1, o x d, o . d, |o|^2]; see StaticMap._build_ray_weights.
-    feat = np.empty((8, R))
-    feat[0], feat[1], feat[2], feat[3], feat[4] = dx, dy, ox, oy, 1.0
-    feat[5] = ox * dy - oy * dx
-    feat[6] = ox * dx + oy * dy
-    feat[7] = ox * ox + oy * oy
-    m = static._ray_w @ feat
-    S = len(static.segments)
-    K = len(static.circles)
-
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv = 1.0 / m[:S]  # parallel ray: inf, so t and u become nan/inf and fail the tests
-        t = m[S:2 * S] * inv
-        u = m[2 * S:3 * S] * inv
-    hit = t >= 0.0
-    hit &= u >= 0.0
-    hit &= u <= 1.0
-    t[~hit] = np.inf
-    best = t.min(axis=0)
-
-    if discs is not None and len(discs):
-        dm = _circle_ray_weights(np.asarray(discs, dtype=np.float64).reshape(-1, 3)).T @ feat
-        D = len(dm) // 2
-        b = np.concatenate([m[3 * S:3 * S + K], dm[:D]])
-        cc = np.concatenate([m[3 * S + K:3 * S + 2 * K], dm[D:]])
-    else:
-        D = 0
-        b = m[3 * S:3 * S + K]
-        cc = m[3 * S + K:3 * S + 2 * K]
-    if K + D:
-        disc = b * b - cc  # = r^2 - (distance of the centre from the ray line)^2
-        ok = disc >= 0.0
-        ok &= b > 0.0  # circle ahead (an origin outside with b <= 0 never hits)
-        np.maximum(disc, 0.0, out=disc)
-        tc = b - np.sqrt(disc, out=disc)
-        tc[~ok] = np.inf
-        tc[cc <= 0.0] = 0.0  # origin inside the circle
-        if exclude is not None and D:
-            ex = np.asarray(exclude)
-            rows = np.nonzero(ex >= 0)[0]
-            tc[K + ex[rows], rows] = np.inf
-        np.minimum(best, tc.min(axis=0), out=best)
-    P = static._flat["P"]
-    if P:
-        c0 = 3 * S + 2 * K
-        h = m[c0:].reshape(static._flat["M"], P, R)  # n . o - offset per padded edge
-        inside = (h.max(axis=0) < 0.0).any(axis=0)
-        best[inside] = 0.0
-    np.minimum(best, max_range, out=best)
-    return best

@@ -31,11 +31,13 @@ lidar                   R      ray distance / lidar_range in [0, 1], rays
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from swarm_env.geometry import StaticMap, cast_rays
+from swarm_env.geometry import StaticMap
+from swarm_env.lidar import PackedMaps, pack_discs, scan
 from swarm_env.scenario import SensorSpec
 from swarm_env.state import WorldState
 
@@ -140,7 +142,7 @@ class ObservationBuilder:
         k = sensors.lidar_rays
         self._ray_angles = 2.0 * np.pi * np.arange(k) / k
         self._columns: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-        self._ray_owner: dict[int, np.ndarray] = {}
+        self._packed_map: tuple[StaticMap, PackedMaps] | None = None
         self.state_layout = state_layout(capacity)
         self.state_size = self.state_layout["occupancy"].stop
         self._grid: tuple[StaticMap, np.ndarray] | None = None  # (map, its occupancy grid), see _occupancy
@@ -170,8 +172,9 @@ class ObservationBuilder:
         return low, high
 
     # ------------------------------------------------------------------ per agent
-    def build(self, state: WorldState) -> np.ndarray:
-        """(N, size) float32 observations of the N followers of ``state``."""
+    def build(self, state: WorldState, lidar: np.ndarray | None = None) -> np.ndarray:
+        """(N, size) float32 observations of the N followers of ``state``; ``lidar``: their
+        ``(N, rays)`` scan from :meth:`lidar` if the caller computed it (for many worlds at once)."""
         scn = state.scenario
         n = state.n_followers
         pose = state.follower_pose
@@ -214,7 +217,8 @@ class ObservationBuilder:
             block[~valid] = 0.0  # absent rows are all zero
             block[:, :, 4] = valid
 
-        np.divide(self._lidar(state), self.sensors.lidar_range, out=out[:, self.layout["lidar"]])
+        scan_m = self.lidar([state]) if lidar is None else lidar
+        np.divide(scan_m, self.sensors.lidar_range, out=out[:, self.layout["lidar"]])
         np.clip(out, self.low, self.high, out=out)
         return out.astype(np.float32)
 
@@ -258,29 +262,24 @@ class ObservationBuilder:
         np.subtract(other_vel[order], vel[:, None, :], out=vec[:, k:k + kk])
         return valid
 
-    def _lidar(self, state: WorldState) -> np.ndarray:
-        n = state.n_followers
-        r = self.sensors.lidar_rays
-        pose = state.follower_pose
-        discs = np.empty((n + state.leader_is_robot + len(state.human_pos), 3))
-        discs[:n, :2] = pose[:, :2]
-        discs[:n, 2] = state.follower_radius
-        m = n
-        if state.leader_is_robot:
-            discs[m, :2] = state.leader_pose[:2]
-            discs[m, 2] = state.leader_radius
-            m += 1
-        if len(state.human_pos):
-            discs[m:, :2] = state.human_pos
-            discs[m:, 2] = state.human_radius
-        origins = np.repeat(pose[:, :2], r, axis=0)
-        angles = (pose[:, 2:3] + self._ray_angles[None, :]).ravel()
-        exclude = self._ray_owner.get(n)
-        if exclude is None:
-            exclude = self._ray_owner[n] = np.repeat(np.arange(n), r)  # ray -> its own robot's disc
-            exclude.flags.writeable = False
-        dist = cast_rays(origins, angles, self.sensors.lidar_range, state.static, discs, exclude)
-        return dist.reshape(n, r)
+    def lidar(self, states: Sequence[WorldState], maps: PackedMaps | None = None) -> np.ndarray:
+        """The lidar of every follower of ``states`` (one world each), stacked: ``(sum N, rays)``
+        distances (m), in one call of the compiled kernel. ``maps``: ``PackedMaps.of`` the
+        states' static maps, if the caller keeps it (otherwise packed here)."""
+        if maps is None:
+            maps = self._packed(states[0].static) if len(states) == 1 else PackedMaps.of([s.static for s in states])
+        counts = [s.n_followers for s in states]
+        world = np.repeat(np.arange(len(states)), counts)
+        poses = states[0].follower_pose if len(states) == 1 else np.concatenate([s.follower_pose for s in states])
+        own = np.concatenate([np.arange(n) for n in counts])  # followers come first among a world's discs
+        disc_start, discs = pack_discs([moving_discs(s) for s in states])
+        return scan(poses, world, own, self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
+
+    def _packed(self, static: StaticMap) -> PackedMaps:
+        """``PackedMaps.of([static])``, kept while the map stays the same."""
+        if self._packed_map is None or self._packed_map[0] is not static:
+            self._packed_map = (static, PackedMaps.of([static]))
+        return self._packed_map[1]
 
     # ------------------------------------------------------------------ global
     def state_vector(self, state: WorldState) -> np.ndarray:
@@ -327,6 +326,24 @@ class ObservationBuilder:
         grid.flags.writeable = False
         self._grid = (static, grid)
         return grid
+
+
+def moving_discs(state: WorldState) -> np.ndarray:
+    """``(D, 3)`` ``(x, y, r)`` of the moving bodies the lidar sees: the followers (in order,
+    first), a robot leader, then the humans."""
+    n = state.n_followers
+    discs = np.empty((n + state.leader_is_robot + len(state.human_pos), 3))
+    discs[:n, :2] = state.follower_pose[:, :2]
+    discs[:n, 2] = state.follower_radius
+    m = n
+    if state.leader_is_robot:
+        discs[m, :2] = state.leader_pose[:2]
+        discs[m, 2] = state.leader_radius
+        m += 1
+    if len(state.human_pos):
+        discs[m:, :2] = state.human_pos
+        discs[m:, 2] = state.human_radius
+    return discs
 
 
 def _clearance_features(static: StaticMap, pos: np.ndarray) -> np.ndarray:

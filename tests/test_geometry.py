@@ -12,10 +12,10 @@ from swarm_env.geometry import (
     NO_SURFACE,
     WALL_NAMES,
     StaticMap,
-    cast_rays,
     convex_ccw,
     rotate_rectangle,
 )
+from swarm_env.lidar import cast_rays
 from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
 
 SQ2 = math.sqrt(2.0)

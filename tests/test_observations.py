@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from swarm_env.env import SwarmEnv
-from swarm_env.geometry import cast_rays
+from swarm_env.lidar import cast_rays
 from swarm_env.observations import ObservationBuilder
 from swarm_env.state import WorldState
 

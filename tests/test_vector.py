@@ -1,0 +1,134 @@
+"""The batched engine (swarm_env.vector) against its reference, M independent SwarmEnvs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import swarm_env
+from swarm_env.env import SwarmEnv
+from swarm_env.lidar import PackedMaps, cast_rays, pack_discs, scan
+from swarm_env.observations import moving_discs
+from swarm_env.vector import INFO_KEYS, SwarmVectorEnv
+
+
+def _rows(d: dict, agents: list[str], key: str | None = None) -> np.ndarray:
+    return np.array([d[a] if key is None else d[a][key] for a in agents])
+
+
+def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: bool = False, **kwargs) -> int:
+    """Step a SwarmVectorEnv and num_envs SwarmEnvs with the same actions; assert every output is
+    bitwise equal; return the number of episodes that ended (and were auto-reset)."""
+    if discrete:
+        kwargs["action_type"] = "discrete"
+    venv = SwarmVectorEnv(scenario, num_envs, **kwargs)
+    refs = [SwarmEnv(scenario, **kwargs) for _ in range(num_envs)]
+    agents = refs[0].possible_agents
+    obs, infos = venv.reset(seed=seed)
+    for m, env in enumerate(refs):
+        o, i = env.reset(seed=seed + m)
+        assert np.array_equal(obs[m], _rows(o, agents))
+        for key in INFO_KEYS:
+            assert np.array_equal(infos[key][m], _rows(i, agents, key)), key
+    rng = np.random.default_rng(seed)
+    ended = 0
+    for t in range(steps):
+        if discrete:
+            actions = rng.integers(0, 10, (num_envs, len(agents)))
+        else:
+            actions = rng.uniform(-1.0, 1.0, (num_envs, len(agents), 2)).astype(np.float32)
+        obs, rew, term, trunc, infos = venv.step(actions)
+        assert obs.dtype == np.float32 and obs.shape == (num_envs, len(agents), venv.single_observation_space.shape[0])
+        for m, env in enumerate(refs):
+            o, r, te, tr, i = env.step({a: actions[m, k] for k, a in enumerate(agents)})
+            last = _rows(o, agents)
+            assert term[m] == te[agents[0]] and trunc[m] == tr[agents[0]]
+            assert np.array_equal(rew[m], _rows(r, agents)), (t, m)
+            for key in INFO_KEYS:
+                assert np.array_equal(infos[key][m], _rows(i, agents, key)), (t, m, key)
+            if not env.agents:
+                ended += 1
+                assert infos["_final"][m]
+                assert np.array_equal(infos["final_obs"][m], last)
+                metrics = {k: v for k, v in env.episode_metrics().items() if k != "wall_time"}
+                assert {k: v for k, v in infos["final_metrics"][m].items() if k != "wall_time"} == metrics
+                o, _ = env.reset()  # auto-reset: the generator continues
+                last = _rows(o, agents)
+            elif "_final" in infos:
+                assert not infos["_final"][m] and infos["final_metrics"][m] is None
+            assert np.array_equal(obs[m], last), (t, m)
+        assert np.array_equal(venv.state(), np.stack([e.state() for e in refs]))
+    return ended
+
+
+@pytest.mark.parametrize("scenario", [s for s in swarm_env.list_scenarios() if s != "random"])
+def test_each_builtin_scenario_matches_swarm_env_bitwise(scenario: str) -> None:
+    assert _lockstep(scenario, 3, 45, seed=7, max_cycles=20) >= 3
+
+
+def test_fifty_random_worlds_match_swarm_env_bitwise() -> None:
+    # 50 worlds, seeds 1000-1049, each ending once (max_cycles) and continuing after its auto-reset.
+    assert _lockstep("random", 50, 30, seed=1000, max_cycles=25) == 50
+
+
+def test_random_with_humans_and_robot_leader_and_discrete_actions() -> None:
+    assert _lockstep("random", 4, 30, seed=3, discrete=True, max_cycles=12, n_humans=(2, 4), leader_kind="robot") >= 8
+
+
+def test_seeds_and_auto_reset_contract() -> None:
+    venv = SwarmVectorEnv("random", 3, max_cycles=5)
+    a, _ = venv.reset(seed=[11, 12, 13])
+    b, _ = venv.reset(seed=11)
+    assert np.array_equal(a, b)  # an int seed s gives world m the seed s + m
+    zeros = np.zeros((3, venv.num_agents, 2))
+    for _ in range(4):
+        _, _, term, trunc, infos = venv.step(zeros)
+        assert not (term | trunc).any() and "_final" not in infos
+    obs, _, term, trunc, infos = venv.step(zeros)
+    assert trunc.all() and not term.any() and infos["_final"].all()
+    assert [m["termination"] for m in infos["final_metrics"]] == ["time_limit"] * 3
+    assert not np.array_equal(obs, infos["final_obs"])  # obs is the next episode's first
+
+
+def test_bad_input_gets_a_clear_error() -> None:
+    with pytest.raises(ValueError, match="num_envs"):
+        SwarmVectorEnv("paper_vo_0", 0)
+    venv = SwarmVectorEnv("random", 2, n_followers=4)
+    with pytest.raises(RuntimeError, match="reset"):
+        venv.step(np.zeros((2, venv.num_agents, 2)))
+    venv.reset(seed=0)
+    with pytest.raises(ValueError, match=r"shape \(2, 4, 2\)"):
+        venv.step(np.zeros((2, 3, 2)))
+    bad = np.zeros((2, venv.num_agents, 2))
+    bad[1, 2, 0] = np.nan
+    with pytest.raises(ValueError, match="world 1, follower 2"):
+        venv.step(bad)
+    with pytest.raises(ValueError, match="seed"):
+        venv.reset(seed=[1, 2, 3])
+    with pytest.raises(ValueError, match="same team"):
+        SwarmVectorEnv.from_envs([SwarmEnv("random", n_followers=3), SwarmEnv("random", n_followers=4)])
+    with pytest.warns(UserWarning, match="clipped"):
+        venv.step(np.full((2, venv.num_agents, 2), 1.5))
+
+
+def test_one_lidar_call_for_many_worlds_equals_one_per_world() -> None:
+    """The kernel scans robot by robot: packing worlds together changes no bit."""
+    envs = [SwarmEnv("random", n_humans=(1, 3)) for _ in range(4)]
+    states = []
+    for m, env in enumerate(envs):
+        env.reset(seed=20 + m)
+        states.append(env.world_state())
+    builder = envs[0]._obs
+    together = builder.lidar(states)
+    apart = np.concatenate([builder.lidar([s]) for s in states])
+    assert np.array_equal(together, apart)
+    # ... and one robot's scan equals its rays cast one by one (the single-ray entry point).
+    s = states[0]
+    angles = s.follower_pose[0, 2] + builder._ray_angles
+    single = cast_rays(np.repeat(s.follower_pose[:1, :2], len(angles), axis=0), angles, builder.sensors.lidar_range,
+                       s.static, moving_discs(s), np.zeros(len(angles), dtype=np.int64))
+    np.testing.assert_array_equal(single, together[0])
+    start, discs = pack_discs([moving_discs(s)])
+    assert np.array_equal(scan(s.follower_pose, np.zeros(s.n_followers, dtype=np.int64), np.arange(s.n_followers),
+                               builder._ray_angles, builder.sensors.lidar_range, PackedMaps.of([s.static]), start, discs),
+                          together[: s.n_followers])
