@@ -316,6 +316,17 @@ class SwarmEnv(ParallelEnv):
         return self._fixed if self._fixed is not None else random_scenario(np.random.default_rng(0), self._random)
 
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
+        self._start(seed)
+        obs = self._obs.build(self._state)  # type: ignore[arg-type]
+        observations = {a: obs[i] for i, a in enumerate(self.agents)}
+        zeros = np.zeros(self._n)
+        infos = self._infos(self._prev_dist, {t: zeros for t in REWARD_TERMS}, np.zeros((self._n, len(CONTACT_GROUPS))), False)
+        if self.render_mode == "human":
+            self.render()
+        return observations, infos
+
+    def _start(self, seed: int | None) -> None:
+        """Everything :meth:`reset` does but the observations and infos (the batched engine's reset)."""
         if seed is not None or self._rng is None:
             seq = np.random.SeedSequence(seed)
             env_seq, space_seq = seq.spawn(2)
@@ -332,7 +343,6 @@ class SwarmEnv(ParallelEnv):
         self.termination = None
         self.terminal_contacts = ()
         self._speed = np.array([scn.robots.max_speed, scn.robots.max_turn_rate])
-        self._prim_duration = math.radians(max(abs(a) for a in PRIMITIVE_ANGLES_DEG)) / scn.robots.max_turn_rate
         self._state = self._world.snapshot()
         self._prev_dist = slot_distance(self._state)
         self._prev_action = np.zeros((self._n, 2))
@@ -341,13 +351,6 @@ class SwarmEnv(ParallelEnv):
         if self._renderer is not None:
             self._renderer.reset()
             self._renderer.record(self._state)
-        obs = self._obs.build(self._state)
-        observations = {a: obs[i] for i, a in enumerate(self.agents)}
-        zeros = np.zeros(self._n)
-        infos = self._infos(self._prev_dist, {t: zeros for t in REWARD_TERMS}, np.zeros((self._n, len(CONTACT_GROUPS))), False)
-        if self.render_mode == "human":
-            self.render()
-        return observations, infos
 
     def _static_for(self, scn: Scenario) -> StaticMap:
         if self._fixed is not None:  # one map for every episode of a fixed scenario
@@ -466,12 +469,7 @@ class SwarmEnv(ParallelEnv):
         """``(N, 2)`` normalised twists of the discrete motion primitives ``k`` ``(N,)`` (ints in
         ``[0, 9]``, already checked): 0 stops, ``k > 0`` drives at full speed turning by
         ``PRIMITIVE_ANGLES_DEG[k - 1]`` over one primitive duration."""
-        out = np.zeros((len(k), 2))
-        for i, kk in enumerate(k.tolist()):
-            if kk > 0:
-                omega = math.radians(PRIMITIVE_ANGLES_DEG[kk - 1]) / self._prim_duration
-                out[i] = (1.0, omega / self._speed[1])
-        return out
+        return primitive_table(float(self._speed[1]))[k]
 
     def _clip_actions(self, out: np.ndarray) -> np.ndarray:
         if np.abs(out).max(initial=0.0) > 1.0:
@@ -533,6 +531,17 @@ class SwarmEnv(ParallelEnv):
         if self._renderer is not None:
             self._renderer.close()
             self._renderer = None
+
+
+def primitive_table(max_turn_rate: float) -> np.ndarray:
+    """``(10, 2)`` normalised ``(v, omega)`` of each discrete action: 0 stops; ``k > 0`` drives at
+    full speed turning by ``PRIMITIVE_ANGLES_DEG[k - 1]`` over one primitive duration
+    ``T_p = 48 deg / max_turn_rate`` (so the sharpest primitive turns at the rate limit)."""
+    duration = math.radians(max(abs(a) for a in PRIMITIVE_ANGLES_DEG)) / max_turn_rate
+    out = np.zeros((1 + len(PRIMITIVE_ANGLES_DEG), 2))
+    for k, angle in enumerate(PRIMITIVE_ANGLES_DEG, 1):
+        out[k] = (1.0, math.radians(angle) / duration / max_turn_rate)
+    return out
 
 
 @dataclasses.dataclass(frozen=True)

@@ -33,13 +33,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from swarm_env.geometry import StaticMap
-from swarm_env.lidar import PackedMaps, pack_discs, scan
 from swarm_env.scenario import SensorSpec
 from swarm_env.state import WorldState
+
+if TYPE_CHECKING:  # the lidar kernel (numba) is imported on first use: batched-engine workers never load it
+    from swarm_env.lidar import PackedMaps
 
 OBS_OWN_TWIST = slice(0, 2)
 OBS_SLOT = slice(2, 4)
@@ -142,7 +145,7 @@ class ObservationBuilder:
         k = sensors.lidar_rays
         self._ray_angles = 2.0 * np.pi * np.arange(k) / k
         self._columns: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-        self._packed_map: tuple[StaticMap, PackedMaps] | None = None
+        self._packed_map: "tuple[StaticMap, PackedMaps] | None" = None
         self.state_layout = state_layout(capacity)
         self.state_size = self.state_layout["occupancy"].stop
         self._grid: tuple[StaticMap, np.ndarray] | None = None  # (map, its occupancy grid), see _occupancy
@@ -174,7 +177,29 @@ class ObservationBuilder:
     # ------------------------------------------------------------------ per agent
     def build(self, state: WorldState, lidar: np.ndarray | None = None) -> np.ndarray:
         """(N, size) float32 observations of the N followers of ``state``; ``lidar``: their
-        ``(N, rays)`` scan from :meth:`lidar` if the caller computed it (for many worlds at once)."""
+        ``(N, rays)`` scan (m) if the caller computed it (:meth:`scan`, for many worlds at once)."""
+        out = self._assemble(state)
+        np.divide(self.lidar([state]) if lidar is None else lidar, self.sensors.lidar_range,
+                  out=out[:, self.layout["lidar"]])
+        np.clip(out, self.low, self.high, out=out)
+        return out.astype(np.float32)
+
+    def build_without_lidar(self, state: WorldState) -> np.ndarray:
+        """:meth:`build` with the lidar columns left at 0, for :meth:`fill_lidar` to complete
+        elsewhere (the batched engine's workers, which never load the lidar kernel). The clip
+        and the float32 cast work entry by entry, so the two halves give :meth:`build`'s bits."""
+        out = self._assemble(state)
+        np.clip(out, self.low, self.high, out=out)
+        return out.astype(np.float32)
+
+    def fill_lidar(self, obs: np.ndarray, lidar: np.ndarray) -> None:
+        """Write the lidar columns of ``obs`` (``(..., size)`` float32, from
+        :meth:`build_without_lidar`) from ``lidar`` (``(..., rays)`` m), as :meth:`build` does."""
+        cols = self.layout["lidar"]
+        obs[..., cols] = np.clip(lidar / self.sensors.lidar_range, self.low[cols], self.high[cols])
+
+    def _assemble(self, state: WorldState) -> np.ndarray:
+        """(N, size) float64 observations, unclipped, lidar columns 0."""
         scn = state.scenario
         n = state.n_followers
         pose = state.follower_pose
@@ -217,10 +242,7 @@ class ObservationBuilder:
             block[~valid] = 0.0  # absent rows are all zero
             block[:, :, 4] = valid
 
-        scan_m = self.lidar([state]) if lidar is None else lidar
-        np.divide(scan_m, self.sensors.lidar_range, out=out[:, self.layout["lidar"]])
-        np.clip(out, self.low, self.high, out=out)
-        return out.astype(np.float32)
+        return out
 
     def _vector_columns(self, k: int, hk: int) -> tuple[np.ndarray, np.ndarray]:
         """Observation columns of the body-frame x and y of each vector built in :meth:`build`."""
@@ -262,23 +284,30 @@ class ObservationBuilder:
         np.subtract(other_vel[order], vel[:, None, :], out=vec[:, k:k + kk])
         return valid
 
-    def lidar(self, states: Sequence[WorldState], maps: PackedMaps | None = None) -> np.ndarray:
+    def lidar(self, states: Sequence[WorldState], maps: "PackedMaps | None" = None) -> np.ndarray:
         """The lidar of every follower of ``states`` (one world each), stacked: ``(sum N, rays)``
         distances (m), in one call of the compiled kernel. ``maps``: ``PackedMaps.of`` the
         states' static maps, if the caller keeps it (otherwise packed here)."""
         if maps is None:
-            maps = self._packed(states[0].static) if len(states) == 1 else PackedMaps.of([s.static for s in states])
-        counts = [s.n_followers for s in states]
-        world = np.repeat(np.arange(len(states)), counts)
-        poses = states[0].follower_pose if len(states) == 1 else np.concatenate([s.follower_pose for s in states])
+            maps = self._packed(states[0].static) if len(states) == 1 else _packed_maps([s.static for s in states])
+        return self.scan([lidar_input(s) for s in states], maps)
+
+    def scan(self, inputs: Sequence[tuple[np.ndarray, np.ndarray]], maps: "PackedMaps") -> np.ndarray:
+        """``(sum N, rays)`` lidar distances (m) of worlds given as :func:`lidar_input` pairs
+        ``(follower poses (N, 3), moving discs (D, 3))``, world ``w`` in the map ``w`` of ``maps``."""
+        from swarm_env.lidar import pack_discs, scan
+
+        counts = [len(p) for p, _ in inputs]
+        world = np.repeat(np.arange(len(inputs)), counts)
+        poses = inputs[0][0] if len(inputs) == 1 else np.concatenate([p for p, _ in inputs])
         own = np.concatenate([np.arange(n) for n in counts])  # followers come first among a world's discs
-        disc_start, discs = pack_discs([moving_discs(s) for s in states])
+        disc_start, discs = pack_discs([d for _, d in inputs])
         return scan(poses, world, own, self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
 
-    def _packed(self, static: StaticMap) -> PackedMaps:
+    def _packed(self, static: StaticMap) -> "PackedMaps":
         """``PackedMaps.of([static])``, kept while the map stays the same."""
         if self._packed_map is None or self._packed_map[0] is not static:
-            self._packed_map = (static, PackedMaps.of([static]))
+            self._packed_map = (static, _packed_maps([static]))
         return self._packed_map[1]
 
     # ------------------------------------------------------------------ global
@@ -326,6 +355,18 @@ class ObservationBuilder:
         grid.flags.writeable = False
         self._grid = (static, grid)
         return grid
+
+
+def _packed_maps(maps: Sequence[StaticMap]) -> "PackedMaps":
+    from swarm_env.lidar import PackedMaps
+
+    return PackedMaps.of(maps)
+
+
+def lidar_input(state: WorldState) -> tuple[np.ndarray, np.ndarray]:
+    """What the lidar needs of a world besides its static map: the follower poses ``(N, 3)``
+    and :func:`moving_discs`."""
+    return state.follower_pose, moving_discs(state)
 
 
 def moving_discs(state: WorldState) -> np.ndarray:

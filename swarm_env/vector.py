@@ -1,60 +1,266 @@
 """The batched engine: M worlds of one scenario family stepped by one call, arrays in and out.
 
-:class:`SwarmVectorEnv` holds ``M`` :class:`~swarm_env.env.SwarmEnv` worlds (each with its own
-pymunk space, generator and metrics) and exposes them as one environment with a leading batch
-axis, the shape TorchRL/BenchMARL (``batch_size=[M]``), SB3's ``VecEnv`` (see
-:mod:`baselines.vec_env`) and hand-written PPO loops want::
+:class:`SwarmVectorEnv` holds ``M`` worlds (each a :class:`~swarm_env.env.SwarmEnv` with its own
+pymunk space, generator and metrics, optionally in a :class:`~swarm_env.wrappers.SafetyShield`)
+and exposes them as one environment with a leading batch axis, the shape TorchRL/BenchMARL
+(``batch_size=[M]``), SB3's ``VecEnv`` (:mod:`baselines.vec_env` is built on it) and hand-written
+PPO loops want::
 
     venv = SwarmVectorEnv("random", num_envs=64)
-    obs, infos = venv.reset(seed=0)                  # obs: (M, N, obs_dim) float32
+    obs, infos = venv.reset(seed=0)                    # obs: (M, N, obs_dim) float32
     obs, rew, term, trunc, infos = venv.step(actions)  # actions: (M, N, 2) in [-1, 1]
 
-What is batched and what is not: the lidar of all ``M x N`` followers is one call of the compiled
-kernel (:mod:`swarm_env.lidar`), the observations, rewards and infos come back as arrays, and no
-per-agent dicts are built. The physics stays pymunk, one space per world, stepped world after
-world in this process. Each world runs exactly the code of a ``SwarmEnv`` (``_advance``,
-``_account``) and the same lidar kernel, so world ``m`` is **bitwise equal** to a ``SwarmEnv``
-reset with ``seed + m`` and given the same actions (tested on every built-in scenario and 50
-``random`` seeds in ``tests/test_vector.py``).
+What is batched: the lidar of all ``M x N`` followers is one call of the compiled kernel
+(:mod:`swarm_env.lidar`), in this process; observations, rewards and infos come back as arrays
+and no per-agent dict is built. What is not: the physics stays pymunk, one space per world,
+stepped world after world, in this process or, with ``n_procs > 1``, in worker processes that
+each own a contiguous block of worlds. Workers import neither torch nor the lidar kernel
+(numba): they return the observations without their lidar columns plus what the lidar needs,
+and this process fills them in (about 30 MiB of private memory per worker).
+
+Each world runs exactly the code of a ``SwarmEnv`` (``_advance``, ``_account``) and the same
+kernel, so world ``m`` is **bitwise equal** to a ``SwarmEnv`` reset with ``seed + m`` and given
+the same actions, for any ``n_procs`` (tested on every built-in scenario and 50 ``random`` seeds
+in ``tests/test_vector.py``).
 
 Contract:
 
 * **Fixed teams**: every world has the same ``N`` (``possible_agents``); for ``random`` with an
-  ``n_followers`` range, each world's team size is drawn from ``team_seed`` like a ``SwarmEnv``,
-  so pass a fixed ``n_followers`` (or one ``team_seed``) to get one ``N``.
-* **Seeding**: ``reset(seed=s)`` resets world ``m`` with ``s + m`` (a list gives one seed per
-  world); ``reset()`` without a seed continues each world's generator.
-* **Auto-reset in the same step** (SB3's and Gymnasium's ``SAME_STEP`` mode): when world ``m``'s
-  episode ends, ``terminated[m]`` or ``truncated[m]`` is ``True``, ``obs[m]`` is already the first
-  observation of its next episode (reset without a seed: its generator continues), and
-  ``infos["final_obs"][m]`` holds the last observation of the finished one, with
-  ``infos["_final"][m] = True`` and ``infos["final_metrics"][m]`` its
-  :meth:`~swarm_env.env.SwarmEnv.episode_metrics`.
-* **Infos** are arrays ``(M, N)`` under the keys of a ``SwarmEnv``'s per-agent infos
-  (``reward_<term>``, ``slot_distance``, ``contacts_<kind>``, ``collision_terminated``).
-
-The module imports no torch (workers and engines stay light; see DESIGN.md).
+  ``n_followers`` range each world draws its team size from ``team_seed`` like a ``SwarmEnv``
+  (the same for all worlds unless the factories differ).
+* **Seeding**: ``reset(seed=s)`` resets world ``m`` with ``s + m``; a sequence gives one seed per
+  world (``None`` entries continue that world's generator); ``reset()`` continues every world's.
+* **Auto-reset in the same step** (SB3's, and Gymnasium's ``SAME_STEP`` mode): when world
+  ``m``'s episode ends, ``terminated[m]`` or ``truncated[m]`` is ``True``, ``obs[m]`` is already
+  the first observation of its next episode (reset without a seed: its generator continues),
+  ``infos["_final"][m]`` is ``True``, ``infos["final_obs"][m]`` holds the last observation of the
+  finished episode and ``infos["final_metrics"][m]`` its ``episode_metrics()``.
+* **Infos** are ``(M, N)`` arrays under the keys of a ``SwarmEnv``'s per-agent infos
+  (:data:`INFO_KEYS`), plus the :data:`~swarm_env.wrappers.SHIELD_INFO_KEYS` for shielded worlds.
 """
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection, Listener
 from typing import Any
 
 import gymnasium
 import numpy as np
 
-from swarm_env.env import _INFO_KEYS, StepOutcome, SwarmEnv, info_columns
-from swarm_env.lidar import PackedMaps
+from swarm_env.env import _INFO_KEYS, StepOutcome, SwarmEnv, info_columns, primitive_table
+from swarm_env.geometry import StaticMap
+from swarm_env.observations import lidar_input
 from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS
-from swarm_env.state import WorldState
+from swarm_env.wrappers import SHIELD_INFO_KEYS, SafetyShield
 
-__all__ = ["SwarmVectorEnv", "INFO_KEYS"]
+__all__ = ["SwarmVectorEnv", "EnvFactory", "INFO_KEYS"]
 
 #: The per-agent info keys, each an ``(M, N)`` array in :meth:`SwarmVectorEnv.step`'s infos.
 INFO_KEYS = _INFO_KEYS
+
+World = SwarmEnv | SafetyShield
+Seed = int | None
+
+
+@dataclass(frozen=True)
+class EnvFactory:
+    """A picklable world builder: ``SwarmEnv(scenario, **kwargs)``, in a
+    :class:`~swarm_env.wrappers.SafetyShield` if ``shield``. What worker processes receive."""
+
+    scenario: Any = "random"
+    kwargs: dict[str, Any] = field(default_factory=dict)
+    #: Wrap the env in :class:`swarm_env.wrappers.SafetyShield` (the learner acts through the VO safety layer).
+    shield: bool = False
+
+    def __call__(self) -> World:
+        env = SwarmEnv(self.scenario, **self.kwargs)
+        return SafetyShield(env) if self.shield else env
+
+
+# ---------------------------------------------------------------------------------------- blocks
+
+
+@dataclass
+class _BlockResult:
+    """What a block of ``B`` worlds returns from a reset or a step (see :class:`_WorldBlock`)."""
+
+    obs: np.ndarray  # (B, N, D) float32, lidar columns still 0
+    scans: list[tuple[np.ndarray, np.ndarray]]  # per world: observations.lidar_input of its current state
+    maps: dict[int, StaticMap]  # worlds (block index) whose map changed since the last result
+    rewards: np.ndarray | None = None  # (B, N)
+    terminated: np.ndarray | None = None  # (B,)
+    truncated: np.ndarray | None = None
+    infos: dict[str, np.ndarray] = field(default_factory=dict)  # (B, N) each
+    # Worlds whose episode ended in this step: (block index, last obs without lidar, its scan input, metrics).
+    final: list[tuple[int, np.ndarray, tuple[np.ndarray, np.ndarray], dict[str, Any]]] = field(default_factory=list)
+
+
+class _WorldBlock:
+    """Worlds stepped one after the other, everything but the lidar (which needs the kernel)."""
+
+    def __init__(self, factories: Sequence[Callable[[], World]]) -> None:
+        self.worlds = [f() for f in factories]
+        self.envs: list[SwarmEnv] = [w.unwrapped for w in self.worlds]
+        for w, e in zip(self.worlds, self.envs):
+            if not isinstance(e, SwarmEnv) or not (w is e or isinstance(w, SafetyShield) and w.env is e):
+                raise TypeError(f"a world must be a SwarmEnv or SafetyShield(SwarmEnv), got {type(w).__name__}")
+        shielded = {isinstance(w, SafetyShield) for w in self.worlds}
+        if len(shielded) > 1:
+            raise ValueError("either every world is in a SafetyShield or none is (the infos must have the same keys)")
+        self.shielded = shielded.pop()
+        self._sent: list[StaticMap | None] = [None] * len(self.worlds)
+
+    def describe(self) -> dict[str, Any]:
+        e = self.envs[0]
+        return {"agents": [list(x.possible_agents) for x in self.envs], "action_type": e.action_type,
+                "sensors": e.sensors, "capacity": e.capacity, "obs_space": e.observation_space(e.possible_agents[0]),
+                "act_space": e.action_space(e.possible_agents[0]), "state_space": e.state_space,
+                "metadata": e.metadata, "shielded": self.shielded,
+                "primitives": primitive_table(e.scenario.robots.max_turn_rate)}
+
+    def reset(self, seeds: Sequence[Seed]) -> _BlockResult:
+        for b, s in enumerate(seeds):
+            self._restart(b, s)
+        zeros = np.zeros(len(self.envs[0].possible_agents))
+        obs = np.stack([e._obs.build_without_lidar(e._state) for e in self.envs])  # type: ignore[arg-type]
+        out = _BlockResult(obs, [lidar_input(e._state) for e in self.envs], self._changed_maps())  # type: ignore[arg-type]
+        terms = dict.fromkeys(REWARD_TERMS, zeros)
+        touching = np.zeros((len(zeros), len(CONTACT_GROUPS)))
+        out.infos = _stack_columns([info_columns(e._prev_dist, terms, touching, False) for e in self.envs], INFO_KEYS)
+        if self.shielded:
+            out.infos.update(_stack_columns([[zeros > 0, zeros, zeros == 0] for _ in self.envs], SHIELD_INFO_KEYS))
+        return out
+
+    def step(self, norm: np.ndarray) -> _BlockResult:
+        shield_cols = []
+        outcomes: list[StepOutcome] = []
+        t0 = time.perf_counter()
+        for w, e, act in zip(self.worlds, self.envs, norm):
+            if self.shielded:
+                res = w.protect(act)  # type: ignore[union-attr]
+                act = res.actions.astype(np.float64)  # what SafetyShield.step hands the env, as float64
+                shield_cols.append([res.intervened, res.correction, res.feasible])
+            outcomes.append(e._advance(act))
+        obs = np.stack([e._obs.build_without_lidar(o.state) for e, o in zip(self.envs, outcomes)])
+        wall = (time.perf_counter() - t0) / len(self.envs)  # the block's wall time, shared equally
+        infos = _stack_columns([info_columns(o.dist, o.terms, o.touching, o.collided) for o in outcomes], INFO_KEYS)
+        if self.shielded:
+            infos.update(_stack_columns(shield_cols, SHIELD_INFO_KEYS))
+        final = []
+        for b, (w, e, o) in enumerate(zip(self.worlds, self.envs, outcomes)):
+            e._account(o, wall)
+            if o.terminated or o.truncated:
+                final.append((b, obs[b].copy(), lidar_input(o.state), w.episode_metrics()))
+                self._restart(b, None)
+                obs[b] = e._obs.build_without_lidar(e._state)  # type: ignore[arg-type]
+        return _BlockResult(
+            obs, [lidar_input(e._state) for e in self.envs], self._changed_maps(),  # type: ignore[arg-type]
+            rewards=np.stack([o.reward for o in outcomes]),
+            terminated=np.array([o.terminated for o in outcomes]),
+            truncated=np.array([o.truncated for o in outcomes]),
+            infos=infos, final=final,
+        )
+
+    def _restart(self, b: int, seed: Seed) -> None:
+        """Reset world ``b`` as its ``reset(seed)`` would, without building observations there."""
+        self.envs[b]._start(seed)
+        if self.shielded:
+            self.worlds[b].start_episode()  # type: ignore[union-attr]
+
+    def _changed_maps(self) -> dict[int, StaticMap]:
+        out = {}
+        for b, e in enumerate(self.envs):
+            static = e._state.static  # type: ignore[union-attr]
+            if static is not self._sent[b]:
+                out[b] = self._sent[b] = static
+        return out
+
+    def state(self) -> np.ndarray:
+        return np.stack([e.state() for e in self.envs])
+
+    def call(self, method: str, indices: Sequence[int], args: tuple, kwargs: dict) -> list[Any]:
+        return [getattr(self.worlds[b], method)(*args, **kwargs) for b in indices]
+
+    def close(self) -> None:
+        for w in self.worlds:
+            w.close()
+
+
+def _stack_columns(per_world: list[list[np.ndarray]], keys: Sequence[str]) -> dict[str, np.ndarray]:
+    return {key: np.stack([cols[k] for cols in per_world]) for k, key in enumerate(keys)}
+
+
+class _RemoteBlock:
+    """A :class:`_WorldBlock` in a worker process (``python -m swarm_env.vector_worker``).
+
+    The worker is started as a fresh interpreter rather than by ``multiprocessing``: a spawned or
+    forkserver child re-imports the parent's ``__main__`` (a training script importing torch),
+    and a forked one inherits torch's threads. It connects back over an authenticated local
+    socket and never imports torch or numba.
+    """
+
+    def __init__(self, factories: Sequence[Callable[[], World]]) -> None:
+        import cloudpickle  # gymnasium's dependency: pickles lambdas and local factories
+
+        authkey = os.urandom(32)
+        with Listener(authkey=authkey) as listener:
+            env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+            self.proc = subprocess.Popen([sys.executable, "-m", "swarm_env.vector_worker", str(listener.address)],
+                                         stdin=subprocess.PIPE, env=env)
+            assert self.proc.stdin is not None
+            self.proc.stdin.write(authkey.hex().encode() + b"\n")
+            self.proc.stdin.close()
+            self.conn: Connection = listener.accept()
+        self.conn.send(cloudpickle.dumps(list(factories)))
+        self._pending = False
+        self._check(self._recv())  # the block's description, or the error that building it raised
+        self.description = self._last
+
+    def _recv(self) -> Any:
+        try:
+            return self.conn.recv()
+        except (EOFError, ConnectionError) as exc:
+            code = self.proc.poll()
+            raise RuntimeError(f"a swarm_env.vector worker (pid {self.proc.pid}) exited with code {code}") from exc
+
+    def _check(self, reply: Any) -> Any:
+        ok, value = reply
+        if not ok:
+            raise RuntimeError(f"a swarm_env.vector worker failed:\n{value}")
+        self._last = value
+        return value
+
+    def send(self, cmd: str, *args: Any) -> None:
+        self.conn.send((cmd, args))
+        self._pending = True
+
+    def result(self) -> Any:
+        self._pending = False
+        return self._check(self._recv())
+
+    def close(self) -> None:
+        try:
+            if self._pending:
+                self._recv()
+            self.conn.send(("close", ()))
+            self._recv()
+        except (OSError, RuntimeError):
+            pass
+        self.conn.close()
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+
+
+# ---------------------------------------------------------------------------------------- engine
 
 
 class SwarmVectorEnv:
@@ -64,82 +270,94 @@ class SwarmVectorEnv:
         scenario: as for :class:`~swarm_env.env.SwarmEnv` (a built-in name, a YAML path, a
             ``Scenario`` or ``"random"``).
         num_envs: the number of worlds ``M`` (>= 1).
+        n_procs: worker processes for the physics (1: everything in this process). Worlds are
+            split into ``n_procs`` contiguous blocks; the results do not depend on it.
+        shield: put every world in a :class:`~swarm_env.wrappers.SafetyShield`.
         **kwargs: :class:`~swarm_env.env.SwarmEnv` keyword arguments, the same for every world
-            (``render_mode`` is not supported: render a world with ``venv.envs[m]``).
+            (``render_mode`` is not supported: render a world with ``SwarmEnv`` itself).
+
+    :meth:`from_factories` batches worlds built by any picklable callables.
     """
 
-    def __init__(self, scenario: Any = "random", num_envs: int = 8, **kwargs: Any) -> None:
+    def __init__(self, scenario: Any = "random", num_envs: int = 8, *, n_procs: int = 1, shield: bool = False,
+                 **kwargs: Any) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
         if kwargs.get("render_mode") is not None:
-            raise ValueError("SwarmVectorEnv does not render; render one world with venv.envs[m] instead")
-        self._init_from([SwarmEnv(scenario, **kwargs) for _ in range(int(num_envs))])
+            raise ValueError("SwarmVectorEnv does not render; render one world with SwarmEnv(..., render_mode=...)")
+        self._init_from([EnvFactory(scenario, dict(kwargs), shield)] * int(num_envs), n_procs)
 
     @classmethod
-    def from_envs(cls, envs: Sequence[SwarmEnv]) -> "SwarmVectorEnv":
-        """Batch existing :class:`~swarm_env.env.SwarmEnv` instances (fresh or not; they are
-        reset by :meth:`reset`). They must share ``possible_agents``, spaces and action type."""
+    def from_factories(cls, factories: Sequence[Callable[[], World]], n_procs: int = 1) -> "SwarmVectorEnv":
+        """Batch the worlds ``factories`` build (each returns a ``SwarmEnv``, or a ``SafetyShield``
+        of one; picklable with cloudpickle when ``n_procs > 1``). They must have the same team,
+        spaces and sensors."""
         self = cls.__new__(cls)
-        self._init_from(list(envs))
+        self._init_from(list(factories), n_procs)
         return self
 
-    def _init_from(self, envs: list[SwarmEnv]) -> None:
-        if not envs:
+    def _init_from(self, factories: list[Callable[[], World]], n_procs: int) -> None:
+        m = len(factories)
+        if m < 1:
             raise ValueError("SwarmVectorEnv needs at least one world")
-        for e in envs:
-            if not isinstance(e, SwarmEnv):
-                raise TypeError(f"SwarmVectorEnv batches SwarmEnv instances, got {type(e).__name__}")
-        first = envs[0]
-        for m, e in enumerate(envs[1:], 1):
-            if e.possible_agents != first.possible_agents:
-                raise ValueError(f"world {m} has {len(e.possible_agents)} followers, world 0 has "
-                                 f"{len(first.possible_agents)}: every world needs the same team (fixed n_followers)")
-            if e.action_type != first.action_type or e._obs.size != first._obs.size or e.sensors != first.sensors:
-                raise ValueError(f"world {m} differs from world 0 in action type or sensors")
-        self.envs = envs
-        self.num_envs = len(envs)
-        self.possible_agents = list(first.possible_agents)
+        if isinstance(n_procs, bool) or not isinstance(n_procs, (int, np.integer)) or not 1 <= n_procs <= m:
+            raise ValueError(f"n_procs must be an int in [1, num_envs={m}], got {n_procs!r}")
+        bounds = np.linspace(0, m, int(n_procs) + 1).round().astype(int)
+        self._spans = [(int(bounds[p]), int(bounds[p + 1])) for p in range(n_procs)]
+        self._local: _WorldBlock | None = None
+        self._remotes: list[_RemoteBlock] = []
+        self.closed = False
+        if n_procs == 1:
+            self._local = _WorldBlock(factories)
+            described = [self._local.describe()]
+        else:
+            try:
+                for a, b in self._spans:
+                    self._remotes.append(_RemoteBlock(factories[a:b]))
+            except BaseException:
+                self.close()
+                raise
+            described = [r.description for r in self._remotes]
+        first = described[0]
+        agents = [a for d in described for a in d["agents"]]
+        for k, team in enumerate(agents):
+            if team != agents[0]:
+                self.close()
+                raise ValueError(f"world {k} has {len(team)} followers, world 0 has {len(agents[0])}: every world "
+                                 "needs the same team (a fixed n_followers)")
+        for d in described[1:]:
+            same = (d["action_type"], d["sensors"], d["shielded"]) == (first["action_type"], first["sensors"], first["shielded"])
+            if not same or not np.array_equal(d["primitives"], first["primitives"]):
+                self.close()
+                raise ValueError("the worlds differ in action type, sensors, shield or turn rate")
+        from swarm_env.observations import ObservationBuilder
+
+        self.num_envs = m
+        self.n_procs = int(n_procs)
+        self.possible_agents = list(agents[0])
         self.num_agents = len(self.possible_agents)
-        self.action_type = first.action_type
-        self.single_observation_space = first.observation_space(self.possible_agents[0])
-        self.single_action_space = first.action_space(self.possible_agents[0])
-        self.state_space = first.state_space
-        self.metadata = first.metadata
-        self._maps: tuple[list[int], PackedMaps] | None = None  # (ids of the packed StaticMaps, packing)
+        self.action_type: str = first["action_type"]
+        self.shielded: bool = first["shielded"]
+        self.single_observation_space: gymnasium.spaces.Box = first["obs_space"]
+        self.single_action_space: gymnasium.spaces.Space = first["act_space"]
+        self.state_space: gymnasium.spaces.Box = first["state_space"]
+        self.metadata = first["metadata"]
+        self._obs = ObservationBuilder(first["sensors"], first["capacity"])  # fills the lidar columns
+        self._maps: list[StaticMap | None] = [None] * m
+        self._packed: tuple[list[int], Any] | None = None  # (ids of the packed maps, PackedMaps)
+        self._prim: np.ndarray = first["primitives"]  # (10, 2) normalised twist of each discrete action
         self._warned_clip = False
         self._live = False
 
     # ------------------------------------------------------------------ episode
-    def reset(self, seed: int | Sequence[int] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-        """Reset every world; ``seed``: ``s`` gives world ``m`` the seed ``s + m``, a sequence one
-        seed per world, ``None`` continues each world's generator. Returns ``obs`` ``(M, N, D)``
-        and the reset infos (zeros, the step infos' keys)."""
+    def reset(self, seed: int | Sequence[Seed] | None = None) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        """Reset every world (see the module docstring for ``seed``). Returns ``obs`` ``(M, N, D)``
+        and the reset infos (the step infos' keys: zero reward terms and contacts)."""
         seeds = self._seeds(seed)
-        for env, s in zip(self.envs, seeds):
-            env.reset(seed=s)
+        results = self._run("reset", [(seeds[a:b],) for a, b in self._spans])
         self._live = True
-        states = [e._state for e in self.envs]
-        obs = self._observe(states)  # type: ignore[arg-type]
-        return obs, self._reset_infos()
-
-    def _reset_infos(self) -> dict[str, np.ndarray]:
-        """The reset infos of a ``SwarmEnv`` (zero reward terms and contacts, the slot distances)."""
-        n = self.num_agents
-        zeros = np.zeros(n)
-        terms = dict.fromkeys(REWARD_TERMS, zeros)
-        per_world = [info_columns(e._prev_dist, terms, np.zeros((n, len(CONTACT_GROUPS))), False) for e in self.envs]
-        return {key: np.stack([cols[k] for cols in per_world]) for k, key in enumerate(INFO_KEYS)}
-
-    def _seeds(self, seed: int | Sequence[int] | None) -> list[int | None]:
-        m = self.num_envs
-        if seed is None:
-            return [None] * m
-        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
-            return [int(seed) + k for k in range(m)]
-        seeds = list(seed)  # type: ignore[arg-type]
-        if len(seeds) != m or not all(isinstance(s, (int, np.integer)) and not isinstance(s, bool) for s in seeds):
-            raise ValueError(f"seed must be None, an int or {m} ints (one per world), got {seed!r}")
-        return [int(s) for s in seeds]
+        obs, infos, _ = self._merge(results)
+        return obs, infos
 
     def step(self, actions: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
         """Step every world with ``actions`` (``(M, N, 2)`` in ``[-1, 1]``, or ``(M, N)`` ints for
@@ -148,41 +366,80 @@ class SwarmVectorEnv:
         if not self._live:
             raise RuntimeError("call reset() before step()")
         norm = self._normalised(actions)
-        m_worlds, n = self.num_envs, self.num_agents
-        outcomes: list[StepOutcome] = []
-        t0 = time.perf_counter()
-        for env, act in zip(self.envs, norm):
-            outcomes.append(env._advance(act))
-        states = [o.state for o in outcomes]
-        obs = self._observe(states)
-        wall = (time.perf_counter() - t0) / m_worlds  # the batch's wall time, shared equally by the worlds
-        rewards = np.stack([o.reward for o in outcomes])
-        terminated = np.array([o.terminated for o in outcomes])
-        truncated = np.array([o.truncated for o in outcomes])
-        per_world = [info_columns(o.dist, o.terms, o.touching, o.collided) for o in outcomes]
-        infos: dict[str, Any] = {key: np.stack([cols[k] for cols in per_world]) for k, key in enumerate(INFO_KEYS)}
-        for env, out in zip(self.envs, outcomes):
-            env._account(out, wall)
-        done = terminated | truncated
-        if done.any():
+        results = self._run("step", [(norm[a:b],) for a, b in self._spans])
+        obs, infos, final = self._merge(results)
+        rewards = np.concatenate([r.rewards for r in results])
+        terminated = np.concatenate([r.terminated for r in results])
+        truncated = np.concatenate([r.truncated for r in results])
+        if final:
+            done = terminated | truncated
             infos["_final"] = done
             infos["final_obs"] = obs.copy()
-            infos["final_metrics"] = [None] * m_worlds
-            for m in np.flatnonzero(done).tolist():
-                infos["final_metrics"][m] = self.envs[m].episode_metrics()
-                self.envs[m].reset()
-            obs[done] = self._observe([self.envs[m]._state for m in np.flatnonzero(done).tolist()])  # type: ignore[misc]
-        assert obs.shape[:2] == (m_worlds, n)
+            infos["final_metrics"] = [None] * self.num_envs
+            for m, last, metrics in final:
+                infos["final_obs"][m] = last
+                infos["final_metrics"][m] = metrics
         return obs, rewards, terminated, truncated, infos
+
+    def _run(self, cmd: str, per_block: list[tuple]) -> list[_BlockResult]:
+        if self._local is not None:
+            return [getattr(self._local, cmd)(*per_block[0])]
+        for remote, args in zip(self._remotes, per_block):
+            remote.send(cmd, *args)
+        return [remote.result() for remote in self._remotes]
+
+    def _merge(self, results: list[_BlockResult]) -> tuple[np.ndarray, dict[str, Any], list[tuple[int, np.ndarray, dict]]]:
+        """Concatenate the blocks' results and fill every lidar column with one kernel call."""
+        obs = results[0].obs if len(results) == 1 else np.concatenate([r.obs for r in results])
+        infos = {k: np.concatenate([r.infos[k] for r in results]) for k in results[0].infos}
+        finals = [(a + b, last, scan_in, metrics) for (a, _), r in zip(self._spans, results) for b, last, scan_in, metrics in r.final]
+        final_obs = []
+        if finals:  # the finished episodes' last observations, in the maps they were played in
+            lidar = self._scan([f[2] for f in finals], [f[0] for f in finals])
+            n = self.num_agents
+            for k, (m, last, _, metrics) in enumerate(finals):
+                self._obs.fill_lidar(last, lidar[k * n:(k + 1) * n])
+                final_obs.append((m, last, metrics))
+        for (a, _), r in zip(self._spans, results):
+            for b, static in r.maps.items():
+                self._maps[a + b] = static
+        scans = [s for r in results for s in r.scans]
+        self._obs.fill_lidar(obs, self._scan(scans, range(self.num_envs)).reshape(self.num_envs, self.num_agents, -1))
+        return obs, infos, final_obs
+
+    def _scan(self, inputs: list[tuple[np.ndarray, np.ndarray]], worlds: Sequence[int]) -> np.ndarray:
+        from swarm_env.lidar import PackedMaps
+
+        maps = [self._maps[m] for m in worlds]
+        if len(inputs) == self.num_envs:  # the whole batch: keep the packing while no map changes
+            ids = [id(s) for s in maps]
+            if self._packed is None or self._packed[0] != ids:
+                self._packed = (ids, PackedMaps.of(maps))  # type: ignore[arg-type]
+            packed = self._packed[1]
+        else:
+            packed = PackedMaps.of(maps)  # type: ignore[arg-type]
+        return self._obs.scan(inputs, packed)
+
+    def _seeds(self, seed: int | Sequence[Seed] | None) -> list[Seed]:
+        m = self.num_envs
+        if seed is None:
+            return [None] * m
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool):
+            return [int(seed) + k for k in range(m)]
+        seeds = list(seed)  # type: ignore[arg-type]
+        ok = all(s is None or isinstance(s, (int, np.integer)) and not isinstance(s, bool) for s in seeds)
+        if len(seeds) != m or not ok:
+            raise ValueError(f"seed must be None, an int or {m} ints or Nones (one per world), got {seed!r}")
+        return [None if s is None else int(s) for s in seeds]
 
     def _normalised(self, actions: Any) -> np.ndarray:
         m, n = self.num_envs, self.num_agents
         if self.action_type == "discrete":
             k = np.asarray(actions)
-            if k.shape != (m, n) or not np.issubdtype(k.dtype, np.integer) or k.min() < 0 or k.max() >= self.single_action_space.n:
-                raise ValueError(f"discrete actions must be ({m}, {n}) ints in [0, {self.single_action_space.n - 1}]"
-                                 f", got shape {k.shape} dtype {k.dtype}")
-            return np.stack([env.primitive_actions(row) for env, row in zip(self.envs, k)])
+            hi = self.single_action_space.n - 1  # type: ignore[attr-defined]
+            if k.shape != (m, n) or not np.issubdtype(k.dtype, np.integer) or k.min() < 0 or k.max() > hi:
+                raise ValueError(f"discrete actions must be ({m}, {n}) ints in [0, {hi}], got shape {k.shape} dtype {k.dtype}")
+            return self._prim[k]
         try:
             a = np.array(actions, dtype=np.float64)
         except (TypeError, ValueError) as exc:
@@ -199,37 +456,47 @@ class SwarmVectorEnv:
             np.clip(a, -1.0, 1.0, out=a)
         return a
 
-    def _observe(self, states: Sequence[WorldState]) -> np.ndarray:
-        """Observations ``(len(states), N, D)`` with one lidar call for all of them."""
-        envs = self.envs if len(states) == self.num_envs else None
-        builder = self.envs[0]._obs
-        maps = self._packed(states) if envs is not None else None
-        scans = builder.lidar(states, maps).reshape(len(states), self.num_agents, -1)
-        return np.stack([builder.build(s, lidar=scan) for s, scan in zip(states, scans)])
-
-    def _packed(self, states: Sequence[WorldState]) -> PackedMaps:
-        """The static maps of all worlds packed for the lidar, repacked only when one changed."""
-        ids = [id(s.static) for s in states]
-        if self._maps is None or self._maps[0] != ids:
-            self._maps = (ids, PackedMaps.of([s.static for s in states]))
-        return self._maps[1]
-
     # ------------------------------------------------------------------ extras
     def state(self) -> np.ndarray:
         """``(M, state_dim)`` float32: each world's :meth:`~swarm_env.env.SwarmEnv.state`."""
-        return np.stack([e.state() for e in self.envs])
+        if self._local is not None:
+            return self._local.state()
+        for r in self._remotes:
+            r.send("state")
+        return np.concatenate([r.result() for r in self._remotes])
 
-    def world_states(self) -> list[WorldState]:
-        """Each world's privileged :class:`~swarm_env.state.WorldState` (for scripted experts)."""
-        return [e.world_state() for e in self.envs]
-
-    def episode_metrics(self, m: int) -> dict[str, Any]:
-        """World ``m``'s metrics of its current episode (finished ones come in ``final_metrics``)."""
-        return self.envs[m].episode_metrics()
+    def call(self, method: str, *args: Any, indices: Sequence[int] | None = None, **kwargs: Any) -> list[Any]:
+        """``[world.method(*args, **kwargs) for world in worlds[indices]]`` (all by default), in
+        whichever process holds each world; e.g. ``call("episode_metrics")``, ``call("world_state")``."""
+        wanted = list(range(self.num_envs)) if indices is None else [int(i) for i in indices]
+        out: dict[int, Any] = {}
+        for p, (a, b) in enumerate(self._spans):
+            mine = [m for m in wanted if a <= m < b]
+            if not mine:
+                continue
+            local = [m - a for m in mine]
+            if self._local is not None:
+                values = self._local.call(method, local, args, kwargs)
+            else:
+                self._remotes[p].send("call", method, local, args, kwargs)
+                values = self._remotes[p].result()
+            out.update(zip(mine, values))
+        return [out[m] for m in wanted]
 
     def close(self) -> None:
-        for e in self.envs:
-            e.close()
+        if getattr(self, "closed", True):
+            return
+        self.closed = True
+        if self._local is not None:
+            self._local.close()
+        for r in self._remotes:
+            r.close()
+
+    def __del__(self) -> None:  # worker processes end with the engine
+        try:
+            self.close()
+        except Exception:  # noqa: BLE001 - interpreter shutdown
+            pass
 
     @property
     def observation_space(self) -> gymnasium.spaces.Box:
@@ -237,4 +504,3 @@ class SwarmVectorEnv:
         s = self.single_observation_space
         reps = (self.num_envs, self.num_agents, 1)
         return gymnasium.spaces.Box(np.tile(s.low, reps), np.tile(s.high, reps), dtype=np.float32)
-

@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
-from swarm_env.safety import AvoidanceParams, shield_actions
+from swarm_env.safety import AvoidanceParams, ShieldResult, shield_actions
 
 __all__ = ["SafetyShield", "SHIELD_INFO_KEYS"]
 
@@ -62,6 +62,12 @@ class SafetyShield(BaseParallelWrapper):
         self.last_safe_actions: dict[str, np.ndarray] = {}
         self._reset_counts()
 
+    def start_episode(self) -> None:
+        """Forget the last episode's interventions (:meth:`reset` calls it; so does the batched
+        engine, which resets the wrapped env itself)."""
+        self._reset_counts()
+        self.last_safe_actions = {}
+
     def _reset_counts(self) -> None:
         n = len(self.env.possible_agents)
         self._interventions = np.zeros(n, dtype=np.int64)
@@ -72,8 +78,7 @@ class SafetyShield(BaseParallelWrapper):
 
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         obs, infos = self.env.reset(seed=seed, options=options)
-        self._reset_counts()
-        self.last_safe_actions = {}
+        self.start_episode()
         for info in infos.values():
             info.update(shield_intervened=False, shield_correction=0.0, shield_feasible=True)
         return obs, infos
@@ -81,17 +86,9 @@ class SafetyShield(BaseParallelWrapper):
     def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
         base = self.env.unwrapped
         agents = list(base.agents)
-        wanted = base.normalised_actions(actions)  # (N, 2) in [-1, 1], validated as step() would
-        shield = shield_actions(base.world_state(), wanted, self.params)
+        shield = self.protect(base.normalised_actions(actions))  # validated as step() would
         self.last_safe_actions = {a: shield.actions[i] for i, a in enumerate(agents)}
         obs, rewards, terms, truncs, infos = self.env.step(self.last_safe_actions)
-
-        index = [base.possible_agents.index(a) for a in agents]
-        self._interventions[index] += shield.intervened
-        self._correction_sum += float(shield.correction.sum())
-        self._correction_max = max(self._correction_max, float(shield.correction.max(initial=0.0)))
-        self._infeasible += int(np.count_nonzero(~shield.feasible))
-        self._agent_steps += len(agents)
         for i, a in enumerate(agents):
             infos[a].update(
                 shield_intervened=bool(shield.intervened[i]),
@@ -99,6 +96,20 @@ class SafetyShield(BaseParallelWrapper):
                 shield_feasible=bool(shield.feasible[i]),
             )
         return obs, rewards, terms, truncs, infos
+
+    def protect(self, wanted: np.ndarray) -> ShieldResult:
+        """The :func:`~swarm_env.safety.shield_actions` result for the live agents' normalised
+        actions ``wanted`` ``(N, 2)`` in the current state, counted in the episode's shield
+        metrics. :meth:`step` and the batched engine (:mod:`swarm_env.vector`) both use it."""
+        base = self.env.unwrapped
+        shield = shield_actions(base.world_state(), wanted, self.params)
+        index = [base.possible_agents.index(a) for a in base.agents]
+        self._interventions[index] += shield.intervened
+        self._correction_sum += float(shield.correction.sum())
+        self._correction_max = max(self._correction_max, float(shield.correction.max(initial=0.0)))
+        self._infeasible += int(np.count_nonzero(~shield.feasible))
+        self._agent_steps += len(index)
+        return shield
 
     def render(self, mode: str | None = None) -> Any:
         return self.env.render(mode) if mode is not None else self.env.render()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 import pytest
 
@@ -9,26 +11,29 @@ import swarm_env
 from swarm_env.env import SwarmEnv
 from swarm_env.lidar import PackedMaps, cast_rays, pack_discs, scan
 from swarm_env.observations import moving_discs
-from swarm_env.vector import INFO_KEYS, SwarmVectorEnv
+from swarm_env.vector import INFO_KEYS, EnvFactory, SwarmVectorEnv
+from swarm_env.wrappers import SHIELD_INFO_KEYS
 
 
 def _rows(d: dict, agents: list[str], key: str | None = None) -> np.ndarray:
     return np.array([d[a] if key is None else d[a][key] for a in agents])
 
 
-def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: bool = False, **kwargs) -> int:
+def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: bool = False, n_procs: int = 1,
+              shield: bool = False, **kwargs) -> int:
     """Step a SwarmVectorEnv and num_envs SwarmEnvs with the same actions; assert every output is
     bitwise equal; return the number of episodes that ended (and were auto-reset)."""
     if discrete:
         kwargs["action_type"] = "discrete"
-    venv = SwarmVectorEnv(scenario, num_envs, **kwargs)
-    refs = [SwarmEnv(scenario, **kwargs) for _ in range(num_envs)]
+    venv = SwarmVectorEnv(scenario, num_envs, n_procs=n_procs, shield=shield, **kwargs)
+    refs = [EnvFactory(scenario, kwargs, shield)() for _ in range(num_envs)]
+    keys = INFO_KEYS + (SHIELD_INFO_KEYS if shield else ())
     agents = refs[0].possible_agents
     obs, infos = venv.reset(seed=seed)
     for m, env in enumerate(refs):
         o, i = env.reset(seed=seed + m)
         assert np.array_equal(obs[m], _rows(o, agents))
-        for key in INFO_KEYS:
+        for key in keys:
             assert np.array_equal(infos[key][m], _rows(i, agents, key)), key
     rng = np.random.default_rng(seed)
     ended = 0
@@ -44,7 +49,7 @@ def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: boo
             last = _rows(o, agents)
             assert term[m] == te[agents[0]] and trunc[m] == tr[agents[0]]
             assert np.array_equal(rew[m], _rows(r, agents)), (t, m)
-            for key in INFO_KEYS:
+            for key in keys:
                 assert np.array_equal(infos[key][m], _rows(i, agents, key)), (t, m, key)
             if not env.agents:
                 ended += 1
@@ -58,6 +63,7 @@ def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: boo
                 assert not infos["_final"][m] and infos["final_metrics"][m] is None
             assert np.array_equal(obs[m], last), (t, m)
         assert np.array_equal(venv.state(), np.stack([e.state() for e in refs]))
+    venv.close()
     return ended
 
 
@@ -73,6 +79,31 @@ def test_fifty_random_worlds_match_swarm_env_bitwise() -> None:
 
 def test_random_with_humans_and_robot_leader_and_discrete_actions() -> None:
     assert _lockstep("random", 4, 30, seed=3, discrete=True, max_cycles=12, n_humans=(2, 4), leader_kind="robot") >= 8
+
+
+def test_worker_processes_give_the_same_bits() -> None:
+    assert _lockstep("random", 5, 30, seed=40, n_procs=2, max_cycles=25, n_humans=(1, 3)) == 5
+
+
+def test_shielded_worlds_match_safety_shield_bitwise() -> None:
+    assert _lockstep("random", 3, 25, seed=60, shield=True, max_cycles=20, n_humans=(2, 3)) == 3
+    assert _lockstep("paper_vo_45", 2, 12, seed=0, shield=True, n_procs=2, max_cycles=10) == 2
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/PID/maps")
+def test_workers_load_neither_torch_nor_numba_and_end_with_the_engine() -> None:
+    import torch  # noqa: F401 - loaded here, in the parent: the workers must still not load it
+
+    venv = SwarmVectorEnv("paper_vo_0", 2, n_procs=2)
+    venv.reset(seed=0)
+    venv.step(np.zeros((2, venv.num_agents, 2)))
+    for remote in venv._remotes:
+        with open(f"/proc/{remote.proc.pid}/maps") as f:
+            libraries = f.read()
+        assert "pymunk" in libraries  # the worker does the physics
+        assert "libtorch" not in libraries and "llvmlite" not in libraries
+    venv.close()
+    assert all(r.proc.poll() is not None for r in venv._remotes)
 
 
 def test_seeds_and_auto_reset_contract() -> None:
@@ -106,7 +137,9 @@ def test_bad_input_gets_a_clear_error() -> None:
     with pytest.raises(ValueError, match="seed"):
         venv.reset(seed=[1, 2, 3])
     with pytest.raises(ValueError, match="same team"):
-        SwarmVectorEnv.from_envs([SwarmEnv("random", n_followers=3), SwarmEnv("random", n_followers=4)])
+        SwarmVectorEnv.from_factories([EnvFactory("random", {"n_followers": 3}), EnvFactory("random", {"n_followers": 4})])
+    with pytest.raises(ValueError, match="n_procs"):
+        SwarmVectorEnv("paper_vo_0", 2, n_procs=3)
     with pytest.warns(UserWarning, match="clipped"):
         venv.step(np.full((2, venv.num_agents, 2), 1.5))
 

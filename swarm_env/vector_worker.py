@@ -1,0 +1,51 @@
+"""A worker process of :class:`swarm_env.vector.SwarmVectorEnv` (``n_procs > 1``).
+
+Started by the engine as ``python -m swarm_env.vector_worker ADDRESS`` with the connection's
+authentication key on standard input; receives the pickled world factories, then serves
+``reset`` / ``step`` / ``state`` / ``call`` / ``close`` until told to stop or the engine goes
+away. Imports neither torch nor numba: the engine fills the lidar columns itself.
+"""
+
+from __future__ import annotations
+
+import pickle
+import sys
+import traceback
+from multiprocessing.connection import Client
+from typing import Any
+
+
+def serve(address: str, authkey: bytes) -> None:
+    from swarm_env.vector import _WorldBlock
+
+    conn = Client(address, authkey=authkey)
+    block: Any = None
+    try:
+        try:
+            block = _WorldBlock(pickle.loads(conn.recv()))
+            conn.send((True, block.describe()))
+        except Exception:  # noqa: BLE001 - reported to the engine, which raises it
+            conn.send((False, traceback.format_exc()))
+            return
+        while True:
+            cmd, args = conn.recv()
+            if cmd == "close":
+                block.close()
+                conn.send((True, None))
+                return
+            try:
+                conn.send((True, getattr(block, cmd)(*args)))
+            except Exception:  # noqa: BLE001 - the engine raises it with this traceback
+                conn.send((False, traceback.format_exc()))
+    except (EOFError, ConnectionError, KeyboardInterrupt):
+        pass  # the engine is gone (or interrupted with it): nothing left to serve
+    finally:
+        conn.close()
+
+
+def main() -> None:
+    serve(sys.argv[1], bytes.fromhex(sys.stdin.readline().strip()))
+
+
+if __name__ == "__main__":
+    main()
