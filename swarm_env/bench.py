@@ -92,3 +92,172 @@ def run_bench(
             if progress is not None:
                 progress(f"repeat {r + 1}/{repeats} {name}: {figures[name][-1]:,.0f} env-steps/s")
     return [BenchResult(name, len(e.possible_agents), figures[name]) for name, e, _ in cases]
+
+
+# ------------------------------------------------------------------------------ batched engine
+
+#: The batched benchmark's worlds: ``random`` at ``paper_cbs_switch``'s size (29 x 20 m, 8 followers,
+#: 10 obstacles, 16-ray lidar) with 3 walking humans, a new map every episode.
+BATCH_WORLD: dict[str, Any] = {"n_followers": 8, "n_obstacles": 10, "n_humans": 3, "world_size": (29.0, 20.0)}
+BATCH_SIZES = (1, 8, 64, 256, 1024)
+
+
+@dataclass(frozen=True)
+class BatchResult:
+    name: str
+    num_envs: int
+    agents: int
+    wall: list[float]  # agent-steps/s per repeat, over wall time
+    cpu: list[float]  # agent-steps/s per repeat, over this process's CPU time
+
+    @property
+    def median_wall(self) -> float:
+        return statistics.median(self.wall)
+
+    @property
+    def median_cpu(self) -> float:
+        return statistics.median(self.cpu)
+
+
+def _batch_steps(num_envs: int, budget: int) -> int:
+    """Steps per repeat: about ``budget`` world-steps, at least 5 steps."""
+    return max(5, -(-budget // num_envs))
+
+
+def _time_steps(step: Callable[[int], Any], steps: int, agent_steps_per_step: int) -> tuple[float, float]:
+    t0, c0 = time.perf_counter(), time.process_time()
+    for k in range(steps):
+        step(k)
+    wall, cpu = time.perf_counter() - t0, time.process_time() - c0
+    return steps * agent_steps_per_step / wall, steps * agent_steps_per_step / max(cpu, 1e-9)
+
+
+def _swarm_batch(num_envs: int, seed: int, n_procs: int = 1) -> tuple[Any, Callable[[int], Any], int]:
+    from swarm_env.vector import SwarmVectorEnv
+
+    venv = SwarmVectorEnv("random", num_envs, n_procs=n_procs, **BATCH_WORLD)
+    venv.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    actions = rng.uniform(-1.0, 1.0, (8, num_envs, venv.num_agents, 2))  # drawn before the clock starts
+    return venv, lambda k: venv.step(actions[k % 8]), num_envs * venv.num_agents
+
+
+def _vmas_batch(num_envs: int, seed: int) -> tuple[Any, Callable[[int], Any], int]:
+    try:
+        import torch
+        import vmas
+    except ImportError as exc:  # optional extra
+        raise RuntimeError("--vs vmas needs the optional extra: pip install 'swarm-env[vmas]'") from exc
+    torch.set_num_threads(1)
+    n = BATCH_WORLD["n_followers"]
+    env = vmas.make_env("navigation", num_envs=num_envs, device="cpu", continuous_actions=True, n_agents=n,
+                        n_lidar_rays=16, seed=seed)
+    env.reset()
+    gen = torch.Generator().manual_seed(seed)
+    actions = [[torch.rand(num_envs, 2, generator=gen) * 2 - 1 for _ in range(n)] for _ in range(8)]
+    return env, lambda k: env.step(actions[k % 8]), num_envs * n
+
+
+def run_batched_bench(
+    sizes: tuple[int, ...] = BATCH_SIZES,
+    repeats: int = 3,
+    budget: int = 1024,
+    seed: int = 0,
+    peer: str | None = None,
+    n_procs: int = 1,
+    progress: Callable[[str], None] | None = None,
+) -> list[BatchResult]:
+    """Agent-steps/s of :class:`~swarm_env.vector.SwarmVectorEnv` on :data:`BATCH_WORLD` for each
+    batch size (and of VMAS ``navigation`` with 8 agents and 16 lidar rays, with ``peer="vmas"``),
+    interleaved repeat by repeat, ``budget`` world-steps per repeat (at least 5 steps)."""
+    if peer not in (None, "vmas"):
+        raise ValueError(f"unknown peer {peer!r} for the batched bench; supported: vmas")
+    out = []
+    for m in sizes:
+        cases = [("swarm_env.vector" + (f"(n_procs={n_procs})" if n_procs > 1 else ""), *_swarm_batch(m, seed, n_procs))]
+        if peer == "vmas":
+            cases.append(("vmas:navigation", *_vmas_batch(m, seed)))
+        steps = _batch_steps(m, budget)
+        for _, _, step, _ in cases:  # warm-up: compilation, caches, first allocations
+            for k in range(2):
+                step(k)
+        figures: dict[str, tuple[list[float], list[float]]] = {name: ([], []) for name, *_ in cases}
+        for r in range(repeats):
+            for name, _, step, per_step in cases:
+                wall, cpu = _time_steps(step, steps, per_step)
+                figures[name][0].append(wall)
+                figures[name][1].append(cpu)
+                if progress is not None:
+                    progress(f"M={m} repeat {r + 1}/{repeats} {name}: {wall:,.0f} agent-steps/s (cpu {cpu:,.0f})")
+        for name, env, _, per_step in cases:
+            out.append(BatchResult(name, m, per_step // m, *figures[name]))
+            close = getattr(env, "close", None)
+            if callable(close) and name.startswith("swarm_env"):
+                close()
+    return out
+
+
+def run_followers_bench(
+    followers: tuple[int, ...] = (8, 32, 64),
+    steps: int = 300,
+    repeats: int = 3,
+    seed: int = 0,
+    progress: Callable[[str], None] | None = None,
+) -> list[BatchResult]:
+    """Agent-steps/s of one :class:`~swarm_env.env.SwarmEnv` (``random`` worlds, 10 obstacles, 3
+    humans, the generator's world size for the team) per team size, interleaved: the cost per
+    follower should stay flat as the team grows."""
+    from swarm_env.env import SwarmEnv
+
+    cases = []
+    for n in followers:
+        env = SwarmEnv("random", n_followers=n, n_obstacles=10, n_humans=3)
+        env.reset(seed=seed)
+        rng = np.random.default_rng(seed)
+        raw = rng.uniform(-1.0, 1.0, (8, n, 2)).astype(np.float32)
+        acts = [dict(zip(env.possible_agents, raw[k])) for k in range(8)]
+
+        def step(k: int, env: Any = env, acts: list = acts) -> None:
+            if not env.agents:
+                env.reset()
+            env.step(acts[k % 8])
+
+        step(0)
+        cases.append((f"swarm_env:random(n_followers={n})", n, step))
+    figures: dict[str, tuple[list[float], list[float]]] = {name: ([], []) for name, _, _ in cases}
+    for r in range(repeats):
+        for name, n, step in cases:
+            wall, cpu = _time_steps(step, steps, n)
+            figures[name][0].append(wall)
+            figures[name][1].append(cpu)
+            if progress is not None:
+                progress(f"repeat {r + 1}/{repeats} {name}: {wall:,.0f} agent-steps/s")
+    return [BatchResult(name, 1, n, *figures[name]) for name, n, _ in cases]
+
+
+def plot_batched(results: list[BatchResult], path: str) -> None:
+    """Agent-steps/s against the batch size M (log-log), one line per engine: median over the
+    repeats, with the repeats' range as a band (the ``plots`` extra: matplotlib)."""
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError as exc:
+        raise RuntimeError("--plot needs matplotlib: pip install 'swarm-env[plots]'") from exc
+    fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
+    for name in dict.fromkeys(r.name for r in results if r.num_envs > 0 and not r.name.startswith("swarm_env:")):
+        rows = sorted((r for r in results if r.name == name), key=lambda r: r.num_envs)
+        m = [r.num_envs for r in rows]
+        ax.plot(m, [r.median_wall for r in rows], marker="o", label=name)
+        ax.fill_between(m, [min(r.wall) for r in rows], [max(r.wall) for r in rows], alpha=0.2)
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("worlds stepped together (M)")
+    ax.set_ylabel("agent-steps / s (wall, 1 thread)")
+    ax.set_title("Batched throughput, 8 agents per world, 16 lidar rays")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)

@@ -180,16 +180,13 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from swarm_env.bench import run_bench
+    from swarm_env import bench
 
-    results = run_bench(
-        args.scenario,
-        steps=args.steps,
-        repeats=args.repeats,
-        seed=args.seed,
-        peer=args.vs,
-        progress=(lambda msg: print(msg, file=sys.stderr)) if not args.quiet else None,
-    )
+    progress = (lambda msg: print(msg, file=sys.stderr)) if not args.quiet else None
+    if args.vs == "vmas" or args.num_envs or args.followers:
+        return _bench_batched(args, progress)
+    results = bench.run_bench(args.scenario, steps=args.steps, repeats=args.repeats, seed=args.seed, peer=args.vs,
+                              progress=progress)
     rows = [
         [r.name, str(r.agents), f"{r.median:,.0f}", f"{r.agent_steps_per_s:,.0f}", f"{min(r.env_steps_per_s):,.0f}-{max(r.env_steps_per_s):,.0f}"]
         for r in results
@@ -199,8 +196,45 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(f"ratio swarm_env / {results[1].name}: {results[0].median / results[1].median:.2f}x")
     if args.json:
         doc = [{"name": r.name, "agents": r.agents, "env_steps_per_s": r.env_steps_per_s, "median": r.median} for r in results]
-        Path(args.json).write_text(json.dumps(doc, indent=2))
+        _write_json(args.json, doc)
     return 0
+
+
+def _bench_batched(args: argparse.Namespace, progress: Any) -> int:
+    """``bench --vs vmas`` / ``--num-envs`` / ``--followers``: agent-steps/s tables (and a plot)."""
+    from swarm_env import bench
+
+    if args.vs == "mpe2":
+        raise SystemExit("bench: --vs mpe2 compares single envs; drop --num-envs/--followers, or use --vs vmas")
+    results = []
+    if args.vs == "vmas" or args.num_envs:
+        sizes = tuple(args.num_envs or bench.BATCH_SIZES)
+        results += bench.run_batched_bench(sizes, repeats=args.repeats, seed=args.seed, peer=args.vs,
+                                           n_procs=args.n_procs, progress=progress)
+    if args.followers:
+        results += bench.run_followers_bench(tuple(args.followers), repeats=args.repeats, seed=args.seed, progress=progress)
+    rows = [[r.name, str(r.num_envs), str(r.agents), f"{r.median_wall:,.0f}", f"{r.median_cpu:,.0f}",
+             f"{1e6 / r.median_wall:,.1f}"] for r in results]
+    print(_table(rows, ["engine", "worlds M", "agents/world", "agent-steps/s (wall)", "agent-steps/s (CPU)",
+                        "us per agent-step"]))
+    peers = {r.num_envs: r for r in results if r.name.startswith("vmas")}
+    for r in results:
+        if r.name.startswith("swarm_env.vector") and r.num_envs in peers:
+            p = peers[r.num_envs]
+            print(f"M={r.num_envs}: swarm_env / vmas = {r.median_wall / p.median_wall:.2f}x wall, "
+                  f"{r.median_cpu / p.median_cpu:.2f}x CPU")
+    if args.json:
+        _write_json(args.json, [{"name": r.name, "num_envs": r.num_envs, "agents": r.agents, "wall": r.wall,
+                                 "cpu": r.cpu} for r in results])
+    if args.plot:
+        bench.plot_batched(results, args.plot)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def _write_json(path: str, doc: Any) -> None:
+    Path(path).write_text(json.dumps(doc, indent=2))
+    print(f"wrote {path}")
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
@@ -290,7 +324,14 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--steps", type=int, default=2000, help="env steps per repeat")
     b.add_argument("--repeats", type=int, default=5)
     b.add_argument("--seed", type=int, default=0)
-    b.add_argument("--vs", choices=["mpe2"], help="also run a peer env in the same process and print the ratio")
+    b.add_argument("--vs", choices=["mpe2", "vmas"],
+                   help="also run a peer in the same process, interleaved, and print the ratio (mpe2: one env; "
+                        "vmas: the batched engine against VMAS navigation, for each --num-envs)")
+    b.add_argument("--num-envs", type=int, nargs="+", metavar="M",
+                   help="batched engine (swarm_env.vector) at these batch sizes (default with --vs vmas: 1 8 64 256 1024)")
+    b.add_argument("--followers", type=int, nargs="+", metavar="N", help="one env per team size N (cost per follower)")
+    b.add_argument("--n-procs", type=int, default=1, help="worker processes of the batched engine (default 1)")
+    b.add_argument("--plot", help="with --num-envs/--vs vmas: write agent-steps/s against M to this PNG")
     b.add_argument("--json", help="write the raw figures to this file")
     b.add_argument("--quiet", action="store_true", help="no per-repeat progress on stderr")
     b.set_defaults(func=cmd_bench)

@@ -185,8 +185,16 @@ class _WorldBlock:
     def state(self) -> np.ndarray:
         return np.stack([e.state() for e in self.envs])
 
-    def call(self, method: str, indices: Sequence[int], args: tuple, kwargs: dict) -> list[Any]:
+    def call(self, indices: Sequence[int], method: str, args: tuple, kwargs: dict) -> list[Any]:
         return [getattr(self.worlds[b], method)(*args, **kwargs) for b in indices]
+
+    def get_attr(self, indices: Sequence[int], name: str) -> list[Any]:
+        return [getattr(self.worlds[b], name) for b in indices]
+
+    def set_attr(self, indices: Sequence[int], name: str, value: Any) -> list[None]:
+        for b in indices:
+            setattr(self.worlds[b], name, value)
+        return [None] * len(indices)
 
     def close(self) -> None:
         for w in self.worlds:
@@ -468,17 +476,31 @@ class SwarmVectorEnv:
     def call(self, method: str, *args: Any, indices: Sequence[int] | None = None, **kwargs: Any) -> list[Any]:
         """``[world.method(*args, **kwargs) for world in worlds[indices]]`` (all by default), in
         whichever process holds each world; e.g. ``call("episode_metrics")``, ``call("world_state")``."""
+        return self._per_world("call", indices, method, args, kwargs)
+
+    def get_attr(self, name: str, indices: Sequence[int] | None = None) -> list[Any]:
+        """``[getattr(world, name) for world in worlds[indices]]`` (all by default)."""
+        return self._per_world("get_attr", indices, name)
+
+    def set_attr(self, name: str, value: Any, indices: Sequence[int] | None = None) -> None:
+        """``setattr(world, name, value)`` for the worlds ``indices`` (all by default)."""
+        self._per_world("set_attr", indices, name, value)
+
+    def _per_world(self, cmd: str, indices: Sequence[int] | None, *payload: Any) -> list[Any]:
         wanted = list(range(self.num_envs)) if indices is None else [int(i) for i in indices]
+        bad = [m for m in wanted if not 0 <= m < self.num_envs]
+        if bad:
+            raise IndexError(f"world indices {bad} out of range for {self.num_envs} worlds")
         out: dict[int, Any] = {}
         for p, (a, b) in enumerate(self._spans):
-            mine = [m for m in wanted if a <= m < b]
+            mine = sorted({m for m in wanted if a <= m < b})
             if not mine:
                 continue
             local = [m - a for m in mine]
             if self._local is not None:
-                values = self._local.call(method, local, args, kwargs)
+                values = getattr(self._local, cmd)(local, *payload)
             else:
-                self._remotes[p].send("call", method, local, args, kwargs)
+                self._remotes[p].send(cmd, local, *payload)
                 values = self._remotes[p].result()
             out.update(zip(mine, values))
         return [out[m] for m in wanted]

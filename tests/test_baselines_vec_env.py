@@ -1,4 +1,4 @@
-"""The SB3 bridge (baselines.vec_env): seeding, auto-reset, truncation info, inactive slots, subprocesses."""
+"""The SB3 bridge (baselines.vec_env): seeding, auto-reset, truncation info, fixed teams, worker processes."""
 
 from __future__ import annotations
 
@@ -63,58 +63,28 @@ def test_truncation_sets_terminal_observation_and_time_limit_flag_then_auto_rese
     venv.close()
 
 
-class _TerminatingEnv:
-    """A minimal two-agent ParallelEnv stand-in that terminates (not truncates) after 3 steps."""
-
-    possible_agents = ["follower_0", "follower_1"]
-    render_mode = None
-
-    def __init__(self) -> None:
-        self.agents: list[str] = []
-        self.t = 0
-
-    def observation_space(self, agent: str) -> gymnasium.spaces.Box:
-        return gymnasium.spaces.Box(-1, 1, (52,), np.float32)
-
-    def action_space(self, agent: str) -> gymnasium.spaces.Box:
-        return gymnasium.spaces.Box(-1, 1, (2,), np.float32)
-
-    def reset(self, seed=None, options=None):
-        self.agents, self.t = list(self.possible_agents), 0
-        return {a: np.full(52, 0.0, np.float32) for a in self.agents}, {a: {} for a in self.agents}
-
-    def step(self, actions):
-        self.t += 1
-        obs = {a: np.full(52, self.t / 10, np.float32) for a in self.agents}
-        done = self.t == 3
-        out = (obs, dict.fromkeys(self.agents, 1.0), dict.fromkeys(self.agents, done), dict.fromkeys(self.agents, False))
-        infos = {a: {} for a in self.agents}
-        if done:
-            self.agents = []
-        return (*out, infos)
-
-    def close(self) -> None:
-        pass
-
-
 def test_termination_is_not_reported_as_truncation():
-    venv = SwarmVecEnv(_TerminatingEnv, 1)
+    kwargs = dict(SMALL, terminate_on_collision=True, max_cycles=400)
+    venv = make_vec_env("random", 1, seed=2, **kwargs)
     venv.reset()
-    for _ in range(3):
-        obs, rewards, dones, infos = venv.step(np.zeros((2, 2), np.float32))
-    assert dones.all()
-    assert [i["TimeLimit.truncated"] for i in infos] == [False, False]
-    assert [i["episode"]["r"] for i in infos] == [3.0, 3.0]
-    np.testing.assert_array_equal(infos[0]["terminal_observation"], np.full(52, 0.3, np.float32))
-    np.testing.assert_array_equal(obs, 0.0)  # already the next episode's first observation
-
-
-class _AgentDeathEnv(_TerminatingEnv):
-    """A stand-in whose reset leaves one possible agent out (what swarm_env_v0's random did)."""
-
-    def reset(self, seed=None, options=None):
-        self.agents, self.t = ["follower_0"], 0
-        return {"follower_0": np.zeros(52, np.float32)}, {"follower_0": {}}
+    env = SwarmEnv("random", **kwargs)
+    env.reset(seed=2)
+    ahead = np.tile([1.0, 0.0], (venv.num_envs, 1)).astype(np.float32)  # full speed ahead: something is hit
+    returns = np.zeros(venv.num_envs)
+    for t in range(400):
+        obs, rewards, dones, infos = venv.step(ahead)
+        last, rew, term, trunc, _ = env.step({a: ahead[i] for i, a in enumerate(env.possible_agents)})
+        returns += rewards.astype(np.float64)
+        if dones.any():
+            break
+    assert dones.all() and env.termination == "collision" and t < 399
+    assert [i["TimeLimit.truncated"] for i in infos] == [False] * venv.num_envs
+    np.testing.assert_allclose([i["episode"]["r"] for i in infos], returns, rtol=1e-5)
+    assert infos[0]["episode"]["l"] == t + 1
+    np.testing.assert_array_equal(infos[1]["terminal_observation"], last[env.possible_agents[1]])
+    fresh, _ = env.reset()  # the returned observation is already the next episode's first
+    np.testing.assert_array_equal(obs, np.stack([fresh[a] for a in env.possible_agents]))
+    venv.close()
 
 
 def test_team_range_gives_every_slot_a_real_follower():
@@ -131,10 +101,9 @@ def test_team_range_gives_every_slot_a_real_follower():
     venv.close()
 
 
-def test_a_copy_that_leaves_an_agent_out_is_refused():
-    venv = SwarmVecEnv(_AgentDeathEnv, 1)
-    with pytest.raises(RuntimeError, match="expected all of"):
-        venv.reset()
+def test_a_world_that_is_not_a_swarm_env_is_refused():
+    with pytest.raises(TypeError, match="SwarmEnv or SafetyShield"):
+        SwarmVecEnv(lambda: gymnasium.make("CartPole-v1"), 1)
 
 
 def test_subprocess_copies_step_identically_to_in_process():
