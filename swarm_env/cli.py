@@ -275,7 +275,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         seeds.setdefault(scenario, list(common) if common is not None else default_seeds(scenario))
 
     board = run_leaderboard(
-        args.policies, scenarios, seeds, env_kwargs=env_kwargs, workers=args.workers, progress=not args.quiet
+        args.policies, scenarios, seeds, env_kwargs=env_kwargs, workers=args.workers, progress=not args.quiet,
+        backend=args.backend, ray_address=args.ray_address,
     )
     print(board.to_markdown())
     print(f"{len(board.episodes)} episodes in {board.wall_time:.1f} s (wall, {args.workers} worker(s))", file=sys.stderr)
@@ -352,7 +353,12 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--seeds", metavar="SEEDS", help="seeds of every scenario: '0-9', '3' or '0,5,7' (mixes like '0-4,9' too)")
     e.add_argument("--scenario-seeds", nargs="+", metavar="SCENARIO=SEEDS",
                    help="per-scenario seeds overriding --seeds, e.g. random=1000-1049 paper_vo_0=0-2")
-    e.add_argument("--workers", type=int, default=1, help="processes running (policy, scenario) jobs in parallel")
+    e.add_argument("--workers", type=int, default=1, help="processes running (policy, scenario) jobs in parallel "
+                   "(with --backend ray and no --ray-address: the local Ray instance's CPUs)")
+    e.add_argument("--backend", choices=["local", "ray"], default="local",
+                   help="local: this machine's process pool; ray: Ray tasks (pip install 'swarm-env[ray]'), the same results")
+    e.add_argument("--ray-address", help="with --backend ray: join this cluster ('auto', 'HOST:6379', 'ray://HOST:10001') "
+                   "instead of starting a local Ray instance")
     e.add_argument("--action-type", choices=["continuous", "discrete"], default="continuous")
     e.add_argument("--max-cycles", type=int, help="stop each episode after this many steps (default: max_time)")
     e.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",

@@ -288,6 +288,42 @@ def _run_pool(jobs: list[_Job], workers: int, tick: Callable[[int], None]) -> li
     return [r for r in results if r is not None]
 
 
+def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, tick: Callable[[int], None]) -> list[_JobResult]:
+    """The jobs as Ray tasks, one per (policy, scenario) job like the local pool, so the episodes
+    are the same wherever they run. ``address``: an existing cluster (``"auto"``, ``"ray://..."``,
+    ``"HOST:PORT"``); ``None`` starts a local Ray instance with ``num_cpus`` CPUs. Every node needs
+    swarm-env (and the policies' extras) installed."""
+    try:
+        import ray
+    except ImportError as exc:
+        raise RuntimeError("--backend ray needs Ray: pip install 'swarm-env[ray]'") from exc
+    started = not ray.is_initialized()
+    if started:
+        if address is None:
+            ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(address=address, log_to_driver=False)
+    try:
+        task = ray.remote(num_cpus=1, max_retries=0)(_run_job_quietly)
+        pending = {task.remote(job): i for i, job in enumerate(jobs)}
+        results: list[_JobResult | None] = [None] * len(jobs)
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                i = pending.pop(ref)
+                results[i] = ray.get(ref)  # re-raises a job's exception here (as a RayTaskError)
+                if results[i].na_reason is None:  # type: ignore[union-attr]
+                    tick(len(jobs[i].seeds))
+        return [r for r in results if r is not None]
+    finally:
+        if started:
+            ray.shutdown()
+
+
+def _run_job_quietly(job: _Job) -> _JobResult:
+    return _run_job(job, lambda: None)
+
+
 def _drain(progress_queue: Any, tick: Callable[[int], None]) -> None:
     n = 0
     while True:
@@ -307,6 +343,8 @@ def run_leaderboard(
     env_kwargs: dict[str, Any] | None = None,
     workers: int = 1,
     progress: bool = True,
+    backend: str = "local",
+    ray_address: str | None = None,
 ) -> Leaderboard:
     """Evaluate every policy spec on every scenario for its seeds.
 
@@ -318,11 +356,18 @@ def run_leaderboard(
     * ``workers``: jobs (one per policy x scenario) run in a ``spawn`` process pool of this
       size when > 1; the metrics equal those of ``workers=1``.
     * ``progress``: a tqdm bar over episodes on stderr.
+    * ``backend``: ``"local"`` (this process, or the pool above) or ``"ray"``: the same jobs as
+      Ray tasks on the cluster at ``ray_address`` (or on a local Ray instance with ``workers``
+      CPUs when ``ray_address`` is ``None``); the metrics equal the local ones.
 
     All inputs are validated (:func:`validate_inputs`) before any episode runs.
     """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be an int >= 1, got {workers!r}")
+    if backend not in ("local", "ray"):
+        raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
+    if ray_address is not None and backend != "ray":
+        raise ValueError("ray_address needs backend='ray'")
     kwargs = dict(env_kwargs or {})
     validate_inputs(policies, scenarios, kwargs)
     seed_map = resolve_seeds(scenarios, seeds)
@@ -335,7 +380,9 @@ def run_leaderboard(
     total = sum(len(job.seeds) for job in jobs)
     t0 = time.perf_counter()
     with tqdm(total=total, desc="leaderboard", unit="ep", disable=not progress) as bar:
-        if workers == 1 or len(jobs) == 1:
+        if backend == "ray":
+            results = _run_ray(jobs, ray_address, workers, bar.update)
+        elif workers == 1 or len(jobs) == 1:
             results = [_run_job(job, lambda: bar.update(1)) for job in jobs]
         else:
             results = _run_pool(jobs, min(workers, len(jobs)), bar.update)

@@ -63,6 +63,7 @@ SLOT_MARGIN = formation_lib.SLOT_MARGIN  # re-exported: the slot projection's cl
 _BODY_ANGLE = pymunk.Body.angle.fget
 _SET_BODY_VELOCITY = pymunk.Body.velocity.fset
 _SET_BODY_ANGULAR_VELOCITY = pymunk.Body.angular_velocity.fset
+_SET_BODY_POSITION = pymunk.Body.position.fset
 
 
 def _advance_twist(drive: list, dt: float) -> tuple[float, float]:
@@ -427,7 +428,7 @@ class World:
         if self._human_bodies:
             self._human_pos, self._human_vel = human_states(self.scenario.humans, self.time)
             for body, p in zip(self._human_bodies, self._human_pos.tolist()):
-                body.position = (p[0], p[1])  # snap to the exact path (kinematic bodies integrate with round-off)
+                _SET_BODY_POSITION(body, (p[0], p[1]))  # snap to the exact path (kinematic bodies integrate with round-off)
         self._advance_leader()
         self.formation_index = formation_lib.active_formation(self.scenario.formations, self.time)
         self._slots = self._compute_slots()
@@ -442,8 +443,8 @@ class World:
             return
         pos, vel = human_states(self.scenario.humans, t)
         for body, p, v in zip(self._human_bodies, pos.tolist(), vel.tolist()):
-            body.position = (p[0], p[1])
-            body.velocity = (v[0], v[1])
+            _SET_BODY_POSITION(body, (p[0], p[1]))
+            _SET_BODY_VELOCITY(body, (v[0], v[1]))
 
     def _leader_command(self) -> np.ndarray:
         """Paper 003 Fig. 1: pure pursuit along the path, then a velocity-obstacle check."""

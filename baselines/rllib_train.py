@@ -1,0 +1,300 @@
+"""Multi-agent PPO with RLlib on Ray: one policy shared by every follower, on this machine or a cluster.
+
+    python -m baselines.rllib_train --total-steps 200000 --num-env-runners 2 --out runs/rllib_ppo
+    python -m baselines.rllib_train --address auto --num-env-runners 16 ...   # on a running cluster
+
+RLlib's new API stack: :class:`ray.rllib.env.wrappers.pettingzoo_env.ParallelPettingZooEnv` over
+:class:`swarm_env.env.SwarmEnv` (fixed teams keep its one-reset agent list valid), every agent id
+mapped to the module ``"shared"``, RLlib's default PPO module (two 256-unit tanh layers for the
+actor and for the critic). ``--num-env-runners`` remote env runners collect experience wherever
+the cluster has CPUs; the learner runs in this process.
+
+Outputs in ``--out`` (written atomically):
+
+* ``policy.safetensors`` + ``policy.json``: the shared actor exported as tensors and JSON, the
+  ``rllib:DIR`` policy spec (:func:`make_rllib_policy`): ``swarm-env run/evaluate --policies
+  rllib:runs/rllib_ppo`` scores it like any expert, acting with the Gaussian's mean, without Ray
+  and without unpickling anything;
+* ``train.csv``: one row per iteration (agent-steps, env steps, mean episode return, wall time);
+* ``config.json`` and ``versions.json`` (the command's settings, package versions, git commit);
+* ``rllib_checkpoint/``: RLlib's own checkpoint, to continue training with ``--resume``. It
+  contains pickles: load it only from runs you made.
+
+A centralised critic (MAPPO) is not offered here: RLlib's new stack would need a custom
+``MultiRLModule`` plus a learner connector that adds the global state to every agent's batch;
+:mod:`baselines.mappo` has one.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import dataclasses
+import io
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+FORMAT = "swarm_env.rllib/1"
+WEIGHTS_FILE = "policy.safetensors"
+CONFIG_FILE = "policy.json"
+SHARED = "shared"
+ENV_NAME = "swarm_env_rllib"
+
+__all__ = ["RLlibConfig", "train", "export_policy", "load_rllib_policy", "make_rllib_policy"]
+
+
+@dataclasses.dataclass
+class RLlibConfig:
+    """Settings of one RLlib training run (the command's flags)."""
+
+    scenario: str = "random"
+    env_kwargs: dict[str, Any] = dataclasses.field(default_factory=dict)
+    total_steps: int = 200_000  # env steps (each step is one action per follower)
+    num_env_runners: int = 1
+    envs_per_runner: int = 1
+    train_batch_size: int = 4000  # agent-steps per iteration
+    minibatch_size: int = 500
+    num_epochs: int = 5
+    lr: float = 3e-4
+    seed: int = 0
+    address: str | None = None  # a running cluster; None: a local Ray instance with num_cpus CPUs
+    num_cpus: int = 2
+
+
+def _env_creator(config: dict[str, Any]) -> Any:
+    from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
+
+    from swarm_env.env import SwarmEnv
+
+    kwargs = dict(config)
+    return ParallelPettingZooEnv(SwarmEnv(kwargs.pop("scenario"), **kwargs))
+
+
+def _map_to_shared(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:
+    return SHARED
+
+
+def build_config(cfg: RLlibConfig) -> Any:
+    """RLlib's ``PPOConfig`` for ``cfg``: one shared module, ``num_env_runners`` remote runners."""
+    from ray.rllib.algorithms.ppo import PPOConfig
+    from ray.rllib.core.rl_module.multi_rl_module import MultiRLModuleSpec
+    from ray.rllib.core.rl_module.rl_module import RLModuleSpec
+
+    return (
+        PPOConfig()
+        .environment(ENV_NAME, env_config={"scenario": cfg.scenario, **cfg.env_kwargs})
+        .framework("torch")
+        .env_runners(num_env_runners=cfg.num_env_runners, num_envs_per_env_runner=cfg.envs_per_runner,
+                     num_cpus_per_env_runner=1)
+        .learners(num_learners=0)
+        .multi_agent(policies={SHARED}, policy_mapping_fn=_map_to_shared)
+        .rl_module(rl_module_spec=MultiRLModuleSpec(rl_module_specs={SHARED: RLModuleSpec()}))
+        .training(train_batch_size_per_learner=cfg.train_batch_size, minibatch_size=cfg.minibatch_size,
+                  num_epochs=cfg.num_epochs, lr=cfg.lr)
+        .debugging(seed=cfg.seed)
+    )
+
+
+# --------------------------------------------------------------------------- the exported actor
+
+
+def export_policy(module: Any, directory: Path, cfg: RLlibConfig) -> Path:
+    """Write the shared module's actor (encoder + the mean rows of its head) as
+    ``policy.safetensors`` + ``policy.json`` in ``directory``, atomically."""
+    import torch
+    from safetensors.torch import save_file
+
+    from baselines.safe_io import _atomic
+
+    parts = list(module.encoder.actor_encoder.modules()) + list(module.pi.modules())
+    leaves = [m for m in parts if not list(m.children())]
+    kinds = "".join("L" if isinstance(m, torch.nn.Linear) else "T" if isinstance(m, torch.nn.Tanh) else "?" for m in leaves)
+    if not kinds.endswith("L") or kinds[:-1] != "LT" * (len(kinds) // 2):
+        raise ValueError(f"export_policy expects RLlib's default PPO module (a tanh MLP), got layers {kinds!r}")
+    linears = [m for m in leaves if isinstance(m, torch.nn.Linear)]
+    action_dim = linears[-1].out_features // 2  # the head outputs the mean, then the log std
+    sizes = [linears[0].in_features, *(m.out_features for m in linears[:-1]), action_dim]
+    tensors = {}
+    for k, layer in enumerate(linears):
+        w, b = layer.weight.detach(), layer.bias.detach()
+        if k == len(linears) - 1:
+            w, b = w[:action_dim], b[:action_dim]
+        tensors[f"actor.{2 * k}.weight"] = w.contiguous().clone()
+        tensors[f"actor.{2 * k}.bias"] = b.contiguous().clone()
+    directory.mkdir(parents=True, exist_ok=True)
+    with _atomic(directory / WEIGHTS_FILE) as tmp:
+        save_file(tensors, str(tmp))
+    meta = {"format": FORMAT, "sizes": sizes, "activation": "tanh", "config": dataclasses.asdict(cfg)}
+    with _atomic(directory / CONFIG_FILE) as tmp:
+        tmp.write_text(json.dumps(meta) + "\n")
+    return directory
+
+
+class _Unnormalised:
+    """RLlib's default PPO reads raw observations: the identity where a MAPPO actor normalises."""
+
+    def __init__(self, size: int) -> None:
+        self.mean = np.zeros(size)
+
+    def normalize(self, x: np.ndarray) -> np.ndarray:
+        return np.asarray(x, dtype=np.float32)
+
+
+def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
+    """The exported actor of an RLlib run as a policy acting with its mean (no Ray, no pickle)."""
+    import torch
+    from safetensors.torch import load_file
+
+    from baselines.mappo_policy import MAPPOPolicy
+    from baselines.ppo_core import mlp
+    from baselines.safe_io import read_description
+
+    d = Path(directory).expanduser()
+    meta = read_description(d / CONFIG_FILE, FORMAT)
+    try:
+        sizes = [int(s) for s in meta["sizes"]]
+        if meta["activation"] != "tanh" or len(sizes) < 2:
+            raise ValueError(f"unsupported actor {meta['activation']!r} {sizes}")
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{d / CONFIG_FILE}: not an exported RLlib actor ({exc})") from None
+    actor = mlp(sizes)
+    try:
+        tensors = load_file(str(d / WEIGHTS_FILE), device="cpu")
+        actor.load_state_dict({k[len("actor."):]: v for k, v in tensors.items()}, strict=True)
+    except FileNotFoundError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - any failure here means a bad file
+        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({exc})") from None
+    actor.eval()
+    torch.set_num_threads(1)
+    return MAPPOPolicy(actor, _Unnormalised(sizes[0]), name=name or f"rllib:{directory}")  # type: ignore[arg-type]
+
+
+def make_rllib_policy(env: Any, arg: str | None = None) -> Any:
+    """Entry point ``rllib:DIR``: the actor exported by ``python -m baselines.rllib_train --out DIR``."""
+    from swarm_env.policies import PolicyError
+
+    if not arg:
+        raise PolicyError("policy 'rllib' needs a run directory: rllib:DIR (written by python -m baselines.rllib_train)")
+    try:
+        policy = load_rllib_policy(arg, name=f"rllib:{arg}")
+    except (FileNotFoundError, ValueError) as exc:
+        raise PolicyError(f"policy rllib:{arg}: {exc}") from None
+    policy.reset(env, None)
+    return policy
+
+
+make_rllib_policy.acts_on = "observations"  # type: ignore[attr-defined]
+
+
+# --------------------------------------------------------------------------- training
+
+
+def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = True) -> list[dict[str, Any]]:
+    """Train until ``cfg.total_steps`` env steps, then export the actor into ``out`` (see the module
+    docstring). Returns the per-iteration rows of ``train.csv``."""
+    import ray
+    from ray.tune.registry import register_env
+
+    from baselines.safe_io import _atomic
+    from baselines.train import package_versions
+
+    out.mkdir(parents=True, exist_ok=True)
+    started = not ray.is_initialized()
+    if started:
+        if cfg.address is None:
+            ray.init(num_cpus=cfg.num_cpus, include_dashboard=False, log_to_driver=False)
+        else:
+            ray.init(address=cfg.address, log_to_driver=False)
+    register_env(ENV_NAME, _env_creator)
+    algo = build_config(cfg).build_algo()
+    checkpoint = out / "rllib_checkpoint"
+    rows: list[dict[str, Any]] = []
+    try:
+        if resume:
+            if not checkpoint.is_dir():
+                raise FileNotFoundError(f"--resume: no RLlib checkpoint in {checkpoint}")
+            algo.restore(str(checkpoint.resolve()))
+        t0 = time.perf_counter()
+        env_steps = 0
+        from tqdm.auto import tqdm
+
+        with tqdm(total=cfg.total_steps, desc="rllib ppo", unit="step", disable=not progress) as bar:
+            while env_steps < cfg.total_steps:
+                result = algo.train()
+                runners = result["env_runners"]
+                done = int(runners.get("num_env_steps_sampled_lifetime", 0))
+                bar.update(max(0, done - env_steps))
+                env_steps = done
+                rows.append({"iteration": len(rows) + 1, "env_steps": env_steps,
+                             "agent_steps": int(runners.get("num_agent_steps_sampled_lifetime", {}).get(SHARED, 0))
+                             if isinstance(runners.get("num_agent_steps_sampled_lifetime"), dict)
+                             else int(runners.get("num_agent_steps_sampled_lifetime", 0)),
+                             "episode_return_mean": float(runners.get("episode_return_mean", float("nan"))),
+                             "wall_s": round(time.perf_counter() - t0, 3)})
+                bar.set_postfix(ret=f"{rows[-1]['episode_return_mean']:.1f}")
+        algo.save(str(checkpoint.resolve()))
+        export_policy(algo.get_module(SHARED), out, cfg)
+    finally:
+        algo.stop()
+        if started:
+            ray.shutdown()
+    buf = io.StringIO()
+    writer = csv.DictWriter(buf, fieldnames=list(rows[0]) if rows else ["iteration"])
+    writer.writeheader()
+    writer.writerows(rows)
+    with _atomic(out / "train.csv") as tmp:
+        tmp.write_text(buf.getvalue())
+    with _atomic(out / "config.json") as tmp:
+        tmp.write_text(json.dumps(dataclasses.asdict(cfg), indent=2) + "\n")
+    with _atomic(out / "versions.json") as tmp:
+        tmp.write_text(json.dumps({**package_versions(), "ray": ray.__version__}, indent=2) + "\n")
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m baselines.rllib_train", description=__doc__.splitlines()[0])
+    p.add_argument("--scenario", default="random")
+    p.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
+                   help="SwarmEnv keyword (repeatable; values are YAML: n_followers=4, n_humans=[0,3])")
+    p.add_argument("--total-steps", type=int, default=RLlibConfig.total_steps, help="env steps to train for")
+    p.add_argument("--num-env-runners", type=int, default=RLlibConfig.num_env_runners,
+                   help="remote env runners (each one CPU, anywhere on the cluster)")
+    p.add_argument("--envs-per-runner", type=int, default=RLlibConfig.envs_per_runner)
+    p.add_argument("--train-batch-size", type=int, default=RLlibConfig.train_batch_size)
+    p.add_argument("--minibatch-size", type=int, default=RLlibConfig.minibatch_size)
+    p.add_argument("--num-epochs", type=int, default=RLlibConfig.num_epochs)
+    p.add_argument("--lr", type=float, default=RLlibConfig.lr)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--address", help="join a running Ray cluster ('auto', 'HOST:6379'); default: a local instance")
+    p.add_argument("--num-cpus", type=int, default=RLlibConfig.num_cpus, help="CPUs of the local Ray instance")
+    p.add_argument("--out", required=True, help="run directory (the exported policy is rllib:OUT)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/rllib_checkpoint")
+    p.add_argument("--no-progress", action="store_true")
+    args = p.parse_args(argv)
+    import yaml
+
+    env_kwargs = {}
+    for item in args.env:
+        key, sep, value = item.partition("=")
+        if not sep:
+            p.error(f"--env expects KEY=VALUE, got {item!r}")
+        env_kwargs[key] = yaml.safe_load(value)
+        if isinstance(env_kwargs[key], list):
+            env_kwargs[key] = tuple(env_kwargs[key])
+    cfg = RLlibConfig(args.scenario, env_kwargs, args.total_steps, args.num_env_runners, args.envs_per_runner,
+                      args.train_batch_size, args.minibatch_size, args.num_epochs, args.lr, args.seed, args.address,
+                      args.num_cpus)
+    rows = train(cfg, Path(args.out), resume=args.resume, progress=not args.no_progress)
+    last = rows[-1] if rows else {}
+    print(f"{len(rows)} iterations, {last.get('env_steps', 0)} env steps in {last.get('wall_s', 0)} s; "
+          f"policy: rllib:{args.out}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
