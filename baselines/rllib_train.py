@@ -230,10 +230,9 @@ def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = Tr
                 done = int(runners.get("num_env_steps_sampled_lifetime", 0))
                 bar.update(max(0, done - env_steps))
                 env_steps = done
+                agent_steps = runners.get("num_agent_steps_sampled_lifetime", 0)  # per agent id, or a total
                 rows.append({"iteration": len(rows) + 1, "env_steps": env_steps,
-                             "agent_steps": int(runners.get("num_agent_steps_sampled_lifetime", {}).get(SHARED, 0))
-                             if isinstance(runners.get("num_agent_steps_sampled_lifetime"), dict)
-                             else int(runners.get("num_agent_steps_sampled_lifetime", 0)),
+                             "agent_steps": int(sum(agent_steps.values()) if isinstance(agent_steps, dict) else agent_steps),
                              "episode_return_mean": float(runners.get("episode_return_mean", float("nan"))),
                              "wall_s": round(time.perf_counter() - t0, 3)})
                 bar.set_postfix(ret=f"{rows[-1]['episode_return_mean']:.1f}")

@@ -105,11 +105,18 @@ def scan(
     q = len(poses)
     out = np.empty((q, len(ray_angles)))
     if q:
-        _scan(np.ascontiguousarray(poses, dtype=np.float64), np.ascontiguousarray(world, dtype=np.int64),
-              np.ascontiguousarray(own_disc, dtype=np.int64), np.ascontiguousarray(ray_angles, dtype=np.float64),
-              float(max_range), maps.seg_start, maps.segments, maps.circ_start, maps.circles, maps.poly_start,
-              maps.poly_normals, maps.poly_offsets, maps.poly_bound, disc_start, discs, out)
+        f64, i64 = np.float64, np.int64
+        _scan(_c(poses, f64), _c(world, i64), _c(own_disc, i64), _c(ray_angles, f64), float(max_range),
+              maps.seg_start, maps.segments, maps.circ_start, maps.circles, maps.poly_start, maps.poly_normals,
+              maps.poly_offsets, maps.poly_bound, _c(disc_start, i64), _c(discs, f64), out)
     return out
+
+
+def _c(a: np.ndarray, dtype: type) -> np.ndarray:
+    """``a`` as a C-contiguous array of ``dtype`` (itself when it already is: the common case)."""
+    if type(a) is np.ndarray and a.dtype == dtype and a.flags.c_contiguous:
+        return a
+    return np.ascontiguousarray(a, dtype=dtype)
 
 
 def cast_rays(

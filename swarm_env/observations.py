@@ -146,6 +146,7 @@ class ObservationBuilder:
         self._ray_angles = 2.0 * np.pi * np.arange(k) / k
         self._columns: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._packed_map: "tuple[StaticMap, PackedMaps] | None" = None
+        self._single_index: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # team size -> (world, own disc) of scan()
         self.state_layout = state_layout(capacity)
         self.state_size = self.state_layout["occupancy"].stop
         self._grid: tuple[StaticMap, np.ndarray] | None = None  # (map, its occupancy grid), see _occupancy
@@ -297,9 +298,17 @@ class ObservationBuilder:
         ``(follower poses (N, 3), moving discs (D, 3))``, world ``w`` in the map ``w`` of ``maps``."""
         from swarm_env.lidar import pack_discs, scan
 
+        if len(inputs) == 1:  # one env's step: no packing to do (the index arrays are kept per team size)
+            poses, discs = inputs[0]
+            n = len(poses)
+            index = self._single_index.get(n)
+            if index is None:
+                index = self._single_index[n] = (np.zeros(n, dtype=np.int64), np.arange(n, dtype=np.int64))
+            disc_start = np.array([0, len(discs)], dtype=np.int64)
+            return scan(poses, index[0], index[1], self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
         counts = [len(p) for p, _ in inputs]
         world = np.repeat(np.arange(len(inputs)), counts)
-        poses = inputs[0][0] if len(inputs) == 1 else np.concatenate([p for p, _ in inputs])
+        poses = np.concatenate([p for p, _ in inputs])
         own = np.concatenate([np.arange(n) for n in counts])  # followers come first among a world's discs
         disc_start, discs = pack_discs([d for _, d in inputs])
         return scan(poses, world, own, self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)

@@ -221,7 +221,21 @@ def _human_path(points: tuple[tuple[float, float], ...], closed: bool) -> Polyli
     return PolylinePath(pts)
 
 
-def human_states(humans: Sequence[HumanSpec], t: float) -> tuple[np.ndarray, np.ndarray]:
+def human_paths(humans: Sequence[HumanSpec]) -> list[PolylinePath]:
+    """Each human's walking path (for ``loop``, closed), as :func:`human_states` walks it; a
+    caller stepping the same humans many times (a :class:`~swarm_env.world.World`) passes them
+    in rather than relying on the shared cache, which thrashes with more than 512 paths."""
+    out = []
+    for h in humans:
+        try:
+            out.append(_human_path(h.path, h.mode == "loop"))
+        except TypeError:  # unhashable (lists): normalise to a tuple key
+            out.append(_human_path(tuple((float(x), float(y)) for x, y in h.path), h.mode == "loop"))
+    return out
+
+
+def human_states(humans: Sequence[HumanSpec], t: float, paths: Sequence[PolylinePath] | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
     """Positions ``(H, 2)`` and world velocities ``(H, 2)`` of the humans at time ``t``.
 
     A pure function of ``t``. Each human stands on its first waypoint (zero
@@ -235,16 +249,13 @@ def human_states(humans: Sequence[HumanSpec], t: float) -> tuple[np.ndarray, np.
       (period ``2 * length``; the velocity is reversed on the way back).
 
     At a vertex the velocity is that of the outgoing segment. A human with a
-    zero-length path or zero speed stands still.
+    zero-length path or zero speed stands still. ``paths``: :func:`human_paths` of ``humans``,
+    if the caller keeps them.
     """
     n = len(humans)
     pos = np.zeros((n, 2))
     vel = np.zeros((n, 2))
-    for k, h in enumerate(humans):
-        try:
-            path = _human_path(h.path, h.mode == "loop")
-        except TypeError:  # unhashable (lists): normalise to a tuple key
-            path = _human_path(tuple((float(x), float(y)) for x, y in h.path), h.mode == "loop")
+    for k, (h, path) in enumerate(zip(humans, human_paths(humans) if paths is None else paths)):
         length = path.length
         elapsed = float(t) - float(h.start_delay)
         if elapsed <= 0.0 or h.speed <= 0.0 or length <= 0.0:

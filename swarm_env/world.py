@@ -35,7 +35,7 @@ import pymunk
 from swarm_env import formation as formation_lib
 from swarm_env import guidance
 from swarm_env.geometry import StaticMap
-from swarm_env.paths import PolylinePath, human_states, virtual_leader
+from swarm_env.paths import PolylinePath, human_paths, human_states, virtual_leader
 from swarm_env.scenario import Scenario
 from swarm_env.state import LEADER_ID, Contact, WorldState
 
@@ -301,7 +301,8 @@ class World:
             self._bodies.append(body)
 
         self._human_bodies: list[pymunk.Body] = []
-        hpos, hvel = human_states(scenario.humans, 0.0)
+        self._human_paths = human_paths(scenario.humans)
+        hpos, hvel = human_states(scenario.humans, 0.0, self._human_paths)
         for j, h in enumerate(scenario.humans):
             body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
             body.position = (float(hpos[j, 0]), float(hpos[j, 1]))
@@ -426,7 +427,7 @@ class World:
         self.step_count += 1
         self.time = self.step_count * self.dt  # no accumulated float drift
         if self._human_bodies:
-            self._human_pos, self._human_vel = human_states(self.scenario.humans, self.time)
+            self._human_pos, self._human_vel = human_states(self.scenario.humans, self.time, self._human_paths)
             for body, p in zip(self._human_bodies, self._human_pos.tolist()):
                 _SET_BODY_POSITION(body, (p[0], p[1]))  # snap to the exact path (kinematic bodies integrate with round-off)
         self._advance_leader()
@@ -441,7 +442,7 @@ class World:
     def _move_humans(self, t: float) -> None:
         if not self._human_bodies:
             return
-        pos, vel = human_states(self.scenario.humans, t)
+        pos, vel = human_states(self.scenario.humans, t, self._human_paths)
         for body, p, v in zip(self._human_bodies, pos.tolist(), vel.tolist()):
             _SET_BODY_POSITION(body, (p[0], p[1]))
             _SET_BODY_VELOCITY(body, (v[0], v[1]))

