@@ -52,7 +52,7 @@ def bench_bridge(scenario: str, copies: int, steps: int, seed: int, n_procs: int
     t0 = time.perf_counter()
     for _ in range(steps):
         _, _, _, infos = venv.step(rng.uniform(-1, 1, (venv.num_envs, 2)).astype(np.float32))
-        agent_steps += sum(1 for info in infos if not info.get("inactive"))
+        agent_steps += len(infos)  # fixed teams: every sub-env is a real follower
     rate = agent_steps / (time.perf_counter() - t0)
     venv.close()
     return rate

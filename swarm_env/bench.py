@@ -185,6 +185,8 @@ def run_batched_bench(
         for r in range(repeats):
             for name, _, step, per_step in cases:
                 wall, cpu = _time_steps(step, steps, per_step)
+                if "n_procs" in name:
+                    cpu = float("nan")  # the workers' CPU time is not this process's
                 figures[name][0].append(wall)
                 figures[name][1].append(cpu)
                 if progress is not None:

@@ -213,7 +213,8 @@ def _bench_batched(args: argparse.Namespace, progress: Any) -> int:
                                            n_procs=args.n_procs, progress=progress)
     if args.followers:
         results += bench.run_followers_bench(tuple(args.followers), repeats=args.repeats, seed=args.seed, progress=progress)
-    rows = [[r.name, str(r.num_envs), str(r.agents), f"{r.median_wall:,.0f}", f"{r.median_cpu:,.0f}",
+    rows = [[r.name, str(r.num_envs), str(r.agents), f"{r.median_wall:,.0f}",
+             f"{r.median_cpu:,.0f}" if r.median_cpu == r.median_cpu else "n/a (workers)",
              f"{1e6 / r.median_wall:,.1f}"] for r in results]
     print(_table(rows, ["engine", "worlds M", "agents/world", "agent-steps/s (wall)", "agent-steps/s (CPU)",
                         "us per agent-step"]))
