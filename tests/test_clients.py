@@ -267,3 +267,37 @@ def test_pettingzoo_state_test(name, kw):
         state_test(swarm_env.env(name, max_cycles=20, **kw), make(name, kw, max_cycles=20), num_cycles=25)
     problems = [str(w.message) for w in caught if "state" in str(w.message).lower()]
     assert not problems, problems  # NaN / inf / shape / all-zero state warnings
+
+
+def test_torchrl_batched_engine_specs_and_bits():
+    """examples/torchrl_vector.py: TorchRL's check_env_specs passes, and a rollout across episode
+    ends shows, world by world, exactly what a SwarmEnv shows for the same actions."""
+    from swarm_env.env import SwarmEnv
+
+    module = load_example("torchrl_vector")
+    kwargs = {"max_cycles": 7, "n_followers": 3}
+    env = module.SwarmVectorTorchRL("random", 3, **kwargs)
+    env.set_seed(21)
+    from torchrl.envs.utils import check_env_specs
+
+    check_env_specs(env)
+    env.set_seed(21)
+    torch.manual_seed(0)
+    td = env.rollout(16, break_when_any_done=False)  # crosses two episode ends per world
+    env.close()
+    assert td.batch_size == torch.Size([3, 16])
+    assert int(td["next", "done"].sum()) == 6
+    for m in range(3):
+        ref = SwarmEnv("random", **kwargs)
+        obs, _ = ref.reset(seed=21 + m)
+        for t in range(16):
+            agents = ref.possible_agents
+            np.testing.assert_array_equal(td["agents", "observation"][m, t].numpy(), np.stack([obs[a] for a in agents]))
+            action = td["agents", "action"][m, t].numpy()
+            obs, rew, term, trunc, _ = ref.step({a: action[i] for i, a in enumerate(agents)})
+            np.testing.assert_array_equal(td["next", "agents", "observation"][m, t].numpy(), np.stack([obs[a] for a in agents]))
+            np.testing.assert_array_equal(td["next", "agents", "reward"][m, t, :, 0].numpy(),
+                                          np.float32([rew[a] for a in agents]))
+            assert bool(td["next", "truncated"][m, t]) == trunc[agents[0]]
+            if not ref.agents:
+                obs, _ = ref.reset()
