@@ -56,10 +56,9 @@ def _swarm_case(scenario: str, steps: int, seed: int) -> tuple[Any, list[dict[st
 
 
 def _mpe2_case(n_agents: int, steps: int, seed: int) -> tuple[Any, list[dict[str, Any]]]:
-    try:
-        from mpe2 import simple_spread_v3
-    except ImportError as exc:  # optional extra
-        raise RuntimeError("--vs mpe2 needs the optional extra: pip install 'swarm-env[bench]'") from exc
+    from swarm_env.extras import require
+
+    simple_spread_v3 = require("mpe2.simple_spread_v3", "bench", "--vs mpe2")
     env = simple_spread_v3.parallel_env(N=n_agents, max_cycles=25)
     rng = np.random.default_rng(seed)
     raw = rng.integers(0, 5, size=(steps, n_agents))
@@ -143,11 +142,10 @@ def _swarm_batch(num_envs: int, seed: int, n_procs: int = 1) -> tuple[Any, Calla
 
 
 def _vmas_batch(num_envs: int, seed: int) -> tuple[Any, Callable[[int], Any], int]:
-    try:
-        import torch
-        import vmas
-    except ImportError as exc:  # optional extra
-        raise RuntimeError("--vs vmas needs the optional extra: pip install 'swarm-env[vmas]'") from exc
+    from swarm_env.extras import require
+
+    torch = require("torch", "rl", "--vs vmas")
+    vmas = require("vmas", "vmas", "--vs vmas")
     torch.set_num_threads(1)
     n = BATCH_WORLD["n_followers"]
     env = vmas.make_env("navigation", num_envs=num_envs, device="cpu", continuous_actions=True, n_agents=n,
@@ -240,13 +238,10 @@ def run_followers_bench(
 def plot_batched(results: list[BatchResult], path: str) -> None:
     """Agent-steps/s against the batch size M (log-log), one line per engine: median over the
     repeats, with the repeats' range as a band (the ``plots`` extra: matplotlib)."""
-    try:
-        import matplotlib
+    from swarm_env.extras import require
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError as exc:
-        raise RuntimeError("--plot needs matplotlib: pip install 'swarm-env[plots]'") from exc
+    require("matplotlib", "plots", "--plot").use("Agg")
+    import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
     for name in dict.fromkeys(r.name for r in results if r.num_envs > 0 and not r.name.startswith("swarm_env:")):
         rows = sorted((r for r in results if r.name == name), key=lambda r: r.num_envs)

@@ -13,6 +13,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
+from swarm_env.extras import MissingExtraError
 from swarm_env.policies import PolicyError, UnknownPolicyError
 from swarm_env.scenario import ScenarioError
 
@@ -389,6 +390,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc.args[0] if exc.args else exc}", file=sys.stderr)
         return 2
     except PolicyError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except MissingExtraError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 

@@ -293,10 +293,9 @@ def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, tick: Callabl
     are the same wherever they run. ``address``: an existing cluster (``"auto"``, ``"ray://..."``,
     ``"HOST:PORT"``); ``None`` starts a local Ray instance with ``num_cpus`` CPUs. Every node needs
     swarm-env (and the policies' extras) installed."""
-    try:
-        import ray
-    except ImportError as exc:
-        raise RuntimeError("--backend ray needs Ray: pip install 'swarm-env[ray]'") from exc
+    from swarm_env.extras import require
+
+    ray = require("ray", "ray", "--backend ray")
     started = not ray.is_initialized()
     if started:
         if address is None:

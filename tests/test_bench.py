@@ -9,6 +9,7 @@ import pytest
 
 from swarm_env.bench import run_batched_bench, run_followers_bench
 from swarm_env.cli import main
+from swarm_env.extras import MissingExtraError
 
 
 def test_batched_bench_reports_each_size_for_the_engine() -> None:
@@ -39,5 +40,14 @@ def test_vmas_peer_says_which_extra_is_missing(monkeypatch) -> None:
     import sys
 
     monkeypatch.setitem(sys.modules, "vmas", None)  # as if not installed
-    with pytest.raises(RuntimeError, match=r"swarm-env\[vmas\]"):
+    with pytest.raises(MissingExtraError, match=r"swarm-env\[vmas\]"):
         run_batched_bench((1,), repeats=1, budget=5, peer="vmas")
+
+
+def test_cli_names_the_missing_extra_in_one_line(monkeypatch, capsys) -> None:
+    import sys
+
+    monkeypatch.setitem(sys.modules, "ray", None)
+    assert main(["evaluate", "--policies", "zero", "--scenarios", "paper_vo_90", "--backend", "ray", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "pip install 'swarm-env[ray]'" in err[0]
