@@ -144,8 +144,8 @@ def _swarm_batch(num_envs: int, seed: int, n_procs: int = 1) -> tuple[Any, Calla
 def _vmas_batch(num_envs: int, seed: int) -> tuple[Any, Callable[[int], Any], int]:
     from swarm_env.extras import require
 
-    torch = require("torch", "rl", "--vs vmas")
-    vmas = require("vmas", "vmas", "--vs vmas")
+    torch = require("torch", "rl,vmas", "--vs vmas")  # VMAS runs on torch
+    vmas = require("vmas", "rl,vmas", "--vs vmas")
     torch.set_num_threads(1)
     n = BATCH_WORLD["n_followers"]
     env = vmas.make_env("navigation", num_envs=num_envs, device="cpu", continuous_actions=True, n_agents=n,

@@ -40,7 +40,7 @@ def test_vmas_peer_says_which_extra_is_missing(monkeypatch) -> None:
     import sys
 
     monkeypatch.setitem(sys.modules, "vmas", None)  # as if not installed
-    with pytest.raises(MissingExtraError, match=r"swarm-env\[vmas\]"):
+    with pytest.raises(MissingExtraError, match=r"swarm-env\[rl,vmas\]"):
         run_batched_bench((1,), repeats=1, budget=5, peer="vmas")
 
 
