@@ -91,6 +91,7 @@ def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     episodes carry it (:func:`run_episode` results do).
     """
     settle = [s["settle_time"] for e in episodes for s in e["settle_times"]]
+    hold = [s.get("hold_fraction") for e in episodes for s in e["settle_times"]]  # absent in older records
     summary = {
         "episodes": len(episodes),
         "success_rate": mean_ci95(float(e["success"]) for e in episodes),
@@ -98,6 +99,7 @@ def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
         "collisions": mean_ci95(e["collisions"]["total"] for e in episodes),
         "formation_error": mean_ci95(e["formation_error"]["mean"] for e in episodes),
         "settle_time": mean_ci95(settle),
+        "hold_fraction": mean_ci95(hold),
         "sim_time": mean_ci95(e["sim_time"] for e in episodes),
         "min_separation": mean_ci95(e["min_separation"] for e in episodes),
     }

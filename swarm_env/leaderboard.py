@@ -91,6 +91,7 @@ METRICS: tuple[Metric, ...] = (
     Metric("collisions", "collisions / ep", 2),
     Metric("formation_error", "formation error (m)", 3),
     Metric("settle_time", "settle time (s)", 1),
+    Metric("hold_fraction", "held after settling", 2),
     Metric("sim_time", "episode time (s)", 1),
     Metric("policy_time", "policy time (s / ep)", 3),
     Metric("min_separation", "min separation (m)", 3, in_markdown=False),
@@ -532,7 +533,9 @@ class Leaderboard:
         lines = [
             "Each cell: mean ± 95 % confidence half-width (1.96·s/√N, normal approximation) over the "
             "row's N episodes (no ± when N = 1); settle time averages the formation switches that settled (switches that "
-            "never settled are left out); – = nothing to average; n/a = the policy refuses the scenario. \"acts on\": "
+            "never settled are left out), and \"held after settling\" the fraction of the time from settling to the "
+            "next switch (or the end) during which every follower stayed within the settle tolerance, over the same "
+            "switches; – = nothing to average; n/a = the policy refuses the scenario. \"acts on\": "
             "`observations` = each follower's own observation only (deployable with on-board sensing); `state` = the "
             "privileged world state, like the experts; `+ shield` = executed through the VO safety layer, which "
             "reads the state.",

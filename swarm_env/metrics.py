@@ -15,7 +15,10 @@
   entries with ``at > 0``): ``{at, shape, settle_time}``, the seconds from the
   switch until every follower was within ``world.settle_tolerance`` of its new
   slot, ``null`` if that never happened before the episode ended or the next
-  switch;
+  switch; and ``hold_fraction``, the fraction of the steps from that moment until
+  the next switch (or the episode's end) in which every follower was within the
+  tolerance (the reached formation *held*, not just touched; ``null`` if it was
+  never reached);
 * ``min_separation`` - the smallest surface gap between two robots (m, negative
   would mean overlap); ``min_clearance`` - the smallest surface gap between a
   follower and an obstacle, a wall or a human;
@@ -72,6 +75,7 @@ class EpisodeMetrics:
         self.leader_arrival: float | None = None
         self.settle: list[dict[str, Any]] = []
         self._pending: dict[str, Any] | None = None
+        self._hold: dict[int, list[int]] = {}  # formation index -> [steps since reached, steps held]
         self.terminated = False
         self._static_lb = None
         self._started = True
@@ -171,9 +175,15 @@ class EpisodeMetrics:
             entry = {"index": k, "at": formations[k].at, "shape": formations[k].shape, "settle_time": None}
             self.settle.append(entry)
             self._pending = entry
-        if self._pending is not None and self._pending["index"] == k and bool(np.all(err <= self.tolerance)):
+        within = bool(np.all(err <= self.tolerance))
+        if self._pending is not None and self._pending["index"] == k and within:
             self._pending["settle_time"] = round(state.time - self._pending["at"], 9)
             self._pending = None
+            self._hold[k] = [0, 0]
+        counts = self._hold.get(k)
+        if counts is not None:  # the current formation was reached: count the steps it is held
+            counts[0] += 1
+            counts[1] += within
 
     def result(self) -> dict[str, Any]:
         """The JSON-ready metrics dict (see the module docstring)."""
@@ -214,11 +224,17 @@ class EpisodeMetrics:
                 "max": float(self.err_max),
                 "per_robot": [float(e) for e in per_err],
             },
-            "settle_times": [{k: v for k, v in s.items() if k != "index"} for s in self.settle],
+            "settle_times": [{**{k: v for k, v in s.items() if k != "index"}, "hold_fraction": self._hold_fraction(s["index"])}
+                             for s in self.settle],
             "min_separation": _finite_or_none(self.min_sep),
             "min_clearance": _finite_or_none(self.min_clear),
             "per_robot": rows,
         }
+
+
+    def _hold_fraction(self, index: int) -> float | None:
+        counts = self._hold.get(index)
+        return counts[1] / counts[0] if counts else None
 
 
 def _finite_or_none(x: float) -> float | None:

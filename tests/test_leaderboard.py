@@ -131,7 +131,7 @@ def test_markdown_table(board: Leaderboard) -> None:
     fe = board.row("pursuit", "random").summary["formation_error"]
     line = next(line for line in md.splitlines() if line.startswith("| `pursuit` |") and f"{fe['mean']:.3f}" in line)
     assert f"{fe['mean']:.3f} ± {fe['ci95']:.3f}" in line
-    assert line.count("|") == 10  # policy, acts on, 7 metric columns
+    assert line.count("|") == 11  # policy, acts on, 8 metric columns
     assert line.startswith("| `pursuit` | state |")
     assert "| `random` | nothing |" in md
 

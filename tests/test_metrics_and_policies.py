@@ -38,6 +38,7 @@ def test_settle_time_and_success_with_a_tracking_policy() -> None:
     [settle] = result["settle_times"]
     assert settle["at"] == 10.0 and settle["shape"] == "column"
     assert settle["settle_time"] is not None and 0.5 < settle["settle_time"] < 15.0
+    assert 0.0 < settle["hold_fraction"] <= 1.0  # (pursuit lags its moving slot: it holds ~2/3 of the time)
     assert result["success"] is True  # the leader arrived and the formation settled: terminated
     assert result["steps"] < 600
     leader = result["per_robot"][0]
@@ -49,10 +50,33 @@ def test_settle_time_and_success_with_a_tracking_policy() -> None:
     json.dumps(result)  # JSON-ready
 
 
+def test_hold_fraction_counts_the_steps_the_reached_formation_is_held() -> None:
+    """Track the slots, then stop 8 s after the switch: the formation is reached, held, then lost;
+    the metric must equal the fraction computed here from the env's own slot-distance infos."""
+    env = SwarmEnv(_open_switch_scenario(), max_cycles=300)
+    pursuit = load_policy("pursuit", env)
+    obs, _ = env.reset(seed=0)
+    pursuit.reset(env, 0)
+    within_after_switch = []
+    while env.agents:
+        state = env.world_state()
+        actions = pursuit.act(obs, state) if state.time < 18.0 else {a: np.zeros(2, np.float32) for a in env.agents}
+        obs, _, _, _, infos = env.step(actions)
+        if env.world_state().time >= 10.0 - 1e-9:
+            tol = env.world_state().scenario.world.settle_tolerance
+            within_after_switch.append(all(i["slot_distance"] <= tol for i in infos.values()))
+    [settle] = env.episode_metrics()["settle_times"]
+    first = within_after_switch.index(True)  # the step the new formation was reached
+    expected = sum(within_after_switch[first:]) / len(within_after_switch[first:])
+    assert settle["settle_time"] is not None
+    assert settle["hold_fraction"] == pytest.approx(expected, abs=1e-12)
+    assert 0.0 < settle["hold_fraction"] < 0.9  # lost when the followers stopped
+
+
 def test_standing_still_never_settles_after_the_switch() -> None:
     env = SwarmEnv(_open_switch_scenario(), max_cycles=200)
     result = run_episode(env, ZeroPolicy(env), seed=0)
-    assert result["settle_times"] == [{"at": 10.0, "shape": "column", "settle_time": None}]
+    assert result["settle_times"] == [{"at": 10.0, "shape": "column", "settle_time": None, "hold_fraction": None}]
     assert result["success"] is False
     assert result["per_robot"][1]["distance"] == pytest.approx(0.0, abs=1e-9)
 
