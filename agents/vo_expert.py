@@ -54,9 +54,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.guidance import pure_pursuit
+from swarm_env.guidance import pure_pursuit, slot_velocities
 from swarm_env.safety import AvoidanceParams, safe_follower_twists
-from swarm_env.policies import STATE, parse_policy_kwargs
+from swarm_env.policies import expert_factory
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -199,12 +199,7 @@ class VOExpert:
         slots = state.slot_targets
         T = self.time_gap
         if self.feed_forward:
-            lead = state.leader_pose[:2]
-            omega = float(state.leader_twist[1])
-            # Velocity of the leader's frame at each slot: v_L + omega_L x (slot - p_L).
-            v_slot = np.empty_like(slots)
-            v_slot[:, 0] = state.leader_vel[0] - omega * (slots[:, 1] - lead[1])
-            v_slot[:, 1] = state.leader_vel[1] + omega * (slots[:, 0] - lead[0])
+            v_slot = slot_velocities(state.leader_pose, state.leader_vel, float(state.leader_twist[1]), slots)
             target = slots + v_slot * T
         else:
             target = slots
@@ -301,16 +296,6 @@ class VOExpert:
         }
 
 
-def make_policy(env: "SwarmEnv", arg: str | None = None) -> VOExpert:
-    """Entry-point factory (``swarm_env.policies`` group, name ``vo``).
-
-    ``arg``: optional ``KEY=VALUE,...`` constructor parameters, e.g. ``"horizon=4,margin=0.1"``.
-    Raises ``ValueError`` for a discrete-action env or a bad ``arg``.
-    """
-    policy = VOExpert(**parse_policy_kwargs('vo', arg, VOExpert))
-    if env.action_type != "continuous":
-        policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
-    return policy
-
-
-make_policy.acts_on = STATE  # type: ignore[attr-defined]
+#: Entry-point factory (``swarm_env.policies`` group, name ``vo``): ``vo[:KEY=VALUE,...]`` sets
+#: :class:`VOExpert` parameters, e.g. ``vo:horizon=4,margin=0.1``.
+make_policy = expert_factory("vo", VOExpert)

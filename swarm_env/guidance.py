@@ -165,6 +165,15 @@ def pure_pursuit(
     return out[0] if single else out
 
 
+def slot_velocities(leader_pose: np.ndarray, leader_vel: np.ndarray, leader_omega: float, slots: np.ndarray) -> np.ndarray:
+    """``(N, 2)`` world velocity of each slot ``slots`` ``(N, 2)`` carried by the leader's frame:
+    ``v_L + omega_L x (slot - p_L)`` (the feed-forward of a follower tracking a moving slot)."""
+    v_slot = np.empty_like(slots)
+    v_slot[:, 0] = leader_vel[0] - leader_omega * (slots[:, 1] - leader_pose[1])
+    v_slot[:, 1] = leader_vel[1] + leader_omega * (slots[:, 0] - leader_pose[0])
+    return v_slot
+
+
 def lookahead_target(
     path: PolylinePath,
     position: np.ndarray,

@@ -157,6 +157,24 @@ class PredictPolicy:
         return {a: actions[i] for i, a in enumerate(agents)}
 
 
+def expert_factory(name: str, cls: type) -> Callable[..., Any]:
+    """The entry-point factory of a scripted expert class ``cls`` registered as ``name``:
+    ``factory(env, arg)`` builds ``cls(**parse_policy_kwargs(name, arg, cls))`` and, for a
+    discrete-action env, calls its ``reset`` at once so that its refusal (a ``ValueError``) comes
+    now rather than at the first episode. It acts on the privileged state (``acts_on``)."""
+
+    def factory(env: "SwarmEnv", arg: str | None = None) -> Any:
+        policy = cls(**parse_policy_kwargs(name, arg, cls))
+        if env.action_type != "continuous":
+            policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
+        return policy
+
+    factory.acts_on = STATE  # type: ignore[attr-defined]
+    factory.__name__ = factory.__qualname__ = f"make_{name}"
+    factory.__doc__ = f"Entry point ``{name}[:KEY=VALUE,...]``: :class:`{cls.__module__}.{cls.__name__}`."
+    return factory
+
+
 def parse_policy_kwargs(name: str, arg: str | None, cls: type) -> dict[str, Any]:
     """Parse a policy argument ``"key=value,key=value"`` into keyword arguments of ``cls``.
 

@@ -69,7 +69,7 @@ from agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
 from agents.cbs_rrt.timed_path import TimedPath
 from swarm_env.guidance import pure_pursuit
 from swarm_env.paths import human_states
-from swarm_env.policies import STATE, parse_policy_kwargs
+from swarm_env.policies import expert_factory
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -729,16 +729,6 @@ class CBSRRTExpert:
         }
 
 
-def make_policy(env: "SwarmEnv", arg: str | None = None) -> CBSRRTExpert:
-    """Entry-point factory (``swarm_env.policies`` group, name ``cbs_rrt``).
-
-    ``arg``: optional ``KEY=VALUE,...`` constructor parameters, e.g. ``"use_cbs=false,horizon=20"``.
-    Raises ``ValueError`` for a discrete-action env or a bad ``arg``.
-    """
-    policy = CBSRRTExpert(**parse_policy_kwargs('cbs_rrt', arg, CBSRRTExpert))
-    if env.action_type != "continuous":
-        policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
-    return policy
-
-
-make_policy.acts_on = STATE  # type: ignore[attr-defined]
+#: Entry-point factory (``swarm_env.policies`` group, name ``cbs_rrt``): ``cbs_rrt[:KEY=VALUE,...]`` sets
+#: :class:`CBSRRTExpert` parameters, e.g. ``cbs_rrt:use_cbs=false,horizon=20``.
+make_policy = expert_factory("cbs_rrt", CBSRRTExpert)
