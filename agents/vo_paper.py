@@ -36,7 +36,8 @@ import numpy as np  # noqa: E402
 
 from agents.vo_expert import VOExpert  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.evaluation import run_episode  # noqa: E402
+from swarm_env.evaluation import mean_ci95, run_episode  # noqa: E402
+from swarm_env.policies import load_policy  # noqa: E402
 from swarm_env.state import WorldState  # noqa: E402
 
 PAPER_SCENARIOS = ("paper_vo_0", "paper_vo_45", "paper_vo_90")
@@ -239,15 +240,17 @@ def paper_table(name: str, metrics: dict[str, Any]) -> str:
 
 
 # ---------------------------------------------------------------------------- random sweep
-def run_random(seeds: range, knobs: dict[str, Any], expert_kwargs: dict[str, Any] | None = None) -> list[dict[str, Any]]:
+def run_random(seeds: range, knobs: dict[str, Any], expert_kwargs: dict[str, Any] | None = None,
+               spec: str | None = None) -> list[dict[str, Any]]:
     """One episode per seed of the ``random`` generator; a compact row per episode.
 
     Each episode gets its own env with ``team_seed=seed``, so an ``n_followers`` range gives a
-    mix of team sizes (swarm_env_v1 draws the team once per env instance)."""
-    policy = VOExpert(**(expert_kwargs or {}))
+    mix of team sizes (swarm_env_v1 draws the team once per env instance). ``spec``: another
+    policy to run instead of the expert (e.g. ``"orca"``, the outside reference)."""
     rows = []
     for seed in seeds:
         env = SwarmEnv("random", team_seed=seed, **knobs)
+        policy = VOExpert(**(expert_kwargs or {})) if spec is None else load_policy(spec, env)
         m = run_episode(env, policy, seed)
         scn = env.world_state().scenario
         rows.append(
@@ -259,6 +262,7 @@ def run_random(seeds: range, knobs: dict[str, Any], expert_kwargs: dict[str, Any
                 "success": m["success"],
                 "collisions": m["collisions"],
                 "formation_error": m["formation_error"]["mean"],
+                "hold_fraction": [x.get("hold_fraction") for x in m["settle_times"]],
                 "min_separation": m["min_separation"],
                 "min_clearance": m["min_clearance"],
                 "sim_time": m["sim_time"],
@@ -309,6 +313,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=100, help="random-generator episodes (seeds FIRST..FIRST+N-1)")
     ap.add_argument("--first-seed", type=int, default=0, help="first seed of the random episodes")
     ap.add_argument("--no-videos", action="store_true", help="do not render videos of failing random episodes")
+    ap.add_argument("--no-orca", dest="orca", action="store_false",
+                    help="skip the ORCA reference runs (they need pip install 'swarm-env[orca]')")
     args = ap.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -321,6 +327,9 @@ def main(argv: list[str] | None = None) -> int:
         plot_velocities(name, tr, out / f"{name}_velocity.png")
         plot_paths(name, tr, scn, out / f"{name}_paths.png")
         results["paper"][name] = metrics
+        if args.orca:
+            env = SwarmEnv(name)
+            results.setdefault("orca_paper", {})[name] = run_episode(env, load_policy("orca", env), 0)
         c = metrics["collisions"]
         print(f"{name}: collisions {c['total']}, formation error {metrics['formation_error']['per_robot']} "
               f"({time.perf_counter() - t0:.1f} s)", flush=True)
@@ -337,6 +346,9 @@ def main(argv: list[str] | None = None) -> int:
         results["random"] = {"knobs": {k: list(v) for k, v in DEFAULT_KNOBS.items()}, "episodes": rows,
                              "collision_free_rate": free / len(rows)}
         print(f"random: {free}/{len(rows)} collision-free ({time.perf_counter() - t0:.0f} s)", flush=True)
+        if args.orca:
+            results["orca_random"] = run_random(range(args.first_seed, args.first_seed + args.seeds), DEFAULT_KNOBS,
+                                                spec="orca")
 
     (out / "results.json").write_text(json.dumps(results, indent=1, default=float))
     if args.doc:
@@ -420,8 +432,57 @@ def render_doc(results: dict[str, Any], out: Path, doc: Path) -> str:
                 note = FAILURE_NOTES.get(e["seed"], "(not analysed yet)")
                 lines.append(f"| {e['seed']} | {e['followers']} | {e['humans']} | {e['obstacles']} | {cs} | {note} |")
             lines.append("")
+    lines += orca_section(results)
     lines += [DISCUSSION]
     return "\n".join(lines) + "\n"
+
+
+def orca_section(results: dict[str, Any]) -> list[str]:
+    """``vo`` against the outside reference ``orca`` (RVO2's ORCA, the same formation tracking) on the
+    same episodes: the paper scenarios, then the random seeds paired (formation error where both
+    finished collision-free)."""
+    if "orca_paper" not in results:
+        return []
+    lines = [
+        "## Against ORCA",
+        "",
+        "`orca` (`agents/orca.py`) tracks the same led slot with the same pure-pursuit law, but avoids with",
+        "RVO2's ORCA (van den Berg et al. 2011; `pip install 'swarm-env[orca]'`). Same episodes as above:",
+        "",
+        "| scenario | policy | success | collisions | formation error (m) | held after settling | decision time (ms, median) |",
+        "|---|---|---:|---:|---:|---:|---:|",
+    ]
+
+    def held(m: dict[str, Any]) -> str:
+        values = [x.get("hold_fraction") for x in m["settle_times"] if x.get("hold_fraction") is not None]
+        return f"{np.mean(values):.2f}" if values else "–"
+
+    for name in PAPER_SCENARIOS:
+        for label, m in (("`vo`", results["paper"][name]), ("`orca`", results["orca_paper"][name])):
+            lines.append(f"| {name} | {label} | {'yes' if m['success'] else 'no'} | {m['collisions']['total']} | "
+                         f"{m['formation_error']['mean']:.3f} | {held(m)} | "
+                         f"{m['policy_stats']['decision_time_ms']['median']:.2f} |")
+    rnd, orc = (results.get("random") or {}).get("episodes"), results.get("orca_random")
+    if rnd and orc:
+        def summary(eps: list[dict[str, Any]]) -> tuple[int, float, float, float]:
+            free = sum(e["collisions"]["total"] == 0 for e in eps)
+            ferr = float(np.mean([e["formation_error"] for e in eps]))
+            hold = [h for e in eps for h in e.get("hold_fraction", []) if h is not None]
+            dt = float(np.median([e["policy_stats"]["decision_time_ms"]["median"] for e in eps]))
+            return free, ferr, float(np.mean(hold)) if hold else float("nan"), dt
+
+        both = [(a, b) for a, b in zip(rnd, orc) if a["success"] and b["success"]]
+        diff = mean_ci95(a["formation_error"] - b["formation_error"] for a, b in both)
+        (fv, ev, hv, tv), (fo, eo, ho, to) = summary(rnd), summary(orc)
+        lines += [
+            "",
+            f"On the {len(rnd)} random episodes above: `vo` {fv}/{len(rnd)} collision-free, formation error {ev:.3f} m, held "
+            f"{hv:.2f}, {tv:.2f} ms; `orca` {fo}/{len(orc)} collision-free, {eo:.3f} m, held {ho:.2f}, {to:.2f} ms. On the "
+            f"{len(both)} episodes both finished collision-free with the formation settled, `vo` − `orca` formation error "
+            f"is {diff['mean']:+.3f} ± {diff['ci95']:.3f} m (paired, 95 %).",
+        ]
+    lines.append("")
+    return lines
 
 
 METHOD_NOTES = """\

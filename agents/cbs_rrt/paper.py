@@ -243,7 +243,30 @@ def _fmt(x: Any, nd: int = 1) -> str:
     return "never" if x is None else f"{x:.{nd}f}"
 
 
-def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path) -> str:
+def run_reference(spec: str) -> dict[str, Any]:
+    """One episode of another policy on the scenario (``vo``, ``orca``: both deterministic)."""
+    from swarm_env.env import SwarmEnv
+    from swarm_env.policies import load_policy
+
+    env = SwarmEnv(SCENARIO)
+    return run_episode(env, load_policy(spec, env), 0)
+
+
+def reference_lines(refs: dict[str, dict[str, Any]]) -> list[str]:
+    """A sentence per reference policy on the same scenario (collisions, settle, hold, time)."""
+    out = []
+    for spec, m in refs.items():
+        st = m["settle_times"][0] if m["settle_times"] else {}
+        settle, held = st.get("settle_time"), st.get("hold_fraction")
+        out.append(f"`{spec}` on the same scenario (deterministic, one episode): {m['collisions']['total']} collisions, "
+                   f"settled {'never' if settle is None else f'{settle:.1f} s after the switch'}, held "
+                   f"{'–' if held is None else f'{held:.2f}'}, formation error {m['formation_error']['mean']:.3f} m, "
+                   f"decision time {m['policy_stats']['decision_time_ms']['median']:.2f} ms (median).")
+    return out
+
+
+def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path,
+         refs: dict[str, dict[str, Any]] | None = None) -> str:
     rel = out.name
     settles = [r["settle"] for r in rows if r["settle"] is not None]
     lines = [
@@ -326,6 +349,8 @@ def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path) -> s
         f"and held at least 90 % of the remaining time in {sum((r.get('held') or 0.0) >= 0.9 for r in rows)}/{len(rows)}; planning {med('planning_s'):.2f} s per episode (median; paper: 300-360 s), "
         f"per replan {med('ms_median'):.0f} ms median, {med('ms_p95'):.0f} ms p95; the episode (env included) runs "
         f"{med('rtf'):.0f}x faster than real time. Timings were taken on a shared 2-core machine.",
+        "",
+        *(["", *reference_lines(refs)] if refs else []),
         "",
         "### Fig. 2: the swarm adapting to the formation change",
         "",
@@ -428,8 +453,9 @@ def main(argv: list[str] | None = None) -> int:
     fig3 = (n_before, n_after, record.result.nodes_expanded, record.result.low_level_calls, record.wall_time,
             record.result.fallback_used)
     (out / "results.json").write_text(json.dumps(rows, indent=1, default=str))
+    refs = {spec: run_reference(spec) for spec in ("vo", "orca")}
     md = out.parent / f"{out.name}.md"
-    page(rows, out, fig3, md)
+    page(rows, out, fig3, md, refs)
     print(f"wrote {out}/snapshots.png, cbs_before_after.png ({n_before} -> {n_after} conflicts), slot_error.png, {md}")
     return 0
 
