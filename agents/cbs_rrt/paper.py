@@ -258,7 +258,7 @@ def reference_lines(refs: dict[str, dict[str, Any]]) -> list[str]:
     for spec, m in refs.items():
         st = m["settle_times"][0] if m["settle_times"] else {}
         settle, held = st.get("settle_time"), st.get("hold_fraction")
-        out.append(f"`{spec}` on the same scenario (deterministic, one episode): {m['collisions']['total']} collisions, "
+        out.append(f"* `{spec}` on the same scenario (deterministic, one episode): {m['collisions']['total']} collisions, "
                    f"settled {'never' if settle is None else f'{settle:.1f} s after the switch'}, held "
                    f"{'–' if held is None else f'{held:.2f}'}, formation error {m['formation_error']['mean']:.3f} m, "
                    f"decision time {m['policy_stats']['decision_time_ms']['median']:.2f} ms (median).")
@@ -350,7 +350,7 @@ def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path,
         f"per replan {med('ms_median'):.0f} ms median, {med('ms_p95'):.0f} ms p95; the episode (env included) runs "
         f"{med('rtf'):.0f}x faster than real time. Timings were taken on a shared 2-core machine.",
         "",
-        *(["", *reference_lines(refs)] if refs else []),
+        *(["", "For comparison:", "", *reference_lines(refs)] if refs else []),
         "",
         "### Fig. 2: the swarm adapting to the formation change",
         "",
