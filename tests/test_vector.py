@@ -165,3 +165,17 @@ def test_one_lidar_call_for_many_worlds_equals_one_per_world() -> None:
     assert np.array_equal(scan(s.follower_pose, np.zeros(s.n_followers, dtype=np.int64), np.arange(s.n_followers),
                                builder._ray_angles, builder.sensors.lidar_range, PackedMaps.of([s.static]), start, discs),
                           together[: s.n_followers])
+
+
+def test_per_world_calls_reach_the_right_world_in_any_process() -> None:
+    for n_procs in (1, 2):
+        venv = SwarmVectorEnv("random", 3, n_procs=n_procs, max_cycles=9, n_followers=2)
+        venv.reset(seed=5)
+        venv.set_attr("max_cycles", 4, indices=[2])
+        assert venv.get_attr("max_cycles") == [9, 9, 4]
+        assert [s.n_followers for s in venv.call("world_state")] == [2, 2, 2]
+        metrics = venv.call("episode_metrics", indices=[1])
+        assert len(metrics) == 1 and metrics[0]["steps"] == 0
+        with pytest.raises(IndexError, match="out of range"):
+            venv.get_attr("max_cycles", indices=[3])
+        venv.close()
