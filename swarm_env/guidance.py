@@ -1017,126 +1017,157 @@ def vo_select_batch(
     robots that need one are evaluated together. ``fast=False`` tests every
     candidate of every robot in one pass.
     """
-    h_static = float(horizon if horizon_static is None else min(horizon_static, horizon))
-    if not (tau > 0.0 and horizon > 0.0 and h_static > 0.0 and n_arc >= 1):
-        raise ValueError(f"need tau > 0, horizon > 0, n_arc >= 1; got {tau!r}, {horizon!r}, {n_arc!r}")
-    if model not in ("arc", "chord"):
-        raise ValueError(f"model must be 'arc' or 'chord', got {model!r}")
-    poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
-    n = poses.shape[0]
-    theta = poses[:, 2]
-    if isinstance(radius, (float, int)):
-        rad = np.full(n, radius + margin)
-    else:
-        rad = np.asarray(radius, dtype=np.float64).reshape(-1) + margin
-        if rad.shape[0] != n:
-            rad = np.full(n, float(rad[0]))
-    pref = np.asarray(preferred, dtype=np.float64).reshape(n, 2)
-    pv = np.minimum(np.maximum(pref[:, 0], v_min), v_max)
-    pw = np.minimum(np.maximum(pref[:, 1], -omega_max), omega_max)
-    if model == "arc":
-        times, body = _grid_trajectories(
-            float(v_max), float(omega_max), int(n_v), int(n_w), float(v_min), float(tau), float(horizon), int(n_arc)
-        )
-        if n == 1:  # numpy's per-call overhead dominates for one row: plain Python
-            pref_pts = _trajectory_row(float(pv[0]), float(pw[0]), tau, horizon, n_arc, float(theta[0]))[None]
+    return _VOBatch(
+        poses, radius, preferred, discs, disc_vel, static, v_max, omega_max, disc_mask=disc_mask, horizon=horizon,
+        horizon_static=horizon_static, margin=margin, n_v=n_v, n_w=n_w, tau=tau, w_pref=w_pref, w_heading=w_heading,
+        v_min=v_min, goal_heading=goal_heading, side_bias=side_bias, model=model, n_arc=n_arc, escape=escape,
+        allow_still_overlap=allow_still_overlap, velocity=velocity, reciprocal=reciprocal, current=current,
+        w_current=w_current,
+    ).select(fast)
+
+
+class _VOBatch:
+    """One :func:`vo_select_batch` call: the robots, their candidates and the discs each of them
+    keeps (set up once, in ``__init__``), and the tests run on them, each a named method
+    (:meth:`contact_times`, :meth:`escape_turns`, :meth:`evaluate`, ...). :meth:`select` is the
+    selection rule; the arguments are :func:`vo_select_batch`'s."""
+
+    def __init__(self, poses: np.ndarray, radius: float | np.ndarray, preferred: np.ndarray, discs: np.ndarray,
+                 disc_vel: np.ndarray, static: StaticMap | None, v_max: float, omega_max: float, *,
+                 disc_mask: np.ndarray | None, horizon: float, horizon_static: float | None, margin: float, n_v: int,
+                 n_w: int, tau: float, w_pref: float, w_heading: float, v_min: float, goal_heading: np.ndarray | None,
+                 side_bias: float, model: str, n_arc: int, escape: bool, allow_still_overlap: bool,
+                 velocity: np.ndarray | None, reciprocal: np.ndarray | bool, current: np.ndarray | None,
+                 w_current: float) -> None:
+        h_static = float(horizon if horizon_static is None else min(horizon_static, horizon))
+        if not (tau > 0.0 and horizon > 0.0 and h_static > 0.0 and n_arc >= 1):
+            raise ValueError(f"need tau > 0, horizon > 0, n_arc >= 1; got {tau!r}, {horizon!r}, {n_arc!r}")
+        if model not in ("arc", "chord"):
+            raise ValueError(f"model must be 'arc' or 'chord', got {model!r}")
+        self.static, self.v_max, self.omega_max, self.v_min = static, v_max, omega_max, v_min
+        self.horizon, self.h_static, self.tau, self.model = horizon, h_static, tau, model
+        self.n_v, self.n_w, self.w_pref, self.w_heading, self.side_bias = n_v, n_w, w_pref, w_heading, side_bias
+        self.escape, self.allow_still_overlap, self.goal_heading = escape, allow_still_overlap, goal_heading
+        self.current, self.w_current = current, w_current
+        poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
+        self.poses = poses
+        n = self.n = poses.shape[0]
+        theta = self.theta = poses[:, 2]
+        if isinstance(radius, (float, int)):
+            rad = np.full(n, radius + margin)
         else:
-            pref_pts = _world_trajectories(pv, pw, theta, tau, horizon, n_arc)
-    else:
-        times = np.array([0.0, horizon])
-        pref_pts = np.zeros((n, 2, 2))
-        pref_pts[:, 1] = twist_velocities(theta, np.column_stack([pv, pw]), tau) * horizon
-    # No trajectory gets farther than its path length, |v| horizon (cheap, rotation-free bound).
-    ext = max(abs(v_min), abs(v_max)) * horizon
-    vel = None if velocity is None else np.asarray(velocity, dtype=np.float64).reshape(n, 2)
+            rad = np.asarray(radius, dtype=np.float64).reshape(-1) + margin
+            if rad.shape[0] != n:
+                rad = np.full(n, float(rad[0]))
+        self.rad = rad
+        pref = np.asarray(preferred, dtype=np.float64).reshape(n, 2)
+        pv = self.pv = np.minimum(np.maximum(pref[:, 0], v_min), v_max)
+        pw = self.pw = np.minimum(np.maximum(pref[:, 1], -omega_max), omega_max)
+        if model == "arc":
+            self.times, self.body = _grid_trajectories(
+                float(v_max), float(omega_max), int(n_v), int(n_w), float(v_min), float(tau), float(horizon), int(n_arc)
+            )
+            if n == 1:  # numpy's per-call overhead dominates for one row: plain Python
+                self.pref_pts = _trajectory_row(float(pv[0]), float(pw[0]), tau, horizon, n_arc, float(theta[0]))[None]
+            else:
+                self.pref_pts = _world_trajectories(pv, pw, theta, tau, horizon, n_arc)
+        else:
+            self.times = np.array([0.0, horizon])
+            self.pref_pts = np.zeros((n, 2, 2))
+            self.pref_pts[:, 1] = twist_velocities(theta, np.column_stack([pv, pw]), tau) * horizon
+        # No trajectory gets farther than its path length, |v| horizon (cheap, rotation-free bound).
+        ext = self.ext = max(abs(v_min), abs(v_max)) * horizon
+        vel = None if velocity is None else np.asarray(velocity, dtype=np.float64).reshape(n, 2)
 
-    # Moving discs and static circles in one list; each robot keeps those some of its
-    # candidates can meet (and that disc_mask allows).
-    d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
-    dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
-    n_moving = d.shape[0]
-    if static is not None and len(static.circles):
-        sc = static.circles
-        d = np.concatenate([d, sc])
-        dv = np.concatenate([dv, np.zeros((len(sc), 2))])
-    h_disc = np.full(d.shape[0], float(horizon))
-    h_disc[n_moving:] = h_static  # static circles
-    rel = d[None, :, :2] - poses[:, None, :2]  # (N, D, 2)
-    R = d[:, 2] + rad[:, None]  # (N, D)
-    spd_h = np.hypot(dv[:, 0], dv[:, 1]) * horizon
-    recip = None
-    if reciprocal is not False and np.any(reciprocal):
-        recip = np.zeros((n, d.shape[0]), dtype=bool)
-        recip[:, :n_moving] = np.asarray(reciprocal, dtype=bool)
-        own = np.zeros(n) if vel is None else np.hypot(vel[:, 0], vel[:, 1])
-        reach = np.where(recip, 2.0 * ext + own[:, None] * horizon, ext) + spd_h + R
-    else:
-        reach = (ext + spd_h) + R
-    keep = rel[..., 0] ** 2 + rel[..., 1] ** 2 <= reach * reach
-    mask = None
-    if disc_mask is not None:
-        mask = np.ones((n, d.shape[0]), dtype=bool)
-        mask[:, :n_moving] = np.asarray(disc_mask, dtype=bool).reshape(n, n_moving)
-        keep &= mask
-    valid = None  # (N, n_keep) bool where the padded lists hold a real disc; None: no padding
-    if n == 1:
-        kidx = np.flatnonzero(keep[0])
-        n_keep = len(kidx)
-        rel_k, R_k, dv_k, h_k = rel[:, kidx], R[:, kidx], dv[kidx][None], h_disc[kidx][None]
-        recip_k = None if recip is None else recip[:, kidx]
-        moving_k = (kidx < n_moving)[None]
-    else:
-        n_keep = int(keep.sum(axis=1).max(initial=0))
-        # Each robot's kept discs first (in their original order), padded to n_keep.
-        kidx = np.argsort(~keep, axis=1, kind="stable")[:, :n_keep]
-        rows = np.arange(n)[:, None]
-        valid = keep[rows, kidx]
-        rel_k, R_k, dv_k, h_k = rel[rows, kidx], R[rows, kidx], dv[kidx], h_disc[kidx]
-        recip_k = None if recip is None else recip[rows, kidx] & valid
-        moving_k = valid & (kidx < n_moving)
-    if recip_k is not None:
-        # Within the combined radius of a reciprocal disc already (margin included),
-        # reciprocity is dropped: the other robot evidently did not take its half, and
-        # the reciprocal displacement 2 x(t) - v t can pass a move towards it as separating.
-        recip_k = recip_k & (rel_k[..., 0] ** 2 + rel_k[..., 1] ** 2 > R_k * R_k)
-    own_k = np.zeros((n, 2)) if vel is None else vel
-    whole = n == 1  # then every row is robot 0's and the (1, ...) arrays broadcast as they are
+        # Moving discs and static circles in one list; each robot keeps those some of its
+        # candidates can meet (and that disc_mask allows).
+        d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
+        dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
+        n_moving = d.shape[0]
+        if static is not None and len(static.circles):
+            sc = static.circles
+            d = np.concatenate([d, sc])
+            dv = np.concatenate([dv, np.zeros((len(sc), 2))])
+        h_disc = np.full(d.shape[0], float(horizon))
+        h_disc[n_moving:] = h_static  # static circles
+        rel = d[None, :, :2] - poses[:, None, :2]  # (N, D, 2)
+        R = d[:, 2] + rad[:, None]  # (N, D)
+        spd_h = np.hypot(dv[:, 0], dv[:, 1]) * horizon
+        recip = None
+        if reciprocal is not False and np.any(reciprocal):
+            recip = np.zeros((n, d.shape[0]), dtype=bool)
+            recip[:, :n_moving] = np.asarray(reciprocal, dtype=bool)
+            own = np.zeros(n) if vel is None else np.hypot(vel[:, 0], vel[:, 1])
+            reach = np.where(recip, 2.0 * ext + own[:, None] * horizon, ext) + spd_h + R
+        else:
+            reach = (ext + spd_h) + R
+        keep = rel[..., 0] ** 2 + rel[..., 1] ** 2 <= reach * reach
+        if disc_mask is not None:
+            mask = np.ones((n, d.shape[0]), dtype=bool)
+            mask[:, :n_moving] = np.asarray(disc_mask, dtype=bool).reshape(n, n_moving)
+            keep &= mask
+        self.valid = None  # (N, n_keep) bool where the padded lists hold a real disc; None: no padding
+        if n == 1:
+            kidx = np.flatnonzero(keep[0])
+            self.n_keep = len(kidx)
+            self.rel_k, self.R_k, self.dv_k, self.h_k = rel[:, kidx], R[:, kidx], dv[kidx][None], h_disc[kidx][None]
+            recip_k = None if recip is None else recip[:, kidx]
+            self.moving_k = (kidx < n_moving)[None]
+        else:
+            self.n_keep = int(keep.sum(axis=1).max(initial=0))
+            # Each robot's kept discs first (in their original order), padded to n_keep.
+            kidx = np.argsort(~keep, axis=1, kind="stable")[:, :self.n_keep]
+            rows = np.arange(n)[:, None]
+            valid = self.valid = keep[rows, kidx]
+            self.rel_k, self.R_k, self.dv_k, self.h_k = rel[rows, kidx], R[rows, kidx], dv[kidx], h_disc[kidx]
+            recip_k = None if recip is None else recip[rows, kidx] & valid
+            self.moving_k = valid & (kidx < n_moving)
+        if recip_k is not None:
+            # Within the combined radius of a reciprocal disc already (margin included),
+            # reciprocity is dropped: the other robot evidently did not take its half, and
+            # the reciprocal displacement 2 x(t) - v t can pass a move towards it as separating.
+            recip_k = recip_k & (self.rel_k[..., 0] ** 2 + self.rel_k[..., 1] ** 2 > self.R_k * self.R_k)
+        self.recip_k = recip_k
+        self.own_k = np.zeros((n, 2)) if vel is None else vel
+        self.whole = n == 1  # then every row is robot 0's and the (1, ...) arrays broadcast as they are
+        self.poses2 = poses[:, :2]
+        # (circles=True: the escape probes test the static circles with the map; the grid with the discs)
+        self.static_ctx = None if static is None else _static_context(self.poses2, rad, ext, static, circles=True)
 
-    poses2 = poses[:, :2]
-    # (circles=True: the escape probes test the static circles with the map; the grid with the discs)
-    static_ctx = None if static is None else _static_context(poses2, rad, ext, static, circles=True)
-
-    def contact_times(sub: np.ndarray, pts: np.ndarray, per: int) -> np.ndarray:
+    # ------------------------------------------------------------------ tests
+    def contact_times(self, sub: np.ndarray, pts: np.ndarray, per: int) -> np.ndarray:
         """Contact time of trajectory rows ``pts`` ``(len(sub) * per, K+1, 2)``: ``per``
         consecutive rows for each robot of ``sub``."""
-        pc = _pieces(times, pts)
+        pc = _pieces(self.times, pts)
         ttc = np.full(pts.shape[0], np.inf)
         m = len(sub)
         # The robot of each row (None: one robot only, its (1, ...) arrays broadcast as they are).
-        rows = None if whole else (np.full(pts.shape[0], sub[0]) if m == 1 else np.repeat(sub, per))
-        if n_keep:
-            if whole:
-                rc, rl, rR, rdv, rown, rh, rvalid = recip_k, rel_k, R_k, dv_k, own_k, h_k, valid
+        rows = None if self.whole else (np.full(pts.shape[0], sub[0]) if m == 1 else np.repeat(sub, per))
+        if self.n_keep:
+            if self.whole:
+                rc, rl, rR, rdv, rown, rh, rvalid = (self.recip_k, self.rel_k, self.R_k, self.dv_k, self.own_k,
+                                                     self.h_k, self.valid)
             else:
                 r1 = sub if m == 1 else rows  # one robot: its (1, ...) slices broadcast over the rows
-                rc = None if recip_k is None else recip_k[r1]
-                rl, rR, rdv, rown, rh = rel_k[r1], R_k[r1], dv_k[r1], own_k[r1], h_k[r1]
-                rvalid = None if valid is None else valid[r1]
+                rc = None if self.recip_k is None else self.recip_k[r1]
+                rl, rR, rdv, rown, rh = self.rel_k[r1], self.R_k[r1], self.dv_k[r1], self.own_k[r1], self.h_k[r1]
+                rvalid = None if self.valid is None else self.valid[r1]
             if rc is not None and not rc.any():
                 rc = None
-            t = _rows_disc_ttc(pc, rl, rR, rdv, rc, rown, allow_still_overlap)
+            t = _rows_disc_ttc(pc, rl, rR, rdv, rc, rown, self.allow_still_overlap)
             far = t > rh
             if rvalid is not None:
                 far |= ~rvalid
             t[far] = np.inf
             ttc = t.min(axis=1)
-        if static is not None:
-            ts = _rows_static_ttc(poses2, rad, rows, pc, ext, static, circles=False, ctx=static_ctx)
-            ts[ts > h_static] = np.inf
+        if self.static is not None:
+            ts = _rows_static_ttc(self.poses2, self.rad, rows, pc, self.ext, self.static, circles=False,
+                                  ctx=self.static_ctx)
+            ts[ts > self.h_static] = np.inf
             np.minimum(ttc, ts, out=ttc)
         return ttc
 
-    def escape_turns(requests: list) -> list[int]:
+    def escape_turns(self, requests: list) -> list[int]:
         """Turn in place towards the most open direction, for several robots at once.
 
         For each request ``(k, eligible)`` (robot ``k``) pick, among its
@@ -1158,6 +1189,7 @@ def vo_select_batch(
         towards the obstacle (measured: a follower stuck for the rest of an
         episode of paper_cbs_switch at an obstacle between it and its slot).
         """
+        twists, tau, horizon, v_max = self.twists, self.tau, self.horizon, self.v_max
         req_k, req_c = [], []
         for r, (k, eligible) in enumerate(requests):
             stop = np.flatnonzero(eligible & (twists[k, :, 0] <= 0.0))
@@ -1166,92 +1198,90 @@ def vo_select_batch(
         rq = np.concatenate(req_k)
         cand = np.concatenate(req_c)
         ks = robot = np.array([k for k, _ in requests])[rq]
-        hd = theta[robot] + twists[ks, cand, 1] * tau
+        hd = self.theta[robot] + twists[ks, cand, 1] * tau
         cos_h, sin_h = np.cos(hd), np.sin(hd)
         ttc_p = np.full(len(rq), np.inf)
-        if n_keep:
+        if self.n_keep:
             run = v_max * max(horizon - tau, 0.0)
             times3 = np.array([0.0, tau, max(horizon, tau + 1e-9)])
             pts = np.zeros((len(rq), 3, 2))
             pts[:, 2, 0] = run * cos_h
             pts[:, 2, 1] = run * sin_h
-            rows = robot if n > 1 else np.zeros(1, dtype=np.intp)
-            t = _rows_disc_ttc(_pieces(times3, pts), rel_k[rows], R_k[rows], dv_k[rows], None, None, allow_still_overlap)
-            t[(t > h_k[rows]) | ~moving_k[rows]] = np.inf
+            rows = robot if self.n > 1 else np.zeros(1, dtype=np.intp)
+            t = _rows_disc_ttc(_pieces(times3, pts), self.rel_k[rows], self.R_k[rows], self.dv_k[rows], None, None,
+                               self.allow_still_overlap)
+            t[(t > self.h_k[rows]) | ~self.moving_k[rows]] = np.inf
             ttc_p = t.min(axis=1)
-        if static is not None:
+        if self.static is not None:
             t_run = horizon - tau if horizon > 2.0 * tau else horizon
             pts = np.zeros((len(rq), 2, 2))
             pts[:, 1, 0] = v_max * t_run * cos_h
             pts[:, 1, 1] = v_max * t_run * sin_h
             # (the batch's static context: its reach, ext >= v_max t_run, covers the probes)
-            ts = _rows_static_ttc(poses2, rad, None if whole else robot, _pieces(np.array([0.0, t_run]), pts),
-                                  ext, static, circles=True, ctx=static_ctx)
-            ts[ts > h_static] = np.inf
+            ts = _rows_static_ttc(self.poses2, self.rad, None if self.whole else robot,
+                                  _pieces(np.array([0.0, t_run]), pts), self.ext, self.static, circles=True,
+                                  ctx=self.static_ctx)
+            ts[ts > self.h_static] = np.inf
             np.minimum(ttc_p, ts, out=ttc_p)
-        pen = penalty[ks, cand]
+        pen = self.penalty[ks, cand]
         out = []
         for r in range(len(requests)):
             rows_r = np.flatnonzero(rq == r)
             out.append(int(cand[rows_r[np.lexsort((pen[rows_r], -ttc_p[rows_r]))[0]]]))
         return out
 
-    ttc0 = None
-    if fast and goal_heading is None:
-        # The preferred twist has penalty 0, the minimum: where it is safe it is the answer.
-        ttc0 = contact_times(np.arange(n), pref_pts, 1)
-        if np.isinf(ttc0).all():
-            out = np.empty((n, 2))
-            out[:, 0], out[:, 1] = pv, pw
-            ok = np.ones(n, dtype=bool)
-            return VOBatchResult(out, ok, np.ones(n, dtype=np.int64), np.full(n, np.inf), ~ok, ok, ok.copy())
+    # ------------------------------------------------------------------ the candidate grid
+    def _candidates(self) -> None:
+        """Each robot's candidates (its preferred twist first, then the grid), their penalties
+        and penalty order, and the bookkeeping of the passes (``ttc``: nan = not tested)."""
+        n, theta, tau, v_max, omega_max = self.n, self.theta, self.tau, self.v_max, self.omega_max
+        pv, pw = self.pv, self.pw
+        grid = sample_twists(v_max, omega_max, self.n_v, self.n_w, self.v_min)
+        g1 = self.g1 = grid.shape[0] + 1
+        twists = self.twists = np.empty((n, g1, 2))
+        twists[:, 0, 0], twists[:, 0, 1] = pv, pw  # the preferred twist first: it wins ties
+        twists[:, 1:] = grid
+        gh = theta + pw * tau if self.goal_heading is None else np.asarray(self.goal_heading, dtype=np.float64).reshape(n)
+        dv_ = (twists[..., 0] - pv[:, None]) / (v_max if v_max > 0 else 1.0)
+        dw_ = (twists[..., 1] - pw[:, None]) / (omega_max if omega_max > 0 else 1.0)
+        head = np.abs(wrap_angle(theta[:, None] + twists[..., 1] * tau - gh[:, None])) / math.pi
+        penalty = self.w_pref * np.hypot(dv_, dw_) + self.w_heading * head + self.side_bias * np.maximum(dw_, 0.0)
+        if self.w_current and self.current is not None:
+            # Commitment: among the alternatives to the preferred twist, prefer those close to the twist the
+            # robot is driving now, so that an avoidance manoeuvre, once begun, is kept (no left-right flips).
+            cur = np.asarray(self.current, dtype=np.float64).reshape(n, 2)
+            dcv = (twists[..., 0] - cur[:, :1]) / (v_max if v_max > 0 else 1.0)
+            dcw = (twists[..., 1] - cur[:, 1:]) / (omega_max if omega_max > 0 else 1.0)
+            penalty[:, 1:] += self.w_current * np.hypot(dcv, dcw)[:, 1:]
+        self.penalty = penalty
+        self.order = np.argsort(penalty, axis=1, kind="stable")  # stable: ties keep grid order (preferred first)
+        self.pts: np.ndarray | None = None  # (N, g1, K+1, 2) trajectories, built when more than the preferred twists are tested
+        self.ttc = np.full((n, g1), np.nan)  # nan: not tested
+        # Standing candidates (v = 0) all have the same trajectory (none) whatever their turn
+        # rate, hence the same contact time: one of them, (0, 0), is tested with a robot's
+        # second pass and its result copied to the others (the escape rule needs them).
+        self.still = np.flatnonzero((grid[:, 0] == 0.0) & (grid[:, 1] == 0.0)) + 1
+        self.zero = twists[:, :, 0] == 0.0
 
-    grid = sample_twists(v_max, omega_max, n_v, n_w, v_min)
-    g1 = grid.shape[0] + 1
-    twists = np.empty((n, g1, 2))
-    twists[:, 0, 0], twists[:, 0, 1] = pv, pw  # the preferred twist first: it wins ties
-    twists[:, 1:] = grid
-    gh = theta + pw * tau if goal_heading is None else np.asarray(goal_heading, dtype=np.float64).reshape(n)
-    dv_ = (twists[..., 0] - pv[:, None]) / (v_max if v_max > 0 else 1.0)
-    dw_ = (twists[..., 1] - pw[:, None]) / (omega_max if omega_max > 0 else 1.0)
-    head = np.abs(wrap_angle(theta[:, None] + twists[..., 1] * tau - gh[:, None])) / math.pi
-    penalty = w_pref * np.hypot(dv_, dw_) + w_heading * head + side_bias * np.maximum(dw_, 0.0)
-    if w_current and current is not None:
-        # Commitment: among the alternatives to the preferred twist, prefer those close to the twist the
-        # robot is driving now, so that an avoidance manoeuvre, once begun, is kept (no left-right flips).
-        cur = np.asarray(current, dtype=np.float64).reshape(n, 2)
-        dcv = (twists[..., 0] - cur[:, :1]) / (v_max if v_max > 0 else 1.0)
-        dcw = (twists[..., 1] - cur[:, 1:]) / (omega_max if omega_max > 0 else 1.0)
-        penalty[:, 1:] += w_current * np.hypot(dcv, dcw)[:, 1:]
-    pts = None  # (N, g1, K+1, 2) trajectories, built when more than the preferred twists are tested
+    def all_points(self) -> np.ndarray:
+        """``(N, g1, K+1, 2)`` the world-frame trajectory of every candidate of every robot."""
+        n, theta = self.n, self.theta
+        if self.model == "arc":
+            rot = _rotate(self.body, float(theta[0]))[None] if n == 1 else _rotate_each(self.body, theta, True)
+            return np.concatenate([self.pref_pts[:, None], rot], axis=1)
+        mv = twist_velocities(np.repeat(theta, self.g1), self.twists.reshape(-1, 2), self.tau)
+        return np.stack([np.zeros_like(mv), mv * self.horizon], axis=1).reshape(n, self.g1, 2, 2)
 
-    def all_points() -> np.ndarray:
-        if model == "arc":
-            rot = _rotate(body, float(theta[0]))[None] if n == 1 else _rotate_each(body, theta, True)
-            return np.concatenate([pref_pts[:, None], rot], axis=1)
-        mv = twist_velocities(np.repeat(theta, g1), twists.reshape(-1, 2), tau)
-        return np.stack([np.zeros_like(mv), mv * horizon], axis=1).reshape(n, g1, 2, 2)
-
-    ttc = np.full((n, g1), np.nan)  # nan: not tested
-    if ttc0 is not None:
-        ttc[:, 0] = ttc0
-
-    def evaluate(robots: np.ndarray, cols: np.ndarray) -> None:
+    def evaluate(self, robots: np.ndarray, cols: np.ndarray) -> None:
         """Contact times of candidates ``cols`` ``(len(robots), h)`` of ``robots`` into ``ttc``."""
-        nonlocal pts
         h = cols.shape[1]
-        if pts is None:
-            pts = all_points()
+        if self.pts is None:
+            self.pts = self.all_points()
+        pts = self.pts
         rows_pts = pts[robots[:, None], cols].reshape(len(robots) * h, *pts.shape[2:])
-        ttc[robots[:, None], cols] = contact_times(robots, rows_pts, h).reshape(len(robots), h)
+        self.ttc[robots[:, None], cols] = self.contact_times(robots, rows_pts, h).reshape(len(robots), h)
 
-    # Standing candidates (v = 0) all have the same trajectory (none) whatever their turn
-    # rate, hence the same contact time: one of them, (0, 0), is tested with a robot's
-    # second pass and its result copied to the others (the escape rule needs them).
-    still = np.flatnonzero((grid[:, 0] == 0.0) & (grid[:, 1] == 0.0)) + 1
-    zero = twists[:, :, 0] == 0.0
-
-    def evaluate_ranks(robots: np.ndarray, lo: np.ndarray, hi: np.ndarray, extra: np.ndarray | None = None) -> None:
+    def evaluate_ranks(self, robots: np.ndarray, lo: np.ndarray, hi: np.ndarray, extra: np.ndarray | None = None) -> None:
         """Test each robot's candidates of penalty rank ``lo[k] <= rank < hi[k]`` (lists of
         unequal length are padded by repeating their last candidate: tested twice, harmless),
         and the candidates ``extra`` of every robot."""
@@ -1261,88 +1291,106 @@ def vo_select_batch(
             return
         h = int((hi - lo).max())
         ranks = np.minimum(lo[:, None] + np.arange(h), hi[:, None] - 1)
-        cols = order[robots[:, None], ranks]
+        cols = self.order[robots[:, None], ranks]
         if extra is not None and len(extra):
             cols = np.concatenate([cols, np.broadcast_to(extra, (len(robots), len(extra)))], axis=1)
-        evaluate(robots, cols)
+        self.evaluate(robots, cols)
 
-    # Candidates are tested in order of increasing penalty, in passes, and a robot
-    # stops at the first pass that holds a safe candidate: every cheaper one was
-    # tested and is unsafe, so the answer is the one testing the whole grid gives.
-    # Pass 1: each robot's least-penalty candidate (the preferred twist unless a
-    # goal_heading is given: the fast path); pass 2: up to rank _FIRST_STAGE; pass 3: the rest. A
-    # single robot left after pass 1 tests the rest at once (a pass costs more than
-    # the rows it saves). ``fast=False``: the whole grid in one pass.
-    order = np.argsort(penalty, axis=1, kind="stable")  # stable: ties keep grid order (preferred first)
-    everyone = np.arange(n)
-    if not fast:
-        evaluate(everyone, order)
-        done = np.full(n, g1)
-    else:
-        done = np.ones(n, dtype=np.intp)
-        if ttc0 is None:  # (otherwise pass 1, the preferred twists alone, was done above)
-            evaluate_ranks(everyone, np.zeros(n, dtype=np.intp), done)
-        for target in (min(_FIRST_STAGE, g1), g1):
-            tested = np.arange(g1) < done[:, None]
-            pending = everyone[~(np.isinf(np.take_along_axis(ttc, order, axis=1)) & tested).any(axis=1)]
-            if not len(pending):
-                break
-            if len(pending) == 1:
-                target = g1
-            hi = np.full(len(pending), target)
-            evaluate_ranks(pending, done[pending], hi, still if escape and target < g1 else None)
-            done[pending] = np.maximum(done[pending], hi)
-            if target == g1:
-                break
+    # ------------------------------------------------------------------ the rule
+    def select(self, fast: bool) -> VOBatchResult:
+        """The selection of :func:`vo_select_batch` (see its docstring)."""
+        n, pv, pw = self.n, self.pv, self.pw
+        ttc0 = None
+        if fast and self.goal_heading is None:
+            # The preferred twist has penalty 0, the minimum: where it is safe it is the answer.
+            ttc0 = self.contact_times(np.arange(n), self.pref_pts, 1)
+            if np.isinf(ttc0).all():
+                out = np.empty((n, 2))
+                out[:, 0], out[:, 1] = pv, pw
+                ok = np.ones(n, dtype=bool)
+                return VOBatchResult(out, ok, np.ones(n, dtype=np.int64), np.full(n, np.inf), ~ok, ok, ok.copy())
+        self._candidates()
+        g1, ttc, twists, penalty = self.g1, self.ttc, self.twists, self.penalty
+        if ttc0 is not None:
+            ttc[:, 0] = ttc0
 
-    known = zero & ~np.isnan(ttc)
-    if known.any():
-        rows_z = np.flatnonzero(known.any(axis=1))
-        ttc_z = np.where(known[rows_z], ttc[rows_z], -np.inf).max(axis=1)  # (all known ones are equal)
-        ttc[rows_z] = np.where(zero[rows_z], ttc_z[:, None], ttc[rows_z])
-    feasible = np.ones(n, dtype=bool)
-    ttc_out = np.full(n, np.inf)
-    escaped = np.zeros(n, dtype=bool)
-    pref_safe = np.isinf(ttc[:, 0])
-    accepted = pref_safe & (done == 1)
-    safe = np.isinf(ttc)
-    n_safe = np.count_nonzero(safe, axis=1)
-    choice = np.argmin(np.where(safe, penalty, np.inf), axis=1)
-    requests = []  # (k, eligible standing candidates) of the robots that escape
-    chosen_v = twists[everyone, choice, 0]
-    special = (n_safe == 0) | ((chosen_v <= 0.0) & (pv > 0.0)) if escape else n_safe == 0
-    for k in np.flatnonzero(special).tolist():  # rare: resolved robot by robot
-        tw = twists[k]
-        j = choice[k]
-        if n_safe[k]:
-            requests.append((k, None))  # None: its safe candidates (known once all standing ones are tested)
-            continue
-        # lexsort: last key is primary -> largest ttc, then slowest, then least penalty.
-        tt = ttc[k]
-        j = choice[k] = int(np.lexsort((penalty[k], np.abs(tw[:, 0]), -tt))[0])
-        if escape and tw[j, 0] <= 0.0:
-            # Standing still only postpones the contact (something is coming at the
-            # robot): turn in place towards the most open direction, to run next.
-            requests.append((k, (tt == tt[j]) & (tw[:, 0] <= 0.0)))
-    if requests:
-        # The escape rule needs to know which standing candidates are safe: test those not tested yet.
-        ks = np.array([k for k, _ in requests])
-        untested = np.isnan(ttc[ks]) & (twists[ks, :, 0] <= 0.0)
-        if untested.any():
-            cnt = untested.sum(axis=1)
-            h = int(cnt.max())
-            cols = np.argsort(~untested, axis=1, kind="stable")[:, :h]
-            cols = np.where(np.arange(h) < cnt[:, None], cols, cols[:, :1])  # pad: repeat the first
-            has = cnt > 0
-            evaluate(ks[has], cols[has])
-        requests = [(k, np.isinf(ttc[k]) if eligible is None else eligible) for k, eligible in requests]
-        for (k, _), j in zip(requests, escape_turns(requests)):
-            choice[k] = j
-            escaped[k] = True
-    choice = np.asarray(choice)
-    twist_out = twists[everyone, choice]
-    none_safe = n_safe == 0
-    feasible[none_safe] = False
-    ttc_out[none_safe] = ttc[everyone, choice][none_safe]
-    n_safe[accepted] = 1
-    return VOBatchResult(twist_out, feasible, n_safe, ttc_out, escaped, accepted, pref_safe)
+        # Candidates are tested in order of increasing penalty, in passes, and a robot
+        # stops at the first pass that holds a safe candidate: every cheaper one was
+        # tested and is unsafe, so the answer is the one testing the whole grid gives.
+        # Pass 1: each robot's least-penalty candidate (the preferred twist unless a
+        # goal_heading is given: the fast path); pass 2: up to rank _FIRST_STAGE; pass 3: the rest. A
+        # single robot left after pass 1 tests the rest at once (a pass costs more than
+        # the rows it saves). ``fast=False``: the whole grid in one pass.
+        everyone = np.arange(n)
+        if not fast:
+            self.evaluate(everyone, self.order)
+            done = np.full(n, g1)
+        else:
+            done = np.ones(n, dtype=np.intp)
+            if ttc0 is None:  # (otherwise pass 1, the preferred twists alone, was done above)
+                self.evaluate_ranks(everyone, np.zeros(n, dtype=np.intp), done)
+            for target in (min(_FIRST_STAGE, g1), g1):
+                tested = np.arange(g1) < done[:, None]
+                pending = everyone[~(np.isinf(np.take_along_axis(ttc, self.order, axis=1)) & tested).any(axis=1)]
+                if not len(pending):
+                    break
+                if len(pending) == 1:
+                    target = g1
+                hi = np.full(len(pending), target)
+                self.evaluate_ranks(pending, done[pending], hi, self.still if self.escape and target < g1 else None)
+                done[pending] = np.maximum(done[pending], hi)
+                if target == g1:
+                    break
+
+        zero = self.zero
+        known = zero & ~np.isnan(ttc)
+        if known.any():
+            rows_z = np.flatnonzero(known.any(axis=1))
+            ttc_z = np.where(known[rows_z], ttc[rows_z], -np.inf).max(axis=1)  # (all known ones are equal)
+            ttc[rows_z] = np.where(zero[rows_z], ttc_z[:, None], ttc[rows_z])
+        feasible = np.ones(n, dtype=bool)
+        ttc_out = np.full(n, np.inf)
+        escaped = np.zeros(n, dtype=bool)
+        pref_safe = np.isinf(ttc[:, 0])
+        accepted = pref_safe & (done == 1)
+        safe = np.isinf(ttc)
+        n_safe = np.count_nonzero(safe, axis=1)
+        choice = np.argmin(np.where(safe, penalty, np.inf), axis=1)
+        requests = []  # (k, eligible standing candidates) of the robots that escape
+        chosen_v = twists[everyone, choice, 0]
+        special = (n_safe == 0) | ((chosen_v <= 0.0) & (pv > 0.0)) if self.escape else n_safe == 0
+        for k in np.flatnonzero(special).tolist():  # rare: resolved robot by robot
+            tw = twists[k]
+            j = choice[k]
+            if n_safe[k]:
+                requests.append((k, None))  # None: its safe candidates (known once all standing ones are tested)
+                continue
+            # lexsort: last key is primary -> largest ttc, then slowest, then least penalty.
+            tt = ttc[k]
+            j = choice[k] = int(np.lexsort((penalty[k], np.abs(tw[:, 0]), -tt))[0])
+            if self.escape and tw[j, 0] <= 0.0:
+                # Standing still only postpones the contact (something is coming at the
+                # robot): turn in place towards the most open direction, to run next.
+                requests.append((k, (tt == tt[j]) & (tw[:, 0] <= 0.0)))
+        if requests:
+            # The escape rule needs to know which standing candidates are safe: test those not tested yet.
+            ks = np.array([k for k, _ in requests])
+            untested = np.isnan(ttc[ks]) & (twists[ks, :, 0] <= 0.0)
+            if untested.any():
+                cnt = untested.sum(axis=1)
+                h = int(cnt.max())
+                cols = np.argsort(~untested, axis=1, kind="stable")[:, :h]
+                cols = np.where(np.arange(h) < cnt[:, None], cols, cols[:, :1])  # pad: repeat the first
+                has = cnt > 0
+                self.evaluate(ks[has], cols[has])
+            requests = [(k, np.isinf(ttc[k]) if eligible is None else eligible) for k, eligible in requests]
+            for (k, _), j in zip(requests, self.escape_turns(requests)):
+                choice[k] = j
+                escaped[k] = True
+        choice = np.asarray(choice)
+        twist_out = twists[everyone, choice]
+        none_safe = n_safe == 0
+        feasible[none_safe] = False
+        ttc_out[none_safe] = ttc[everyone, choice][none_safe]
+        n_safe[accepted] = 1
+        return VOBatchResult(twist_out, feasible, n_safe, ttc_out, escaped, accepted, pref_safe)
