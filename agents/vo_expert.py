@@ -48,6 +48,7 @@ parameters from the command line (e.g. ``vo:horizon=4,margin=0.1``).
 
 from __future__ import annotations
 
+import inspect
 import math
 import time
 from typing import TYPE_CHECKING, Any
@@ -90,22 +91,12 @@ class VOExpert:
             follower whose slot lay beyond an obstacle alternate for minutes
             between that slow turn and the escape turn (paper_cbs_switch).
 
-    Avoidance (velocity obstacles, Eq. 12; see :func:`swarm_env.guidance.vo_select`):
-        horizon: VO truncation time for moving discs (s). ``horizon_static``:
-            the same for static obstacles and walls (``None``: ``horizon``).
-        margin: safety margin added to every combined radius (m).
-        human_margin: extra margin around humans, who do not avoid robots (m).
-        n_v, n_w: the candidate grid, ``n_v`` speeds in ``[0, max_speed]`` times
-            ``n_w`` turn rates in ``[-max_turn_rate, max_turn_rate]`` (plus the
-            preferred twist, standing still and driving straight).
-        tau: how long a candidate twist is assumed held before driving straight (s).
-        w_pref, w_heading, side_bias: penalty weights (distance to the preferred
-            twist, heading consistency, keep-right tie breaker).
-        reciprocal: avoid the other followers reciprocally (each takes half of
-            the avoidance; they all run this rule). The robot leader and humans
-            are always avoided fully.
-        escape: turn in place towards open space instead of standing still when
-            blocked.
+    Avoidance (velocity obstacles, Eq. 12): any field of
+    :class:`swarm_env.safety.AvoidanceParams` (the search's
+    :class:`~swarm_env.guidance.VOParams` plus ``human_margin`` and ``reciprocal``), e.g.
+    ``horizon``, ``margin``, ``n_v``/``n_w``, ``tau``, ``w_pref``/``w_heading``/``side_bias``,
+    ``escape``, ``w_current``; they are kept in :attr:`avoidance` (and read through:
+    ``expert.horizon``). :meth:`policy_parameters` lists everything ``vo:KEY=VALUE`` accepts.
 
     Raises:
         ValueError: for invalid parameters; from :meth:`reset` when the env uses
@@ -120,37 +111,32 @@ class VOExpert:
         time_gap: float = 0.5,
         feed_forward: bool = True,
         arrive_radius: float = 0.05,
-        horizon: float = 3.0,
-        horizon_static: float | None = None,
-        margin: float = 0.05,
-        human_margin: float = 0.05,
-        n_v: int = 7,
-        n_w: int = 11,
-        tau: float = 1.0,
-        w_pref: float = 1.0,
-        w_heading: float = 0.5,
-        side_bias: float = 0.0,
-        reciprocal: bool = True,
-        escape: bool = True,
         full_turn: bool = True,
-        w_current: float = 0.0,
+        **avoidance: Any,
     ) -> None:
         if not (isinstance(time_gap, (int, float)) and math.isfinite(time_gap) and time_gap > 0):
             raise ValueError(f"time_gap must be a finite number > 0, got {time_gap!r}")
         if not (isinstance(arrive_radius, (int, float)) and math.isfinite(arrive_radius) and arrive_radius >= 0):
             raise ValueError(f"arrive_radius must be a finite number >= 0, got {arrive_radius!r}")
+        unknown = sorted(set(avoidance) - set(AvoidanceParams.names()))
+        if unknown:
+            raise TypeError(f"VOExpert got unknown parameter(s) {unknown}; known: {', '.join(self.policy_parameters())}")
         # The avoidance itself is swarm_env.safety's (shared with the SafetyShield wrapper); it checks its own values.
-        self.avoidance = AvoidanceParams(
-            horizon=horizon, horizon_static=horizon_static, margin=margin, human_margin=human_margin, n_v=int(n_v),
-            n_w=int(n_w), tau=tau, w_pref=w_pref, w_heading=w_heading, side_bias=side_bias,
-            reciprocal=bool(reciprocal), escape=bool(escape), w_current=w_current,
-        )
+        self.avoidance = AvoidanceParams(**avoidance)
         self.time_gap = float(time_gap)
         self.feed_forward = bool(feed_forward)
         self.arrive_radius = float(arrive_radius)
         self.full_turn = bool(full_turn)
         self._index: dict[str, int] = {}
         self._reset_stats()
+
+    @classmethod
+    def policy_parameters(cls) -> dict[str, Any]:
+        """Every parameter and its default: the tracking ones, then :class:`AvoidanceParams`'."""
+        tracking = {p.name: p.default for p in inspect.signature(cls.__init__).parameters.values()
+                    if p.kind is inspect.Parameter.KEYWORD_ONLY}
+        defaults = AvoidanceParams()
+        return {**tracking, **{name: getattr(defaults, name) for name in AvoidanceParams.names()}}
 
     def __getattr__(self, name: str) -> Any:
         """The avoidance parameters read through: ``expert.horizon`` is ``expert.avoidance.horizon``."""

@@ -57,8 +57,9 @@ directions for 1.5 s before leaving.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields, replace
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -803,6 +804,69 @@ class VOBatchResult:
     preferred_safe: np.ndarray
 
 
+@dataclass(frozen=True)
+class VOParams:
+    """The velocity-obstacle search's parameters, one object shared by :func:`vo_select`,
+    :func:`vo_select_batch`, the env's robot leader (the defaults), the ``vo`` expert and the
+    safety layer (:class:`swarm_env.safety.AvoidanceParams`, which adds what is about the
+    followers' world). Units m, s, rad. See :func:`vo_select` for what each does:
+
+    ``horizon`` / ``horizon_static`` (``None``: ``horizon``), ``margin``, the candidate grid
+    ``n_v`` x ``n_w`` from ``v_min``, ``tau``, ``model`` (``"arc"`` or ``"chord"``) with
+    ``n_arc`` chords, the penalty weights ``w_pref``, ``w_heading``, ``side_bias`` and
+    ``w_current`` (commitment to the twist being driven, when a ``current`` twist is given),
+    ``escape``, ``allow_still_overlap`` (:func:`vo_select_batch`) and ``fast``.
+    Raises ``ValueError`` for values out of range.
+    """
+
+    horizon: float = 3.0
+    horizon_static: float | None = None
+    margin: float = 0.05
+    n_v: int = 7
+    n_w: int = 11
+    tau: float = 1.0
+    w_pref: float = 1.0
+    w_heading: float = 0.5
+    v_min: float = 0.0
+    side_bias: float = 0.1
+    model: str = "arc"
+    n_arc: int = 2
+    escape: bool = True
+    allow_still_overlap: bool = False
+    fast: bool = True
+    w_current: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("horizon", "tau"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        for name in ("margin", "w_pref", "w_heading", "side_bias", "w_current"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if self.horizon_static is not None and not self.horizon_static > 0:
+            raise ValueError(f"horizon_static must be > 0 or None, got {self.horizon_static!r}")
+        if int(self.n_v) < 1 or int(self.n_w) < 1 or int(self.n_arc) < 1:
+            raise ValueError(f"n_v, n_w and n_arc must be >= 1, got {self.n_v!r}, {self.n_w!r}, {self.n_arc!r}")
+        if self.model not in ("arc", "chord"):
+            raise ValueError(f"model must be 'arc' or 'chord', got {self.model!r}")
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The parameters' names (the dataclass fields)."""
+        return tuple(f.name for f in fields(cls))
+
+    def with_overrides(self, overrides: dict) -> "VOParams":
+        """A copy with ``overrides`` (parameter names) replaced; ``self`` when there are none."""
+        if not overrides:
+            return self
+        unknown = sorted(set(overrides) - set(self.names()))
+        if unknown:
+            raise TypeError(f"unknown VO parameter(s) {unknown}; known: {', '.join(self.names())}")
+        return replace(self, **overrides)
+
+
 def vo_select(
     pose: np.ndarray,
     radius: float,
@@ -812,29 +876,20 @@ def vo_select(
     static: StaticMap | None,
     v_max: float,
     omega_max: float,
+    params: VOParams | None = None,
     *,
-    horizon: float = 3.0,
-    horizon_static: float | None = None,
-    margin: float = 0.05,
-    n_v: int = 7,
-    n_w: int = 11,
-    tau: float = 1.0,
-    w_pref: float = 1.0,
-    w_heading: float = 0.5,
-    v_min: float = 0.0,
     goal_heading: float | None = None,
-    side_bias: float = 0.1,
-    model: str = "arc",
-    n_arc: int = 2,
-    escape: bool = True,
     velocity: np.ndarray | None = None,
     reciprocal: np.ndarray | bool = False,
-    fast: bool = True,
+    **overrides: Any,
 ) -> VOResult:
     """Choose a safe twist close to ``preferred`` (paper 003 Sec. II-D), for one robot.
 
     The ``N = 1`` case of :func:`vo_select_batch` (one implementation; the
     answer is the same as that robot's row of a batch call).
+
+    ``params`` (:class:`VOParams`, default ``VOParams()``) holds the search's parameters;
+    keyword ``overrides`` replace some of them for this call (``vo_select(..., fast=False)``).
 
     Args:
         pose: ``(3,)`` robot pose. ``radius``: robot radius (m).
@@ -911,23 +966,11 @@ def vo_select(
         static,
         v_max,
         omega_max,
-        horizon=horizon,
-        horizon_static=horizon_static,
-        margin=margin,
-        n_v=n_v,
-        n_w=n_w,
-        tau=tau,
-        w_pref=w_pref,
-        w_heading=w_heading,
-        v_min=v_min,
+        params,
         goal_heading=None if goal_heading is None else np.array([float(goal_heading)]),
-        side_bias=side_bias,
-        model=model,
-        n_arc=n_arc,
-        escape=escape,
         velocity=None if velocity is None else np.asarray(velocity, dtype=np.float64).reshape(1, 2),
         reciprocal=reciprocal,
-        fast=fast,
+        **overrides,
     )
     return VOResult(res.twist[0], bool(res.feasible[0]), int(res.n_safe[0]), float(res.min_time_to_collision[0]))
 
@@ -955,28 +998,14 @@ def vo_select_batch(
     static: StaticMap | None,
     v_max: float,
     omega_max: float,
+    params: VOParams | None = None,
     *,
     disc_mask: np.ndarray | None = None,
-    horizon: float = 3.0,
-    horizon_static: float | None = None,
-    margin: float = 0.05,
-    n_v: int = 7,
-    n_w: int = 11,
-    tau: float = 1.0,
-    w_pref: float = 1.0,
-    w_heading: float = 0.5,
-    v_min: float = 0.0,
     goal_heading: np.ndarray | None = None,
-    side_bias: float = 0.1,
-    model: str = "arc",
-    n_arc: int = 2,
-    escape: bool = True,
-    allow_still_overlap: bool = False,
     velocity: np.ndarray | None = None,
     reciprocal: np.ndarray | bool = False,
-    fast: bool = True,
     current: np.ndarray | None = None,
-    w_current: float = 0.0,
+    **overrides: Any,
 ) -> VOBatchResult:
     """:func:`vo_select` for ``N`` robots in one vectorised pass (same rules, same answers).
 
@@ -995,7 +1024,8 @@ def vo_select_batch(
             reciprocally by each robot (see :func:`vo_select`).
         velocity: ``(N, 2)`` the robots' current world velocities, or ``None``.
         goal_heading: ``(N,)`` or ``None`` (per robot, as in :func:`vo_select`).
-        allow_still_overlap: a disc the robot already overlaps (margin included)
+        current: ``(N, 2)`` the twists the robots drive now (for ``params.w_current``).
+        params, overrides: as for :func:`vo_select`. ``params.allow_still_overlap``: a disc the robot already overlaps (margin included)
             and that does not move relative to it (both standing) is not a
             contact for a candidate that stands still (turning in place
             included) — the gap is not shrinking. By default (the rule of
@@ -1017,13 +1047,9 @@ def vo_select_batch(
     robots that need one are evaluated together. ``fast=False`` tests every
     candidate of every robot in one pass.
     """
-    return _VOBatch(
-        poses, radius, preferred, discs, disc_vel, static, v_max, omega_max, disc_mask=disc_mask, horizon=horizon,
-        horizon_static=horizon_static, margin=margin, n_v=n_v, n_w=n_w, tau=tau, w_pref=w_pref, w_heading=w_heading,
-        v_min=v_min, goal_heading=goal_heading, side_bias=side_bias, model=model, n_arc=n_arc, escape=escape,
-        allow_still_overlap=allow_still_overlap, velocity=velocity, reciprocal=reciprocal, current=current,
-        w_current=w_current,
-    ).select(fast)
+    p = (VOParams() if params is None else params).with_overrides(overrides)
+    return _VOBatch(poses, radius, preferred, discs, disc_vel, static, v_max, omega_max, p, disc_mask=disc_mask,
+                    goal_heading=goal_heading, velocity=velocity, reciprocal=reciprocal, current=current).select(p.fast)
 
 
 class _VOBatch:
@@ -1033,17 +1059,14 @@ class _VOBatch:
     selection rule; the arguments are :func:`vo_select_batch`'s."""
 
     def __init__(self, poses: np.ndarray, radius: float | np.ndarray, preferred: np.ndarray, discs: np.ndarray,
-                 disc_vel: np.ndarray, static: StaticMap | None, v_max: float, omega_max: float, *,
-                 disc_mask: np.ndarray | None, horizon: float, horizon_static: float | None, margin: float, n_v: int,
-                 n_w: int, tau: float, w_pref: float, w_heading: float, v_min: float, goal_heading: np.ndarray | None,
-                 side_bias: float, model: str, n_arc: int, escape: bool, allow_still_overlap: bool,
-                 velocity: np.ndarray | None, reciprocal: np.ndarray | bool, current: np.ndarray | None,
-                 w_current: float) -> None:
-        h_static = float(horizon if horizon_static is None else min(horizon_static, horizon))
-        if not (tau > 0.0 and horizon > 0.0 and h_static > 0.0 and n_arc >= 1):
-            raise ValueError(f"need tau > 0, horizon > 0, n_arc >= 1; got {tau!r}, {horizon!r}, {n_arc!r}")
-        if model not in ("arc", "chord"):
-            raise ValueError(f"model must be 'arc' or 'chord', got {model!r}")
+                 disc_vel: np.ndarray, static: StaticMap | None, v_max: float, omega_max: float, params: VOParams, *,
+                 disc_mask: np.ndarray | None, goal_heading: np.ndarray | None, velocity: np.ndarray | None,
+                 reciprocal: np.ndarray | bool, current: np.ndarray | None) -> None:
+        horizon, tau, n_arc, model, margin, v_min = (params.horizon, params.tau, params.n_arc, params.model,
+                                                     params.margin, params.v_min)
+        h_static = float(horizon if params.horizon_static is None else min(params.horizon_static, horizon))
+        n_v, n_w, w_pref, w_heading, side_bias = params.n_v, params.n_w, params.w_pref, params.w_heading, params.side_bias
+        escape, allow_still_overlap, w_current = params.escape, params.allow_still_overlap, params.w_current
         self.static, self.v_max, self.omega_max, self.v_min = static, v_max, omega_max, v_min
         self.horizon, self.h_static, self.tau, self.model = horizon, h_static, tau, model
         self.n_v, self.n_w, self.w_pref, self.w_heading, self.side_bias = n_v, n_w, w_pref, w_heading, side_bias

@@ -178,12 +178,15 @@ def expert_factory(name: str, cls: type) -> Callable[..., Any]:
 def parse_policy_kwargs(name: str, arg: str | None, cls: type) -> dict[str, Any]:
     """Parse a policy argument ``"key=value,key=value"`` into keyword arguments of ``cls``.
 
-    Each value is converted to the type of the parameter's default in ``cls.__init__``:
-    ``bool`` (true/false/1/0), ``int``, ``float``, a ``None`` default takes a number or
-    ``none``, and a tuple default takes ``;``-separated numbers (``angles=0;12;-12``).
+    The parameters and their defaults are ``cls.policy_parameters()`` if ``cls`` has it (a
+    class whose ``__init__`` forwards ``**kwargs``), else the keyword-only parameters of
+    ``cls.__init__``. Each value is converted to the type of the parameter's default:
+    ``bool`` (true/false/1/0), ``int``, ``float``, ``str``, a ``None`` default takes a number
+    or ``none``, and a tuple default takes ``;``-separated numbers (``angles=0;12;-12``).
     Raises ``ValueError`` naming the policy, the key and what was expected.
     """
-    params = {
+    declared = getattr(cls, "policy_parameters", None)
+    params = dict(declared()) if callable(declared) else {
         p.name: p.default
         for p in inspect.signature(cls.__init__).parameters.values()
         if p.kind is inspect.Parameter.KEYWORD_ONLY
@@ -205,6 +208,8 @@ def parse_policy_kwargs(name: str, arg: str | None, cls: type) -> dict[str, Any]
                 kwargs[key] = int(value)
             elif isinstance(default, tuple):
                 kwargs[key] = tuple(float(v) for v in value.split(";") if v.strip())
+            elif isinstance(default, str):
+                kwargs[key] = value
             elif default is None and value.lower() == "none":
                 kwargs[key] = None
             else:

@@ -13,11 +13,11 @@ learner's action).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 
-from swarm_env.guidance import VOBatchResult, vo_select_batch
+from swarm_env.guidance import VOBatchResult, VOParams, vo_select_batch
 from swarm_env.state import WorldState
 
 __all__ = ["AvoidanceParams", "ShieldResult", "safe_follower_twists", "shield_actions"]
@@ -27,50 +27,25 @@ _INTERVENTION_EPS = 1e-9
 
 
 @dataclass(frozen=True)
-class AvoidanceParams:
-    """Parameters of the VO search (see :func:`swarm_env.guidance.vo_select` for each).
-
-    ``margin`` (m) is added to every combined radius, ``human_margin`` (m) to the humans'
-    radii on top; ``n_v`` x ``n_w`` is the candidate grid (plus the preferred twist,
-    standing still and driving straight); ``horizon`` (s) how far ahead a candidate must
-    be collision-free (``horizon_static`` for the static map, ``None`` = ``horizon``);
-    ``tau`` (s) how long a candidate is assumed held; ``w_pref``, ``w_heading`` and
-    ``side_bias`` weigh the penalty of a candidate (distance to the preferred twist,
-    heading consistency, a keep-right tie breaker); ``reciprocal``: followers avoid each
-    other reciprocally; ``escape``: a blocked follower turns in place towards open space.
+class AvoidanceParams(VOParams):
+    """The followers' VO search: :class:`~swarm_env.guidance.VOParams` (see
+    :func:`swarm_env.guidance.vo_select` for each field) plus what is about their world:
+    ``human_margin`` (m) added to the humans' radii on top of ``margin``, and ``reciprocal``
+    (followers avoid each other reciprocally; the robot leader and the humans are always avoided
+    fully). Defaults differ from the search's in two places: no keep-right bias
+    (``side_bias = 0``), and ``allow_still_overlap`` on (two followers that stopped inside each
+    other's margin may still turn away).
     """
 
-    horizon: float = 3.0
-    horizon_static: float | None = None
-    margin: float = 0.05
     human_margin: float = 0.05
-    n_v: int = 7
-    n_w: int = 11
-    tau: float = 1.0
-    w_pref: float = 1.0
-    w_heading: float = 0.5
     side_bias: float = 0.0
     reciprocal: bool = True
-    escape: bool = True
-    w_current: float = 0.0
+    allow_still_overlap: bool = True
 
     def __post_init__(self) -> None:
-        for name in ("horizon", "tau"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name in ("margin", "human_margin", "w_pref", "w_heading", "side_bias", "w_current"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and np.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        if self.horizon_static is not None and not self.horizon_static > 0:
-            raise ValueError(f"horizon_static must be > 0 or None, got {self.horizon_static!r}")
-        if int(self.n_v) < 1 or int(self.n_w) < 1:
-            raise ValueError(f"n_v and n_w must be >= 1, got {self.n_v!r}, {self.n_w!r}")
-
-    @classmethod
-    def names(cls) -> tuple[str, ...]:
-        return tuple(f.name for f in fields(cls))
+        super().__post_init__()
+        if not (isinstance(self.human_margin, (int, float)) and np.isfinite(self.human_margin) and self.human_margin >= 0):
+            raise ValueError(f"human_margin must be a finite number >= 0, got {self.human_margin!r}")
 
 
 def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: AvoidanceParams = AvoidanceParams()) -> VOBatchResult:
@@ -116,22 +91,11 @@ def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: Avoid
         state.static,
         float(robots.max_speed),
         float(robots.max_turn_rate),
+        params,
         disc_mask=mask,
         reciprocal=recip,
         velocity=state.follower_vel,
-        horizon=params.horizon,
-        horizon_static=params.horizon_static,
-        margin=params.margin,
-        n_v=int(params.n_v),
-        n_w=int(params.n_w),
-        tau=params.tau,
-        w_pref=params.w_pref,
-        w_heading=params.w_heading,
-        side_bias=params.side_bias,
-        escape=params.escape,
-        allow_still_overlap=True,
         current=state.follower_twist,
-        w_current=params.w_current,
     )
 
 

@@ -55,6 +55,8 @@ COLLISION_SLOP = 0.005
 #: The leader's arrival tolerance at the end of its path (m).
 LEADER_GOAL_TOLERANCE = 0.2
 SLOT_MARGIN = formation_lib.SLOT_MARGIN  # re-exported: the slot projection's clearance beyond the radius
+#: The robot leader's velocity-obstacle search (paper 003 Fig. 1): the search's defaults.
+LEADER_VO = guidance.VOParams()
 
 
 # Body property accessors, called directly: pymunk's Body routes every attribute assignment
@@ -469,6 +471,7 @@ class World:
             self.static,
             spec.speed,
             spec.max_turn_rate,
+            LEADER_VO,
         )
         return np.asarray(result.twist, dtype=float)
 

@@ -329,3 +329,30 @@ def test_same_seed_same_actions():
     for x, y in zip(a, b):
         np.testing.assert_array_equal(x, y)
     assert any(not np.array_equal(x, y) for x, y in zip(a, actions(4)))
+
+
+def test_one_parameter_object_for_the_search():
+    """vo_select, vo_select_batch, the safety layer, VOExpert and the robot leader share VOParams."""
+    from swarm_env.guidance import VOParams
+    from swarm_env.safety import AvoidanceParams
+    from swarm_env.world import LEADER_VO
+
+    assert isinstance(AvoidanceParams(), VOParams) and LEADER_VO == VOParams()
+    env = SwarmEnv("paper_vo_0")
+    expert = load_policy("vo:horizon=4,model=chord,human_margin=0.1", env)
+    assert expert.avoidance == AvoidanceParams(horizon=4.0, model="chord", human_margin=0.1)
+    assert expert.horizon == 4.0 and set(AvoidanceParams.names()) <= set(VOExpert.policy_parameters())
+    with pytest.raises(ValueError, match="unknown parameter 'speed'"):
+        load_policy("vo:speed=2", env)
+    with pytest.raises(TypeError, match="unknown parameter"):
+        VOExpert(speed=2.0)
+    with pytest.raises(ValueError, match="model"):
+        VOParams(model="nope")
+    pose = np.array([0.0, 0.0, 0.0])
+    empty = (np.zeros((0, 3)), np.zeros((0, 2)), None, 0.65, 1.0)
+    with pytest.raises(TypeError, match="unknown VO parameter"):
+        vo_select(pose, 0.25, np.array([0.5, 0.0]), *empty, speed=1.0)
+    # A params object and the same values as keyword overrides give the same answer.
+    a = vo_select(pose, 0.25, np.array([0.5, 0.2]), *empty, VOParams(n_v=5, fast=False))
+    b = vo_select(pose, 0.25, np.array([0.5, 0.2]), *empty, n_v=5, fast=False)
+    assert np.array_equal(a.twist, b.twist) and a.n_safe == b.n_safe
