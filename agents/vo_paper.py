@@ -302,6 +302,50 @@ def save_video(seed: int, knobs: dict[str, Any], path: Path, expert_kwargs: dict
     env.close()
 
 
+# ---------------------------------------------------------------------------- scaling
+SCALING_FOLLOWERS = (4, 8, 16, 32)
+
+
+def run_scaling(followers: tuple[int, ...] = SCALING_FOLLOWERS, seeds: range = range(3)) -> list[dict[str, Any]]:
+    """The expert's decision time and collisions as the swarm grows: ``random`` worlds (humans
+    included; the generator's world grows with the team) with each team size, a few seeds."""
+    rows = []
+    for n in followers:
+        for seed in seeds:
+            env = SwarmEnv("random", n_followers=n, n_humans=(0, 3))
+            m = run_episode(env, VOExpert(), seed)
+            rows.append({"followers": n, "seed": seed, "collisions": m["collisions"]["total"],
+                         "formation_error": m["formation_error"]["mean"],
+                         "decision_ms_median": m["policy_stats"]["decision_time_ms"]["median"],
+                         "decision_ms_p95": m["policy_stats"]["decision_time_ms"]["p95"],
+                         "step_ms": 1e3 * m["wall_time"] / max(m["steps"], 1)})
+            env.close()
+    return rows
+
+
+def plot_scaling(rows: list[dict[str, Any]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ns = sorted({r["followers"] for r in rows})
+    med = [float(np.median([r["decision_ms_median"] for r in rows if r["followers"] == n])) for n in ns]
+    step = [float(np.median([r["step_ms"] for r in rows if r["followers"] == n])) for n in ns]
+    fig, ax = plt.subplots(figsize=(5.2, 3.4), dpi=120)
+    ax.plot(ns, med, marker="o", label="vo act() for all followers (median)")
+    ax.plot(ns, step, marker="s", label="env.step (median)")
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xlabel("followers")
+    ax.set_ylabel("ms per control step")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+
+
 # ---------------------------------------------------------------------------- report
 DEFAULT_KNOBS: dict[str, Any] = {"n_followers": (2, 8), "n_humans": (0, 3)}
 
@@ -313,6 +357,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seeds", type=int, default=100, help="random-generator episodes (seeds FIRST..FIRST+N-1)")
     ap.add_argument("--first-seed", type=int, default=0, help="first seed of the random episodes")
     ap.add_argument("--no-videos", action="store_true", help="do not render videos of failing random episodes")
+    ap.add_argument("--no-scaling", dest="scaling", action="store_false",
+                    help="skip the scaling runs (4-32 followers, 3 seeds each)")
     ap.add_argument("--no-orca", dest="orca", action="store_false",
                     help="skip the ORCA reference runs (they need pip install 'swarm-env[orca]')")
     args = ap.parse_args(argv)
@@ -349,6 +395,12 @@ def main(argv: list[str] | None = None) -> int:
         if args.orca:
             results["orca_random"] = run_random(range(args.first_seed, args.first_seed + args.seeds), DEFAULT_KNOBS,
                                                 spec="orca")
+
+    if args.scaling:
+        t0 = time.perf_counter()
+        results["scaling"] = run_scaling()
+        plot_scaling(results["scaling"], out / "scaling.png")
+        print(f"scaling: {len(results['scaling'])} episodes ({time.perf_counter() - t0:.0f} s)", flush=True)
 
     (out / "results.json").write_text(json.dumps(results, indent=1, default=float))
     if args.doc:
@@ -433,8 +485,33 @@ def render_doc(results: dict[str, Any], out: Path, doc: Path) -> str:
                 lines.append(f"| {e['seed']} | {e['followers']} | {e['humans']} | {e['obstacles']} | {cs} | {note} |")
             lines.append("")
     lines += orca_section(results)
+    lines += scaling_section(results, out, doc)
     lines += [DISCUSSION]
     return "\n".join(lines) + "\n"
+
+
+def scaling_section(results: dict[str, Any], out: Path, doc: Path) -> list[str]:
+    """Decision time and collisions against the team size (``run_scaling``)."""
+    rows = results.get("scaling")
+    if not rows:
+        return []
+    lines = [
+        "## Scaling",
+        "",
+        "`random` worlds with 4-32 followers and 0-3 humans (the generator's world grows with the team), seeds",
+        "0-2 each; wall time on the shared 2-core machine this report was made on (`python benchmarks/vo_act.py`",
+        "times `act()` on fixed states, with CPU time):",
+        "",
+        "| followers | collisions (3 episodes) | formation error (m, mean) | act() median / p95 (ms) | env.step (ms) |",
+        "|---:|---:|---:|---:|---:|",
+    ]
+    for n in sorted({r["followers"] for r in rows}):
+        rs = [r for r in rows if r["followers"] == n]
+        lines.append(f"| {n} | {sum(r['collisions'] for r in rs)} | {np.mean([r['formation_error'] for r in rs]):.3f} | "
+                     f"{np.median([r['decision_ms_median'] for r in rs]):.2f} / {np.median([r['decision_ms_p95'] for r in rs]):.2f} | "
+                     f"{np.median([r['step_ms'] for r in rs]):.2f} |")
+    lines += ["", f"![scaling]({_rel(out / 'scaling.png', doc)})", ""]
+    return lines
 
 
 def orca_section(results: dict[str, Any]) -> list[str]:
