@@ -76,3 +76,14 @@ def test_rllib_ppo_trains_and_its_exported_actor_is_the_modules_mean(tmp_path: P
     first = run_episode(env, load_policy(spec, env), 5)
     second = run_episode(env, load_policy(spec, env), 5)
     assert first["formation_error"] == second["formation_error"] and first["steps"] == second["steps"]
+
+
+def test_the_command_line_runs_on_ray(tmp_path: Path, capsys) -> None:
+    from swarm_env.cli import main
+
+    out = tmp_path / "lb"
+    assert main(["evaluate", "--policies", "pursuit", "--scenarios", "paper_vo_90", "--seeds", "0", "--backend", "ray",
+                 "--workers", "2", "--quiet", "--out", str(out)]) == 0
+    assert "| `pursuit` |" in (out / "leaderboard.md").read_text()
+    with pytest.raises(ValueError, match="ray_address needs backend='ray'"):
+        run_leaderboard(["pursuit"], ["paper_vo_90"], [0], progress=False, ray_address="auto")
