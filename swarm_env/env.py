@@ -295,7 +295,7 @@ class SwarmEnv(ParallelEnv):
                 max_humans=len(scn.humans),
                 world_size=scn.world.size,
                 max_time=scn.world.max_time,
-                speed_limit=max([scn.robots.max_speed, scn.leader.speed, *(h.speed for h in scn.humans)]),
+                speed_limit=max([scn.robots.max_speed, scn.leader.speed, *(h.top_speed for h in scn.humans)]),
             )
         cfg = self._random
         return Capacity(
@@ -303,7 +303,7 @@ class SwarmEnv(ParallelEnv):
             max_humans=cfg.n_humans[1],  # type: ignore[index]
             world_size=cfg.resolved_world_size(),
             max_time=cfg.max_time,
-            speed_limit=max(cfg.max_speed, cfg.leader_speed, cfg.human_speed[1]),
+            speed_limit=max(cfg.max_speed, cfg.leader_speed, cfg.top_human_speed()),
         )
 
     # ------------------------------------------------------------------ episode

@@ -63,7 +63,9 @@ from swarm_env.geometry import StaticMap
 from swarm_env.paths import PolylinePath
 from swarm_env.scenario import (
     FORMATION_SHAPES,
+    HUMAN_BEHAVIORS,
     LEADER_KINDS,
+    REACTIVE_SPEED_FACTOR,
     CircleObstacle,
     FormationSpec,
     HumanSpec,
@@ -169,6 +171,8 @@ class RandomScenarioConfig:
         n_humans: number of humans (fewer if their lines do not fit).
         human_speed: range of human walking speeds (m/s).
         human_radius: human disc radius (m).
+        human_behavior: how the humans move, one of :data:`swarm_env.scenario.HUMAN_BEHAVIORS`
+            (``scripted``: along their lines, ignoring robots; ``social_force``: they react).
         shapes: formation shapes to draw from (any of
             :data:`swarm_env.scenario.FORMATION_SHAPES` except ``custom``).
         spacing: range of the formation spacing (m); raised to ``2 * radius + 0.1``.
@@ -193,6 +197,7 @@ class RandomScenarioConfig:
     n_humans: IntRange = (0, 3)
     human_speed: tuple[float, float] = (0.3, 0.6)
     human_radius: float = 0.3
+    human_behavior: str = "scripted"
     shapes: tuple[str, ...] = ("v", "line", "column", "wedge", "diamond", "circle", "grid")
     spacing: tuple[float, float] = (0.9, 1.3)
     angle: tuple[float, float] = (30.0, 60.0)
@@ -227,6 +232,8 @@ class RandomScenarioConfig:
         put(self, "shapes", _names(self.shapes, "shapes", tuple(s for s in FORMATION_SHAPES if s != "custom")))
         if self.leader_kind not in LEADER_KINDS:
             raise ScenarioError(SOURCE, "leader_kind", f"one of {', '.join(LEADER_KINDS)}", self.leader_kind)
+        if self.human_behavior not in HUMAN_BEHAVIORS:
+            raise ScenarioError(SOURCE, "human_behavior", f"one of {', '.join(HUMAN_BEHAVIORS)}", self.human_behavior)
         for name in ("human_radius", "leader_speed", "max_time", "dt", "radius", "max_speed", "max_turn_rate"):
             _positive(getattr(self, name), name)
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or self.substeps < 1:
@@ -238,7 +245,7 @@ class RandomScenarioConfig:
         if not isinstance(self.reward, RewardSpec):
             put(self, "reward", _parse_reward(SOURCE, self.reward))
         # The anti-tunnelling rule of scenario_io, for the fastest humans this config can draw.
-        v_rel = 2.0 * max(self.max_speed, self.leader_speed) + (self.human_speed[1] if self.n_humans[1] else 0.0)
+        v_rel = 2.0 * max(self.max_speed, self.leader_speed) + (self.top_human_speed() if self.n_humans[1] else 0.0)
         r_min = min(self.radius, self.human_radius) if self.n_humans[1] else self.radius
         need = required_substeps(v_rel, r_min, self.dt)
         if self.substeps < need:
@@ -246,6 +253,10 @@ class RandomScenarioConfig:
                 SOURCE, "substeps", f"at least {need} (v_rel * dt / substeps <= r_min, v_rel = {v_rel:g} m/s)", self.substeps
             )
 
+
+    def top_human_speed(self) -> float:
+        """The fastest a human of this config can walk (m/s; a reactive one may exceed its speed)."""
+        return self.human_speed[1] * (REACTIVE_SPEED_FACTOR if self.human_behavior != "scripted" else 1.0)
 
     def resolved_world_size(self) -> tuple[float, float]:
         """``world_size``, with ``"auto"`` resolved: big enough that the widest formation this
@@ -583,7 +594,8 @@ def _draw_humans(
             delay = round(max(0.0, t_meet - before / speed), 1)
             starts.append(a)
             path = ((float(a[0]), float(a[1])), (float(b[0]), float(b[1])))
-            out.append(HumanSpec(path=path, speed=speed, radius=hr, mode="once", start_delay=delay))
+            out.append(HumanSpec(path=path, speed=speed, radius=hr, mode="once", start_delay=delay,
+                                 behavior=cfg.human_behavior))  # type: ignore[arg-type]
             break
     return out
 

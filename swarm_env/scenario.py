@@ -20,6 +20,13 @@ Pose = tuple[float, float, float]
 
 LEADER_KINDS = ("virtual", "robot")
 HUMAN_MODES = ("once", "loop", "pingpong")
+#: How a human moves: ``scripted`` walks its path exactly and ignores everyone (paper 003's
+#: humans); ``social_force`` walks towards its path's waypoints and is pushed away from robots,
+#: other humans and obstacles (Helbing & Molnar 1995; :mod:`swarm_env.humans`).
+HUMAN_BEHAVIORS = ("scripted", "social_force")
+#: A reactive human's speed never exceeds this multiple of its walking ``speed`` (the
+#: anti-tunnelling rule and the observation bounds count with it).
+REACTIVE_SPEED_FACTOR = 1.3
 FORMATION_SHAPES = ("v", "line", "column", "wedge", "diamond", "circle", "grid", "custom")
 
 
@@ -151,7 +158,10 @@ class HumanSpec:
     ``mode``: ``once`` stops at the last waypoint, ``loop`` jumps back along
     the closing segment to the first, ``pingpong`` walks the path back and
     forth. The human stands on the first waypoint for ``start_delay`` seconds.
-    Humans do not react to robots.
+    ``behavior``: ``scripted`` (default) humans do not react to robots; ``social_force``
+    humans head for the same waypoints in the same modes but are pushed away from robots,
+    other humans and obstacles (:mod:`swarm_env.humans`), at most
+    ``REACTIVE_SPEED_FACTOR * speed``.
     """
 
     path: tuple[Point, ...]
@@ -159,6 +169,12 @@ class HumanSpec:
     radius: float = 0.3
     mode: Literal["once", "loop", "pingpong"] = "once"
     start_delay: float = 0.0
+    behavior: Literal["scripted", "social_force"] = "scripted"
+
+    @property
+    def top_speed(self) -> float:
+        """The fastest this human can walk (m/s)."""
+        return self.speed * (REACTIVE_SPEED_FACTOR if self.behavior != "scripted" else 1.0)
 
 
 @dataclass(frozen=True)

@@ -39,8 +39,8 @@ seconds and radians, except the two ``angle`` fields, which are degrees.
       - {type: circle, center: [8, 11], radius: 0.5}
       - {type: rectangle, center: [12, 8], size: [1, 2], angle: 30}
       - {type: polygon, points: [[4, 4], [5, 4], [4.5, 5]]}   # convex, any winding
-    humans:                     # walk kinematically, ignore robots
-      - {path: [[14, 10], [4, 10]], speed: 0.5, radius: 0.3, mode: once, start_delay: 0}
+    humans:                     # walk kinematically: scripted (default) ignore robots, social_force react
+      - {path: [[14, 10], [4, 10]], speed: 0.5, radius: 0.3, mode: once, start_delay: 0, behavior: scripted}
     sensors: {lidar_rays: 16, lidar_range: 5.0, neighbors: 3, humans: 2}
     reward: {formation: 1.0, collision: 5.0, contact: 2.0, clearance: 1.0,
              clearance_margin: 0.2, smoothness: 0.0, progress: 0.0,  # reward v1 defaults
@@ -105,6 +105,7 @@ from swarm_env.formation import formation_offsets, formation_start
 from swarm_env.geometry import StaticMap, convex_ccw
 from swarm_env.scenario import (
     FORMATION_SHAPES,
+    HUMAN_BEHAVIORS,
     HUMAN_MODES,
     LEADER_KINDS,
     CircleObstacle,
@@ -317,6 +318,7 @@ def scenario_to_dict(scn: Scenario) -> dict[str, Any]:
                 "radius": float(h.radius),
                 "mode": h.mode,
                 "start_delay": float(h.start_delay),
+                **({"behavior": h.behavior} if h.behavior != HumanSpec.behavior else {}),
             }
             for h in scn.humans
         ],
@@ -532,8 +534,9 @@ def _parse_human(src: str, value: Any, key: str) -> HumanSpec:
     radius = _number(src, m.get("radius", HumanSpec.radius), f"{key}.radius", positive=True)
     mode = _choice(src, m.get("mode", HumanSpec.mode), f"{key}.mode", HUMAN_MODES)
     delay = _number(src, m.get("start_delay", HumanSpec.start_delay), f"{key}.start_delay", nonnegative=True)
+    behavior = _choice(src, m.get("behavior", HumanSpec.behavior), f"{key}.behavior", HUMAN_BEHAVIORS)
     path = _path(src, m["path"], f"{key}.path")
-    return HumanSpec(path=path, speed=speed, radius=radius, mode=mode, start_delay=delay)
+    return HumanSpec(path=path, speed=speed, radius=radius, mode=mode, start_delay=delay, behavior=behavior)
 
 
 def _parse_sensors(src: str, value: Any) -> SensorSpec:
@@ -619,7 +622,7 @@ def _check_schedule(src: str, scn: Scenario) -> None:
 def _tunnel_terms(scn: Scenario) -> tuple[float, float]:
     """``(v_rel, r_min)`` of the anti-tunnelling rule (see the module docstring)."""
     v_max = max(scn.robots.max_speed, scn.leader.speed)
-    v_human = max((h.speed for h in scn.humans), default=0.0)
+    v_human = max((h.top_speed for h in scn.humans), default=0.0)
     radii = [scn.robots.radius] + [h.radius for h in scn.humans]
     if scn.leader.kind == "robot":
         radii.append(scn.leader.radius)

@@ -314,6 +314,16 @@ class World:
             self._human_bodies.append(body)
         self._human_pos, self._human_vel = hpos, hvel
         self._human_radius = np.array([h.radius for h in scenario.humans], dtype=float)
+        # Reactive humans (behavior: social_force) walk at a velocity chosen once per control step.
+        self._reactive = np.array([j for j, h in enumerate(scenario.humans) if h.behavior != "scripted"], dtype=np.intp)
+        self._walker = None
+        if len(self._reactive):
+            from swarm_env.humans import WaypointWalker
+
+            self._walker = WaypointWalker([scenario.humans[j] for j in self._reactive],
+                                          [self._human_paths[j] for j in self._reactive])
+        self._react_start = hpos[self._reactive].copy()  # their positions at the step's start
+        self._react_vel = np.zeros((len(self._reactive), 2))
 
         # Contact bookkeeping (see the module docstring).
         self._touching: set[tuple[str, int, int]] = set()
@@ -420,16 +430,19 @@ class World:
             self._leader_body.drive[0:2] = self._leader_command().tolist()
         self._touched_step = set(self._touching)
         t0 = self.time
+        if len(self._reactive):
+            self._react_vel = self._reactive_velocities()
+            self._react_start = self._human_pos[self._reactive].copy()
         space_step, sub_dt = self.space.step, self.sub_dt
         for k in range(self.substeps):
             if self._human_bodies:
-                self._move_humans(t0 + k * sub_dt)
+                self._move_humans(t0 + k * sub_dt, k * sub_dt)
             space_step(sub_dt)
 
         self.step_count += 1
         self.time = self.step_count * self.dt  # no accumulated float drift
         if self._human_bodies:
-            self._human_pos, self._human_vel = human_states(self.scenario.humans, self.time, self._human_paths)
+            self._human_pos, self._human_vel = self._human_states(self.time, self.dt)
             for body, p in zip(self._human_bodies, self._human_pos.tolist()):
                 _SET_BODY_POSITION(body, (p[0], p[1]))  # snap to the exact path (kinematic bodies integrate with round-off)
         self._advance_leader()
@@ -441,10 +454,38 @@ class World:
         self._onsets = tuple(Contact(kind, i, j) for kind, i, j in sorted(new))  # type: ignore[arg-type]
         self._touching_step = tuple(Contact(kind, i, j) for kind, i, j in sorted(self._touched_step))  # type: ignore[arg-type]
 
-    def _move_humans(self, t: float) -> None:
+    def _human_states(self, t: float, since_step: float) -> tuple[np.ndarray, np.ndarray]:
+        """Every human's position and velocity at time ``t``, ``since_step`` s into the current
+        control step: scripted humans on their paths, reactive ones at their step velocity."""
+        pos, vel = human_states(self.scenario.humans, t, self._human_paths)
+        if len(self._reactive):
+            pos[self._reactive] = self._react_start + self._react_vel * since_step
+            vel[self._reactive] = self._react_vel
+        return pos, vel
+
+    def _reactive_velocities(self) -> np.ndarray:
+        """The reactive humans' velocities for the coming control step (:mod:`swarm_env.humans`)."""
+        from swarm_env.humans import social_force_velocities
+
+        idx = self._reactive
+        assert self._walker is not None
+        pos = self._human_pos[idx]
+        goals, arrived = self._walker.goals(pos)
+        humans = [self.scenario.humans[j] for j in idx]
+        walking = np.array([self.time >= h.start_delay for h in humans]) & ~arrived
+        robots = [np.column_stack([self.follower_positions(), np.full(self.n, self.scenario.robots.radius)])]
+        if self._leader_body is not None:
+            lp = self._leader_body.position
+            robots.append(np.array([[lp.x, lp.y, self.scenario.leader.radius]]))
+        others = np.concatenate(robots + [np.column_stack([np.delete(self._human_pos, idx, axis=0),
+                                                           np.delete(self._human_radius, idx)])])
+        return social_force_velocities(pos, self._human_vel[idx], self._human_radius[idx],
+                                       np.array([h.speed for h in humans]), goals, walking, others, self.static, self.dt)
+
+    def _move_humans(self, t: float, since_step: float) -> None:
         if not self._human_bodies:
             return
-        pos, vel = human_states(self.scenario.humans, t, self._human_paths)
+        pos, vel = self._human_states(t, since_step)
         for body, p, v in zip(self._human_bodies, pos.tolist(), vel.tolist()):
             _SET_BODY_POSITION(body, (p[0], p[1]))
             _SET_BODY_VELOCITY(body, (v[0], v[1]))

@@ -25,7 +25,7 @@ from swarm_env.scenario_io import (
     start_poses,
 )
 
-BUILTINS = ["corridor", "paper_cbs_switch", "paper_vo_0", "paper_vo_45", "paper_vo_90"]
+BUILTINS = ["corridor", "crowd_reactive", "paper_cbs_switch", "paper_vo_0", "paper_vo_45", "paper_vo_90"]
 
 
 def _minimal() -> dict:
