@@ -265,8 +265,16 @@ def reference_lines(refs: dict[str, dict[str, Any]]) -> list[str]:
     return out
 
 
+def reactive_line(episodes: list[dict[str, Any]]) -> str:
+    """A sentence on the expert with humans that react (``crowd_reactive``, one episode per seed)."""
+    coll = " / ".join(str(m["collisions"]["total"]) for m in episodes)
+    err = " / ".join(f"{m['formation_error']['mean']:.3f}" for m in episodes)
+    return (f"With humans that react (`crowd_reactive`: 4 followers, 5 social-force humans; seeds 0-{len(episodes) - 1}): "
+            f"collisions {coll}, formation error {err} m.")
+
+
 def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path,
-         refs: dict[str, dict[str, Any]] | None = None) -> str:
+         refs: dict[str, dict[str, Any]] | None = None, reactive: list[dict[str, Any]] | None = None) -> str:
     rel = out.name
     settles = [r["settle"] for r in rows if r["settle"] is not None]
     lines = [
@@ -351,6 +359,7 @@ def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path,
         f"{med('rtf'):.0f}x faster than real time. Timings were taken on a shared 2-core machine.",
         "",
         *(["", "For comparison:", "", *reference_lines(refs)] if refs else []),
+        *(["", reactive_line(reactive)] if reactive else []),
         "",
         "### Fig. 2: the swarm adapting to the formation change",
         "",
@@ -454,8 +463,9 @@ def main(argv: list[str] | None = None) -> int:
             record.result.fallback_used)
     (out / "results.json").write_text(json.dumps(rows, indent=1, default=str))
     refs = {spec: run_reference(spec) for spec in ("vo", "orca")}
+    reactive = [run_episode(swarm_env.parallel_env("crowd_reactive"), CBSRRTExpert(), seed) for seed in range(3)]
     md = out.parent / f"{out.name}.md"
-    page(rows, out, fig3, md, refs)
+    page(rows, out, fig3, md, refs, reactive)
     print(f"wrote {out}/snapshots.png, cbs_before_after.png ({n_before} -> {n_after} conflicts), slot_error.png, {md}")
     return 0
 
