@@ -34,15 +34,13 @@ import numpy as np
 from swarm_env.extras import require
 from swarm_env.guidance import pure_pursuit, slot_velocities
 from swarm_env.policies import expert_factory
+from swarm_env.rvo import simulator
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
     from swarm_env.env import SwarmEnv
 
 __all__ = ["ORCAPolicy", "make_policy"]
-
-_CIRCLE_SIDES = 16
-
 
 class ORCAPolicy:
     """Formation tracking with RVO2's ORCA for avoidance (see the module docstring).
@@ -139,11 +137,10 @@ class ORCAPolicy:
         return np.array(rows, dtype=np.float64).reshape(-1, 4)
 
     def _build(self, state: WorldState) -> None:
-        pyrvo = require("pyrvo", "orca", "the orca policy")
         robots = state.scenario.robots
-        dt = float(state.scenario.world.dt)
-        sim = pyrvo.RVOSimulator(dt, self.neighbor_dist, self.max_neighbors, self.horizon, self.horizon_static,
-                                 float(robots.radius) + self.margin, float(robots.max_speed))
+        sim = simulator(state.static, float(state.scenario.world.dt), self.neighbor_dist, self.max_neighbors,
+                        self.horizon, self.horizon_static, float(robots.radius) + self.margin, float(robots.max_speed),
+                        "the orca policy")
         for i in range(state.n_followers):
             sim.add_agent((float(state.follower_pose[i, 0]), float(state.follower_pose[i, 1])))
         if state.leader_is_robot:
@@ -154,18 +151,8 @@ class ORCAPolicy:
             a = sim.add_agent((p[0], p[1]))
             sim.set_agent_radius(a, r + self.margin)
             sim.set_agent_max_speed(a, 1e3)
-        static = state.static
-        for cx, cy, r in static.circles.tolist():  # a circumscribed polygon keeps the agents off the disc
-            rc = r / math.cos(math.pi / _CIRCLE_SIDES)
-            sim.add_obstacle([(cx + rc * math.cos(2 * math.pi * k / _CIRCLE_SIDES),
-                               cy + rc * math.sin(2 * math.pi * k / _CIRCLE_SIDES)) for k in range(_CIRCLE_SIDES)])
-        for poly in static.polygons:  # counter-clockwise, as RVO2 wants obstacles
-            sim.add_obstacle([(float(x), float(y)) for x, y in poly])
-        w, h = static.size  # the walls: the boundary clockwise, so that the inside is free space
-        sim.add_obstacle([(0.0, 0.0), (0.0, h), (w, h), (w, 0.0)])
-        sim.process_obstacles()
         self._sim = sim
-        self._static = static
+        self._static = state.static
 
 
 #: Entry-point factory (``swarm_env.policies`` group, name ``orca``): ``orca[:KEY=VALUE,...]``.

@@ -1,4 +1,4 @@
-"""Humans that react: the social force model (Helbing & Molnar 1995), for ``behavior: social_force``.
+"""Humans that react: ``behavior: social_force`` (Helbing & Molnar 1995) and ``behavior: orca``.
 
 A reactive human walks towards the waypoints of its path in the path's mode (``once``: stop at the
 last; ``loop``: back to the first along the closing segment; ``pingpong``: back and forth), but its
@@ -15,8 +15,14 @@ velocity follows a sum of accelerations instead of the path:
 
 Explicit Euler over one control step, the speed capped at ``REACTIVE_SPEED_FACTOR * speed``. A
 waypoint counts as reached within ``REACH`` m. Pure numpy and no random numbers: deterministic.
-:class:`~swarm_env.world.World` calls :func:`social_force_velocities` once per control step for its
-reactive humans and moves them at that velocity during the substeps.
+
+An ``orca`` human heads for the same waypoints at its speed but lets RVO2's ORCA (the ``orca``
+extra, :mod:`swarm_env.rvo`) choose a collision-free velocity among all the humans and robots
+(:class:`ORCACrowd`); ORCA assumes every agent shares the avoidance, and the robots do not run it:
+the humans take half of what it would take to avoid them.
+
+:class:`~swarm_env.world.World` asks for the reactive humans' velocities once per control step and
+moves them at those velocities during the substeps.
 """
 
 from __future__ import annotations
@@ -37,7 +43,7 @@ REACH = 0.3
 #: The share of the push from bodies ahead that turns into a step to the right.
 SIDESTEP = 0.5
 
-__all__ = ["WaypointWalker", "social_force_velocities"]
+__all__ = ["WaypointWalker", "social_force_velocities", "ORCACrowd"]
 
 
 class WaypointWalker:
@@ -119,3 +125,64 @@ def social_force_velocities(
     norm = np.hypot(new[:, 0], new[:, 1])
     scale = np.where(norm > cap, cap / np.maximum(norm, 1e-12), 1.0)
     return new * scale[:, None]
+
+
+class ORCACrowd:
+    """RVO2 agents for every human (in scenario order) and every robot (followers, then a robot
+    leader); :meth:`velocities` steps the ``orca`` humans. Not picklable (a C++ object): the
+    :class:`~swarm_env.world.World` that owns one drops it when copied and builds a new one."""
+
+    #: ORCA's neighbourhood (m), neighbours, time horizons for agents and obstacles (s).
+    NEIGHBOR_DIST, MAX_NEIGHBORS, HORIZON, HORIZON_STATIC = 5.0, 10, 2.0, 1.0
+
+    def __init__(self, static: StaticMap, dt: float, human_radius: np.ndarray, human_speed: np.ndarray,
+                 robot_radius: np.ndarray) -> None:
+        from swarm_env.rvo import simulator
+
+        self.sim = simulator(static, dt, self.NEIGHBOR_DIST, self.MAX_NEIGHBORS, self.HORIZON, self.HORIZON_STATIC,
+                             0.3, 1.0, "humans with behavior: orca")
+        for r, v in zip(human_radius.tolist(), human_speed.tolist()):
+            a = self.sim.add_agent((0.0, 0.0))
+            self.sim.set_agent_radius(a, r)
+            self.sim.set_agent_max_speed(a, v * REACTIVE_SPEED_FACTOR)
+        for r in robot_radius.tolist():
+            a = self.sim.add_agent((0.0, 0.0))
+            self.sim.set_agent_radius(a, r)
+            self.sim.set_agent_max_speed(a, 1e3)  # robots move as they will; ORCA needs their velocity only
+
+    def velocities(self, human_pos: np.ndarray, human_vel: np.ndarray, robot_pos: np.ndarray, robot_vel: np.ndarray,
+                   controlled: np.ndarray, preferred: np.ndarray) -> np.ndarray:
+        """``(len(controlled), 2)``: ORCA's velocities for the humans ``controlled`` (indices) whose
+        preferred velocities are ``preferred``; everyone else keeps its current velocity."""
+        sim = self.sim
+        pos = np.concatenate([human_pos, robot_pos]).tolist()
+        vel = np.concatenate([human_vel, robot_vel]).tolist()
+        pref = [tuple(v) for v in vel]
+        for k, j in enumerate(controlled.tolist()):
+            pref[j] = (float(preferred[k, 0]), float(preferred[k, 1]))
+        for a, (p, v, w) in enumerate(zip(pos, vel, pref)):
+            sim.set_agent_position(a, (p[0], p[1]))
+            sim.set_agent_velocity(a, (v[0], v[1]))
+            sim.set_agent_pref_velocity(a, w)
+        sim.do_step()
+        return np.array([sim.get_agent_velocity(j).to_tuple() for j in controlled.tolist()], dtype=np.float64).reshape(-1, 2)
+
+
+#: An ``orca`` human walking slower than this share of its preferred speed is blocked: its preferred
+#: velocity turns right by ``BLOCKED_TURN`` radians (ORCA's head-on deadlock with a standing agent).
+BLOCKED_SHARE, BLOCKED_TURN = 0.3, 0.5
+
+
+def preferred_velocities(pos: np.ndarray, vel: np.ndarray, goals: np.ndarray, speed: np.ndarray,
+                         walking: np.ndarray) -> np.ndarray:
+    """``(H, 2)``: straight at each goal at ``speed`` (0 when not ``walking`` or on the goal),
+    turned to the right by ``BLOCKED_TURN`` for a human going much slower than that (blocked)."""
+    to_goal = goals - pos
+    dist = np.hypot(to_goal[:, 0], to_goal[:, 1])
+    unit = np.divide(to_goal, dist[:, None], out=np.zeros_like(to_goal), where=dist[:, None] > 1e-9)
+    want = np.where(walking, np.minimum(speed, dist / 0.5), 0.0)
+    pref = unit * want[:, None]
+    blocked = np.hypot(vel[:, 0], vel[:, 1]) < BLOCKED_SHARE * want
+    c, s = np.cos(-BLOCKED_TURN), np.sin(-BLOCKED_TURN)
+    turned = np.column_stack([c * pref[:, 0] - s * pref[:, 1], s * pref[:, 0] + c * pref[:, 1]])
+    return np.where(blocked[:, None], turned, pref)

@@ -22,8 +22,9 @@ LEADER_KINDS = ("virtual", "robot")
 HUMAN_MODES = ("once", "loop", "pingpong")
 #: How a human moves: ``scripted`` walks its path exactly and ignores everyone (paper 003's
 #: humans); ``social_force`` walks towards its path's waypoints and is pushed away from robots,
-#: other humans and obstacles (Helbing & Molnar 1995; :mod:`swarm_env.humans`).
-HUMAN_BEHAVIORS = ("scripted", "social_force")
+#: other humans and obstacles (Helbing & Molnar 1995); ``orca`` walks towards them avoiding
+#: everyone with RVO2's ORCA (the ``orca`` extra). See :mod:`swarm_env.humans`.
+HUMAN_BEHAVIORS = ("scripted", "social_force", "orca")
 #: A reactive human's speed never exceeds this multiple of its walking ``speed`` (the
 #: anti-tunnelling rule and the observation bounds count with it).
 REACTIVE_SPEED_FACTOR = 1.3
@@ -159,8 +160,8 @@ class HumanSpec:
     the closing segment to the first, ``pingpong`` walks the path back and
     forth. The human stands on the first waypoint for ``start_delay`` seconds.
     ``behavior``: ``scripted`` (default) humans do not react to robots; ``social_force``
-    humans head for the same waypoints in the same modes but are pushed away from robots,
-    other humans and obstacles (:mod:`swarm_env.humans`), at most
+    and ``orca`` humans head for the same waypoints in the same modes but give way to
+    robots, other humans and obstacles (:mod:`swarm_env.humans`), at most
     ``REACTIVE_SPEED_FACTOR * speed``.
     """
 
@@ -169,7 +170,7 @@ class HumanSpec:
     radius: float = 0.3
     mode: Literal["once", "loop", "pingpong"] = "once"
     start_delay: float = 0.0
-    behavior: Literal["scripted", "social_force"] = "scripted"
+    behavior: Literal["scripted", "social_force", "orca"] = "scripted"
 
     @property
     def top_speed(self) -> float:

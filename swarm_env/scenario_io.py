@@ -39,7 +39,7 @@ seconds and radians, except the two ``angle`` fields, which are degrees.
       - {type: circle, center: [8, 11], radius: 0.5}
       - {type: rectangle, center: [12, 8], size: [1, 2], angle: 30}
       - {type: polygon, points: [[4, 4], [5, 4], [4.5, 5]]}   # convex, any winding
-    humans:                     # walk kinematically: scripted (default) ignore robots, social_force react
+    humans:                     # walk kinematically: scripted (default) ignore robots; social_force, orca react
       - {path: [[14, 10], [4, 10]], speed: 0.5, radius: 0.3, mode: once, start_delay: 0, behavior: scripted}
     sensors: {lidar_rays: 16, lidar_range: 5.0, neighbors: 3, humans: 2}
     reward: {formation: 1.0, collision: 5.0, contact: 2.0, clearance: 1.0,

@@ -322,6 +322,7 @@ class World:
 
             self._walker = WaypointWalker([scenario.humans[j] for j in self._reactive],
                                           [self._human_paths[j] for j in self._reactive])
+        self._crowd: Any = None  # swarm_env.humans.ORCACrowd, built at the first step of ``orca`` humans
         self._react_start = hpos[self._reactive].copy()  # their positions at the step's start
         self._react_vel = np.zeros((len(self._reactive), 2))
 
@@ -344,11 +345,12 @@ class World:
         self._follower_radius.flags.writeable = False
         self._human_radius.flags.writeable = False
 
-    # pymunk.batch buffers do not pickle: drop the reader and build a new one for the copy
+    # pymunk.batch buffers (and an RVO2 crowd) do not pickle: drop the reader and build a new one for the copy
     # (and give the copy's robots their fast velocity callbacks, see _install_fast_drive).
     def __getstate__(self) -> dict[str, Any]:
         state = self.__dict__.copy()
         del state["_reader"]
+        state["_crowd"] = None  # RVO2's simulator does not pickle; it is rebuilt at the next step
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -465,7 +467,7 @@ class World:
 
     def _reactive_velocities(self) -> np.ndarray:
         """The reactive humans' velocities for the coming control step (:mod:`swarm_env.humans`)."""
-        from swarm_env.humans import social_force_velocities
+        from swarm_env.humans import ORCACrowd, preferred_velocities, social_force_velocities
 
         idx = self._reactive
         assert self._walker is not None
@@ -473,14 +475,33 @@ class World:
         goals, arrived = self._walker.goals(pos)
         humans = [self.scenario.humans[j] for j in idx]
         walking = np.array([self.time >= h.start_delay for h in humans]) & ~arrived
-        robots = [np.column_stack([self.follower_positions(), np.full(self.n, self.scenario.robots.radius)])]
+        speed = np.array([h.speed for h in humans])
+        robot_pos = [self.follower_positions()]
+        robot_vel = [self.follower_velocities()]
+        robot_r = [np.full(self.n, self.scenario.robots.radius)]
         if self._leader_body is not None:
-            lp = self._leader_body.position
-            robots.append(np.array([[lp.x, lp.y, self.scenario.leader.radius]]))
-        others = np.concatenate(robots + [np.column_stack([np.delete(self._human_pos, idx, axis=0),
-                                                           np.delete(self._human_radius, idx)])])
-        return social_force_velocities(pos, self._human_vel[idx], self._human_radius[idx],
-                                       np.array([h.speed for h in humans]), goals, walking, others, self.static, self.dt)
+            lb = self._leader_body
+            robot_pos.append(np.array([[lb.position.x, lb.position.y]]))
+            robot_vel.append(np.array([[lb.velocity.x, lb.velocity.y]]))
+            robot_r.append(np.array([self.scenario.leader.radius]))
+        rp, rv, rr = np.concatenate(robot_pos), np.concatenate(robot_vel), np.concatenate(robot_r)
+        out = np.zeros((len(idx), 2))
+        social = np.array([h.behavior == "social_force" for h in humans])
+        if social.any():
+            sf = idx[social]
+            others = np.concatenate([np.column_stack([rp, rr]),
+                                     np.column_stack([np.delete(self._human_pos, sf, axis=0), np.delete(self._human_radius, sf)])])
+            out[social] = social_force_velocities(pos[social], self._human_vel[sf], self._human_radius[sf], speed[social],
+                                                  goals[social], walking[social], others, self.static, self.dt)
+        if not social.all():
+            orca = ~social
+            if self._crowd is None:
+                speeds = np.array([h.speed for h in self.scenario.humans])
+                self._crowd = ORCACrowd(self.static, self.dt, self._human_radius, speeds, rr)
+            out[orca] = self._crowd.velocities(self._human_pos, self._human_vel, rp, rv, idx[orca],
+                                               preferred_velocities(pos[orca], self._human_vel[idx[orca]], goals[orca],
+                                                                    speed[orca], walking[orca]))
+        return out
 
     def _move_humans(self, t: float, since_step: float) -> None:
         if not self._human_bodies:
