@@ -396,9 +396,10 @@ def main(argv: list[str] | None = None) -> int:
         if args.orca:
             results["orca_random"] = run_random(range(args.first_seed, args.first_seed + args.seeds), DEFAULT_KNOBS,
                                                 spec="orca")
-        if args.reactive:  # the same worlds with humans that react (social force)
-            results["reactive_random"] = run_random(range(args.first_seed, args.first_seed + args.seeds),
-                                                    {**DEFAULT_KNOBS, "human_behavior": "social_force"})
+        if args.reactive:  # the same worlds with humans that react
+            for behavior in REACTIVE_BEHAVIORS:
+                results[f"reactive_random_{behavior}"] = run_random(range(args.first_seed, args.first_seed + args.seeds),
+                                                                    {**DEFAULT_KNOBS, "human_behavior": behavior})
 
     if args.scaling:
         t0 = time.perf_counter()
@@ -495,26 +496,35 @@ def render_doc(results: dict[str, Any], out: Path, doc: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: The reactive human behaviours the report replays the random worlds with.
+REACTIVE_BEHAVIORS = ("social_force", "orca")
+
+
 def reactive_section(results: dict[str, Any]) -> list[str]:
-    """The random episodes again, with humans that react (``human_behavior="social_force"``)."""
-    eps = results.get("reactive_random")
-    if not eps:
+    """The random episodes again, with humans that react (``human_behavior``)."""
+    runs = {b: results[f"reactive_random_{b}"] for b in REACTIVE_BEHAVIORS if results.get(f"reactive_random_{b}")}
+    if not runs:
         return []
-    n = len(eps)
-    free = sum(e["collisions"]["total"] == 0 for e in eps)
-    kinds = {k: sum(e["collisions"][k] for e in eps) for k in ("robot_robot", "robot_obstacle", "robot_human", "robot_wall")}
-    fails = [e["seed"] for e in eps if e["collisions"]["total"]]
-    return [
+    lines = [
         "## With humans that react",
         "",
-        f"The same {n} random worlds with `human_behavior=\"social_force\"` (`swarm_env.humans`: the humans head for",
-        "the same waypoints but give way to robots, each other and obstacles, keeping right):",
-        f"**{free}/{n} collision-free**; contact onsets robot–robot {kinds['robot_robot']}, robot–obstacle "
-        f"{kinds['robot_obstacle']}, robot–human {kinds['robot_human']}, robot–wall {kinds['robot_wall']}; formation "
-        f"error per episode median {np.median([e['formation_error'] for e in eps]):.3f} m"
-        + (f"; failing seeds {', '.join(map(str, fails))} (not analysed)." if fails else "."),
+        "The same random worlds with `human_behavior` set (`swarm_env.humans`: the humans head for the same",
+        "waypoints but give way to robots, each other and obstacles; `social_force`: Helbing & Molnar's model",
+        "with a keep-right share; `orca`: RVO2's ORCA):",
         "",
     ]
+    for behavior, eps in runs.items():
+        n = len(eps)
+        free = sum(e["collisions"]["total"] == 0 for e in eps)
+        kinds = {k: sum(e["collisions"][k] for e in eps) for k in ("robot_robot", "robot_obstacle", "robot_human", "robot_wall")}
+        fails = [e["seed"] for e in eps if e["collisions"]["total"]]
+        lines.append(
+            f"* `{behavior}`: **{free}/{n} collision-free**; contact onsets robot–robot {kinds['robot_robot']}, "
+            f"robot–obstacle {kinds['robot_obstacle']}, robot–human {kinds['robot_human']}, robot–wall {kinds['robot_wall']}; "
+            f"formation error per episode median {np.median([e['formation_error'] for e in eps]):.3f} m"
+            + (f"; failing seeds {', '.join(map(str, fails))} (not analysed)." if fails else "."))
+    lines.append("")
+    return lines
 
 
 def scaling_section(results: dict[str, Any], out: Path, doc: Path) -> list[str]:
