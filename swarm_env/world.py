@@ -8,8 +8,9 @@
   rate-limited (optional acceleration limits), the body's velocity is set along
   its heading and the solver resolves contacts, so robots push each other and
   never overlap obstacles or walls;
-* humans are kinematic discs that follow their paths exactly (they push robots
-  and do not react);
+* humans are kinematic discs that push robots: ``scripted`` ones follow their paths
+  exactly and do not react; reactive ones (``social_force``, ``orca``) walk at a velocity
+  chosen once per control step by :mod:`swarm_env.humans`;
 * obstacles and the four walls are static shapes;
 * a ``virtual`` leader is not in the space at all (it collides with nothing).
 
@@ -314,7 +315,7 @@ class World:
             self._human_bodies.append(body)
         self._human_pos, self._human_vel = hpos, hvel
         self._human_radius = np.array([h.radius for h in scenario.humans], dtype=float)
-        # Reactive humans (behavior: social_force) walk at a velocity chosen once per control step.
+        # Reactive humans (behavior social_force or orca) walk at a velocity chosen once per control step.
         self._reactive = np.array([j for j, h in enumerate(scenario.humans) if h.behavior != "scripted"], dtype=np.intp)
         self._walker = None
         if len(self._reactive):
