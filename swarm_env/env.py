@@ -183,10 +183,10 @@ class SwarmEnv(ParallelEnv):
 
     ## Version history
 
-    * v1, later additions that leave the defaults' episodes unchanged: humans that react
-      (``behavior: social_force | orca`` per human, ``human_behavior`` for ``random``;
-      :mod:`swarm_env.humans`); the lidar computed by a compiled kernel (distances differ
-      from the first v1 release's in the last bits).
+    * v1, later additions: humans that react, opt in (``behavior: social_force | orca`` per
+      human, ``human_behavior`` for ``random``; :mod:`swarm_env.humans`; scripted humans move
+      as before); the lidar computed by a compiled kernel (its distances, so the observations,
+      differ from the first v1 release's in the last bits).
     * v1: fixed teams (``random`` draws its team size once per instance, default
       4 followers); reset infos with the step infos' keys; public
       ``max_steps``; reward v1 (every contact step charged, by kind; clearance
