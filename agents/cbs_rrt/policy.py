@@ -532,14 +532,19 @@ class CBSRRTExpert:
 
     def _movers(self, state: WorldState, gw: GoalWindow) -> list[Constraint]:
         """Moving discs every robot keeps clear of over the whole planning window: the humans
-        (their motion is a known function of time, :func:`swarm_env.paths.human_states`; they
-        do not give way, so plans keep out of their way well ahead) and a robot leader (its
-        predicted course; it also dodges, hence a wider margin). Paper 000 has neither."""
+        (a scripted human's motion is a known function of time, :func:`swarm_env.paths.human_states`,
+        and it does not give way, so plans keep out of its way well ahead; a reactive one is
+        predicted at its current velocity, as the VO does) and a robot leader (its predicted
+        course; it also dodges, hence a wider margin). Paper 000 has neither."""
         scn = state.scenario
         out: list[Constraint] = []
         if scn.humans:
             ts = gw.t[::2] if len(gw.t) > 2 else gw.t
             pos = np.stack([human_states(scn.humans, float(t))[0] for t in ts])  # (K, H, 2)
+            reactive = [h for h, spec in enumerate(scn.humans) if spec.behavior != "scripted"]
+            if reactive:  # constant velocity from now (their paths say where they head, not where they go)
+                ahead = (np.asarray(ts, dtype=np.float64) - state.time)[:, None, None]
+                pos[:, reactive] = state.human_pos[reactive][None] + state.human_vel[reactive][None] * ahead
             for h, spec in enumerate(scn.humans):
                 out.append(Constraint(-1, ts, pos[:, h], self._radius + spec.radius + self.robot_margin))
         if state.leader_is_robot:
