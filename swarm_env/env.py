@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import os
 import time
@@ -476,11 +477,7 @@ class SwarmEnv(ParallelEnv):
         return primitive_table(float(self._speed[1]))[k]
 
     def _clip_actions(self, out: np.ndarray) -> np.ndarray:
-        if np.abs(out).max(initial=0.0) > 1.0:
-            if not self._warned_clip:
-                warnings.warn("actions outside [-1, 1] are clipped to the action space", stacklevel=4)
-                self._warned_clip = True
-            np.clip(out, -1.0, 1.0, out=out)
+        self._warned_clip = clip_to_action_space(out, self._warned_clip, stacklevel=5)
         return out
 
     # ------------------------------------------------------------------ extras
@@ -537,6 +534,19 @@ class SwarmEnv(ParallelEnv):
             self._renderer = None
 
 
+def clip_to_action_space(actions: np.ndarray, warned: bool, stacklevel: int) -> bool:
+    """Clip normalised ``actions`` to ``[-1, 1]`` in place, warning the first time (``warned``
+    False) that something was clipped. Returns whether the warning has been given now. The rule of
+    :meth:`SwarmEnv.step` and of the batched engine (:mod:`swarm_env.vector`)."""
+    if np.abs(actions).max(initial=0.0) > 1.0:
+        if not warned:
+            warnings.warn("actions outside [-1, 1] are clipped to the action space", stacklevel=stacklevel)
+            warned = True
+        np.clip(actions, -1.0, 1.0, out=actions)
+    return warned
+
+
+@functools.lru_cache(maxsize=32)
 def primitive_table(max_turn_rate: float) -> np.ndarray:
     """``(10, 2)`` normalised ``(v, omega)`` of each discrete action: 0 stops; ``k > 0`` drives at
     full speed turning by ``PRIMITIVE_ANGLES_DEG[k - 1]`` over one primitive duration
@@ -545,6 +555,7 @@ def primitive_table(max_turn_rate: float) -> np.ndarray:
     out = np.zeros((1 + len(PRIMITIVE_ANGLES_DEG), 2))
     for k, angle in enumerate(PRIMITIVE_ANGLES_DEG, 1):
         out[k] = (1.0, math.radians(angle) / duration / max_turn_rate)
+    out.flags.writeable = False  # cached: shared by every caller
     return out
 
 

@@ -45,7 +45,6 @@ import os
 import subprocess
 import sys
 import time
-import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, Listener
@@ -54,7 +53,7 @@ from typing import Any
 import gymnasium
 import numpy as np
 
-from swarm_env.env import _INFO_KEYS, StepOutcome, SwarmEnv, info_columns, primitive_table
+from swarm_env.env import _INFO_KEYS, StepOutcome, SwarmEnv, clip_to_action_space, info_columns, primitive_table
 from swarm_env.geometry import StaticMap
 from swarm_env.observations import lidar_input
 from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS
@@ -457,11 +456,7 @@ class SwarmVectorEnv:
         if not np.isfinite(a).all():
             bad = np.argwhere(~np.isfinite(a))[0]
             raise ValueError(f"actions must be finite: world {bad[0]}, follower {bad[1]} has {a[bad[0], bad[1]].tolist()}")
-        if np.abs(a).max() > 1.0:
-            if not self._warned_clip:
-                warnings.warn("actions outside [-1, 1] are clipped to the action space", stacklevel=3)
-                self._warned_clip = True
-            np.clip(a, -1.0, 1.0, out=a)
+        self._warned_clip = clip_to_action_space(a, self._warned_clip, stacklevel=4)
         return a
 
     # ------------------------------------------------------------------ extras
