@@ -899,26 +899,12 @@ def vo_select(
         discs: ``(D, 3)`` ``x, y, radius`` of moving discs (other robots, humans);
             ``(0, 3)`` for none. ``disc_vel``: ``(D, 2)`` their world velocities.
         static: static obstacles and walls, or ``None``.
-        v_max, omega_max: limits; candidates are :func:`sample_twists`
+        v_max: speed limit (m/s); candidates are :func:`sample_twists`
             ``(v_max, omega_max, n_v, n_w, v_min)`` plus the preferred twist.
-        horizon: VO truncation time (s) for moving discs. ``horizon_static``: the
-            same for static obstacles and walls (``None``: ``horizon``; RVO2 keeps a
-            separate, usually shorter, obstacle horizon — measured here, 1.5 s gave
-            more contacts than 3 s in random crowds, so the default is equal).
-            ``margin``: added to every combined radius.
-        tau: how long a candidate twist is assumed held (s). ``model="arc"``: the
-            candidate is tested on its predicted trajectory — the arc for ``tau``
-            (``n_arc`` chords), then straight on at ``v`` (:func:`twist_trajectories`).
-            ``model="chord"``: on the straight line of its mean velocity over ``tau``
-            (:func:`twist_velocities`), the textbook reduction; see the module
-            docstring for why ``arc`` and ``tau = 1`` are the defaults.
-        w_pref, w_heading: penalty weights (below). ``side_bias``: extra penalty
-            per unit of normalised turn to the left of the preferred twist — a
-            keep-right convention, so two robots meeting mirror-symmetrically do
-            not pick mirror-image (colliding) detours.
+        omega_max: turn-rate limit (rad/s).
+        params: the search's parameters (below); ``None``: ``VOParams()``.
         goal_heading: world direction the robot should head to (e.g. towards its
             target). ``None``: the heading the preferred twist reaches after ``tau``.
-        escape: turn towards open space instead of standing still (see below).
         velocity: ``(2,)`` the robot's current world velocity (for ``reciprocal``).
         reciprocal: ``(D,)`` bool (or one bool for all): discs that are robots
             running this same rule; they are avoided reciprocally, each robot
@@ -928,10 +914,30 @@ def vo_select(
             avoided plainly: the other robot evidently did not take its half,
             and the reciprocal displacement can pass a move towards it as
             separating (measured: two followers squeezed into contact in a jam).
-        fast: test the preferred twist alone first and return it if it is safe
-            (with ``goal_heading=None`` it has the least penalty, so the answer
-            is the same; ``n_safe`` is then reported as 1). ``False`` always
-            evaluates the whole grid (exact ``n_safe``).
+        **overrides: :class:`VOParams` fields replaced for this call.
+
+    The parameters (:class:`VOParams` fields):
+
+    * ``horizon``: VO truncation time (s) for moving discs. ``horizon_static``: the
+      same for static obstacles and walls (``None``: ``horizon``; RVO2 keeps a
+      separate, usually shorter, obstacle horizon — measured here, 1.5 s gave
+      more contacts than 3 s in random crowds, so the default is equal).
+      ``margin``: added to every combined radius.
+    * ``tau``: how long a candidate twist is assumed held (s). ``model="arc"``: the
+      candidate is tested on its predicted trajectory — the arc for ``tau``
+      (``n_arc`` chords), then straight on at ``v`` (:func:`twist_trajectories`).
+      ``model="chord"``: on the straight line of its mean velocity over ``tau``
+      (:func:`twist_velocities`), the textbook reduction; see the module
+      docstring for why ``arc`` and ``tau = 1`` are the defaults.
+    * ``w_pref``, ``w_heading``: penalty weights (below). ``side_bias``: extra penalty
+      per unit of normalised turn to the left of the preferred twist — a
+      keep-right convention, so two robots meeting mirror-symmetrically do
+      not pick mirror-image (colliding) detours.
+    * ``escape``: turn towards open space instead of standing still (see below).
+    * ``fast``: test the preferred twist alone first and return it if it is safe
+      (with ``goal_heading=None`` it has the least penalty, so the answer
+      is the same; ``n_safe`` is then reported as 1). ``False`` always
+      evaluates the whole grid (exact ``n_safe``).
 
     Penalty of a candidate ``(v, w)``: ``w_pref * hypot((v - v_p) / v_max,
     (w - w_p) / omega_max)`` + ``w_heading * |wrap(theta + w tau - goal_heading)| / pi``
@@ -1025,17 +1031,20 @@ def vo_select_batch(
         velocity: ``(N, 2)`` the robots' current world velocities, or ``None``.
         goal_heading: ``(N,)`` or ``None`` (per robot, as in :func:`vo_select`).
         current: ``(N, 2)`` the twists the robots drive now (for ``params.w_current``).
-        params, overrides: as for :func:`vo_select`. ``params.allow_still_overlap``: a disc the robot already overlaps (margin included)
-            and that does not move relative to it (both standing) is not a
-            contact for a candidate that stands still (turning in place
-            included) — the gap is not shrinking. By default (the rule of
-            :func:`vo_select`) every candidate is then "in contact at t = 0"
-            but those moving away, and two robots that came to a stop face to
-            face inside each other's margin stay there for good (measured:
-            near-symmetric crossings of two followers). With this option they
-            may turn in place, and the escape probe rates the directions away
-            from each other as open.
-        The other arguments are :func:`vo_select`'s, shared by all robots.
+        params: as for :func:`vo_select`; see ``allow_still_overlap`` below.
+        **overrides: as for :func:`vo_select`.
+
+    The other arguments are :func:`vo_select`'s, shared by all robots.
+    ``params.allow_still_overlap``: a disc the robot already overlaps (margin included)
+    and that does not move relative to it (both standing) is not a
+    contact for a candidate that stands still (turning in place
+    included) — the gap is not shrinking. By default (the rule of
+    :func:`vo_select`) every candidate is then "in contact at t = 0"
+    but those moving away, and two robots that came to a stop face to
+    face inside each other's margin stay there for good (measured:
+    near-symmetric crossings of two followers). With this option they
+    may turn in place, and the escape probe rates the directions away
+    from each other as open.
 
     With ``fast`` each robot tests its candidates in order of increasing
     penalty, in passes shared by all robots, and stops at the first pass that
