@@ -169,7 +169,6 @@ class VOExpert:
         self._infeasible += int(np.count_nonzero(~feasible))
         self._escapes += int(np.count_nonzero(escaped))
         self._follower_steps += len(feasible)
-        self._observe_clearance(state)
         return out
 
     def twists(self, state: WorldState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -211,42 +210,6 @@ class VOExpert:
         self._infeasible = 0
         self._escapes = 0
         self._follower_steps = 0
-        self._min_clear = math.inf
-        self._static_lb: np.ndarray | None = None  # per follower: a lower bound of its static clearance
-        self._last_pos: np.ndarray | None = None
-
-    def _observe_clearance(self, state: WorldState) -> None:
-        """Running minimum of the surface gap between a follower and anything else
-        (other robots, humans, static obstacles, walls) in the states the policy saw."""
-        pos = state.follower_pose[:, :2]
-        r = state.follower_radius
-        n = len(pos)
-        if not n:
-            return
-        m = self._min_clear
-        if n > 1:
-            # follower_distances() is computed once per snapshot and shared with the metrics.
-            gap = state.follower_distances() - r[:, None] - r[None, :]
-            m = min(m, float(gap[np.triu_indices(n, 1)].min()))
-        if state.leader_is_robot:
-            d = pos - state.leader_pose[:2]
-            m = min(m, float((np.sqrt((d * d).sum(axis=1)) - r).min()) - state.leader_radius)
-        if len(state.human_pos):
-            d = pos[:, None, :] - state.human_pos[None, :, :]
-            m = min(m, float((np.sqrt((d * d).sum(axis=2)) - r[:, None] - state.human_radius).min()))
-        # The static clearance changes by at most the distance moved (it is 1-Lipschitz):
-        # carry a lower bound per follower and compute it exactly only when that bound
-        # could beat the running minimum (the trick of swarm_env.metrics).
-        lb = self._static_lb
-        if lb is not None and self._last_pos is not None and len(lb) == n:
-            d = pos - self._last_pos
-            lb = lb - np.sqrt((d * d).sum(axis=1)) - 1e-9
-        if lb is None or len(lb) != n or (lb - r).min() < m:
-            lb = state.static.distance(pos)
-            m = min(m, float((lb - r).min()))
-        self._static_lb = lb
-        self._last_pos = pos
-        self._min_clear = m
 
     def stats(self) -> dict[str, Any]:
         """Telemetry of the current episode (lands under ``policy_stats`` in the metrics JSON).
@@ -255,10 +218,10 @@ class VOExpert:
           call for all followers (ms), and ``calls``;
         * ``infeasible_events``: follower-steps in which no candidate was safe
           (``infeasible_rate`` per follower-step);
-        * ``escape_turns``: follower-steps turned in place towards open space;
-        * ``min_clearance``: the smallest surface gap (m) between a follower and
-          another robot, a human, an obstacle or a wall in the states seen
-          (``null`` before the first ``act``).
+        * ``escape_turns``: follower-steps turned in place towards open space.
+
+        (The clearances the policy kept are the env's to measure, on every step:
+        ``min_separation`` and ``min_clearance`` of ``episode_metrics()``.)
         """
         t = np.array(self._times) * 1e3
         timing = (
@@ -278,7 +241,6 @@ class VOExpert:
             "infeasible_events": self._infeasible,
             "infeasible_rate": self._infeasible / steps,
             "escape_turns": self._escapes,
-            "min_clearance": self._min_clear if math.isfinite(self._min_clear) else None,
         }
 
 

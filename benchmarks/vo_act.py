@@ -1,6 +1,6 @@
 """Benchmark: the VO expert's ``act()`` for all followers, next to one ``env.step``.
 
-    python benchmarks/vo_act.py                 # paper_cbs_switch (8 followers), paper_vo_0 (2)
+    OPENBLAS_NUM_THREADS=1 python benchmarks/vo_act.py      # paper_cbs_switch (8 followers), paper_vo_0 (2)
     python benchmarks/vo_act.py --repeat 5 --scenarios paper_vo_90
 
 Per scenario one seeded episode is played with the expert (``VOExpert()``,
@@ -11,7 +11,10 @@ noise). Reported over the states: median, p95 and max of ``act()`` and median
 and p95 of ``env.step`` (the peer: the cost of simulating one step), in
 microseconds, plus how often every follower's preferred twist was safe (the
 fast path). Timings are of this machine and this run: compare numbers from the
-same run only.
+same run only. The search runs compiled (:mod:`swarm_env.vo_kernel`); the
+numpy reference (``guidance.use_compiled_search(False)``, same answers) is timed
+on the same states, interleaved with it, as the peer of the compiled search
+("reference CPU median" and the ratio).
 """
 
 from __future__ import annotations
@@ -23,6 +26,7 @@ import time
 import numpy as np
 
 from agents.vo_expert import VOExpert
+from swarm_env import guidance
 from swarm_env.env import SwarmEnv
 from swarm_env.safety import safe_follower_twists
 
@@ -46,14 +50,24 @@ def bench(scenario: str, repeat: int) -> dict[str, float]:
     env.close()
     act_us = np.empty((repeat, len(states)))
     act_cpu_us = np.empty((repeat, len(states)))
-    for r in range(repeat):
-        for k, (st, ob) in enumerate(zip(states, observations)):
-            t0, c0 = time.perf_counter(), time.process_time()
-            policy.act(ob, st)
-            act_us[r, k] = (time.perf_counter() - t0) * 1e6
-            act_cpu_us[r, k] = (time.process_time() - c0) * 1e6
+    ref_cpu_us = np.empty((repeat, len(states)))
+    try:
+        for r in range(repeat):
+            for k, (st, ob) in enumerate(zip(states, observations)):
+                guidance.use_compiled_search(False)
+                c0 = time.process_time()
+                policy.act(ob, st)
+                ref_cpu_us[r, k] = (time.process_time() - c0) * 1e6
+                guidance.use_compiled_search(True)
+                t0, c0 = time.perf_counter(), time.process_time()
+                policy.act(ob, st)
+                act_us[r, k] = (time.perf_counter() - t0) * 1e6
+                act_cpu_us[r, k] = (time.process_time() - c0) * 1e6
+    finally:
+        guidance.use_compiled_search(True)
     per_state = np.median(act_us, axis=0)
     cpu_per_state = np.median(act_cpu_us, axis=0)
+    ref_per_state = np.median(ref_cpu_us, axis=0)
     all_fast = np.mean([bool(np.all(_fast(policy, st))) for st in states])
     return {
         "followers": states[0].n_followers,
@@ -62,6 +76,7 @@ def bench(scenario: str, repeat: int) -> dict[str, float]:
         "act_p95_us": float(np.percentile(per_state, 95)),
         "act_max_us": float(per_state.max()),
         "act_cpu_median_us": float(np.median(cpu_per_state)),
+        "ref_cpu_median_us": float(np.median(ref_per_state)),
         "step_median_us": float(np.median(step_us)),
         "step_p95_us": float(np.percentile(step_us, 95)),
         "all_fast": float(all_fast),
@@ -80,12 +95,13 @@ def main() -> None:
     args = ap.parse_args()
     print(f"python {platform.python_version()}, numpy {np.__version__}, {platform.machine()}")
     print(f"{'scenario':<18} {'N':>2} {'states':>6}  {'act median':>10} {'p95':>6} {'max':>6} {'CPU median':>10}"
-          f"  {'env.step median':>15} {'p95':>6}  {'all-fast states':>15}")
+          f"  {'reference CPU median':>20} {'ratio':>5}  {'env.step median':>15} {'p95':>6}  {'all-fast states':>15}")
     for name in args.scenarios:
         r = bench(name, args.repeat)
         print(
             f"{name:<18} {r['followers']:>2} {r['states']:>6}  {r['act_median_us']:>10.0f} {r['act_p95_us']:>6.0f} "
-            f"{r['act_max_us']:>6.0f} {r['act_cpu_median_us']:>10.0f}  {r['step_median_us']:>15.0f} {r['step_p95_us']:>6.0f}  {100 * r['all_fast']:>14.0f}%"
+            f"{r['act_max_us']:>6.0f} {r['act_cpu_median_us']:>10.0f}  {r['ref_cpu_median_us']:>20.0f} "
+            f"{r['ref_cpu_median_us'] / r['act_cpu_median_us']:>5.1f}  {r['step_median_us']:>15.0f} {r['step_p95_us']:>6.0f}  {100 * r['all_fast']:>14.0f}%"
         )
     print("(microseconds; act() is the whole policy call for all followers, telemetry included)")
 

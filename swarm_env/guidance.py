@@ -90,6 +90,18 @@ _TWO_PI = 2.0 * math.pi
 _EPS_DIST = 1e-9
 # vo_select_batch tests this many least-penalty candidates first (see there).
 _FIRST_STAGE = 24
+# The search runs compiled (swarm_env.vo_kernel, numba: the same bits, ~Nx faster for a few robots) unless
+# this is False: the batched engine's worker processes use the numpy reference (_VOBatch) so that they
+# never import numba (swarm_env.vector_worker). See use_compiled_search().
+_COMPILED = True
+
+
+def use_compiled_search(flag: bool) -> None:
+    """Run :func:`vo_select_batch` compiled (``True``, the default) or with the numpy reference
+    (``False``). Both give the same bits (``tests/test_vo_kernel.py``); the reference imports no
+    numba, which is why the batched engine's worker processes use it."""
+    global _COMPILED
+    _COMPILED = bool(flag)
 
 
 def wrap_angle(a):
@@ -1111,10 +1123,22 @@ class _VOBatch:
         ext = self.ext = max(abs(v_min), abs(v_max)) * horizon
         vel = None if velocity is None else np.asarray(velocity, dtype=np.float64).reshape(n, 2)
 
+        self.vel = vel
+        self.poses2 = poses[:, :2]
+        self.whole = n == 1  # then every row is robot 0's and the (1, ...) arrays broadcast as they are
+        self.d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
+        self.dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
+        self.reciprocal, self.disc_mask = reciprocal, disc_mask
+
+    def prepare(self) -> None:
+        """The numpy reference's view of the discs and the static map (the compiled search builds its own):
+        each robot's kept discs, padded to ``n_keep`` (``rel_k``, ``R_k``, ``dv_k``, ``h_k``, ``valid``,
+        ``recip_k``, ``moving_k``, ``own_k``), and the static context."""
+        n, poses, rad, ext, vel, static = self.n, self.poses, self.rad, self.ext, self.vel, self.static
+        horizon, h_static, reciprocal, disc_mask = self.horizon, self.h_static, self.reciprocal, self.disc_mask
         # Moving discs and static circles in one list; each robot keeps those some of its
         # candidates can meet (and that disc_mask allows).
-        d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
-        dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
+        d, dv = self.d, self.dv
         n_moving = d.shape[0]
         if static is not None and len(static.circles):
             sc = static.circles
@@ -1161,8 +1185,6 @@ class _VOBatch:
             recip_k = recip_k & (self.rel_k[..., 0] ** 2 + self.rel_k[..., 1] ** 2 > self.R_k * self.R_k)
         self.recip_k = recip_k
         self.own_k = np.zeros((n, 2)) if vel is None else vel
-        self.whole = n == 1  # then every row is robot 0's and the (1, ...) arrays broadcast as they are
-        self.poses2 = poses[:, :2]
         # (circles=True: the escape probes test the static circles with the map; the grid with the discs)
         self.static_ctx = None if static is None else _static_context(self.poses2, rad, ext, static, circles=True)
 
@@ -1331,6 +1353,9 @@ class _VOBatch:
     # ------------------------------------------------------------------ the rule
     def select(self, fast: bool) -> VOBatchResult:
         """The selection of :func:`vo_select_batch` (see its docstring)."""
+        if _COMPILED:
+            return self.select_compiled(fast)
+        self.prepare()
         n, pv, pw = self.n, self.pv, self.pw
         ttc0 = None
         if fast and self.goal_heading is None:
@@ -1426,3 +1451,90 @@ class _VOBatch:
         ttc_out[none_safe] = ttc[everyone, choice][none_safe]
         n_safe[accepted] = 1
         return VOBatchResult(twist_out, feasible, n_safe, ttc_out, escaped, accepted, pref_safe)
+
+    # ------------------------------------------------------------------ the compiled twin
+    def select_compiled(self, fast: bool) -> VOBatchResult:
+        """:meth:`select` by :mod:`swarm_env.vo_kernel`: the same rule and bits. What numpy computes
+        here (as :meth:`select` does) is what is not correctly rounded — the trajectories, the
+        penalties and their order, the probes' headings, the discs' speeds; the kernel keeps the
+        discs, builds the static context and runs the contact tests and the passes."""
+        from swarm_env import vo_kernel
+
+        n, pv, pw = self.n, self.pv, self.pw
+        world = self._kernel_world()
+        times = np.ascontiguousarray(self.times, dtype=np.float64)
+        ttc0 = np.empty(0)
+        if fast and self.goal_heading is None:
+            ttc0 = vo_kernel.preferred_contacts(world, times, np.ascontiguousarray(self.pref_pts),
+                                                self.allow_still_overlap)
+            if np.isinf(ttc0).all():
+                out = np.empty((n, 2))
+                out[:, 0], out[:, 1] = pv, pw
+                ok = np.ones(n, dtype=bool)
+                return VOBatchResult(out, ok, np.ones(n, dtype=np.int64), np.full(n, np.inf), ~ok, ok, ok.copy())
+        c = np.ascontiguousarray
+        if self.model == "arc":
+            theta = self.theta
+            if n == 1:  # as all_points: math.cos for one robot
+                cos_t, sin_t = np.array([math.cos(float(theta[0]))]), np.array([math.sin(float(theta[0]))])
+            else:
+                cos_t, sin_t = np.cos(theta), np.sin(theta)
+            trajectories = (c(self.body, dtype=np.float64), cos_t, sin_t, _NO_TRAJECTORIES)
+        else:
+            self._candidates()
+            trajectories = (_NO_BODY, _E1, _E1, c(self.all_points(), dtype=np.float64))
+        has_current = bool(self.w_current) and self.current is not None
+        has_goal = self.goal_heading is not None
+        search = (float(self.tau), float(self.v_max), float(self.omega_max), float(self.w_pref), float(self.w_heading),
+                  float(self.side_bias), float(self.w_current), has_current,
+                  c(self.current, dtype=np.float64).reshape(n, 2) if has_current else np.zeros((n, 2)), has_goal,
+                  c(self.goal_heading, dtype=np.float64).reshape(n) if has_goal else _E1)
+        grid = c(sample_twists(self.v_max, self.omega_max, self.n_v, self.n_w, self.v_min))
+        twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe = vo_kernel.select(
+            world, times, c(self.pref_pts, dtype=np.float64), trajectories, ttc0, grid, c(pv), c(pw), c(self.theta),
+            search, bool(fast), bool(self.escape), _FIRST_STAGE, self.allow_still_overlap,
+            (float(self.v_max), float(self.tau), float(self.horizon)))
+        return VOBatchResult(twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe)
+
+    def _kernel_world(self) -> tuple:
+        """The robots, the discs and the static map as :mod:`swarm_env.vo_kernel` takes them."""
+        n, c, f64 = self.n, np.ascontiguousarray, np.float64
+        d, dv, vel = self.d, self.dv, self.vel
+        n_moving = d.shape[0]
+        spd_h = np.hypot(dv[:, 0], dv[:, 1]) * self.horizon
+        reciprocal = self.reciprocal
+        has_recip = bool(reciprocal is not False and np.any(reciprocal))
+        if has_recip:
+            recip_in = c(np.broadcast_to(np.asarray(reciprocal, dtype=bool), (n, n_moving)))
+            own_speed = np.zeros(n) if vel is None else np.hypot(vel[:, 0], vel[:, 1])
+        else:
+            recip_in, own_speed = np.zeros((n, n_moving), dtype=bool), np.zeros(n)
+        has_mask = self.disc_mask is not None
+        mask = c(np.asarray(self.disc_mask, dtype=bool).reshape(n, n_moving)) if has_mask else recip_in
+        own_vel = np.zeros((n, 2)) if vel is None else c(vel, dtype=f64)
+        return ((c(self.poses2, dtype=f64), c(self.rad, dtype=f64), float(self.ext), float(self.horizon),
+                 float(self.h_static), c(d, dtype=f64), c(dv, dtype=f64), spd_h, has_recip, recip_in, c(own_speed, dtype=f64),
+                 own_vel, has_mask, mask, self.static is not None) + _kernel_map(self.static))
+
+
+def _kernel_map(static: StaticMap | None) -> tuple:
+    """``(W, H, circles, polygon A, N, L, ux, uy, centre, bound)`` of ``static`` as writeable contiguous
+    arrays (one set of types whatever the map, so the kernel compiles once), cached with the map's
+    polygon arrays; empty ones for no map."""
+    if static is None:
+        return _NO_MAP
+    g = _polygon_arrays(static)
+    if "kernel" not in g:
+        c = np.array  # copies: the map's own arrays are read-only, a different type for numba
+        W, H = static.size
+        circles = static.circles.reshape(-1, 3)
+        g["kernel"] = (float(W), float(H), c(circles, dtype=np.float64, order="C"),
+                       *(c(g[k], dtype=np.float64, order="C") for k in ("A", "N", "L", "ux", "uy", "centre", "bound")))
+    return g["kernel"]
+
+
+_E1 = np.empty(0)
+_NO_BODY = np.empty((0, 1, 2))
+_NO_TRAJECTORIES = np.empty((0, 1, 1, 2))
+_NO_MAP = (0.0, 0.0, np.empty((0, 3)), np.empty((0, 1, 2)), np.empty((0, 1, 2)), np.empty((0, 1)), np.empty((0, 1)),
+           np.empty((0, 1)), np.empty((0, 2)), np.empty(0))

@@ -3,7 +3,9 @@
 Started by the engine as ``python -m swarm_env.vector_worker ADDRESS`` with the connection's
 authentication key on standard input; receives the pickled world factories, then serves
 ``reset`` / ``step`` / ``state`` / ``call`` / ``close`` until told to stop or the engine goes
-away. Imports neither torch nor numba: the engine fills the lidar columns itself.
+away. Imports neither torch nor numba: the engine fills the lidar columns itself, and the
+velocity-obstacle search (robot leaders, the safety layer) runs its numpy reference here, which
+gives the compiled search's bits (``swarm_env.guidance.use_compiled_search``).
 """
 
 from __future__ import annotations
@@ -16,7 +18,10 @@ from typing import Any
 
 
 def serve(address: str, authkey: bytes) -> None:
+    from swarm_env import guidance
     from swarm_env.vector import _WorldBlock
+
+    guidance.use_compiled_search(False)
 
     conn = Client(address, authkey=authkey)
     block: Any = None

@@ -265,7 +265,6 @@ def test_human_walking_straight_at_a_robot(from_side):
     m = run_episode(env, policy, seed=0)
     assert m["collisions"]["total"] == 0
     assert m["min_clearance"] > 0.0
-    assert policy.stats()["min_clearance"] > 0.0
 
 
 def test_policy_keeps_clear_of_a_polygon_between_robot_and_slot():
@@ -292,7 +291,7 @@ def test_registry_and_policy_stats():
     stats = m["policy_stats"]
     assert stats["decision_time_ms"]["calls"] == m["steps"] == 40
     assert 0.0 < stats["decision_time_ms"]["median"] <= stats["decision_time_ms"]["p95"] <= stats["decision_time_ms"]["max"]
-    assert stats["infeasible_events"] >= 0 and stats["min_clearance"] > 0.0
+    assert stats["infeasible_events"] >= 0 and stats["escape_turns"] >= 0
     for a, action in policy.act({a: None for a in env.possible_agents}, env.world_state()).items():
         assert action.dtype == np.float32 and action.shape == (2,) and np.all(np.abs(action) <= 1.0)
 

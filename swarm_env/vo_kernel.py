@@ -1,0 +1,592 @@
+"""The velocity-obstacle selection of :func:`swarm_env.guidance.vo_select_batch`, compiled with numba.
+
+:class:`swarm_env.guidance._VOBatch` is the reference: numpy, readable, one vectorised pass per
+stage of the search. For the handful of robots of one world it spends most of its time in numpy's
+per-call overhead on small temporaries (``python benchmarks/vo_act.py``: 1.4 ms per ``act()`` of the
+``vo`` expert at 8 followers, of which ~60 % in the contact tests and the passes' bookkeeping). These
+kernels run the same search robot by robot, candidate by candidate, and stop each robot at its
+first safe candidate of a pass, without temporaries.
+
+Same bits as the reference, by construction and by test (``tests/test_vo_kernel.py`` replays every
+state of several episodes and hundreds of synthetic calls through both): every floating-point
+operation is the reference's, in the reference's order (``a * b + c * d`` where it computes
+``a * b``, then ``+= c * d``). The trajectories of the preferred twists and the robots' headings'
+cosines come from numpy as in the reference; ``hypot``, ``cos``, ``sin`` and ``%`` inside the
+kernels are the C library's, which numpy also calls for float64 here (if a platform's numpy used
+other implementations, the two could differ in a last bit: the test would say so).
+
+Which candidates are tested follows the reference's passes exactly (it matters for the reported
+``n_safe``, not for the answer): pass 1 the least-penalty candidate, pass 2 up to rank
+``first_stage`` plus the standing candidates, pass 3 the rest; a robot left alone after a pass
+tests the rest at once.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+_INF = math.inf
+_TWO_PI = 2.0 * math.pi
+# error_model="numpy": a division by zero gives inf/nan as in numpy instead of raising.
+_JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
+
+
+@numba.njit(**_JIT)
+def _ray_disc(px: float, py: float, R2: float, wx: float, wy: float, limit: float, still_ok: bool) -> float:
+    """``guidance._ray_disc_ttc`` for one pair (its docstring has the rules)."""
+    wp = wx * px + wy * py
+    ww = wx * wx + wy * wy
+    c = px * px + py * py - R2
+    disc = wp * wp - ww * c
+    hit = wp > 0.0 and disc > 0.0
+    if disc < 0.0:
+        disc = 0.0
+    den = math.sqrt(disc) + wp
+    t = c / den if hit else _INF
+    if c < 0.0:
+        t = _INF
+        if wp > 0.0 or (not still_ok and ww == 0.0):
+            t = 0.0
+    if t > limit:
+        t = _INF
+    return t
+
+
+@numba.njit(**_JIT)
+def _disc_row(i, times, xs, ys, discs, still_ok, probe):
+    """Contact time of robot ``i``'s trajectory ``(xs, ys)`` (displacements at ``times``) with its
+    kept discs (``guidance._rows_disc_ttc`` and the horizon cut of ``_VOBatch.contact_times``).
+    ``probe``: an escape probe (plain VO, moving discs only: ``_VOBatch.escape_turns``)."""
+    rel, R, dv, h, valid, recip, own, moving = discs
+    best = _INF
+    n_pieces = times.shape[0] - 1
+    for d in range(rel.shape[1]):
+        if probe:
+            if not moving[i, d]:
+                continue
+        elif not valid[i, d]:
+            continue
+        R2 = R[i, d] * R[i, d]
+        rc = recip[i, d] and not probe
+        dvx, dvy = dv[i, d, 0], dv[i, d, 1]
+        tmin = _INF
+        for k in range(n_pieces):
+            tk = times[k]
+            dur = times[k + 1] - tk
+            sx, sy = xs[k], ys[k]
+            ux = (xs[k + 1] - sx) / dur
+            uy = (ys[k + 1] - sy) / dur
+            ox = rel[i, d, 0] + dvx * tk
+            oy = rel[i, d, 1] + dvy * tk
+            if rc:
+                sx = 2.0 * sx - own[i, 0] * tk
+                sy = 2.0 * sy - own[i, 1] * tk
+                ux = 2.0 * ux - own[i, 0]
+                uy = 2.0 * uy - own[i, 1]
+            t = _ray_disc(ox - sx, oy - sy, R2, ux - dvx, uy - dvy, dur, still_ok) + tk
+            if t < tmin:
+                tmin = t
+        if tmin > h[i, d]:
+            tmin = _INF
+        if tmin < best:
+            best = tmin
+    return best
+
+
+@numba.njit(**_JIT)
+def _static_row(i, times, xs, ys, static, circles):
+    """Contact time of robot ``i``'s trajectory with the static map (``guidance._rows_static_ttc``:
+    walls, then, with ``circles``, the static circles, then the exact polygon test behind its
+    bounding-circle broad phase), cut at the static horizon."""
+    (h_static, P, rad, wax, way, woff, circ, A, Nn, L, eux, euy, centre, bound, over_rn, over_nrm, free,
+     fcols) = static
+    rr = rad[i]
+    px0, py0 = P[i, 0], P[i, 1]
+    n_pieces = times.shape[0] - 1
+    # Already within the margin of a polygon and the first piece does not move away: contact now.
+    dur0 = times[1] - times[0]
+    vx0 = (xs[1] - xs[0]) / dur0
+    vy0 = (ys[1] - ys[0]) / dur0
+    for j in range(over_rn.shape[0]):
+        if over_rn[j] == i and vx0 * over_nrm[j, 0] + vy0 * over_nrm[j, 1] <= 0.0:
+            return 0.0
+    out = _INF
+    for k in range(n_pieces):
+        tk = times[k]
+        dur = times[k + 1] - tk
+        vx = (xs[k + 1] - xs[k]) / dur
+        vy = (ys[k + 1] - ys[k]) / dur
+        sx = px0 + xs[k]
+        sy = py0 + ys[k]
+        for w in range(wax.shape[0]):
+            gap = woff[w] + wax[w] * sx + way[w] * sy - rr
+            vn = wax[w] * vx + way[w] * vy
+            t = gap / -vn if vn < 0.0 else _INF
+            if gap < 0.0:
+                t = 0.0 if vn <= 0.0 else _INF
+            if t > dur:
+                t = _INF
+            t += tk
+            if t < out:
+                out = t
+        if circles:
+            for c in range(circ.shape[0]):
+                # (guidance passes the circles to _rows_disc_ttc as discs at rest)
+                R = circ[c, 2] + rr
+                ox = (circ[c, 0] - px0) + 0.0 * tk
+                oy = (circ[c, 1] - py0) + 0.0 * tk
+                t = _ray_disc(ox - xs[k], oy - ys[k], R * R, vx - 0.0, vy - 0.0, dur, False) + tk
+                if t < out:
+                    out = t
+        uu = vx * vx + vy * vy
+        for f in range(fcols.shape[0]):
+            p = fcols[f]
+            if not free[i, p]:
+                continue
+            cx = centre[p, 0] - sx
+            cy = centre[p, 1] - sy
+            ts = (cx * vx + cy * vy) / uu if uu > 0.0 else 0.0
+            ts = min(max(ts, 0.0), dur)
+            ex = cx - ts * vx
+            ey = cy - ts * vy
+            rb = bound[p] + rr
+            if not ex * ex + ey * ey <= rb * rb:
+                continue
+            best = _INF
+            for e in range(A.shape[1]):
+                nx, ny = Nn[p, e, 0], Nn[p, e, 1]
+                rx = sx - A[p, e, 0]
+                ry = sy - A[p, e, 1]
+                per = rx * nx + ry * ny
+                vn = vx * nx + vy * ny
+                t = (per - rr) / -vn if (vn < 0.0 and per >= rr) else _INF
+                if math.isfinite(t):
+                    s_hit = rx * eux[p, e] + ry * euy[p, e] + (vx * eux[p, e] + vy * euy[p, e]) * t
+                    if s_hit < 0.0 or s_hit > L[p, e] or t > dur:
+                        t = _INF
+                else:
+                    t = _INF
+                tv = _ray_disc(-rx, -ry, rr * rr, vx, vy, dur, False)
+                if tv < t:
+                    t = tv
+                if t < best:
+                    best = t
+            best += tk
+            if best < out:
+                out = best
+    if out > h_static:
+        out = _INF
+    return out
+
+
+@numba.njit(**_JIT)
+def _keep_discs(world):
+    """Each robot's discs that some of its candidates can meet (``_VOBatch.prepare``): the moving discs,
+    then the static circles, kept in that order and padded to the longest list (``valid`` False)."""
+    (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
+     has_static, W, H, circ, A, Nn, L, eux, euy, centre, bound) = world
+    n = P.shape[0]
+    n_moving = d.shape[0]
+    n_all = n_moving + circ.shape[0]
+    keep = np.zeros((n, n_all), dtype=np.bool_)
+    n_keep = 0
+    for i in range(n):
+        count = 0
+        for j in range(n_all):
+            moving = j < n_moving
+            if moving:
+                x, y, r, s = d[j, 0], d[j, 1], d[j, 2], spd_h[j]
+            else:
+                x, y, r, s = circ[j - n_moving, 0], circ[j - n_moving, 1], circ[j - n_moving, 2], 0.0
+            relx, rely = x - P[i, 0], y - P[i, 1]
+            R = r + rad[i]
+            if has_recip:
+                reach = ((2.0 * ext + own_speed[i] * horizon) if (moving and recip_in[i, j]) else ext) + s + R
+            else:
+                reach = (ext + s) + R
+            ok = relx * relx + rely * rely <= reach * reach
+            if has_mask and moving and not mask[i, j]:
+                ok = False
+            keep[i, j] = ok
+            count += ok
+        n_keep = max(n_keep, count)
+    rel = np.zeros((n, n_keep, 2))
+    Rk = np.zeros((n, n_keep))
+    dvk = np.zeros((n, n_keep, 2))
+    hk = np.full((n, n_keep), _INF)
+    valid = np.zeros((n, n_keep), dtype=np.bool_)
+    recip = np.zeros((n, n_keep), dtype=np.bool_)
+    moving_k = np.zeros((n, n_keep), dtype=np.bool_)
+    for i in range(n):
+        q = 0
+        for j in range(n_all):
+            if not keep[i, j]:
+                continue
+            moving = j < n_moving
+            if moving:
+                x, y, r = d[j, 0], d[j, 1], d[j, 2]
+                dvk[i, q, 0], dvk[i, q, 1] = dv[j, 0], dv[j, 1]
+            else:
+                x, y, r = circ[j - n_moving, 0], circ[j - n_moving, 1], circ[j - n_moving, 2]
+            relx, rely = x - P[i, 0], y - P[i, 1]
+            R = r + rad[i]
+            rel[i, q, 0], rel[i, q, 1] = relx, rely
+            Rk[i, q] = R
+            hk[i, q] = horizon if moving else h_static
+            valid[i, q] = True
+            moving_k[i, q] = moving
+            # Within the combined radius of a reciprocal disc already: avoided plainly (see guidance).
+            recip[i, q] = has_recip and moving and recip_in[i, j] and relx * relx + rely * rely > R * R
+            q += 1
+    return rel, Rk, dvk, hk, valid, recip, own_vel, moving_k
+
+
+@numba.njit(**_JIT)
+def _static_context(world):
+    """``guidance._static_context`` (circles included): the walls, circles and polygons in reach of
+    some robot, the polygons each robot is free of (``free`` ``(N, P)``, ``fcols``), and the robots
+    already within their margin of a polygon with the outward normal there (``over_rn``, ``over_nrm``)."""
+    (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
+     has_static, W, H, circ, A, Nn, L, eux, euy, centre, bound) = world
+    n = P.shape[0]
+    wall_ax = np.array([0.0, -1.0, 0.0, 1.0])
+    wall_ay = np.array([1.0, 0.0, -1.0, 0.0])
+    wall_off = np.array([0.0, W, H, 0.0])
+    near = np.zeros(4, dtype=np.bool_)
+    for w in range(4):
+        for i in range(n):
+            if wall_off[w] + wall_ax[w] * P[i, 0] + wall_ay[w] * P[i, 1] <= rad[i] + (ext + 1e-9):
+                near[w] = True
+                break
+    nw = int(near.sum())
+    wax, way, woff = np.empty(nw), np.empty(nw), np.empty(nw)
+    q = 0
+    for w in range(4):
+        if near[w]:
+            wax[q], way[q], woff[q] = wall_ax[w], wall_ay[w], wall_off[w]
+            q += 1
+    keep_c = np.zeros(circ.shape[0], dtype=np.bool_)
+    for c in range(circ.shape[0]):
+        for i in range(n):
+            if math.hypot(circ[c, 0] - P[i, 0], circ[c, 1] - P[i, 1]) - circ[c, 2] <= rad[i] + (ext + 1e-9):
+                keep_c[c] = True
+                break
+    circ_k = circ[keep_c]
+    n_poly = centre.shape[0]
+    free = np.zeros((n, n_poly), dtype=np.bool_)
+    any_free = np.zeros(n_poly, dtype=np.bool_)
+    over_rn = np.empty(n * n_poly, dtype=np.int64)
+    over_nrm = np.empty((n * n_poly, 2))
+    n_over = 0
+    n_edges = A.shape[1]
+    for p in range(n_poly):
+        cand = False
+        for i in range(n):
+            if math.hypot(centre[p, 0] - P[i, 0], centre[p, 1] - P[i, 1]) - bound[p] <= rad[i] + (ext + 1e-9):
+                cand = True
+                break
+        if not cand:
+            continue
+        for i in range(n):
+            hmax, e_max, d2min, e_min = -_INF, 0, _INF, 0
+            fx_min, fy_min = 0.0, 0.0
+            for e in range(n_edges):
+                qx = P[i, 0] - A[p, e, 0]
+                qy = P[i, 1] - A[p, e, 1]
+                perp = qx * Nn[p, e, 0] + qy * Nn[p, e, 1]
+                foot = min(max(qx * eux[p, e] + qy * euy[p, e], 0.0), L[p, e])
+                fx = qx - foot * eux[p, e]
+                fy = qy - foot * euy[p, e]
+                d2 = fx * fx + fy * fy
+                if e == 0 or perp > hmax:
+                    hmax, e_max = perp, e
+                if e == 0 or d2 < d2min:
+                    d2min, e_min, fx_min, fy_min = d2, e, fx, fy
+            inside = hmax <= 0.0
+            sd = hmax if inside else math.sqrt(d2min)
+            reach = rad[i] + (ext + 1e-9)
+            if sd < rad[i]:
+                nx, ny = Nn[p, e_max, 0], Nn[p, e_max, 1]
+                dn = math.hypot(fx_min, fy_min)
+                if not inside and dn > 0.0:
+                    nx, ny = fx_min / dn, fy_min / dn
+                over_rn[n_over] = i
+                over_nrm[n_over, 0], over_nrm[n_over, 1] = nx, ny
+                n_over += 1
+            elif sd <= reach:
+                free[i, p] = True
+                any_free[p] = True
+    fcols = np.flatnonzero(any_free)
+    return (h_static, P, rad, wax, way, woff, circ_k, A, Nn, L, eux, euy, centre, bound, over_rn[:n_over],
+            over_nrm[:n_over], free, fcols)
+
+
+@numba.njit(**_JIT)
+def _contact(i, times, xs, ys, discs, static, has_static, still_ok):
+    """``_VOBatch.contact_times`` of one trajectory of robot ``i``."""
+    ttc = _INF
+    if discs[0].shape[1]:
+        ttc = _disc_row(i, times, xs, ys, discs, still_ok, False)
+    if has_static:
+        ts = _static_row(i, times, xs, ys, static, False)
+        if ts < ttc:
+            ttc = ts
+    return ttc
+
+
+@numba.njit(**_JIT)
+def preferred_contacts(world, times, pref_pts, still_ok):
+    """Pass 1 of the fast path: each robot's contact time on its preferred twist ``(N,)``.
+    ``world``: the robots, discs and map as ``_VOBatch._kernel_world`` packs them."""
+    discs = _keep_discs(world)
+    static = _static_context(world)
+    has_static = world[14]
+    n = pref_pts.shape[0]
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = _contact(i, times, pref_pts[i, :, 0], pref_pts[i, :, 1], discs, static, has_static, still_ok)
+    return out
+
+
+@numba.njit(**_JIT)
+def _evaluate(i, c, ttc, times, pts, discs, static, has_static, still_ok):
+    ttc[i, c] = _contact(i, times, pts[i, c, :, 0], pts[i, c, :, 1], discs, static, has_static, still_ok)
+
+
+@numba.njit(**_JIT)
+def _probe(i, c, discs, static, has_static, still_ok, probe):
+    """Escape probe of robot ``i`` turning in place to candidate ``c``'s heading (``escape_turns``)."""
+    twists, theta, v_max, tau, horizon = probe
+    hd = theta[i] + twists[i, c, 1] * tau
+    cos_h, sin_h = math.cos(hd), math.sin(hd)
+    ttc = _INF
+    if discs[0].shape[1]:
+        run = v_max * max(horizon - tau, 0.0)
+        times3 = np.array([0.0, tau, max(horizon, tau + 1e-9)])
+        xs = np.array([0.0, 0.0, run * cos_h])
+        ys = np.array([0.0, 0.0, run * sin_h])
+        ttc = _disc_row(i, times3, xs, ys, discs, still_ok, True)
+    if has_static:
+        t_run = horizon - tau if horizon > 2.0 * tau else horizon
+        times2 = np.array([0.0, t_run])
+        xs = np.array([0.0, v_max * t_run * cos_h])
+        ys = np.array([0.0, v_max * t_run * sin_h])
+        ts = _static_row(i, times2, xs, ys, static, True)
+        if ts < ttc:
+            ttc = ts
+    return ttc
+
+
+@numba.njit(**_JIT)
+def _candidates(grid, pv, pw, theta, search):
+    """``_VOBatch._candidates``: each robot's candidates (its preferred twist first, then ``grid``),
+    their penalties and their stable penalty order, and the columns of the standing twist ``(0, 0)``."""
+    tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, has_goal, goal = search
+    n = pv.shape[0]
+    g1 = grid.shape[0] + 1
+    twists = np.empty((n, g1, 2))
+    penalty = np.empty((n, g1))
+    order = np.empty((n, g1), dtype=np.int64)
+    v_scale = v_max if v_max > 0 else 1.0
+    w_scale = omega_max if omega_max > 0 else 1.0
+    for i in range(n):
+        twists[i, 0, 0], twists[i, 0, 1] = pv[i], pw[i]
+        twists[i, 1:] = grid
+        gh = goal[i] if has_goal else theta[i] + pw[i] * tau
+        for c in range(g1):
+            tv, tw = twists[i, c, 0], twists[i, c, 1]
+            dv_ = (tv - pv[i]) / v_scale
+            dw_ = (tw - pw[i]) / w_scale
+            head = abs((theta[i] + tw * tau - gh + math.pi) % _TWO_PI - math.pi) / math.pi
+            pen = w_pref * math.hypot(dv_, dw_) + w_heading * head + side_bias * max(dw_, 0.0)
+            if has_current and c > 0:
+                # (commitment to the twist being driven: see _VOBatch._candidates)
+                pen += w_current * math.hypot((tv - current[i, 0]) / v_scale, (tw - current[i, 1]) / w_scale)
+            penalty[i, c] = pen
+        # Stable insertion sort: ties keep grid order (the preferred twist first), as numpy's stable argsort.
+        for c in range(g1):
+            order[i, c] = c
+            j = c
+            while j > 0 and penalty[i, order[i, j - 1]] > penalty[i, c]:
+                order[i, j] = order[i, j - 1]
+                j -= 1
+            order[i, j] = c
+    n_still = 0
+    for c in range(grid.shape[0]):
+        n_still += grid[c, 0] == 0.0 and grid[c, 1] == 0.0
+    still = np.empty(n_still, dtype=np.int64)
+    q = 0
+    for c in range(grid.shape[0]):
+        if grid[c, 0] == 0.0 and grid[c, 1] == 0.0:
+            still[q] = c + 1
+            q += 1
+    return twists, penalty, order, still
+
+
+@numba.njit(**_JIT)
+def _arc_points(pref_pts, body, cos_t, sin_t):
+    """``_VOBatch.all_points`` for the arc model: the preferred twist's trajectory, then the grid's
+    body-frame trajectories rotated by each robot's heading."""
+    n, k1 = pref_pts.shape[0], pref_pts.shape[1]
+    g = body.shape[0]
+    pts = np.empty((n, g + 1, k1, 2))
+    for i in range(n):
+        pts[i, 0] = pref_pts[i]
+        c, s = cos_t[i], sin_t[i]
+        for j in range(g):
+            for k in range(k1):
+                x, y = body[j, k, 0], body[j, k, 1]
+                pts[i, j + 1, k, 0] = c * x - s * y
+                pts[i, j + 1, k, 1] = s * x + c * y
+    return pts
+
+
+@numba.njit(**_JIT)
+def select(world, times, pref_pts, trajectories, ttc0, grid, pv, pw, theta, search, fast, escape, first_stage,
+           still_ok, probe):
+    """The selection rule of ``_VOBatch.select`` after pass 1.
+
+    ``pref_pts`` ``(N, K+1, 2)`` the preferred twists' trajectories; ``trajectories`` the grid's,
+    ``(body, cos_t, sin_t, every)``: the arc model's body-frame trajectories ``(G, K+1, 2)`` and the
+    cosine and sine of each robot's heading, or (``body`` empty) ``every`` candidate's world-frame
+    trajectory ``(N, G+1, K+1, 2)`` (the chord model). ``ttc0`` ``(N,)`` pass 1's contact times of
+    the preferred twists, or empty if pass 1 is still to do (a ``goal_heading`` was given, or not
+    ``fast``); ``grid`` the candidate twists; ``search`` the penalty's terms (:func:`_candidates`).
+
+    Returns ``twist`` ``(N, 2)``, ``feasible``, ``n_safe``, ``ttc_out``, ``escaped``, ``accepted``,
+    ``pref_safe`` (see :class:`~swarm_env.guidance.VOBatchResult`).
+    """
+    twists, penalty, order, still = _candidates(grid, pv, pw, theta, search)
+    body, cos_t, sin_t, every = trajectories
+    pts = _arc_points(pref_pts, body, cos_t, sin_t) if body.shape[0] else every
+    discs = _keep_discs(world)
+    static = _static_context(world)
+    has_static = world[14]
+    n, g1 = order.shape
+    ttc = np.full((n, g1), np.nan)
+    done = np.ones(n, dtype=np.int64)
+    if not fast:
+        for i in range(n):
+            for c in range(g1):
+                _evaluate(i, c, ttc, times, pts, discs, static, has_static, still_ok)
+            done[i] = g1
+    else:
+        if ttc0.shape[0]:
+            for i in range(n):
+                ttc[i, 0] = ttc0[i]
+        else:
+            for i in range(n):
+                _evaluate(i, order[i, 0], ttc, times, pts, discs, static, has_static, still_ok)
+        pending = np.empty(n, dtype=np.int64)
+        for stage in range(2):
+            target = min(first_stage, g1) if stage == 0 else g1
+            m = 0
+            for i in range(n):
+                safe = False
+                for r in range(done[i]):
+                    if ttc[i, order[i, r]] == _INF:
+                        safe = True
+                        break
+                if not safe:
+                    pending[m] = i
+                    m += 1
+            if m == 0:
+                break
+            if m == 1:
+                target = g1
+            for q in range(m):
+                i = pending[q]
+                if target <= done[i]:
+                    continue
+                for r in range(done[i], target):
+                    _evaluate(i, order[i, r], ttc, times, pts, discs, static, has_static, still_ok)
+                if escape and target < g1:
+                    for c in still:
+                        _evaluate(i, c, ttc, times, pts, discs, static, has_static, still_ok)
+                done[i] = target
+            if target == g1:
+                break
+
+    # Standing candidates share one trajectory (none), hence one contact time.
+    for i in range(n):
+        known = False
+        tz = -_INF
+        for c in range(g1):
+            if twists[i, c, 0] == 0.0 and not math.isnan(ttc[i, c]):
+                known = True
+                if ttc[i, c] > tz:
+                    tz = ttc[i, c]
+        if known:
+            for c in range(g1):
+                if twists[i, c, 0] == 0.0:
+                    ttc[i, c] = tz
+
+    choice = np.zeros(n, dtype=np.int64)
+    n_safe = np.zeros(n, dtype=np.int64)
+    feasible = np.ones(n, dtype=np.bool_)
+    ttc_out = np.full(n, _INF)
+    escaped = np.zeros(n, dtype=np.bool_)
+    pref_safe = np.zeros(n, dtype=np.bool_)
+    accepted = np.zeros(n, dtype=np.bool_)
+    request = np.zeros(n, dtype=np.int64)  # 0: none, 1: escape among the safe, 2: among the least dangerous
+    for i in range(n):
+        pref_safe[i] = ttc[i, 0] == _INF
+        accepted[i] = pref_safe[i] and done[i] == 1
+        best = _INF
+        for c in range(g1):
+            if ttc[i, c] == _INF:
+                n_safe[i] += 1
+                if penalty[i, c] < best:
+                    best = penalty[i, c]
+                    choice[i] = c
+        if n_safe[i] > 0:
+            if escape and twists[i, choice[i], 0] <= 0.0 and pv[i] > 0.0:
+                request[i] = 1
+            continue
+        # Nothing safe: the largest time to contact, then the slowest, then the least penalty.
+        j = 0
+        for c in range(1, g1):
+            a, b = ttc[i, c], ttc[i, j]
+            if a > b or (a == b and (abs(twists[i, c, 0]) < abs(twists[i, j, 0]) or (
+                    abs(twists[i, c, 0]) == abs(twists[i, j, 0]) and penalty[i, c] < penalty[i, j]))):
+                j = c
+        choice[i] = j
+        if escape and twists[i, j, 0] <= 0.0:
+            request[i] = 2
+    for i in range(n):
+        if request[i] == 0:
+            continue
+        # The escape rule needs every standing candidate's contact time.
+        for c in range(g1):
+            if math.isnan(ttc[i, c]) and twists[i, c, 0] <= 0.0:
+                _evaluate(i, c, ttc, times, pts, discs, static, has_static, still_ok)
+    for i in range(n):
+        if request[i] == 0:
+            continue
+        j0 = choice[i]
+        best_c = -1
+        best_t = 0.0
+        for c in range(g1):
+            if twists[i, c, 0] > 0.0:
+                continue
+            eligible = ttc[i, c] == _INF if request[i] == 1 else ttc[i, c] == ttc[i, j0]
+            if not eligible:
+                continue
+            t = _probe(i, c, discs, static, has_static, still_ok, (twists, theta) + probe)
+            if best_c < 0 or t > best_t or (t == best_t and penalty[i, c] < penalty[i, best_c]):
+                best_c, best_t = c, t
+        choice[i] = best_c
+        escaped[i] = True
+    for i in range(n):
+        if n_safe[i] == 0:
+            feasible[i] = False
+            ttc_out[i] = ttc[i, choice[i]]
+        if accepted[i]:
+            n_safe[i] = 1
+    twist = np.empty((n, 2))
+    for i in range(n):
+        twist[i, 0], twist[i, 1] = twists[i, choice[i], 0], twists[i, choice[i], 1]
+    return twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe
