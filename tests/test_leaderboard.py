@@ -273,6 +273,17 @@ def test_cli_writes_tables(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
         assert len(list(csv.DictReader(f))) == 4
 
 
+def test_cli_videos_replay_saved_records(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    code = main(["evaluate", "--policies", "random", "--scenarios", "paper_vo_0", "--seeds", "0", "--max-cycles", "5",
+                 "--out", str(out), "--videos", "--quiet"])
+    assert code == 0
+    assert f"wrote {out / 'videos' / 'random__paper_vo_0__seed0.mp4'}\n" in capsys.readouterr().out
+    record = out / "records" / "random__paper_vo_0__seed0"
+    assert main(["replay", str(record), "--check"]) == 0  # the saved record replays on its own
+    assert "random on paper_vo_0, 5 of 5 steps replayed, 6 digests checked" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
