@@ -191,18 +191,14 @@ def cmd_replay(args: argparse.Namespace) -> int:
     """Re-simulate recorded episodes (:mod:`swarm_env.recording`); exit 1 at a divergence with ``--check``."""
     from swarm_env import recording
 
+    from swarm_env.video import VideoWriter
+
     try:
         records = recording.load_recording(args.dir)
-        if not args.fps > 0:
-            raise ValueError(f"--fps must be > 0, got {args.fps:g}")
+        writer = VideoWriter(args.video, fps=args.fps) if args.video else None  # checks the suffix and --fps
     except (recording.RecordError, ScenarioError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    writer = None
-    if args.video:
-        from swarm_env.video import VideoWriter
-
-        writer = VideoWriter(args.video, fps=args.fps)
     status = 0
     try:
         for rec in records:

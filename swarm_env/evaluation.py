@@ -33,7 +33,7 @@ def run_episode(
     frame, the initial one included. ``on_step`` (if given) is called with
     ``None`` after the reset and with the actions dict after every
     ``env.step`` that applied it (:mod:`swarm_env.recording` records through
-    it); an exception it raises ends the episode there. Returns
+    it); an exception it raises ends the episode and propagates. Returns
     ``env.episode_metrics()`` plus ``seed``, ``policy_time`` (s spent in
     ``policy.act``) and, if the policy has ``stats()``, ``policy_stats``.
     """

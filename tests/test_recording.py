@@ -188,6 +188,8 @@ def test_bad_recordings_and_directories(tmp_path: Path, capsys: pytest.CaptureFi
 
     out = _record(tmp_path, episodes=1)
     capsys.readouterr()
+    assert main(["replay", str(out), "--video", str(tmp_path / "x.avi")]) == 2
+    assert "unsupported video format '.avi'" in capsys.readouterr().err
     # recording into a directory that already holds episodes is refused before any episode runs
     assert main(["run", *REACTIVE, "--max-cycles", "5", "--record", str(out)]) == 2
     captured = capsys.readouterr()
