@@ -133,6 +133,10 @@ def cmd_run(args: argparse.Namespace) -> int:
         from swarm_env.env import SwarmEnv
 
         SwarmEnv(args.scenario, **env_kwargs).close()  # bad keyword arguments fail here, before any output
+        if args.record:
+            from swarm_env.recording import ensure_new_recording_dir
+
+            ensure_new_recording_dir(args.record)  # a RecordError (a ValueError) before any episode
     except ScenarioError:
         raise  # main() reports it
     except (TypeError, ValueError) as exc:
@@ -156,6 +160,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             env_kwargs=env_kwargs,
             on_frame=on_frame,
             progress=args.episodes > 1 and sys.stderr.isatty(),
+            record_dir=args.record,
         )
     finally:
         if writer is not None:
@@ -177,7 +182,41 @@ def cmd_run(args: argparse.Namespace) -> int:
         print(f"wrote {args.json}")
     if args.video:
         print(f"wrote {args.video}")
+    if args.record:
+        print(f"wrote {args.record} (swarm-env replay {args.record} --check)")
     return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Re-simulate recorded episodes (:mod:`swarm_env.recording`); exit 1 at a divergence with ``--check``."""
+    from swarm_env import recording
+
+    from swarm_env.video import VideoWriter
+
+    try:
+        records = recording.load_recording(args.dir)
+        writer = VideoWriter(args.video, fps=args.fps) if args.video else None  # checks the suffix and --fps
+    except (recording.RecordError, ScenarioError, ValueError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    status = 0
+    try:
+        for rec in records:
+            result = recording.replay(rec, on_frame=writer.append if writer else None, stop_at_divergence=args.check)
+            print(format_episode(result.metrics))
+            print(f"episode {rec.episode}: {rec.policy} on {rec.scenario_spec}, {result.steps} of {rec.steps} steps "
+                  f"replayed, {result.digests_checked} digests checked")
+            if result.divergence is not None:
+                print(("" if args.check else "warning: ") + result.divergence.message(), file=sys.stderr)
+                if args.check:
+                    status = 1
+                    break
+    finally:
+        if writer is not None:
+            writer.close()
+    if args.video:
+        print(f"wrote {args.video}")
+    return status
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
@@ -293,8 +332,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         for path in (out / "leaderboard.md", board.to_csv(out / "leaderboard.csv"), board.to_json(out / "leaderboard.json")):
             print(f"wrote {path}")
         if args.videos:
-            for rec in record_worst_videos(board, out / "videos", fps=args.fps, progress=not args.quiet):
-                print(f"wrote {rec.path}" + ("" if rec.reproduced else "  (re-run differs from the recorded episode)"))
+            for rec in record_worst_videos(board, out / "videos", fps=args.fps, progress=not args.quiet,
+                                           records_dir=out / "records"):
+                print(f"wrote {rec.path}" + ("" if rec.reproduced else "  (its replay differs from the board's episode)"))
     return 0
 
 
@@ -320,7 +360,16 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--video", help="write an .mp4 (or .gif) of all episodes to this file")
     r.add_argument("--fps", type=float, default=20.0, help="video frames per second")
     r.add_argument("--render", choices=["human"], help="show a pygame window")
+    r.add_argument("--record", metavar="DIR", help="record every episode to DIR/episode_<k>/ (swarm-env replay DIR)")
     r.set_defaults(func=cmd_run)
+
+    rp = sub.add_parser("replay", help="re-simulate recorded episodes without the policy (run --record DIR)")
+    rp.add_argument("dir", help="a recording directory (or one episode_<k> folder of it)")
+    rp.add_argument("--video", help="write an .mp4 (or .gif) of the replayed episodes to this file")
+    rp.add_argument("--fps", type=float, default=20.0, help="video frames per second")
+    rp.add_argument("--check", action="store_true",
+                    help="stop at the first step whose state digest differs from the record and exit 1")
+    rp.set_defaults(func=cmd_replay)
 
     b = sub.add_parser("bench", help="env throughput with random actions (median of repeats)")
     b.add_argument("--scenario", default="paper_cbs_switch")
@@ -367,7 +416,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help=ENV_HELP + "; generator knobs apply to the random scenario only")
     e.add_argument("--out", metavar="DIR", help="write DIR/leaderboard.md, .csv and .json")
     e.add_argument("--videos", action="store_true", help="also write DIR/videos/<policy>__<scenario>__seed<k>.mp4 "
-                   "of each policy's worst episode per scenario (most collisions, then failure, then formation error)")
+                   "of each policy's worst episode per scenario (most collisions, then failure, then formation error), "
+                   "replayed from its record, saved as DIR/records/<policy>__<scenario>__seed<k>/")
     e.add_argument("--fps", type=float, default=20.0, help="video frames per second")
     e.add_argument("--quiet", action="store_true", help="no progress bars")
     e.set_defaults(func=cmd_evaluate)

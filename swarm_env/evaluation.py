@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Iterable
 from typing import Any
@@ -24,13 +25,17 @@ def run_episode(
     policy: Policy,
     seed: int | None,
     on_frame: Callable[[np.ndarray], None] | None = None,
+    on_step: Callable[[dict[str, Any] | None], None] | None = None,
 ) -> dict[str, Any]:
     """Play one episode of ``policy`` in ``env`` from ``reset(seed)``.
 
     ``on_frame`` (if given, and the env renders ``rgb_array``) receives every
-    frame, the initial one included. Returns ``env.episode_metrics()`` plus
-    ``seed``, ``policy_time`` (s spent in ``policy.act``) and, if the policy
-    has ``stats()``, ``policy_stats``.
+    frame, the initial one included. ``on_step`` (if given) is called with
+    ``None`` after the reset and with the actions dict after every
+    ``env.step`` that applied it (:mod:`swarm_env.recording` records through
+    it); an exception it raises ends the episode and propagates. Returns
+    ``env.episode_metrics()`` plus ``seed``, ``policy_time`` (s spent in
+    ``policy.act``) and, if the policy has ``stats()``, ``policy_stats``.
     """
     obs, _ = env.reset(seed=seed)
     policy.reset(env, seed)
@@ -43,11 +48,15 @@ def run_episode(
                 on_frame(frame)
 
     emit()
+    if on_step is not None:
+        on_step(None)
     while env.agents:
         t0 = time.perf_counter()
         actions = policy.act(obs, env.world_state())
         policy_time += time.perf_counter() - t0
         obs, _, _, _, _ = env.step(actions)
+        if on_step is not None:
+            on_step(actions)
         emit()
     result = {"seed": seed, **env.episode_metrics(), "policy_time": policy_time}
     stats = getattr(policy, "stats", None)
@@ -117,16 +126,23 @@ def evaluate(
     env_kwargs: dict[str, Any] | None = None,
     on_frame: Callable[[np.ndarray], None] | None = None,
     progress: bool = False,
+    record_dir: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """Run ``episodes`` episodes (seeds ``seed, seed+1, ...``) and aggregate them.
 
     ``on_frame`` receives the frames of every episode in order (the env is
     made with ``render_mode="rgb_array"`` when it is given, unless
-    ``env_kwargs`` sets a render mode).
+    ``env_kwargs`` sets a render mode). ``record_dir``: also record episode
+    ``k`` to ``record_dir/episode_<k>/`` (:mod:`swarm_env.recording`; the
+    directory must not hold recorded episodes yet); the metrics are the same.
     """
     kwargs = dict(env_kwargs or {})
     if on_frame is not None:
         kwargs.setdefault("render_mode", "rgb_array")
+    if record_dir is not None:
+        from swarm_env import recording  # noqa: PLC0415 - it imports this module
+
+        recording.ensure_new_recording_dir(record_dir)
     env = SwarmEnv(scenario, **kwargs)
     try:
         policy = load_policy(policy_spec, env)
@@ -135,7 +151,15 @@ def evaluate(
             from tqdm.auto import tqdm
 
             seeds = tqdm(seeds, desc=f"{policy_spec} on {scenario}", unit="ep")
-        results = [run_episode(env, policy, s, on_frame) for s in seeds]
+        results = []
+        for k, s in enumerate(seeds):
+            if record_dir is None:
+                results.append(run_episode(env, policy, s, on_frame))
+                continue
+            metrics, rec = recording.record_episode(env, policy, s, policy_spec=policy_spec, scenario_spec=str(scenario),
+                                                    episode=k, on_frame=on_frame)
+            recording.save_episode(rec, record_dir)
+            results.append(metrics)
     finally:
         env.close()
     return {"scenario": env.scenario_name, "policy": policy_spec, "episodes": results, "summary": summarize(results)}

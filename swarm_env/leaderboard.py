@@ -13,7 +13,7 @@ interval of the headline metrics, plus every episode's metrics.
                             {"paper_vo_0": range(5), "random": range(1000, 1050)}, workers=2)
     print(board.to_markdown())
     board.to_csv("leaderboard.csv"); board.to_json("leaderboard.json")
-    record_worst_videos(board, "videos")
+    record_worst_videos(board, "videos", records_dir="records")
 
 Seeds. A fixed scenario (``paper_vo_0``, ...) is deterministic: only a
 stochastic policy makes its seeds differ, so few seeds suffice
@@ -26,6 +26,12 @@ policy that play the job's seeds in order. ``workers > 1`` runs jobs in a
 process pool (``spawn``: no state inherited from the parent), which gives the
 same metrics as ``workers=1`` because a job does not depend on where it runs;
 only the timings (``wall_time``, ``policy_time``, ``policy_stats``) differ.
+
+Records. Every episode is recorded as it is played (:mod:`swarm_env.recording`: its actions
+and state digests; the metrics are those of an unrecorded run), and each job keeps the record
+of its worst episode (:func:`badness`) in :attr:`Leaderboard.records`, so that
+:func:`record_worst_videos` renders the worst episodes by replaying their records, without
+running a policy again.
 
 A policy that refuses a scenario (a :class:`~swarm_env.policies.PolicyError`,
 e.g. ``vo`` with ``action_type="discrete"``) gives a row marked ``n/a: reason``.
@@ -59,10 +65,11 @@ from typing import Any
 import numpy as np
 
 from swarm_env.env import SwarmEnv, env_kwargs_for
-from swarm_env.evaluation import mean_ci95_t, run_episode, summarize
+from swarm_env.evaluation import mean_ci95_t, summarize
 from swarm_env.policies import (
     PolicyError, UnknownPolicyError, acts_on, load_policy, registered_policies, training_runs,
 )
+from swarm_env.recording import EpisodeRecord, load_episode, record_episode, replay, save_episode
 from swarm_env.scenario_io import RANDOM_NAME
 
 #: Seeds of a fixed scenario when none are given (deterministic up to the policy's own randomness).
@@ -221,6 +228,7 @@ class _Job:
 class _JobResult:
     episodes: list[dict[str, Any]]
     na_reason: str | None
+    worst: EpisodeRecord | None = None  # the record of the job's worst episode (the first seed on ties)
 
 
 def _run_job(job: _Job, on_episode: Callable[[], None]) -> _JobResult:
@@ -239,10 +247,14 @@ def _run_job(job: _Job, on_episode: Callable[[], None]) -> _JobResult:
         except ValueError as exc:
             message = str(exc) if str(exc).startswith("policy ") else f"policy {job.policy!r}: {exc}"
             return _JobResult([], message)
-        episodes = []
+        episodes: list[dict[str, Any]] = []
+        worst: EpisodeRecord | None = None
         for seed in job.seeds:
             try:
-                episodes.append(run_episode(env, policy, seed))
+                metrics, rec = record_episode(env, policy, seed, policy_spec=job.policy, scenario_spec=job.scenario)
+                episodes.append(metrics)
+                if worst is None or badness(metrics) > badness(worst.metrics):  # strictly: ties keep the first
+                    worst = rec
             except PolicyError as exc:
                 if episodes:  # a refusal after some episodes ran is a fault, not a misfit
                     raise
@@ -251,7 +263,7 @@ def _run_job(job: _Job, on_episode: Callable[[], None]) -> _JobResult:
                 exc.add_note(f"while evaluating policy {job.policy!r} on scenario {job.scenario!r}, seed {seed}")
                 raise
             on_episode()
-        return _JobResult(episodes, None)
+        return _JobResult(episodes, None, worst)
     finally:
         env.close()
 
@@ -393,8 +405,11 @@ def run_leaderboard(
 
     rows: list[Row] = []
     episodes: list[dict[str, Any]] = []
+    records: dict[tuple[str, str, int], EpisodeRecord] = {}
     by_job: dict[tuple[str, str], Row] = {}
     for job, result in zip(jobs, results):
+        if result.worst is not None:
+            records[(job.policy, job.scenario, int(result.worst.seed))] = result.worst  # type: ignore[arg-type]
         method = method_of.get(job.policy)
         if result.na_reason is not None:
             row = Row(job.policy, job.scenario, list(job.seeds), None, result.na_reason, method=method)
@@ -409,7 +424,7 @@ def run_leaderboard(
             if len(members[p]) > 1:
                 rows.append(method_row(p, [by_job[(m, s)] for m in members[p]]))
             rows.extend(by_job[(m, s)] for m in members[p])
-    return Leaderboard(list(policies), list(scenarios), seed_map, kwargs, rows, episodes, wall, workers)
+    return Leaderboard(list(policies), list(scenarios), seed_map, kwargs, rows, episodes, wall, workers, records=records)
 
 
 def aggregate_training_seeds(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -490,6 +505,9 @@ class Leaderboard:
     ``rows``: one :class:`Row` per policy x scenario (policies outer, scenarios inner).
     ``episodes``: ``{"policy", "scenario", "seed", "metrics"}`` per episode played, where
     ``metrics`` is :func:`~swarm_env.evaluation.run_episode`'s dict.
+    ``records``: ``(policy, scenario, seed)`` -> the :class:`~swarm_env.recording.EpisodeRecord`
+    of each job's worst episode (what :func:`record_worst_videos` replays); not in the JSON, so
+    empty in a board read back by :meth:`from_json`.
     """
 
     policies: list[str]
@@ -501,6 +519,7 @@ class Leaderboard:
     wall_time: float = 0.0
     workers: int = 1
     metrics: tuple[Metric, ...] = field(default=METRICS, repr=False)
+    records: dict[tuple[str, str, int], EpisodeRecord] = field(default_factory=dict, repr=False, compare=False)
 
     def row(self, policy: str, scenario: str) -> Row:
         for r in self.rows:
@@ -642,7 +661,7 @@ def _behaviour(metrics: Mapping[str, Any]) -> dict[str, Any]:
 
 @dataclass(frozen=True)
 class VideoRecord:
-    """A written video of one episode; ``reproduced`` says its re-run matched the recorded metrics."""
+    """A written video of one episode; ``reproduced`` says its replay matched the record and the board's metrics."""
 
     path: Path
     policy: str
@@ -658,13 +677,19 @@ def record_worst_videos(
     fps: float = 20.0,
     per_scenario: bool = True,
     progress: bool = True,
+    records_dir: str | os.PathLike[str] | None = None,
 ) -> list[VideoRecord]:
-    """Re-run each worst episode (:meth:`Leaderboard.worst_episodes`) with ``render_mode="rgb_array"``
-    and write ``<out_dir>/<policy>__<scenario>__seed<k>.mp4`` (names made safe by :func:`safe_name`).
+    """Render each worst episode (:meth:`Leaderboard.worst_episodes`) to
+    ``<out_dir>/<name>.mp4`` by replaying its record (:func:`swarm_env.recording.replay`: the
+    recorded actions, no policy), where ``<name>`` is ``<policy>__<scenario>__seed<k>`` made
+    safe by :func:`safe_name`.
 
-    Episodes are deterministic by seed, so the re-run (a fresh env and policy) should reproduce the
-    recorded metrics; a ``RuntimeWarning`` says so when it does not (e.g. a policy that carries state
-    from one episode to the next), and the video shows the re-run.
+    The record comes from ``board.records`` (a board made by :func:`run_leaderboard`) or else
+    from ``<records_dir>/<name>/`` (saved by an earlier call); with ``records_dir`` the board's
+    records are saved there too, one recording each (``swarm-env replay <records_dir>/<name>``).
+    A worst episode with no record raises ``ValueError`` naming it. ``VideoRecord.reproduced``
+    says that the replay matched the record's state digests and the board's metrics; a
+    ``RuntimeWarning`` says when it did not (the video shows the replay).
     """
     from tqdm.auto import tqdm
 
@@ -680,25 +705,42 @@ def record_worst_videos(
         if name in used:  # two specs that differ only in unsafe characters
             name += "-" + hashlib.sha1(f"{policy}\0{scenario}".encode()).hexdigest()[:8]
         used.add(name)
+        rec = _worst_record(board, entry, None if records_dir is None else Path(records_dir) / name)
         path = out / f"{name}.mp4"
-        env = SwarmEnv(scenario, **{**env_kwargs_for(scenario, board.env_kwargs), "render_mode": "rgb_array"})
-        try:
-            pol = load_policy(policy, env)
-            with VideoWriter(path, fps=fps) as writer:
-                rerun = run_episode(env, pol, seed, on_frame=writer.append)
-        finally:
-            env.close()
-        same = _json_roundtrip(_behaviour(rerun)) == _json_roundtrip(_behaviour(entry["metrics"]))
+        with VideoWriter(path, fps=fps) as writer:
+            result = replay(rec, on_frame=writer.append)
+        same = result.ok and _json_roundtrip(_behaviour(result.metrics)) == _json_roundtrip(_behaviour(entry["metrics"]))
         if not same:
+            why = result.divergence.message() if result.divergence is not None else (
+                f"collisions {entry['metrics']['collisions']['total']} -> {result.metrics['collisions']['total']}, "
+                f"success {entry['metrics']['success']} -> {result.metrics['success']}")
             warnings.warn(
-                f"re-running policy {policy!r} on {scenario!r} seed {seed} for its video did not reproduce the "
-                f"recorded metrics (collisions {entry['metrics']['collisions']['total']} -> {rerun['collisions']['total']}, "
-                f"success {entry['metrics']['success']} -> {rerun['success']}); the video shows the re-run",
+                f"replaying the record of policy {policy!r} on {scenario!r} seed {seed} for its video did not "
+                f"reproduce the board's episode ({why}); the video shows the replay",
                 RuntimeWarning,
                 stacklevel=2,
             )
         records.append(VideoRecord(path, policy, scenario, seed, same))
     return records
+
+
+def _worst_record(board: Leaderboard, entry: Mapping[str, Any], folder: Path | None) -> EpisodeRecord:
+    """The record of a worst episode: from the board (then saved to ``folder``, if given) or from ``folder``."""
+    policy, scenario, seed = entry["policy"], entry["scenario"], int(entry["seed"])
+    rec = board.records.get((policy, scenario, seed))
+    if rec is not None:
+        if folder is not None:
+            save_episode(rec, folder)
+        return rec
+    if folder is not None and folder.is_dir():
+        rec = load_episode(folder / "episode_0")  # where save_episode put it (a leaderboard record is episode 0)
+        if (rec.policy, rec.scenario_spec, rec.seed) != (policy, scenario, seed):
+            raise ValueError(f"{folder}: records policy {rec.policy!r} on {rec.scenario_spec!r} seed {rec.seed}, "
+                             f"not the worst episode {policy!r} on {scenario!r} seed {seed}")
+        return rec
+    where = f" and {folder} holds none" if folder is not None else ""
+    raise ValueError(f"no record of the worst episode of policy {policy!r} on {scenario!r} (seed {seed}): the board "
+                     f"holds records only when run_leaderboard made it{where}")
 
 
 def _json_roundtrip(x: Any) -> Any:

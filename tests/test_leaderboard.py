@@ -177,7 +177,7 @@ def test_refused_scenario_gives_an_na_row(tmp_path: Path) -> None:
 
 
 def test_inputs_are_checked_before_any_episode(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setattr(lb, "run_episode", lambda *a, **k: pytest.fail("an episode ran"))
+    monkeypatch.setattr(lb, "record_episode", lambda *a, **k: pytest.fail("an episode ran"))
     with pytest.raises(UnknownPolicyError, match="nope"):
         run_leaderboard(["zero", "nope"], ["paper_vo_0"], [0], progress=False)
     with pytest.raises(ValueError, match="no_such_scenario"):
@@ -216,19 +216,45 @@ def test_safe_names() -> None:
     assert safe_name("../..") == "x"
 
 
-def test_worst_episode_video_is_written_and_reproduced(tmp_path: Path) -> None:
+def test_worst_episode_video_is_replayed_from_its_record(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     board = run_leaderboard(["random"], ["paper_vo_0"], [0, 1], env_kwargs={"max_cycles": 5}, progress=False)
     (worst,) = board.worst_episodes()
-    (rec,) = record_worst_videos(board, tmp_path / "videos", fps=10, progress=False)
+    assert list(board.records) == [("random", "paper_vo_0", worst["seed"])]  # only the worst episode's record is kept
+    # the videos replay records: no policy runs again
+    monkeypatch.setattr(lb, "load_policy", lambda *a, **k: pytest.fail("a policy was loaded"))
+    (rec,) = record_worst_videos(board, tmp_path / "videos", fps=10, progress=False, records_dir=tmp_path / "records")
+    name = f"random__paper_vo_0__seed{worst['seed']}"
     assert rec.reproduced and rec.seed == worst["seed"]
-    assert rec.path == tmp_path / "videos" / f"random__paper_vo_0__seed{worst['seed']}.mp4"
+    assert rec.path == tmp_path / "videos" / f"{name}.mp4"
     with imageio.get_reader(str(rec.path)) as reader:
         assert sum(1 for _ in reader) == 5 + 1  # the initial frame and one per step
+    assert (tmp_path / "records" / name / "episode_0" / "actions.npz").is_file()  # swarm-env replay reads it
 
-    worst["metrics"]["collisions"]["total"] += 7  # the recorded episode no longer matches its re-run
-    with pytest.warns(RuntimeWarning, match="did not reproduce"):
+    # a board read back from JSON holds no records: they come from records_dir, or it is an error
+    board.to_json(tmp_path / "lb.json")
+    again = Leaderboard.from_json(tmp_path / "lb.json")
+    (rec,) = record_worst_videos(again, tmp_path / "from_disk", fps=10, progress=False, records_dir=tmp_path / "records")
+    assert rec.reproduced
+    with pytest.raises(ValueError, match=f"no record of the worst episode of policy 'random' on 'paper_vo_0' \\(seed {worst['seed']}\\)"):
+        record_worst_videos(again, tmp_path / "none", fps=10, progress=False)
+
+    worst["metrics"]["collisions"]["total"] += 7  # the board's episode no longer matches its record's replay
+    with pytest.warns(RuntimeWarning, match="did not reproduce the board's episode"):
         (rec,) = record_worst_videos(board, tmp_path / "again", fps=10, progress=False)
     assert not rec.reproduced and rec.path.exists()
+
+
+def test_recording_leaves_the_metrics_unchanged() -> None:
+    """The leaderboard records every episode it plays; the metrics are those of a plain run_episode."""
+    from swarm_env.env import SwarmEnv
+    from swarm_env.evaluation import run_episode
+    from swarm_env.policies import load_policy
+
+    board = run_leaderboard(["random"], ["random"], [1000, 1001], env_kwargs={"max_cycles": 20}, progress=False)
+    env = SwarmEnv("random", max_cycles=20)
+    policy = load_policy("random", env)
+    plain = [run_episode(env, policy, seed) for seed in (1000, 1001)]
+    assert [lb._behaviour(e["metrics"]) for e in board.episodes] == [lb._behaviour(m) for m in plain]
 
 
 # --------------------------------------------------------------------------- command line
@@ -247,6 +273,17 @@ def test_cli_writes_tables(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
         assert len(list(csv.DictReader(f))) == 4
 
 
+def test_cli_videos_replay_saved_records(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "out"
+    code = main(["evaluate", "--policies", "random", "--scenarios", "paper_vo_0", "--seeds", "0", "--max-cycles", "5",
+                 "--out", str(out), "--videos", "--quiet"])
+    assert code == 0
+    assert f"wrote {out / 'videos' / 'random__paper_vo_0__seed0.mp4'}\n" in capsys.readouterr().out
+    record = out / "records" / "random__paper_vo_0__seed0"
+    assert main(["replay", str(record), "--check"]) == 0  # the saved record replays on its own
+    assert "random on paper_vo_0, 5 of 5 steps replayed, 6 digests checked" in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [
@@ -263,7 +300,7 @@ def test_cli_writes_tables(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -
 def test_cli_bad_input_exits_2_before_any_episode(
     argv: list[str], message: str, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
 ) -> None:
-    monkeypatch.setattr(lb, "run_episode", lambda *a, **k: pytest.fail("an episode ran"))
+    monkeypatch.setattr(lb, "record_episode", lambda *a, **k: pytest.fail("an episode ran"))
     assert main(["evaluate", *argv]) == 2
     captured = capsys.readouterr()
     assert message in captured.err and captured.out == ""
