@@ -147,11 +147,10 @@ class _Unnormalised:
 def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
     """The exported actor of an RLlib run as a policy acting with its mean (no Ray, no pickle)."""
     import torch
-    from safetensors.torch import load_file
 
     from baselines.mappo_policy import MAPPOPolicy
     from baselines.ppo_core import mlp
-    from baselines.safe_io import read_description
+    from baselines.safe_io import one_line, read_description, read_tensors
 
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FORMAT)
@@ -160,15 +159,13 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
         if meta["activation"] != "tanh" or len(sizes) < 2:
             raise ValueError(f"unsupported actor {meta['activation']!r} {sizes}")
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{d / CONFIG_FILE}: not an exported RLlib actor ({exc})") from None
+        raise ValueError(f"{d / CONFIG_FILE}: not an exported RLlib actor ({one_line(exc)})") from None
     actor = mlp(sizes)
+    tensors = read_tensors(d / WEIGHTS_FILE)
     try:
-        tensors = load_file(str(d / WEIGHTS_FILE), device="cpu")
         actor.load_state_dict({k[len("actor."):]: v for k, v in tensors.items()}, strict=True)
-    except FileNotFoundError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - any failure here means a bad file
-        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({exc})") from None
+    except (RuntimeError, ValueError) as exc:  # missing/unexpected keys, shape mismatches
+        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({one_line(exc)})") from None
     actor.eval()
     torch.set_num_threads(1)
     return MAPPOPolicy(actor, _Unnormalised(sizes[0]), name=name or f"rllib:{directory}")  # type: ignore[arg-type]
@@ -176,14 +173,14 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
 
 def make_rllib_policy(env: Any, arg: str | None = None) -> Any:
     """Entry point ``rllib:DIR``: the actor exported by ``python -m baselines.rllib_train --out DIR``."""
-    from swarm_env.policies import PolicyError
+    from swarm_env.policies import ModelFileError, PolicyError
 
     if not arg:
         raise PolicyError("policy 'rllib' needs a run directory: rllib:DIR (written by python -m baselines.rllib_train)")
     try:
         policy = load_rllib_policy(arg, name=f"rllib:{arg}")
-    except (FileNotFoundError, ValueError) as exc:
-        raise PolicyError(f"policy rllib:{arg}: {exc}") from None
+    except ValueError as exc:
+        raise ModelFileError(f"policy rllib:{arg}: {exc}") from None
     policy.reset(env, None)
     return policy
 
