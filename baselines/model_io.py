@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.policies import OBSERVATIONS, ModelFileError, PolicyError, pickle_trusted
+from swarm_env.policies import OBSERVATIONS, ModelFileError, PolicyError
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -56,11 +56,6 @@ VECNORM_FILE = "vecnormalize.pkl"
 RETIRED = ("the v0 checkpoint that {algo!r} loaded without a path was retired (trained on swarm_env_v0 from an "
            "uncommitted tree); give a run directory, {algo}:PATH, or use a shipped method: ippo, mappo, "
            "mappo_shielded, residual_vo (docs/baselines.md)")
-#: The refusal of a file that would be unpickled without the opt-in.
-PICKLE_REFUSED = ("{path}: loading it would unpickle {what}, and unpickling runs any code the file carries; refused. "
-                  "If you trust its source, opt in with --trust-pickle (swarm-env run/evaluate, python -m "
-                  "baselines.train), SWARM_ENV_TRUST_PICKLE=1 or trust_pickle=True in Python, or convert it once: "
-                  "python -m baselines.safe_io {directory} --trust-pickle (docs/baselines.md, 'Model files and safety')")
 
 
 def _running_mean_std_base() -> type:
@@ -141,20 +136,15 @@ def check_sb3_zip(path: Path, algo: str) -> dict[str, Any]:
     return data
 
 
-def _refuse_pickle(path: Path, what: str, trust_pickle: bool | None) -> None:
-    if not pickle_trusted(trust_pickle):
-        raise ModelFileError(PICKLE_REFUSED.format(path=path, what=what, directory=path.parent))
-
-
 def load_vecnormalize(path: Path, *, trust_pickle: bool | None = None) -> "VecNormalize":
     """The pickled ``VecNormalize`` in ``path`` (without its venv: ``normalize_obs`` still works), in
     evaluation mode. Refused unless pickles are trusted (:func:`~swarm_env.policies.pickle_trusted`);
     a :class:`ModelFileError` naming the file if it is not a readable VecNormalize pickle."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from baselines.safe_io import one_line
+    from baselines.safe_io import one_line, refuse_pickle
 
-    _refuse_pickle(path, "a Python pickle (VecNormalize statistics)", trust_pickle)
+    refuse_pickle(path, "a Python pickle (VecNormalize statistics)", trust_pickle)
     try:
         with open(path, "rb") as fh:
             vecnorm = pickle.load(fh)
@@ -193,12 +183,12 @@ def load_model(path: str | Path, algo: str = "ppo", *, trust_pickle: bool | None
     the file) for a refused, truncated, corrupt or other-algorithm file; a corrupt archive or another
     algorithm is reported before anything is unpickled.
     """
-    from baselines.safe_io import one_line
+    from baselines.safe_io import one_line, refuse_pickle
 
     model_path = resolve_model_path(path)
     check_sb3_zip(model_path, algo)
     stats = model_path.parent / VECNORM_FILE
-    _refuse_pickle(model_path, "the cloudpickled parts of an SB3 model" + (f" (and {VECNORM_FILE} beside it)"
+    refuse_pickle(model_path, "the cloudpickled parts of an SB3 model" + (f" (and {VECNORM_FILE} beside it)"
                    if stats.is_file() else ""), trust_pickle)
     cls = algorithm_class(algo)
     try:

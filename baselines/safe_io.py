@@ -39,7 +39,7 @@ WEIGHTS_FILE = "policy.safetensors"
 CONFIG_FILE = "policy.json"
 
 __all__ = ["FORMAT", "WEIGHTS_FILE", "CONFIG_FILE", "ObsNormalizer", "save_policy", "load_policy_dir", "has_safe_policy",
-           "saved_statistics", "read_tensors", "read_description", "one_line"]
+           "saved_statistics", "read_tensors", "read_description", "refuse_pickle", "one_line"]
 
 
 class ObsNormalizer:
@@ -184,6 +184,20 @@ def _loader_of(fmt: Any) -> str | None:
 
     return {FORMAT: "ppo:PATH, sac:PATH or bc:PATH", RLLIB_FORMAT: "rllib:PATH",
             MAPPO_FORMAT: "mappo:PATH, ippo:PATH, mappo_shielded:PATH or residual_vo:PATH"}.get(fmt)
+
+
+def refuse_pickle(path: Path, what: str, trust_pickle: bool | None, convert: bool = True) -> None:
+    """Raise a :class:`~swarm_env.policies.ModelFileError` about ``path`` (which would unpickle ``what``)
+    unless pickles are trusted (:func:`swarm_env.policies.pickle_trusted` of ``trust_pickle``); the
+    message says how to opt in and, with ``convert``, how to convert the directory once instead."""
+    from swarm_env.policies import ModelFileError, pickle_trusted
+
+    if pickle_trusted(trust_pickle):
+        return
+    remedy = (f", or convert it once: python -m baselines.safe_io {path.parent} --trust-pickle" if convert else "")
+    raise ModelFileError(f"{path}: loading it would unpickle {what}, and unpickling runs any code the file carries; "
+                         f"refused. If you trust its source, opt in with --trust-pickle, SWARM_ENV_TRUST_PICKLE=1 or "
+                         f"trust_pickle=True in Python{remedy} (docs/baselines.md, 'Model files and safety')")
 
 
 def one_line(exc: BaseException) -> str:

@@ -286,3 +286,29 @@ def test_the_leaderboard_stops_on_a_bad_model_file(run, tmp_path, capsys) -> Non
                      "--max-cycles", "3", "--quiet", "--action-type", "discrete"])
     assert code == 0  # a model that does not fit the env is an n/a row, as before
     assert "n/a: " in capsys.readouterr().out
+
+
+def test_resuming_an_rllib_run_asks_for_the_opt_in(tmp_path, capsys) -> None:
+    """RLlib's checkpoint is pickled state: --resume is refused before Ray is even imported."""
+    from baselines import rllib_train
+
+    assert rllib_train.main(["--out", str(tmp_path / "run"), "--resume", "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "rllib_checkpoint: loading it would unpickle RLlib's checkpoint" in err
+    assert "safe_io" not in err  # no conversion to offer: the run's exported actor is already safe
+
+
+@pytest.mark.ray
+def test_the_ray_backend_reports_a_refused_file_in_one_line_and_passes_the_opt_in(run, tmp_path, monkeypatch) -> None:
+    pytest.importorskip("ray")
+    from swarm_env.leaderboard import run_leaderboard
+
+    d = _legacy(run, tmp_path / "old")
+    args = ([f"ppo:{d}"], ["random"], {"random": [1000]})
+    kwargs = dict(env_kwargs={k: v for k, v in TINY_ENV.items()}, workers=1, progress=False, backend="ray")
+    with pytest.raises(ModelFileError, match="refused") as info:
+        run_leaderboard(*args, **kwargs)
+    assert type(info.value) is ModelFileError and "\n" not in str(info.value)  # the worker's error, not Ray's wrapper
+    monkeypatch.setenv(TRUST_PICKLE_ENV, "1")
+    board = run_leaderboard(*args, **kwargs)
+    assert len(board.episodes) == 1 and board.rows[0].na_reason is None
