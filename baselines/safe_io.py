@@ -91,11 +91,9 @@ def save_policy(model: "BaseAlgorithm", directory: str | Path, algo: str, vecnor
 def load_policy_dir(directory: str | Path) -> tuple[Any, ObsNormalizer | None, str]:
     """Rebuild ``(SB3 policy on CPU, observation normalizer or None, algo)`` from ``directory``.
 
-    Raises ``ValueError`` naming the file and what is wrong (unknown format, a missing key,
-    tensors that do not fit the network).
+    Raises ``ValueError`` naming the file and what is wrong (a missing or unreadable file, unknown
+    format, a missing key, tensors that do not fit the network).
     """
-    from safetensors.torch import load_file
-
     from baselines.model_io import algorithm_class
 
     d = Path(directory)

@@ -16,7 +16,7 @@ import contextlib
 import json
 import os
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -305,13 +305,13 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-TRUST_PICKLE_HELP = (f"load pickle-bearing model files (SB3 model.zip without policy.safetensors + policy.json, "
-                     f"vecnormalize.pkl): unpickling runs any code in the file, so only for files you trust "
+TRUST_PICKLE_HELP = ("load pickle-bearing model files (SB3 model.zip without policy.safetensors + policy.json, "
+                     "vecnormalize.pkl): unpickling runs any code in the file, so only for files you trust "
                      f"(the same as {TRUST_PICKLE_ENV}=1)")
 
 
 @contextlib.contextmanager
-def _pickle_trust(on: bool):
+def _pickle_trust(on: bool) -> Iterator[None]:
     """Set :data:`~swarm_env.policies.TRUST_PICKLE_ENV` while a command runs (its worker processes
     inherit it) and restore the previous value after, so an in-process ``main()`` leaves no trace."""
     if not on:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import pickle
 import shutil
 import zipfile
@@ -140,7 +141,7 @@ def test_the_opt_in_still_loads_legacy_directories(run, tmp_path, capsys, monkey
     assert vecnorm is not None and model.observation_space.shape == (52,)
     code, err = _cli_run(f"ppo:{d}", capsys, "--trust-pickle")
     assert code == 0, err
-    assert TRUST_PICKLE_ENV not in __import__("os").environ  # the CLI's opt-in ends with the command
+    assert TRUST_PICKLE_ENV not in os.environ  # the CLI's opt-in ends with the command
     monkeypatch.setenv(TRUST_PICKLE_ENV, "1")
     assert run_episode(_env(), load_policy(f"ppo:{d}", _env()), seed=1000)["steps"] == 30
     weights, obs_rms, _ = model_io.load_warm_start(d, "ppo")
@@ -305,7 +306,7 @@ def test_the_ray_backend_reports_a_refused_file_in_one_line_and_passes_the_opt_i
 
     d = _legacy(run, tmp_path / "old")
     args = ([f"ppo:{d}"], ["random"], {"random": [1000]})
-    kwargs = dict(env_kwargs={k: v for k, v in TINY_ENV.items()}, workers=1, progress=False, backend="ray")
+    kwargs = {"env_kwargs": dict(TINY_ENV), "workers": 1, "progress": False, "backend": "ray"}
     with pytest.raises(ModelFileError, match="refused") as info:
         run_leaderboard(*args, **kwargs)
     assert type(info.value) is ModelFileError and "\n" not in str(info.value)  # the worker's error, not Ray's wrapper
