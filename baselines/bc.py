@@ -55,8 +55,8 @@ What it does, top to bottom (:func:`train_bc`):
    after each DAgger iteration the policy plays those seeds through
    :func:`swarm_env.evaluation.run_episode`; ``eval.csv`` has one row per stage.
 
-Outputs in ``out``: ``model.zip`` + ``vecnormalize.pkl``
-(:func:`baselines.model_io.save_model`), ``bc_config.json`` (the config, the
+Outputs in ``out``: ``policy.safetensors`` + ``policy.json`` (what ``bc:OUT`` loads, no pickle)
+and SB3's ``model.zip`` + ``vecnormalize.pkl`` (:func:`baselines.model_io.save_model`), ``bc_config.json`` (the config, the
 demo file and its key, package versions), ``bc_log.csv`` (per epoch: train NLL,
 validation NLL, validation action MSE of the deterministic action, value
 losses, the policy's std; epoch 0 is the untrained network), ``eval.csv``,
@@ -108,7 +108,7 @@ class BCConfig:
     env_kwargs: dict[str, Any] = field(default_factory=dict)
     #: Seeds of the demonstration episodes, e.g. 0-199.
     train_seeds: str = "0-199"
-    #: Output directory (model.zip, vecnormalize.pkl, logs, plot).
+    #: Output directory (policy.safetensors + policy.json, model.zip, vecnormalize.pkl, logs, plot).
     out: str = "runs/bc"
     #: Seed of the network initialisation, the episode split and the minibatch order.
     seed: int = 0

@@ -5,7 +5,9 @@ A run directory of :mod:`baselines.mappo` (and each of its ``best/``) holds::
     policy.safetensors   actor, log_std and critic tensors (safetensors: data only)
     policy.json          {"format", "config" (the run's MAPPOConfig), "obs_rms", "state_rms"}
 
-Loading reads those two files and nothing else: no pickle, no code. The policy acts with the
+Loading reads those two files and nothing else: no pickle, no code; a missing, truncated or
+corrupt file, or another kind of policy's, is a :class:`~swarm_env.policies.ModelFileError`
+naming the file (``swarm-env run`` exits with code 2). The policy acts with the
 actor's mean (deterministic), on one torch thread, so an episode is the same bit for bit in
 any process (``tests/test_mappo.py`` checks it across processes).
 
@@ -142,12 +144,11 @@ def save_run_policy(directory: Path, actor: Any, log_std: Any, critic: Any, obs_
 def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd]:
     """``(config dict, actor module, observation statistics)`` of a saved run directory.
 
-    Raises ``FileNotFoundError`` or ``ValueError`` (naming the file) for a missing or bad file.
+    Raises ``ValueError`` (one line naming the file) for a missing or bad file.
     """
     import torch
-    from safetensors.torch import load_file
 
-    from baselines.safe_io import read_description
+    from baselines.safe_io import one_line, read_description, read_tensors
 
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FORMAT)
@@ -155,16 +156,16 @@ def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd
         config = dict(meta["config"])
         hidden = [int(h) for h in config["hidden"]]
         obs_rms = RunningMeanStd.from_json(meta["obs_rms"])
+        if config.get("residual"):
+            float(config["residual_scale"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{d / CONFIG_FILE}: not a run description of baselines.mappo ({exc})") from None
+        raise ValueError(f"{d / CONFIG_FILE}: not a run description of baselines.mappo ({one_line(exc)})") from None
     actor = mlp([obs_rms.mean.shape[0], *hidden, 2])
+    tensors = read_tensors(d / WEIGHTS_FILE)
     try:
-        tensors = load_file(str(d / WEIGHTS_FILE), device="cpu")
         actor.load_state_dict({k[len("actor."):]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
-    except FileNotFoundError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - any failure here means a bad file
-        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({exc})") from None
+    except (RuntimeError, ValueError) as exc:  # missing/unexpected keys, shape mismatches
+        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({one_line(exc)})") from None
     actor.eval()
     torch.set_num_threads(1)  # a small MLP on a few observations: threads only add overhead (and float noise)
     return config, actor, obs_rms
@@ -174,13 +175,16 @@ def load_run_policy(directory: str | Path, env: Any | None = None, name: str | N
     """The actor of a saved run as a policy (a :class:`ResidualPolicy` for a residual run, whose
     expert is built for ``env``). No pickle involved."""
     config, actor, obs_rms = read_run(directory)
-    label = name or f"mappo:{directory}"
+    return _policy_of_run(config, actor, obs_rms, env, name or f"mappo:{directory}")
+
+
+def _policy_of_run(config: dict[str, Any], actor: Any, obs_rms: RunningMeanStd, env: Any | None, label: str) -> MAPPOPolicy:
     expert_spec = config.get("residual")
     if expert_spec:
         from swarm_env.policies import load_policy
 
         if env is None:
-            raise ValueError(f"{directory}: a residual run needs the env to build its expert {expert_spec!r}")
+            raise ValueError(f"{label}: a residual run needs the env to build its expert {expert_spec!r}")
         return ResidualPolicy(actor, obs_rms, load_policy(expert_spec, env), float(config["residual_scale"]), name=label)
     return MAPPOPolicy(actor, obs_rms, name=label)
 
@@ -189,11 +193,19 @@ def load_run_policy(directory: str | Path, env: Any | None = None, name: str | N
 
 
 def _load(env: Any, path: str | Path, name: str) -> MAPPOPolicy:
-    from swarm_env.policies import PolicyError
+    from swarm_env.policies import ModelFileError, PolicyError, UnknownPolicyError
 
     try:
-        policy = load_run_policy(path, env, name=name)
-    except (FileNotFoundError, ValueError) as exc:
+        config, actor, obs_rms = read_run(path)
+    except ValueError as exc:
+        raise ModelFileError(f"policy {name}: {exc}") from None
+    try:
+        policy = _policy_of_run(config, actor, obs_rms, env, name)
+    except UnknownPolicyError as exc:
+        raise ModelFileError(f"policy {name}: {Path(path) / CONFIG_FILE}: its residual expert: {exc.args[0]}") from None
+    except PolicyError:
+        raise  # the residual's expert refuses the env: a misfit, not a bad file
+    except ValueError as exc:
         raise PolicyError(f"policy {name}: {exc}") from None
     policy.reset(env, None)
     return policy

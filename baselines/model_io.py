@@ -1,20 +1,30 @@
 """Saved SB3 models as swarm_env policies: the ``ppo:PATH``, ``sac:PATH`` and ``bc:PATH`` entry points.
 
-A saved model is a directory (or its ``model.zip``) holding::
+A saved model is a directory holding::
 
-    policy.safetensors + policy.json   the policy network and its observation statistics as
-                                       tensors and JSON (baselines.safe_io): loading cannot run code
-    model.zip          the SB3 model (``model.save``), for resuming and warm starts
-    vecnormalize.pkl   optional: the VecNormalize statistics the model was trained with
+    policy.safetensors + policy.json   the policy network, its observation and return statistics,
+                                       as tensors and JSON (baselines.safe_io): loading cannot run code
+    model.zip          the SB3 model (``model.save``), for SB3's own tools and for resuming training
+    vecnormalize.pkl   the VecNormalize object the model was trained with (SB3's format)
 
-A policy spec loads the safe files when the directory has them (every directory that
-:func:`save_model` writes does) and falls back to ``model.zip`` + ``vecnormalize.pkl``
-(pickles: only for files you trust) for older ones. :func:`load_model` reads the
-pickled pair, for training. :class:`SB3Policy` feeds each follower's
-observation through the same normalisation, then ``model.predict`` on the
-stacked batch (parameter sharing), deterministic by default. ``bc`` models are
-PPO-format checkpoints whose policy network was trained by behaviour cloning
-(see :mod:`baselines.bc`).
+``model.zip`` keeps parts of the model as cloudpickle blobs and ``vecnormalize.pkl`` is a pickle:
+unpickling either runs whatever code the file carries. So everything swarm_env reads by default
+comes from the safe pair: a policy spec loads it (``PATH`` may be the directory or its
+``model.zip``), and a warm start (:func:`load_warm_start`) takes the network's tensors and the
+statistics from it, or, for an older directory without it, the tensors from ``model.zip``'s
+``policy.pth`` (read by torch with ``weights_only=True``: data only). What must unpickle, an older
+directory as a policy, its ``vecnormalize.pkl``, and :func:`load_model` (the whole SB3 model), is
+refused with a :class:`~swarm_env.policies.ModelFileError` unless the caller opts in
+(:func:`swarm_env.policies.pickle_trusted`: ``trust_pickle=True``, ``SWARM_ENV_TRUST_PICKLE=1``,
+or ``--trust-pickle`` on the command lines). ``python -m baselines.safe_io DIR --trust-pickle``
+converts such a directory once.
+
+Every file problem (missing, truncated or corrupt, another algorithm's model, a refused pickle) is a
+``ModelFileError`` with one line naming the file; the CLI exits with code 2 on it.
+:class:`SB3Policy` feeds each follower's observation through the same normalisation, then
+``model.predict`` on the stacked batch (parameter sharing), deterministic by default. ``bc``
+models are PPO-format checkpoints whose policy network was trained by behaviour cloning (see
+:mod:`baselines.bc`).
 
 Every spec needs a path: the v0 checkpoints that ``ppo`` and ``bc`` once loaded without one
 were retired in issue 10 (trained on swarm_env_v0 from an uncommitted tree; superseded by the
@@ -23,13 +33,15 @@ shipped methods of :mod:`baselines.mappo_policy`), and a bare name says so.
 
 from __future__ import annotations
 
+import json
 import pickle
+import zipfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.policies import OBSERVATIONS, PolicyError
+from swarm_env.policies import OBSERVATIONS, ModelFileError, PolicyError
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -75,19 +87,80 @@ def algorithm_class(name: str) -> type["BaseAlgorithm"]:
         raise ValueError(f"unknown algorithm {name!r}; expected one of {sorted(classes)}") from None
 
 
+def same_family(a: str, b: str) -> bool:
+    """Whether algorithms ``a`` and ``b`` save the same kind of network (``bc`` checkpoints are PPO's)."""
+    return algorithm_class(a) is algorithm_class(b)
+
+
 def resolve_model_path(path: str | Path) -> Path:
     """``path`` itself if it is a file, else ``path/model.zip``; raises ``FileNotFoundError`` naming both."""
     p = Path(path).expanduser()
     if p.is_dir():
         p = p / MODEL_FILE
     if not p.is_file():
-        raise FileNotFoundError(f"no saved model at {path!s} (expected a .zip file or a directory with {MODEL_FILE})")
+        raise FileNotFoundError(f"no saved model at {path!s} (expected a run directory with policy.safetensors + "
+                                f"policy.json, or with {MODEL_FILE}, or a .zip file)")
     return p
 
 
+def check_sb3_zip(path: Path, algo: str) -> dict[str, Any]:
+    """The plain JSON fields of the SB3 archive ``path`` (its cloudpickled ``:serialized:`` fields
+    left as they are, never decoded), after checking, without unpickling anything, that it is a whole
+    zip archive (every member's CRC) holding SB3's ``data`` and was saved by ``algo``'s family
+    (its policy class's module, which SB3 writes in plain text). Raises :class:`ModelFileError`.
+    """
+    try:
+        with zipfile.ZipFile(path) as archive:
+            broken = archive.testzip()
+            if broken is not None:
+                raise zipfile.BadZipFile(f"member {broken} fails its CRC check")
+            if "data" not in archive.namelist():  # a truncated model.zip can even read as one of its inner torch archives
+                raise ModelFileError(f"{path}: not a readable stable-baselines3 model archive, truncated or corrupt, "
+                                     f"or not SB3's (no 'data' member)")
+            data = json.loads(archive.read("data").decode())
+    except ModelFileError:
+        raise
+    except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:  # zlib errors and bad JSON are ValueErrors
+        from baselines.safe_io import one_line
+
+        raise ModelFileError(f"{path}: not a readable stable-baselines3 model archive, truncated or corrupt "
+                             f"({one_line(exc)})") from None
+    if not isinstance(data, dict):
+        raise ModelFileError(f"{path}: not a stable-baselines3 model (its 'data' member is not a JSON object)")
+    module = data.get("policy_class", {}).get("__module__") if isinstance(data.get("policy_class"), dict) else None
+    want = algorithm_class(algo).policy_aliases["MlpPolicy"].__module__
+    if isinstance(module, str) and module.startswith("stable_baselines3.") and module != want:
+        owners = [n for n in ("ppo", "a2c", "sac", "td3") if algorithm_class(n).policy_aliases["MlpPolicy"].__module__ == module]
+        kind = f"a {'/'.join(owners)} model" if owners else "another algorithm's model"
+        raise ModelFileError(f"{path}: holds {kind} (its policy is from {module}), not a {algo} one")
+    return data
+
+
+def load_vecnormalize(path: Path, *, trust_pickle: bool | None = None) -> "VecNormalize":
+    """The pickled ``VecNormalize`` in ``path`` (without its venv: ``normalize_obs`` still works), in
+    evaluation mode. Refused unless pickles are trusted (:func:`~swarm_env.policies.pickle_trusted`);
+    a :class:`ModelFileError` naming the file if it is not a readable VecNormalize pickle."""
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from baselines.safe_io import one_line, refuse_pickle
+
+    refuse_pickle(path, "a Python pickle (VecNormalize statistics)", trust_pickle)
+    try:
+        with open(path, "rb") as fh:
+            vecnorm = pickle.load(fh)
+    except Exception as exc:  # noqa: BLE001 - a bad pickle raises anything (UnpicklingError, EOFError, ImportError, ...)
+        raise ModelFileError(f"{path}: not a readable VecNormalize pickle, truncated or corrupt "
+                             f"({type(exc).__name__}: {one_line(exc)})") from None
+    if not isinstance(vecnorm, VecNormalize):
+        raise ModelFileError(f"{path}: holds a {type(vecnorm).__name__}, not SB3's VecNormalize statistics")
+    vecnorm.training = False
+    return vecnorm
+
+
 def save_model(model: "BaseAlgorithm", directory: str | Path, vecnorm: "VecNormalize | None" = None) -> Path:
-    """Write the policy as tensors + JSON (:func:`baselines.safe_io.save_policy`), and ``model.zip``
-    (and ``vecnormalize.pkl`` if given) for training, into ``directory``; returns the directory."""
+    """Write the policy and its statistics as tensors + JSON (:func:`baselines.safe_io.save_policy`), and
+    ``model.zip`` (and ``vecnormalize.pkl`` if given) for SB3's tools and resuming, into ``directory``;
+    returns the directory."""
     from baselines.safe_io import save_policy
 
     out = Path(directory)
@@ -99,17 +172,77 @@ def save_model(model: "BaseAlgorithm", directory: str | Path, vecnorm: "VecNorma
     return out
 
 
-def load_model(path: str | Path, algo: str = "ppo") -> tuple["BaseAlgorithm", "VecNormalize | None"]:
-    """Load a saved model (on CPU) and its VecNormalize statistics, if saved beside it."""
+def load_model(path: str | Path, algo: str = "ppo", *, trust_pickle: bool | None = None
+               ) -> tuple["BaseAlgorithm", "VecNormalize | None"]:
+    """The whole SB3 model in ``path`` (a ``.zip`` or a directory with ``model.zip``; on CPU) and the
+    VecNormalize statistics saved beside it (or ``None``).
+
+    Both unpickle, so both are refused unless pickles are trusted
+    (:func:`~swarm_env.policies.pickle_trusted`: ``trust_pickle`` or ``SWARM_ENV_TRUST_PICKLE``).
+    Raises ``FileNotFoundError`` for a missing model and :class:`ModelFileError` (one line naming
+    the file) for a refused, truncated, corrupt or other-algorithm file; a corrupt archive or another
+    algorithm is reported before anything is unpickled.
+    """
+    from baselines.safe_io import one_line, refuse_pickle
+
     model_path = resolve_model_path(path)
-    model = algorithm_class(algo).load(model_path, device="cpu")
-    vecnorm = None
+    check_sb3_zip(model_path, algo)
     stats = model_path.parent / VECNORM_FILE
-    if stats.is_file():
-        with open(stats, "rb") as fh:
-            vecnorm = pickle.load(fh)  # a VecNormalize without its venv: normalize_obs() still works
-        vecnorm.training = False
+    refuse_pickle(model_path, "the cloudpickled parts of an SB3 model" + (f" (and {VECNORM_FILE} beside it)"
+                   if stats.is_file() else ""), trust_pickle)
+    cls = algorithm_class(algo)
+    try:
+        model = cls.load(model_path, device="cpu")
+    except Exception as exc:  # noqa: BLE001 - SB3 fails on a bad file with any type (AssertionError, KeyError, ...)
+        raise ModelFileError(f"{model_path}: stable-baselines3 could not load it as a {algo} model "
+                             f"({type(exc).__name__}: {one_line(exc)})") from None
+    if not isinstance(model.policy, cls.policy_aliases["MlpPolicy"]):
+        raise ModelFileError(f"{model_path}: holds a {type(model.policy).__name__}, not a {algo} policy")
+    vecnorm = load_vecnormalize(stats, trust_pickle=True) if stats.is_file() else None  # trust checked above
     return model, vecnorm
+
+
+def load_warm_start(path: str | Path, algo: str, *, trust_pickle: bool | None = None
+                    ) -> tuple[dict[str, Any], Any, Any]:
+    """What a warm start copies from a saved model: ``(policy state dict, observation statistics,
+    return statistics)``, the statistics as SB3 ``RunningMeanStd`` objects or ``None``.
+
+    From ``policy.safetensors`` + ``policy.json`` when the directory has them (no pickle); else the
+    tensors of ``model.zip``'s ``policy.pth`` (torch's ``weights_only`` reader: no code) and, if
+    there is a ``vecnormalize.pkl``, its statistics (a pickle: refused unless trusted). Raises
+    ``FileNotFoundError`` or :class:`ModelFileError` naming the file.
+    """
+    from baselines.safe_io import FORMAT as SAFE_FORMAT
+    from baselines.safe_io import (
+        CONFIG_FILE, WEIGHTS_FILE, has_safe_policy, one_line, read_description, read_tensors, saved_statistics,
+    )
+
+    p = Path(path).expanduser()
+    d = p if p.is_dir() else p.parent
+    if has_safe_policy(d) and (p.is_dir() or p.name == MODEL_FILE):
+        try:
+            saved = str(read_description(d / CONFIG_FILE, SAFE_FORMAT).get("algo"))
+            if not same_family(saved, algo):
+                raise ValueError(f"{d / CONFIG_FILE}: holds a {saved} policy, not a {algo} one")
+            weights = read_tensors(d / WEIGHTS_FILE)
+            obs_rms, ret_rms = saved_statistics(d)
+        except ValueError as exc:
+            raise ModelFileError(str(exc)) from None
+        return weights, obs_rms, ret_rms
+    model_path = resolve_model_path(path)
+    check_sb3_zip(model_path, algo)
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    try:
+        _, params, _ = load_from_zip_file(model_path, load_data=False, device="cpu")  # tensors only, weights_only=True
+        weights = params["policy"]
+    except Exception as exc:  # noqa: BLE001 - torch's safe reader refuses anything but tensors, with several types
+        raise ModelFileError(f"{model_path}: no readable policy tensors (policy.pth) in it ({one_line(exc)})") from None
+    stats = model_path.parent / VECNORM_FILE
+    if not stats.is_file():
+        return weights, None, None
+    vecnorm = load_vecnormalize(stats, trust_pickle=trust_pickle)
+    return weights, vecnorm.obs_rms, vecnorm.ret_rms
 
 
 class SB3Policy:
@@ -164,23 +297,30 @@ def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
     # A policy loaded by name is for scoring, so the process gets one torch thread; load_model itself
     # (used by training's --init-from) leaves the thread count alone.
     torch.set_num_threads(1)
-    from baselines.safe_io import has_safe_policy, load_policy_dir
+    from baselines.safe_io import CONFIG_FILE, WEIGHTS_FILE, has_safe_policy, load_policy_dir
 
-    where = Path(path).expanduser()  # type: ignore[arg-type]
+    where = Path(path).expanduser()
+    # The directory, or the directory of its model.zip: save_model wrote the safe pair from the same model.
+    safe_dir = where if where.is_dir() else where.parent if where.name == MODEL_FILE else None
     model: Any
-    if has_safe_policy(where):  # tensors + JSON: nothing to unpickle
+    if safe_dir is not None and has_safe_policy(safe_dir):  # tensors + JSON: nothing to unpickle
         try:
-            model, vecnorm, saved_algo = load_policy_dir(where)
+            model, vecnorm, saved_algo = load_policy_dir(safe_dir)
         except ValueError as exc:
-            raise PolicyError(f"policy {algo}:{path}: {exc}") from None
-        family = {"bc": "ppo"}.get(algo, algo)
-        if {"bc": "ppo"}.get(saved_algo, saved_algo) != family:
-            raise PolicyError(f"policy {algo}:{path}: {where} holds a {saved_algo} policy; load it as {saved_algo}:{path}")
+            raise ModelFileError(f"policy {algo}:{path}: {exc}") from None
+        if not same_family(saved_algo, algo):
+            raise ModelFileError(f"policy {algo}:{path}: {safe_dir} holds a {saved_algo} policy; load it as {saved_algo}:{path}")
     else:
+        half = [f for f in (WEIGHTS_FILE, CONFIG_FILE) if safe_dir is not None and (safe_dir / f).is_file()]
+        if half:
+            missing = CONFIG_FILE if half == [WEIGHTS_FILE] else WEIGHTS_FILE
+            raise ModelFileError(f"policy {algo}:{path}: {safe_dir} has {half[0]} but not {missing}")
         try:
-            model, vecnorm = load_model(path, algo)  # type: ignore[arg-type]
+            model, vecnorm = load_model(path, algo)
         except FileNotFoundError as exc:
-            raise PolicyError(str(exc)) from None
+            raise ModelFileError(f"policy {algo}:{path}: {exc}") from None
+        except ModelFileError as exc:
+            raise ModelFileError(f"policy {algo}:{path}: {exc}") from None
     policy = SB3Policy(model, vecnorm, name=f"{algo}:{path}")
     policy.reset(env, None)  # shape checks now, so a mismatch is reported before any episode runs
     return policy

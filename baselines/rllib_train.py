@@ -18,7 +18,8 @@ Outputs in ``--out`` (written atomically):
 * ``train.csv``: one row per iteration (agent-steps, env steps, mean episode return, wall time);
 * ``config.json`` and ``versions.json`` (the command's settings, package versions, git commit);
 * ``rllib_checkpoint/``: RLlib's own checkpoint, to continue training with ``--resume``. It
-  contains pickles: load it only from runs you made.
+  contains pickles, so ``--resume`` also needs ``--trust-pickle`` (or ``SWARM_ENV_TRUST_PICKLE=1``):
+  resume only runs you made.
 
 A centralised critic (MAPPO) is not offered here: RLlib's new stack would need a custom
 ``MultiRLModule`` plus a learner connector that adds the global state to every agent's batch;
@@ -32,6 +33,7 @@ import csv
 import dataclasses
 import io
 import json
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -147,11 +149,10 @@ class _Unnormalised:
 def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
     """The exported actor of an RLlib run as a policy acting with its mean (no Ray, no pickle)."""
     import torch
-    from safetensors.torch import load_file
 
     from baselines.mappo_policy import MAPPOPolicy
     from baselines.ppo_core import mlp
-    from baselines.safe_io import read_description
+    from baselines.safe_io import one_line, read_description, read_tensors
 
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FORMAT)
@@ -160,15 +161,13 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
         if meta["activation"] != "tanh" or len(sizes) < 2:
             raise ValueError(f"unsupported actor {meta['activation']!r} {sizes}")
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{d / CONFIG_FILE}: not an exported RLlib actor ({exc})") from None
+        raise ValueError(f"{d / CONFIG_FILE}: not an exported RLlib actor ({one_line(exc)})") from None
     actor = mlp(sizes)
+    tensors = read_tensors(d / WEIGHTS_FILE)
     try:
-        tensors = load_file(str(d / WEIGHTS_FILE), device="cpu")
         actor.load_state_dict({k[len("actor."):]: v for k, v in tensors.items()}, strict=True)
-    except FileNotFoundError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - any failure here means a bad file
-        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({exc})") from None
+    except (RuntimeError, ValueError) as exc:  # missing/unexpected keys, shape mismatches
+        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({one_line(exc)})") from None
     actor.eval()
     torch.set_num_threads(1)
     return MAPPOPolicy(actor, _Unnormalised(sizes[0]), name=name or f"rllib:{directory}")  # type: ignore[arg-type]
@@ -176,14 +175,14 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
 
 def make_rllib_policy(env: Any, arg: str | None = None) -> Any:
     """Entry point ``rllib:DIR``: the actor exported by ``python -m baselines.rllib_train --out DIR``."""
-    from swarm_env.policies import PolicyError
+    from swarm_env.policies import ModelFileError, PolicyError
 
     if not arg:
         raise PolicyError("policy 'rllib' needs a run directory: rllib:DIR (written by python -m baselines.rllib_train)")
     try:
         policy = load_rllib_policy(arg, name=f"rllib:{arg}")
-    except (FileNotFoundError, ValueError) as exc:
-        raise PolicyError(f"policy rllib:{arg}: {exc}") from None
+    except ValueError as exc:
+        raise ModelFileError(f"policy rllib:{arg}: {exc}") from None
     policy.reset(env, None)
     return policy
 
@@ -194,9 +193,16 @@ make_rllib_policy.acts_on = "observations"  # type: ignore[attr-defined]
 # --------------------------------------------------------------------------- training
 
 
-def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = True) -> list[dict[str, Any]]:
+def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = True,
+          trust_pickle: bool | None = None) -> list[dict[str, Any]]:
     """Train until ``cfg.total_steps`` env steps, then export the actor into ``out`` (see the module
-    docstring). Returns the per-iteration rows of ``train.csv``."""
+    docstring). Returns the per-iteration rows of ``train.csv``. ``resume`` restores RLlib's checkpoint,
+    which unpickles: refused (a :class:`~swarm_env.policies.ModelFileError`) unless ``trust_pickle``
+    (:func:`swarm_env.policies.pickle_trusted`)."""
+    if resume:
+        from baselines.safe_io import refuse_pickle
+
+        refuse_pickle(out / "rllib_checkpoint", "RLlib's checkpoint (pickled state)", trust_pickle, convert=False)
     import ray
     from ray.tune.registry import register_env
 
@@ -272,10 +278,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--address", help="join a running Ray cluster ('auto', 'HOST:6379'); default: a local instance")
     p.add_argument("--num-cpus", type=int, default=RLlibConfig.num_cpus, help="CPUs of the local Ray instance")
     p.add_argument("--out", required=True, help="run directory (the exported policy is rllib:OUT)")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/rllib_checkpoint")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/rllib_checkpoint (with --trust-pickle)")
+    p.add_argument("--trust-pickle", action="store_true",
+                   help="let --resume unpickle RLlib's checkpoint (it can run code: only runs you made)")
     p.add_argument("--no-progress", action="store_true")
     args = p.parse_args(argv)
     import yaml
+
+    from swarm_env.policies import ModelFileError
 
     env_kwargs = {}
     for item in args.env:
@@ -288,7 +298,12 @@ def main(argv: list[str] | None = None) -> int:
     cfg = RLlibConfig(args.scenario, env_kwargs, args.total_steps, args.num_env_runners, args.envs_per_runner,
                       args.train_batch_size, args.minibatch_size, args.num_epochs, args.lr, args.seed, args.address,
                       args.num_cpus)
-    rows = train(cfg, Path(args.out), resume=args.resume, progress=not args.no_progress)
+    try:
+        rows = train(cfg, Path(args.out), resume=args.resume, progress=not args.no_progress,
+                     trust_pickle=args.trust_pickle or None)
+    except (ModelFileError, FileNotFoundError) as exc:  # a refused or missing checkpoint
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     last = rows[-1] if rows else {}
     print(f"{len(rows)} iterations, {last.get('env_steps', 0)} env steps in {last.get('wall_s', 0)} s; "
           f"policy: rllib:{args.out}")

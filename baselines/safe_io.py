@@ -10,8 +10,12 @@ SB3's own ``model.zip`` stores parts of the model with cloudpickle and ``VecNorm
 itself; unpickling either can run arbitrary code. :func:`save_policy` writes the network and the
 statistics in this format beside them (``baselines.model_io.save_model`` does it for every saved
 model), and :func:`load_policy_dir` rebuilds the policy from it with no pickle involved, for
-scoring. Training state (optimizer, replay buffer, schedules) is not part of the format: resuming
-or warm-starting training still reads ``model.zip``.
+scoring; :func:`saved_statistics` gives the normalisation statistics (observations and returns)
+to a warm start. Training state (optimizer, replay buffer, schedules) is not part of the format.
+
+Every reader here raises ``ValueError`` with one line naming the file and what is wrong
+(:func:`read_tensors`, :func:`read_description`); the policy loaders turn it into a
+:class:`~swarm_env.policies.ModelFileError`.
 """
 
 from __future__ import annotations
@@ -34,7 +38,8 @@ FORMAT = "swarm_env.sb3-policy/1"
 WEIGHTS_FILE = "policy.safetensors"
 CONFIG_FILE = "policy.json"
 
-__all__ = ["FORMAT", "WEIGHTS_FILE", "CONFIG_FILE", "ObsNormalizer", "save_policy", "load_policy_dir", "has_safe_policy"]
+__all__ = ["FORMAT", "WEIGHTS_FILE", "CONFIG_FILE", "ObsNormalizer", "save_policy", "load_policy_dir", "has_safe_policy",
+           "saved_statistics", "read_tensors", "read_description", "refuse_pickle", "one_line"]
 
 
 class ObsNormalizer:
@@ -86,11 +91,9 @@ def save_policy(model: "BaseAlgorithm", directory: str | Path, algo: str, vecnor
 def load_policy_dir(directory: str | Path) -> tuple[Any, ObsNormalizer | None, str]:
     """Rebuild ``(SB3 policy on CPU, observation normalizer or None, algo)`` from ``directory``.
 
-    Raises ``ValueError`` naming the file and what is wrong (unknown format, a missing key,
-    tensors that do not fit the network).
+    Raises ``ValueError`` naming the file and what is wrong (a missing or unreadable file, unknown
+    format, a missing key, tensors that do not fit the network).
     """
-    from safetensors.torch import load_file
-
     from baselines.model_io import algorithm_class
 
     d = Path(directory)
@@ -101,29 +104,105 @@ def load_policy_dir(directory: str | Path) -> tuple[Any, ObsNormalizer | None, s
         obs_space = _space_from_json(config["observation_space"])
         act_space = _space_from_json(config["action_space"])
         kwargs = dict(config["policy_kwargs"])
+        policy_class = algorithm_class(algo).policy_aliases["MlpPolicy"]
+        policy = policy_class(obs_space, act_space, lambda _: 0.0, **kwargs)
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{cfg_path}: {exc}") from None
-    policy_class = algorithm_class(algo).policy_aliases["MlpPolicy"]
-    policy = policy_class(obs_space, act_space, lambda _: 0.0, **kwargs)
+        raise ValueError(f"{cfg_path}: not a policy description this version can rebuild ({one_line(exc)})") from None
+    state = read_tensors(d / WEIGHTS_FILE)
     try:
-        state = load_file(str(d / WEIGHTS_FILE), device="cpu")
         policy.load_state_dict(state, strict=True)
-    except Exception as exc:  # noqa: BLE001 - safetensors and torch raise many types; all mean "bad file"
-        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the network of {cfg_path.name} ({exc})") from None
+    except (RuntimeError, ValueError) as exc:  # missing/unexpected keys, shape mismatches
+        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the network of {cfg_path.name} ({one_line(exc)})") from None
     policy.set_training_mode(False)
     return policy, _normalization_from_json(config.get("normalization"), cfg_path), algo
 
 
+def saved_statistics(directory: str | Path) -> tuple[Any, Any]:
+    """``(observation statistics, return statistics)`` of the policy saved in ``directory``, as
+    stable-baselines3 ``RunningMeanStd`` objects (what ``VecNormalize.obs_rms`` / ``ret_rms`` hold),
+    each ``None`` when not saved (no normalisation; a file written before the returns were saved).
+    No pickle involved; ``ValueError`` naming ``policy.json`` for a bad description.
+    """
+    from stable_baselines3.common.running_mean_std import RunningMeanStd
+
+    cfg_path = Path(directory) / CONFIG_FILE
+    d = read_description(cfg_path, FORMAT).get("normalization")
+    if d is None:
+        return None, None
+    try:
+        obs = RunningMeanStd(shape=np.shape(d["mean"]))
+        obs.mean, obs.var, obs.count = np.asarray(d["mean"], np.float64), np.asarray(d["var"], np.float64), float(d["count"])
+        ret = None
+        if d.get("returns") is not None:
+            ret = RunningMeanStd(shape=())
+            r = d["returns"]
+            ret.mean, ret.var, ret.count = np.float64(r["mean"]), np.float64(r["var"]), float(r["count"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{cfg_path}: normalization: {one_line(exc)}") from None
+    if obs.var.shape != obs.mean.shape:
+        raise ValueError(f"{cfg_path}: normalization: mean has shape {obs.mean.shape}, var {obs.var.shape}")
+    return obs, ret
+
+
+def read_tensors(path: Path) -> dict[str, Any]:
+    """Every tensor of the safetensors file ``path`` (on CPU), or a ``ValueError`` naming the file:
+    missing, or not a readable safetensors file (truncated, corrupt, something else)."""
+    from safetensors.torch import load_file
+
+    if not path.is_file():
+        raise ValueError(f"{path}: missing (a saved policy directory holds {WEIGHTS_FILE} and {CONFIG_FILE})")
+    try:
+        return load_file(str(path), device="cpu")
+    except Exception as exc:  # noqa: BLE001 - safetensors raises its own error types (and OSError); all mean "bad file"
+        raise ValueError(f"{path}: not a readable safetensors file, truncated or corrupt ({one_line(exc)})") from None
+
+
 def read_description(path: Path, fmt: str) -> dict[str, Any]:
-    """The JSON object in ``path`` whose ``format`` is ``fmt``, or a ``ValueError`` naming the file."""
+    """The JSON object in ``path`` whose ``format`` is ``fmt``, or a ``ValueError`` naming the file: missing,
+    not JSON (truncated, corrupt), or another format (then it says which spec loads that one)."""
+    if not path.parent.is_dir():
+        raise ValueError(f"{path.parent}: no such directory (a saved policy directory holds {path.name} and {WEIGHTS_FILE})")
+    if not path.is_file():
+        raise ValueError(f"{path}: missing (a saved policy directory holds {path.name} and {WEIGHTS_FILE})")
     try:
         config = json.loads(path.read_text())
     except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: not a readable JSON policy description ({exc})") from None
+        raise ValueError(f"{path}: not a readable JSON policy description ({one_line(exc)})") from None
     got = config.get("format") if isinstance(config, dict) else config
     if got != fmt:
-        raise ValueError(f"{path}: format: expected {fmt!r}, got {got!r}")
+        hint = _loader_of(got)
+        raise ValueError(f"{path}: format: expected {fmt!r}, got {got!r}" + (f" (load it with {hint})" if hint else ""))
     return config
+
+
+def _loader_of(fmt: Any) -> str | None:
+    """The policy specs that load a description of format ``fmt`` (for the error that meets the wrong one)."""
+    from baselines.mappo_policy import FORMAT as MAPPO_FORMAT
+    from baselines.rllib_train import FORMAT as RLLIB_FORMAT
+
+    return {FORMAT: "ppo:PATH, sac:PATH or bc:PATH", RLLIB_FORMAT: "rllib:PATH",
+            MAPPO_FORMAT: "mappo:PATH, ippo:PATH, mappo_shielded:PATH or residual_vo:PATH"}.get(fmt)
+
+
+def refuse_pickle(path: Path, what: str, trust_pickle: bool | None, convert: bool = True) -> None:
+    """Raise a :class:`~swarm_env.policies.ModelFileError` about ``path`` (which would unpickle ``what``)
+    unless pickles are trusted (:func:`swarm_env.policies.pickle_trusted` of ``trust_pickle``); the
+    message says how to opt in and, with ``convert``, how to convert the directory once instead."""
+    from swarm_env.policies import ModelFileError, pickle_trusted
+
+    if pickle_trusted(trust_pickle):
+        return
+    remedy = (f", or convert it once: python -m baselines.safe_io {path.parent} --trust-pickle" if convert else "")
+    raise ModelFileError(f"{path}: loading it would unpickle {what}, and unpickling runs any code the file carries; "
+                         f"refused. If you trust its source, opt in with --trust-pickle, SWARM_ENV_TRUST_PICKLE=1 or "
+                         f"trust_pickle=True in Python{remedy} (docs/baselines.md, 'Model files and safety')")
+
+
+def one_line(exc: BaseException) -> str:
+    """``exc`` as one line for an error message: its type when the text says nothing, whitespace runs
+    (torch's multi-line state-dict reports) folded, at most 300 characters."""
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= 300 else text[:297] + "..."
 
 
 # --------------------------------------------------------------------------- helpers
@@ -195,15 +274,19 @@ def _jsonable(value: Any) -> Any:
 
 
 def _normalization_to_json(vecnorm: "VecNormalize | None") -> dict[str, Any] | None:
-    if vecnorm is None or not vecnorm.norm_obs:
+    # Everything a warm start takes from VecNormalize (observation and return statistics), so that it
+    # never needs vecnormalize.pkl; "norm_obs": false keeps the statistics but the policy reads raw inputs.
+    if vecnorm is None:
         return None
-    rms = vecnorm.obs_rms
-    return {"mean": np.asarray(rms.mean, dtype=np.float64).tolist(), "var": np.asarray(rms.var, dtype=np.float64).tolist(),
-            "count": float(rms.count), "epsilon": float(vecnorm.epsilon), "clip_obs": float(vecnorm.clip_obs)}
+    rms, ret = vecnorm.obs_rms, vecnorm.ret_rms
+    return {"norm_obs": bool(vecnorm.norm_obs),
+            "mean": np.asarray(rms.mean, dtype=np.float64).tolist(), "var": np.asarray(rms.var, dtype=np.float64).tolist(),
+            "count": float(rms.count), "epsilon": float(vecnorm.epsilon), "clip_obs": float(vecnorm.clip_obs),
+            "returns": {"mean": float(ret.mean), "var": float(ret.var), "count": float(ret.count)}}
 
 
 def _normalization_from_json(d: dict[str, Any] | None, source: Path) -> ObsNormalizer | None:
-    if d is None:
+    if d is None or not d.get("norm_obs", True):  # files written before "norm_obs" had no block without it
         return None
     try:
         return ObsNormalizer(np.asarray(d["mean"]), np.asarray(d["var"]), d["epsilon"], d["clip_obs"])
@@ -212,10 +295,12 @@ def _normalization_from_json(d: dict[str, Any] | None, source: Path) -> ObsNorma
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m baselines.safe_io DIR [DIR ...] [--algo ppo]``: write the tensors + JSON files
-    beside the ``model.zip`` / ``vecnormalize.pkl`` of older run directories.
+    """``python -m baselines.safe_io DIR [DIR ...] [--algo ppo] --trust-pickle``: write the tensors + JSON
+    files beside the ``model.zip`` / ``vecnormalize.pkl`` of older run directories.
 
-    Converting unpickles those files once: run it only on files you trust (your own runs).
+    Converting unpickles those files once, so it asks for the same opt-in as loading them
+    (``--trust-pickle`` or ``SWARM_ENV_TRUST_PICKLE=1``): run it only on files you trust (your own
+    runs). Exit code 2, with one line naming the file, for a missing, corrupt or refused file.
     """
     import argparse
     import sys
@@ -225,12 +310,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m baselines.safe_io", description=main.__doc__.split("\n\n")[0])
     parser.add_argument("dirs", nargs="+", help="run or checkpoint directories holding model.zip")
     parser.add_argument("--algo", default="ppo", help="the algorithm that saved them (ppo, sac, a2c, td3, ddpg; bc = ppo)")
+    parser.add_argument("--trust-pickle", action="store_true",
+                        help="unpickle the files (they can run code): only for files you trust")
     args = parser.parse_args(argv)
     for d in args.dirs:
         try:
-            model, vecnorm = load_model(d, args.algo)
+            model, vecnorm = load_model(d, args.algo, trust_pickle=args.trust_pickle or None)  # None: SWARM_ENV_TRUST_PICKLE decides
         except (FileNotFoundError, ValueError) as exc:
-            print(f"error: {d}: {exc}", file=sys.stderr)
+            print(f"error: {exc}", file=sys.stderr)
             return 2
         out = save_policy(model, Path(d) if Path(d).is_dir() else Path(d).parent, type(model).__name__.lower(), vecnorm)
         print(f"wrote {out / WEIGHTS_FILE} and {out / CONFIG_FILE}")

@@ -10,7 +10,9 @@ them with their documentation). A run writes a directory
 
     config.json        the exact TrainConfig (python -m baselines.train --config it repeats the run)
     versions.json      python, platform, package versions, git commit, command line
-    model.zip          the final model (+ vecnormalize.pkl: its observation/reward statistics)
+    policy.safetensors the final policy network and, in policy.json, its observation/return
+    policy.json        statistics: what ppo:<run dir> and --init-from read (no pickle involved)
+    model.zip          the final SB3 model (+ vecnormalize.pkl), for SB3's own tools (pickles)
     best/              the model with the best validation score (see baselines.callbacks)
     checkpoints/       periodic checkpoints
     eval.csv           validation metrics over training (the learning curve's data)
@@ -19,7 +21,9 @@ them with their documentation). A run writes a directory
                        (tensorboard --logdir runs/)
 
 Load the result as a policy with ``ppo:<run dir>`` (or ``ppo:<run dir>/best``)
-anywhere a policy spec is accepted, e.g. ``swarm-env evaluate``.
+anywhere a policy spec is accepted, e.g. ``swarm-env evaluate``. ``--init-from`` reads a run's
+safe files; a directory that has only the pickles (``vecnormalize.pkl``) needs ``--trust-pickle``
+(see :mod:`baselines.model_io`).
 """
 
 from __future__ import annotations
@@ -98,28 +102,32 @@ def _make_model(cfg: TrainConfig, venv: Any, log_dir: Path) -> Any:
     return model
 
 
-def _warm_start(model: Any, venv: Any, cfg: TrainConfig) -> None:
-    """Copy a saved model's weights (and VecNormalize observation statistics) into ``model``."""
-    from baselines.model_io import load_model
+def _warm_start(model: Any, venv: Any, cfg: TrainConfig, trust_pickle: bool | None = None) -> None:
+    """Copy a saved model's weights (and VecNormalize observation and return statistics) into ``model``
+    (:func:`baselines.model_io.load_warm_start`: a pickle only with ``trust_pickle``)."""
+    from baselines.model_io import load_warm_start
 
     assert cfg.init_from is not None
-    source, source_norm = load_model(cfg.init_from, "ppo" if cfg.algo in ("ppo", "bc") else cfg.algo)
+    weights, obs_rms, ret_rms = load_warm_start(cfg.init_from, cfg.algo, trust_pickle=trust_pickle)
     try:
-        model.policy.load_state_dict(source.policy.state_dict())
+        model.policy.load_state_dict(weights)
     except RuntimeError as exc:
         raise ValueError(
             f"--init-from {cfg.init_from}: its network does not match this run's (net_arch={list(cfg.net_arch)}, "
             f"algo={cfg.algo}): {str(exc).splitlines()[0]}"
         ) from None
-    if source_norm is not None and hasattr(venv, "obs_rms"):
+    if hasattr(venv, "obs_rms"):
         # Observation statistics the weights expect, and the return scale the critic was fitted in
         # (a BC checkpoint's critic is trained on rewards normalised by its ret_rms).
-        venv.obs_rms = source_norm.obs_rms.copy()
-        venv.ret_rms = source_norm.ret_rms.copy()
+        if obs_rms is not None:
+            venv.obs_rms = obs_rms.copy()
+        if ret_rms is not None:
+            venv.ret_rms = ret_rms.copy()
 
 
-def train(cfg: TrainConfig) -> Path:
-    """Run ``cfg`` to completion and return the run directory."""
+def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
+    """Run ``cfg`` to completion and return the run directory. ``trust_pickle``: whether ``init_from``
+    may be unpickled (:func:`swarm_env.policies.pickle_trusted`; default: ``SWARM_ENV_TRUST_PICKLE``)."""
     import torch
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.vec_env import VecNormalize
@@ -146,7 +154,7 @@ def train(cfg: TrainConfig) -> Path:
         venv = vecnorm = VecNormalize(venv, norm_obs=cfg.norm_obs, norm_reward=cfg.norm_reward, gamma=cfg.gamma)
     model = _make_model(cfg, venv, run_dir / "logs")
     if cfg.init_from:
-        _warm_start(model, venv, cfg)
+        _warm_start(model, venv, cfg, trust_pickle)
     if cfg.freeze_obs_stats and vecnorm is not None:
         from baselines.model_io import FrozenRunningMeanStd
 
@@ -192,12 +200,16 @@ def build_parser() -> argparse.ArgumentParser:
         description="Train an SB3 policy (parameter sharing over all followers) on the swarm env.",
     )
     parser.add_argument("--config", help="start from this config.json (e.g. a previous run's); options override it")
+    parser.add_argument("--trust-pickle", action="store_true",
+                        help="let --init-from unpickle a directory that has only model.zip + vecnormalize.pkl "
+                             "(unpickling runs any code in the file: only for files you trust)")
     add_dataclass_options(parser, TrainConfig)
     return parser
 
 
 def config_from_args(argv: list[str] | None = None) -> TrainConfig:
     args = vars(build_parser().parse_args(argv))
+    args.pop("trust_pickle", None)  # how to load files, not part of the run's configuration
     base: dict[str, Any] = {}
     config_path = args.pop("config", None)
     if config_path:
@@ -214,8 +226,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, TypeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    trust = build_parser().parse_args(argv).trust_pickle or None  # parsed above already: cannot fail here
     try:
-        run_dir = train(cfg)
+        run_dir = train(cfg, trust_pickle=trust)
     except (ValueError, FileExistsError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -1,20 +1,27 @@
 """The ``swarm-env`` command line: ``list``, ``validate``, ``run``, ``bench``, ``evaluate``.
 
 Exit codes: 0 success, 2 bad input (unknown scenario or policy, invalid
-scenario file, bad option), 1 anything else.
+scenario file, bad option, a missing, corrupt or refused model file), 1 anything else.
+
+``run`` and ``evaluate`` refuse model files that would be unpickled (SB3's ``model.zip``
+without the ``policy.safetensors`` + ``policy.json`` beside it, ``vecnormalize.pkl``):
+unpickling runs any code the file carries. ``--trust-pickle`` loads them anyway, for
+files from a source you trust (see docs/baselines.md, "Model files and safety").
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import sys
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 from swarm_env.extras import MissingExtraError
-from swarm_env.policies import PolicyError, UnknownPolicyError
+from swarm_env.policies import TRUST_PICKLE_ENV, PolicyError, UnknownPolicyError
 from swarm_env.scenario import ScenarioError
 
 
@@ -338,6 +345,29 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+TRUST_PICKLE_HELP = ("load pickle-bearing model files (SB3 model.zip without policy.safetensors + policy.json, "
+                     "vecnormalize.pkl): unpickling runs any code in the file, so only for files you trust "
+                     f"(the same as {TRUST_PICKLE_ENV}=1)")
+
+
+@contextlib.contextmanager
+def _pickle_trust(on: bool) -> Iterator[None]:
+    """Set :data:`~swarm_env.policies.TRUST_PICKLE_ENV` while a command runs (its worker processes
+    inherit it) and restore the previous value after, so an in-process ``main()`` leaves no trace."""
+    if not on:
+        yield
+        return
+    before = os.environ.get(TRUST_PICKLE_ENV)
+    os.environ[TRUST_PICKLE_ENV] = "1"
+    try:
+        yield
+    finally:
+        if before is None:
+            os.environ.pop(TRUST_PICKLE_ENV, None)
+        else:
+            os.environ[TRUST_PICKLE_ENV] = before
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="swarm-env", description="Leader-follower swarm environment (PettingZoo + pymunk).")
     sub = p.add_subparsers(dest="command", required=True)
@@ -361,6 +391,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--fps", type=float, default=20.0, help="video frames per second")
     r.add_argument("--render", choices=["human"], help="show a pygame window")
     r.add_argument("--record", metavar="DIR", help="record every episode to DIR/episode_<k>/ (swarm-env replay DIR)")
+    r.add_argument("--trust-pickle", action="store_true", help=TRUST_PICKLE_HELP)
     r.set_defaults(func=cmd_run)
 
     rp = sub.add_parser("replay", help="re-simulate recorded episodes without the policy (run --record DIR)")
@@ -420,6 +451,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "replayed from its record, saved as DIR/records/<policy>__<scenario>__seed<k>/")
     e.add_argument("--fps", type=float, default=20.0, help="video frames per second")
     e.add_argument("--quiet", action="store_true", help="no progress bars")
+    e.add_argument("--trust-pickle", action="store_true", help=TRUST_PICKLE_HELP)
     e.set_defaults(func=cmd_evaluate)
     return p
 
@@ -432,7 +464,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: --{flag.replace('_', '-')} must be >= 1, got {value}", file=sys.stderr)
             return 2
     try:
-        return int(args.func(args))
+        with _pickle_trust(getattr(args, "trust_pickle", False)):
+            return int(args.func(args))
     except ScenarioError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

@@ -34,7 +34,9 @@ of its worst episode (:func:`badness`) in :attr:`Leaderboard.records`, so that
 running a policy again.
 
 A policy that refuses a scenario (a :class:`~swarm_env.policies.PolicyError`,
-e.g. ``vo`` with ``action_type="discrete"``) gives a row marked ``n/a: reason``.
+e.g. ``vo`` with ``action_type="discrete"``) gives a row marked ``n/a: reason``. A bad
+model file (:class:`~swarm_env.policies.ModelFileError`: missing, corrupt, of another
+algorithm, or a pickle without the opt-in) is no misfit: it stops the leaderboard.
 
 Training seeds. A learned method shipped with several training seeds (a factory with
 ``training_runs``, see :func:`swarm_env.policies.training_runs`) is named by its bare name,
@@ -67,7 +69,8 @@ import numpy as np
 from swarm_env.env import SwarmEnv, env_kwargs_for
 from swarm_env.evaluation import mean_ci95_t, summarize
 from swarm_env.policies import (
-    PolicyError, UnknownPolicyError, acts_on, load_policy, registered_policies, training_runs,
+    TRUST_PICKLE_ENV, ModelFileError, PolicyError, UnknownPolicyError, acts_on, load_policy, pickle_trusted,
+    registered_policies, training_runs,
 )
 from swarm_env.recording import EpisodeRecord, load_episode, record_episode, replay, save_episode
 from swarm_env.scenario_io import RANDOM_NAME
@@ -237,6 +240,8 @@ def _run_job(job: _Job, on_episode: Callable[[], None]) -> _JobResult:
     try:
         try:
             policy = load_policy(job.policy, env)
+        except ModelFileError:
+            raise  # the same file fails on every scenario: a bad argument, reported as such
         except PolicyError as exc:
             return _JobResult([], str(exc))
         # Some policies refuse an env in reset() (ValueError), not in their factory; probe once so
@@ -311,10 +316,12 @@ def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, tick: Callabl
     ray = require("ray", "ray", "--backend ray")
     started = not ray.is_initialized()
     if started:
+        # The pickle opt-in travels to the workers (on a cluster they do not inherit this process's environment).
+        trust = {"runtime_env": {"env_vars": {TRUST_PICKLE_ENV: "1"}}} if pickle_trusted() else {}
         if address is None:
-            ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False)
+            ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, **trust)
         else:
-            ray.init(address=address, log_to_driver=False)
+            ray.init(address=address, log_to_driver=False, **trust)
     try:
         task = ray.remote(num_cpus=1, max_retries=0)(_run_job_quietly)
         pending = {task.remote(job): i for i, job in enumerate(jobs)}
@@ -323,7 +330,12 @@ def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, tick: Callabl
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
                 i = pending.pop(ref)
-                results[i] = ray.get(ref)  # re-raises a job's exception here (as a RayTaskError)
+                try:
+                    results[i] = ray.get(ref)  # re-raises a job's exception here (as a RayTaskError)
+                except ray.exceptions.RayTaskError as exc:
+                    if isinstance(exc.cause, ModelFileError):
+                        raise exc.cause from None  # its one line, not the remote traceback
+                    raise
                 if results[i].na_reason is None:  # type: ignore[union-attr]
                     tick(len(jobs[i].seeds))
         return [r for r in results if r is not None]

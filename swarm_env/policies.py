@@ -32,6 +32,7 @@ loaders register themselves from their own packages.
 from __future__ import annotations
 
 import inspect
+import os
 from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
 
@@ -52,6 +53,32 @@ class UnknownPolicyError(KeyError):
 
 class PolicyError(ValueError):
     """A registered policy rejected its argument or the env (e.g. ``vo`` with discrete actions)."""
+
+
+class ModelFileError(PolicyError):
+    """A policy's saved model is missing, unreadable (truncated, corrupt), of another algorithm or
+    format, or refused because loading it would unpickle (see :func:`pickle_trusted`).
+
+    A bad argument rather than a misfit: ``swarm-env run`` and ``evaluate`` report it in one line and
+    exit with code 2, where a policy that merely does not fit a scenario becomes an ``n/a`` row.
+    """
+
+
+#: The environment variable that opts in to loading pickle-bearing model files (``1``, ``true`` or
+#: ``yes``); ``swarm-env run/evaluate --trust-pickle`` sets it for the command and its workers.
+TRUST_PICKLE_ENV = "SWARM_ENV_TRUST_PICKLE"
+
+
+def pickle_trusted(trust: bool | None = None) -> bool:
+    """Whether loading may unpickle model files (SB3's ``model.zip``, ``vecnormalize.pkl``).
+
+    Unpickling runs whatever code the file names, so the answer is no unless the caller says so:
+    ``trust`` when given (``True``/``False``), else whether :data:`TRUST_PICKLE_ENV` is set to
+    ``1``, ``true`` or ``yes`` (any case).
+    """
+    if trust is not None:
+        return bool(trust)
+    return os.environ.get(TRUST_PICKLE_ENV, "").strip().lower() in ("1", "true", "yes")
 
 
 @runtime_checkable

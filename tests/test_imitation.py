@@ -144,7 +144,7 @@ def test_bc_lowers_validation_nll_and_imitates_better_than_untrained(bc_dir):
 
 
 def test_bc_normalisation_comes_from_the_demos(bc_dir, demo_file):
-    _, vecnorm = load_model(bc_dir)
+    _, vecnorm = load_model(bc_dir, trust_pickle=True)
     config = json.loads((bc_dir / "bc_config.json").read_text())
     d = load_demos(demo_file)
     train_rows = ~np.isin(d.episode_seeds[d.episode], config["split"]["val_seeds"])
@@ -155,13 +155,13 @@ def test_bc_normalisation_comes_from_the_demos(bc_dir, demo_file):
 
 def test_bc_same_seed_gives_identical_weights(cache, demo_file, bc_dir, tmp_path):
     again = train_bc(_bc(cache, tmp_path / "again"))
-    a, _ = load_model(bc_dir)
-    b, _ = load_model(again)
+    a, _ = load_model(bc_dir, trust_pickle=True)
+    b, _ = load_model(again, trust_pickle=True)
     sa, sb = a.policy.state_dict(), b.policy.state_dict()
     assert sa.keys() == sb.keys()
     assert all(np.array_equal(sa[k].numpy(), sb[k].numpy()) for k in sa)
     other = train_bc(_bc(cache, tmp_path / "other", seed=1, epochs=1))
-    c, _ = load_model(other)
+    c, _ = load_model(other, trust_pickle=True)
     assert not np.array_equal(c.policy.state_dict()["action_net.weight"].numpy(), sa["action_net.weight"].numpy())
 
 
@@ -173,7 +173,7 @@ def test_bc_checkpoint_loads_as_a_policy_and_plays(bc_dir):
 
 
 def test_dagger_rollouts_label_the_visited_states_with_the_expert(bc_dir, demo_file):
-    model, vecnorm = load_model(bc_dir)
+    model, vecnorm = load_model(bc_dir, trust_pickle=True)
     labelled, metrics = dagger_rollouts(model, vecnorm, "vo", "random", [0, 100], env_kwargs=TINY)
     assert len(labelled) == 2 * 2 * 30 and len(metrics) == 2 and labelled.actions.dtype == np.float32
     # step 0 of seed 0 is the demo's start state, so the label is the expert's demo action there

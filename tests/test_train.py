@@ -11,7 +11,7 @@ pytest.importorskip("stable_baselines3")
 
 from baselines import train as train_mod  # noqa: E402
 from baselines.config import TrainConfig, field_help, parse_seeds  # noqa: E402
-from baselines.model_io import SB3Policy, load_model  # noqa: E402
+from baselines.model_io import SB3Policy, load_model, load_warm_start  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.evaluation import run_episode  # noqa: E402
 from swarm_env.policies import PolicyError, load_policy  # noqa: E402
@@ -54,7 +54,7 @@ def test_tiny_ppo_run_writes_a_complete_run_directory(tmp_path):
 
 def test_warm_start_copies_weights_and_normalisation(tmp_path):
     source = train_mod.train(_tiny(tmp_path, eval_every=0, checkpoint_every=0))
-    src_model, src_norm = load_model(source)
+    src_model, src_norm = load_model(source, trust_pickle=True)
     cfg = _tiny(tmp_path, run_name="warm", init_from=str(source), total_steps=64, eval_every=0, checkpoint_every=0)
     venv = None
     model = None
@@ -133,13 +133,13 @@ def test_tiny_sac_run_trains_and_loads_as_a_policy(tmp_path):
 
 def test_frozen_observation_statistics_stay_at_the_warm_start(tmp_path):
     source = train_mod.train(_tiny(tmp_path, eval_every=0, checkpoint_every=0))
-    _, src_norm = load_model(source)
+    _, src_norm = load_model(source, trust_pickle=True)
     cfg = _tiny(tmp_path, run_name="frozen", init_from=str(source), freeze_obs_stats=True, eval_every=0, checkpoint_every=0)
-    _, norm = load_model(train_mod.train(cfg))
+    _, norm = load_model(train_mod.train(cfg), trust_pickle=True)
     np.testing.assert_array_equal(norm.obs_rms.mean, src_norm.obs_rms.mean)
     np.testing.assert_array_equal(norm.obs_rms.var, src_norm.obs_rms.var)
     moving = _tiny(tmp_path, run_name="moving", init_from=str(source), eval_every=0, checkpoint_every=0)
-    _, moved = load_model(train_mod.train(moving))
+    _, moved = load_model(train_mod.train(moving), trust_pickle=True)
     assert not np.array_equal(moved.obs_rms.mean, src_norm.obs_rms.mean)
 
 
@@ -165,7 +165,8 @@ def test_loading_for_training_keeps_the_thread_count_but_scoring_uses_one(tmp_pa
     before = torch.get_num_threads()
     try:
         torch.set_num_threads(2)
-        load_model(run)  # what --init-from uses: must not override --torch-threads
+        load_warm_start(run, "ppo")  # what --init-from uses: must not override --torch-threads
+        load_model(run, trust_pickle=True)
         assert torch.get_num_threads() == 2
         load_policy(f"ppo:{run}", SwarmEnv("random", **TINY_ENV))  # scoring: one thread
         assert torch.get_num_threads() == 1
