@@ -22,7 +22,6 @@ it was shown.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -36,6 +35,7 @@ import numpy as np  # noqa: E402
 from agents.vo_expert import VOExpert  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.evaluation import mean_ci95, run_episode  # noqa: E402
+from swarm_env.jsonio import write_json  # noqa: E402
 from swarm_env.policies import load_policy  # noqa: E402
 from swarm_env.state import WorldState  # noqa: E402
 
@@ -407,7 +407,7 @@ def main(argv: list[str] | None = None) -> int:
         plot_scaling(results["scaling"], out / "scaling.png")
         print(f"scaling: {len(results['scaling'])} episodes ({time.perf_counter() - t0:.0f} s)", flush=True)
 
-    (out / "results.json").write_text(json.dumps(results, indent=1, default=float))
+    write_json(out / "results.json", results, indent=1, default=float)
     if args.doc:
         Path(args.doc).write_text(render_doc(results, out, Path(args.doc)))
         print(f"wrote {args.doc}")
