@@ -189,7 +189,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         from swarm_env.video import VideoWriter
 
         writer = VideoWriter(args.video, fps=args.fps)
-        # Rendering and encoding take most of such a run (~30 s for an episode): show it, per frame.
+        # A long episode takes tens of seconds to play, render and encode: show progress, frame by frame.
         bar = tqdm(total=max_frames, desc=f"video {Path(args.video).name}", unit="frame", disable=not _interactive())
 
         def on_frame(frame: Any) -> None:

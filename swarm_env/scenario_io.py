@@ -443,6 +443,14 @@ def _load_file(path: Path) -> Scenario:
 # --------------------------------------------------------------------------- sections
 
 
+def _alone(parse: Callable[..., Any], src: str, value: Any) -> Any:
+    """``parse(src, value, ok)`` with its own collector: its value, or all its errors raised as one."""
+    ok = _Errors()
+    out = ok(parse, src, value, ok)
+    ok.raise_all()
+    return out
+
+
 def _parse_world(src: str, value: Any, ok: _Errors) -> WorldSpec:
     m = _mapping(src, value, "world")
     _check_keys(src, m, "world", _WORLD_KEYS, ("size",), ok)
@@ -591,7 +599,11 @@ def _parse_human(src: str, value: Any, key: str, ok: _Errors) -> HumanSpec:
     return ok(HumanSpec, path=path, speed=speed, radius=radius, mode=mode, start_delay=delay, behavior=behavior)
 
 
-def _parse_sensors(src: str, value: Any, ok: _Errors) -> SensorSpec:
+def _parse_sensors(src: str, value: Any, ok: _Errors | None = None) -> SensorSpec:
+    """The ``sensors`` section; without ``ok`` (callers outside a file: env and generator arguments) its
+    errors are raised together."""
+    if ok is None:
+        return _alone(_parse_sensors, src, value)
     m = _mapping(src, value, "sensors")
     _check_keys(src, m, "sensors", _SENSOR_KEYS, (), ok)
     d = SensorSpec()
@@ -604,7 +616,10 @@ def _parse_sensors(src: str, value: Any, ok: _Errors) -> SensorSpec:
     )
 
 
-def _parse_reward(src: str, value: Any, ok: _Errors) -> RewardSpec:
+def _parse_reward(src: str, value: Any, ok: _Errors | None = None) -> RewardSpec:
+    """The ``reward`` section; without ``ok``, as :func:`_parse_sensors`."""
+    if ok is None:
+        return _alone(_parse_reward, src, value)
     m = _mapping(src, value, "reward")
     _check_keys(src, m, "reward", _REWARD_KEYS, (), ok)
     d = RewardSpec()
