@@ -22,7 +22,6 @@ it was shown.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -36,6 +35,7 @@ import numpy as np  # noqa: E402
 from agents.vo_expert import VOExpert  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.evaluation import mean_ci95, run_episode  # noqa: E402
+from swarm_env.jsonio import write_json  # noqa: E402
 from swarm_env.policies import load_policy  # noqa: E402
 from swarm_env.state import WorldState  # noqa: E402
 
@@ -192,25 +192,37 @@ def plot_velocities(name: str, tr: dict[str, np.ndarray], path: Path) -> None:
 
 
 def plot_paths(name: str, tr: dict[str, np.ndarray], scn: Any, path: Path) -> None:
-    """The whole scene: leader, followers and humans (Fig. 10/11/16 style)."""
+    """The whole scene: leader, followers and humans (Fig. 10/11/16 style), written to ``path``."""
+    import matplotlib.pyplot as plt
+
+    fig = paths_figure(name, tr, scn)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def paths_figure(name: str, tr: dict[str, np.ndarray], scn: Any) -> Any:
+    """The figure of :func:`plot_paths`: the world in metres (labelled axes), obstacles, and the paths of
+    the leader (``tr["leader"]``, (T, 3)), the followers (``tr["pose"]``, (T, N, 3)) and the humans
+    (``tr["humans"]``, (T, H, 2))."""
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(8, 5))
     _draw_scene(ax, scn)
     ax.plot(tr["leader"][:, 0], tr["leader"][:, 1], "k-", label="Robot 1 (leader)")
-    for i in range(tr["pose"].shape[1]):
-        ax.plot(tr["pose"][:, i, 0], tr["pose"][:, i, 1], "-", label=f"Robot {i + 2} (follower_{i})")
+    for i in range(tr["pose"].shape[1]):  # colours C0, C2, C3, ...: orange (C1) is the humans'
+        ax.plot(tr["pose"][:, i, 0], tr["pose"][:, i, 1], "-", color=f"C{(i + (i > 0)) % 10}", label=f"Robot {i + 2} (follower_{i})")
     for j in range(tr["humans"].shape[1]):
         ax.plot(tr["humans"][:, j, 0], tr["humans"][:, j, 1], ":", color="tab:orange", label="humans" if j == 0 else None)
     ax.set_xlim(0, scn.world.size[0])
     ax.set_ylim(0, scn.world.size[1])
     ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8, loc="upper left")
     ax.set_title(f"{name}: paths (obstacles gray)", fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    return fig
 
 
 # ---------------------------------------------------------------------------- tables
@@ -407,7 +419,7 @@ def main(argv: list[str] | None = None) -> int:
         plot_scaling(results["scaling"], out / "scaling.png")
         print(f"scaling: {len(results['scaling'])} episodes ({time.perf_counter() - t0:.0f} s)", flush=True)
 
-    (out / "results.json").write_text(json.dumps(results, indent=1, default=float))
+    write_json(out / "results.json", results, indent=1, default=float)
     if args.doc:
         Path(args.doc).write_text(render_doc(results, out, Path(args.doc)))
         print(f"wrote {args.doc}")

@@ -73,7 +73,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-import json
+from swarm_env.jsonio import write_json
 import math
 import sys
 import time
@@ -579,7 +579,7 @@ def train_bc(cfg: BCConfig) -> Path:
         "split": {"train_episodes": len(train_ids), "val_episodes": len(val_ids), "val_seeds": demos.episode_seeds[val_ids].tolist()},
         "versions": versions,
     }
-    (out / "bc_config.json").write_text(json.dumps(record, indent=2) + "\n")
+    write_json(out / "bc_config.json", record)
     summary = {
         "n_demo_transitions": len(demos),
         "n_train_transitions": len(train_t),
@@ -588,7 +588,7 @@ def train_bc(cfg: BCConfig) -> Path:
         "eval": eval_rows,
         "timings_s": {k: round(v, 1) for k, v in timings.items()},
     }
-    (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(out / "summary.json", summary)
     return out
 
 

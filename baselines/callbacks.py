@@ -41,8 +41,28 @@ EVAL_COLUMNS = (
 )
 
 
+def steps_to_take(model: Any, budget: int) -> int:
+    """Agent-steps SB3's ``learn`` takes for a budget of ``budget`` more steps: it stops only
+    between whole rollouts, once ``num_timesteps`` reaches the budget, so it rounds the budget
+    up to a whole number of rollouts (``n_steps * num_envs`` for on-policy algorithms,
+    ``train_freq * num_envs`` for off-policy ones counting steps); ``budget`` otherwise."""
+    n_envs = int(model.get_env().num_envs)
+    per = getattr(model, "n_steps", None)  # on-policy (PPO, A2C)
+    freq = getattr(model, "train_freq", None)  # off-policy (SAC, TD3): a TrainFreq(frequency, unit)
+    if per is None and freq is not None and getattr(freq.unit, "value", freq.unit) == "step":
+        per = freq.frequency
+    if not per:
+        return int(budget)
+    chunk = int(per) * n_envs
+    return -(-int(budget) // chunk) * chunk
+
+
 class TqdmCallback(BaseCallback):
-    """A tqdm bar over agent-steps, showing the mean training episode return."""
+    """A tqdm bar over agent-steps, showing the mean training episode return.
+
+    Its total is what SB3 will actually take (:func:`steps_to_take`), so it ends at 100 %
+    instead of running past the requested ``total``.
+    """
 
     def __init__(self, total: int) -> None:
         super().__init__()
@@ -52,10 +72,16 @@ class TqdmCallback(BaseCallback):
     def _on_training_start(self) -> None:
         from tqdm.auto import tqdm
 
-        self._bar = tqdm(total=self.total, unit="step", unit_scale=True, desc="train", dynamic_ncols=True)
+        # learn() has set _total_timesteps (num_timesteps added when it continues a run).
+        budget = getattr(self.model, "_total_timesteps", self.total) - self.model.num_timesteps
+        total = steps_to_take(self.model, budget)
+        self._bar = tqdm(total=total, unit="step", unit_scale=True, desc="train", dynamic_ncols=True)
 
     def _on_step(self) -> bool:
-        self._bar.update(self.training_env.num_envs)
+        n = self.training_env.num_envs
+        if self._bar.n + n > self._bar.total:  # an off-policy run counting episodes: no bound known ahead
+            self._bar.total = self._bar.n + n
+        self._bar.update(n)
         buf = self.model.ep_info_buffer
         if buf and self.n_calls % 50 == 0:
             self._bar.set_postfix(ep_rew=f"{np.mean([e['r'] for e in buf]):.1f}", refresh=False)

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from swarm_env.jsonio import dumps
 from swarm_env.leaderboard import parse_seeds
 
 __all__ = ["NET_ARCH", "TrainConfig", "field_help", "parse_seeds", "policy_kwargs"]
@@ -127,7 +128,7 @@ class TrainConfig:
         self.net_arch = tuple(int(n) for n in self.net_arch)
 
     def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), indent=2, sort_keys=True)
+        return dumps(dataclasses.asdict(self), sort_keys=True)
 
     @classmethod
     def from_json(cls, path: str | Path) -> "TrainConfig":

@@ -51,6 +51,7 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
+from swarm_env.jsonio import write_json
 import multiprocessing as mp
 import os
 import re
@@ -342,7 +343,7 @@ def generate_demos(
         "episodes": [_jsonable(_trim(m)) for m in metrics],
     }
     tmp_meta = meta_path.with_name(meta_path.name + ".tmp")
-    tmp_meta.write_text(json.dumps(meta, indent=1) + "\n")
+    write_json(tmp_meta, meta, indent=1)
     os.replace(tmp_meta, meta_path)
     print(f"demos: {len(demos)} transitions in {elapsed:.1f} s", file=sys.stderr)
     return path

@@ -56,6 +56,7 @@ import argparse
 import csv
 import dataclasses
 import json
+from swarm_env.jsonio import dumps, write_json
 import sys
 import time
 from dataclasses import dataclass, field
@@ -193,7 +194,7 @@ class MAPPOConfig:
         return "mappo" if self.critic == "central" else "ippo"
 
     def to_json(self) -> str:
-        return json.dumps(dataclasses.asdict(self), indent=2)
+        return dumps(dataclasses.asdict(self))
 
 
 # --------------------------------------------------------------------------- evaluation
@@ -529,7 +530,7 @@ def train(cfg: MAPPOConfig) -> Path:
     eval_seeds = parse_seeds(cfg.eval_seeds)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
-    (run_dir / "versions.json").write_text(json.dumps(package_versions(), indent=2) + "\n")
+    write_json(run_dir / "versions.json", package_versions())
     for name, columns in (("eval.csv", EVAL_COLUMNS), ("train.csv", TRAIN_COLUMNS)):
         with open(run_dir / name, "w", newline="") as fh:
             csv.writer(fh).writerow(columns)
@@ -630,7 +631,7 @@ def train(cfg: MAPPOConfig) -> Path:
     summary = {"agent_steps": steps_done, "wall_s": round(wall, 1), "pretrain_s": round(pretrain_s, 1),
                "steps_per_s": round(steps_done / (wall - pretrain_s), 1), "best_score": best,
                "best": min(history, key=lambda r: r["score"]), "final": history[-1]}
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(run_dir / "summary.json", summary)
     from baselines.plots import plot_learning_curve
 
     plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)

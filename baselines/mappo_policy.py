@@ -25,13 +25,13 @@ Policy specs (entry points of the ``swarm_env.policies`` group):
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import Any, Callable
 
 import numpy as np
 
 from baselines.ppo_core import RunningMeanStd, mlp
+from swarm_env.jsonio import write_json
 from swarm_env.policies import OBSERVATIONS, STATE
 from swarm_env.state import WorldState
 
@@ -137,7 +137,7 @@ def save_run_policy(directory: Path, actor: Any, log_std: Any, critic: Any, obs_
     with _atomic(directory / WEIGHTS_FILE) as tmp:
         save_file(tensors, str(tmp))
     with _atomic(directory / CONFIG_FILE) as tmp:
-        tmp.write_text(json.dumps(meta) + "\n")
+        write_json(tmp, meta, indent=None)
     return directory
 
 

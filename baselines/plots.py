@@ -16,6 +16,17 @@ def read_eval_csv(path: str | Path) -> dict[str, list[float]]:
     return {key: [float(r[key]) if r[key] not in ("", "None") else float("nan") for r in rows] for key in rows[0]}
 
 
+def _shared_legend(fig, axes) -> None:
+    """One legend for both panels, below them: inside an axis it hid the curves it describes."""
+    handles, labels = axes[0].get_legend_handles_labels()
+    seen = dict(zip(labels, handles))
+    for ax in axes[1:]:
+        for h, label in zip(*ax.get_legend_handles_labels()):
+            seen.setdefault(label, h)
+    fig.legend(list(seen.values()), list(seen), loc="outside lower center", ncol=min(len(seen), 4), fontsize=8,
+               frameon=False)
+
+
 def plot_learning_curve(
     eval_csv: str | Path,
     out_png: str | Path,
@@ -38,7 +49,7 @@ def plot_learning_curve(
 
     data = read_eval_csv(eval_csv)
     steps = np.array(data["agent_steps"]) / 1e6
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4.2), layout="constrained")
     for ax, key, label in (
         (axes[0], "formation_error", "formation error (m)"),
         (axes[1], "collisions", "collisions per episode"),
@@ -50,14 +61,15 @@ def plot_learning_curve(
         for i, (name, values) in enumerate((references or {}).items()):
             if key in values:
                 ax.axhline(values[key], ls="--", lw=1, color=f"C{i + 1}", label=name)
-        for mark, at in (marks or {}).items():
+        for mark, at in (marks or {}).items():  # written up the line from the top: marks close together stay apart
             ax.axvline(at / 1e6, ls=":", lw=1, color="gray")
-            ax.annotate(mark, (at / 1e6, 0), xytext=(3, 3), textcoords="offset points", fontsize=7, color="gray")
+            ax.annotate(mark, (at / 1e6, 1), xycoords=("data", "axes fraction"), xytext=(-2, -3),
+                        textcoords="offset points", rotation=90, ha="right", va="top", fontsize=7, color="gray")
         ax.set_xlabel("agent-steps (millions)")
         ax.set_ylabel(label)
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+    _shared_legend(fig, axes)
     if title:
         fig.suptitle(title, fontsize=10)
     out = Path(out_png)
@@ -86,7 +98,7 @@ def plot_methods_learning_curves(
     import matplotlib.pyplot as plt
     import numpy as np
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.6), layout="constrained")
     for i, (method, paths) in enumerate(runs.items()):
         curves = [read_eval_csv(p) for p in paths]
         n = min(len(c["agent_steps"]) for c in curves)
@@ -103,7 +115,7 @@ def plot_methods_learning_curves(
         ax.set_ylabel(label)
         ax.set_ylim(bottom=0)
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+    _shared_legend(fig, axes)
     if title:
         fig.suptitle(title, fontsize=10)
     out = Path(out_png)

@@ -32,8 +32,8 @@ import argparse
 import csv
 import dataclasses
 import io
-import json
 import sys
+from swarm_env.jsonio import write_json
 import time
 from pathlib import Path
 from typing import Any
@@ -132,7 +132,7 @@ def export_policy(module: Any, directory: Path, cfg: RLlibConfig) -> Path:
         save_file(tensors, str(tmp))
     meta = {"format": FORMAT, "sizes": sizes, "activation": "tanh", "config": dataclasses.asdict(cfg)}
     with _atomic(directory / CONFIG_FILE) as tmp:
-        tmp.write_text(json.dumps(meta) + "\n")
+        write_json(tmp, meta, indent=None)
     return directory
 
 
@@ -234,6 +234,7 @@ def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = Tr
                 result = algo.train()
                 runners = result["env_runners"]
                 done = int(runners.get("num_env_steps_sampled_lifetime", 0))
+                bar.total = max(bar.total, done)  # the last iteration samples a whole batch past the budget
                 bar.update(max(0, done - env_steps))
                 env_steps = done
                 agent_steps = runners.get("num_agent_steps_sampled_lifetime", 0)  # per agent id, or a total
@@ -255,9 +256,9 @@ def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = Tr
     with _atomic(out / "train.csv") as tmp:
         tmp.write_text(buf.getvalue())
     with _atomic(out / "config.json") as tmp:
-        tmp.write_text(json.dumps(dataclasses.asdict(cfg), indent=2) + "\n")
+        write_json(tmp, dataclasses.asdict(cfg))
     with _atomic(out / "versions.json") as tmp:
-        tmp.write_text(json.dumps({**package_versions(), "ray": ray.__version__}, indent=2) + "\n")
+        write_json(tmp, {**package_versions(), "ray": ray.__version__})
     return rows
 
 

@@ -21,6 +21,7 @@ Every reader here raises ``ValueError`` with one line naming the file and what i
 from __future__ import annotations
 
 import json
+from swarm_env.jsonio import write_json
 import math
 import os
 import tempfile
@@ -84,7 +85,7 @@ def save_policy(model: "BaseAlgorithm", directory: str | Path, algo: str, vecnor
     with _atomic(out / WEIGHTS_FILE) as tmp:
         save_file(tensors, str(tmp))
     with _atomic(out / CONFIG_FILE) as tmp:
-        tmp.write_text(json.dumps(config, indent=1) + "\n")
+        write_json(tmp, config, indent=1)
     return out
 
 

@@ -31,6 +31,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from swarm_env.jsonio import dumps, write_json
 import platform
 import subprocess
 import sys
@@ -145,7 +146,7 @@ def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
         raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name")
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
-    (run_dir / "versions.json").write_text(json.dumps(package_versions(), indent=2) + "\n")
+    write_json(run_dir / "versions.json", package_versions())
 
     env_kwargs = _env_kwargs(cfg)
     venv: Any = make_vec_env(cfg.scenario, cfg.n_copies, n_procs=cfg.n_procs, shield=cfg.shield, **env_kwargs)
@@ -186,7 +187,7 @@ def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
         summary["final_eval"] = evaluator.history[-1]
         summary["best_score"] = evaluator.best_score
         plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=name)
-    (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    write_json(run_dir / "summary.json", summary)
     return run_dir
 
 
@@ -234,7 +235,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     print(run_dir)
     summary = json.loads((run_dir / "summary.json").read_text())
-    print(json.dumps(summary, indent=2))
+    print(dumps(summary))
     return 0
 
 

@@ -24,16 +24,14 @@ the replans of an episode).
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import time
 from typing import Any
 
-import numpy as np
-
 import swarm_env
 from agents.cbs_rrt.policy import CBSRRTExpert
 from swarm_env.evaluation import run_episode
+from swarm_env.jsonio import dumps
 
 
 def episode(env: Any, seed: int, **kwargs: Any) -> dict[str, Any]:
@@ -150,7 +148,7 @@ def main(argv: list[str] | None = None) -> int:
         report["scaling"] = scaling(list(range(n_scale)))
     if args.json:
         with open(args.json, "w") as fh:
-            json.dump(report, fh, indent=1, default=lambda o: o.tolist() if isinstance(o, np.ndarray) else str(o))
+            fh.write(dumps(report, indent=1, default=str))
     return 0
 
 

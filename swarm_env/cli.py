@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import contextlib
-import json
 import os
 import sys
 from collections.abc import Iterable, Iterator
@@ -74,6 +73,35 @@ def format_episode(episode: dict[str, Any]) -> str:
     )
 
 
+def format_policy_stats(stats: dict[str, Any]) -> str:
+    """A policy's ``stats()`` telemetry as a two-column table: one row per entry, a nested mapping
+    on one row as ``key=value`` pairs, floats to 3 significant digits."""
+
+    def value(x: Any) -> str:
+        if isinstance(x, dict):
+            return ", ".join(f"{k}={value(v)}" for k, v in x.items()) or "-"
+        if isinstance(x, (list, tuple)):
+            return "[" + ", ".join(value(v) for v in x) + "]"
+        if isinstance(x, float):
+            return f"{x:.3g}"
+        return _fmt(x)
+
+    rows = [("policy stat", "value")] + [(str(k), value(v)) for k, v in stats.items()]
+    w = max(len(k) for k, _ in rows)
+    rows.insert(1, ("-" * w, "-" * max(len(v) for _, v in rows)))
+    return "\n".join(f"{k.ljust(w)}  {v}" for k, v in rows)
+
+
+def _interactive() -> bool:
+    """Progress bars only for a person at a terminal: not in pipes, logs or CI."""
+    return sys.stderr.isatty() and not os.environ.get("CI")
+
+
+def _print_scenario_error(exc: ScenarioError) -> None:
+    for err in exc.errors:  # validation reports every problem it found, one line each
+        print(f"error: {err}", file=sys.stderr)
+
+
 def cmd_list(args: argparse.Namespace) -> int:
     from swarm_env.policies import registered_policies
     from swarm_env.scenario_io import list_scenarios, load_scenario
@@ -97,9 +125,18 @@ def cmd_validate(args: argparse.Namespace) -> int:
     status = 0
     for spec in args.files:
         try:
+            if spec == "random":  # a generator, not a file: check that its default configuration builds a world
+                import numpy as np
+
+                from swarm_env.random_scenario import random_scenario
+
+                scn = random_scenario(np.random.default_rng(0))
+                print(f"ok: random (the generator; seed 0 draws {scn.robots.count} followers, {len(scn.obstacles)} "
+                      f"obstacles, {len(scn.humans)} humans, {len(scn.formations)} formations, dt={scn.world.dt:g}s)")
+                continue
             scn = load_scenario(spec)
         except ScenarioError as exc:
-            print(f"error: {exc}", file=sys.stderr)
+            _print_scenario_error(exc)
             status = 2
             continue
         print(
@@ -139,7 +176,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         env_kwargs.update(parse_env_items(args.env))
         from swarm_env.env import SwarmEnv
 
-        SwarmEnv(args.scenario, **env_kwargs).close()  # bad keyword arguments fail here, before any output
+        probe = SwarmEnv(args.scenario, **env_kwargs)  # bad keyword arguments fail here, before any output
+        max_frames = args.episodes * (probe.max_steps + 1)  # an episode renders at most its steps and the reset
+        probe.close()
         if args.record:
             from swarm_env.recording import ensure_new_recording_dir
 
@@ -153,11 +192,20 @@ def cmd_run(args: argparse.Namespace) -> int:
         env_kwargs["render_mode"] = "human"
     writer = None
     on_frame = None
+    bar: Any = None
     if args.video:
+        from tqdm.auto import tqdm
+
         from swarm_env.video import VideoWriter
 
         writer = VideoWriter(args.video, fps=args.fps)
-        on_frame = writer.append
+        # A long episode takes tens of seconds to play, render and encode: show progress, frame by frame.
+        bar = tqdm(total=max_frames, desc=f"video {Path(args.video).name}", unit="frame", disable=not _interactive())
+
+        def on_frame(frame: Any) -> None:
+            writer.append(frame)
+            bar.update()
+
     try:
         report = evaluate(
             args.scenario,
@@ -166,17 +214,23 @@ def cmd_run(args: argparse.Namespace) -> int:
             args.seed,
             env_kwargs=env_kwargs,
             on_frame=on_frame,
-            progress=args.episodes > 1 and sys.stderr.isatty(),
+            progress=args.episodes > 1 and bar is None and _interactive(),
             record_dir=args.record,
         )
     finally:
+        if bar is not None:
+            bar.total = bar.n  # episodes that end early render fewer frames than the bound
+            bar.set_postfix_str("encoding")
+            bar.refresh()
         if writer is not None:
             writer.close()
+        if bar is not None:
+            bar.close()
     for ep in report["episodes"]:
         print(format_episode(ep))
         print(format_per_robot(ep))
         if "policy_stats" in ep:
-            print(f"policy_stats: {json.dumps(ep['policy_stats'])}")
+            print(format_policy_stats(ep["policy_stats"]))
         print()
     s = report["summary"]
     print(
@@ -185,8 +239,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         f"formation error {s['formation_error']['mean']:.3f} m"
     )
     if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=2))
-        print(f"wrote {args.json}")
+        _write_json(args.json, report)
     if args.video:
         print(f"wrote {args.video}")
     if args.record:
@@ -281,7 +334,9 @@ def _bench_batched(args: argparse.Namespace, progress: Any) -> int:
 
 
 def _write_json(path: str, doc: Any) -> None:
-    Path(path).write_text(json.dumps(doc, indent=2))
+    from swarm_env.jsonio import write_json
+
+    write_json(path, doc)  # strict JSON: a non-finite metric is written as null
     print(f"wrote {path}")
 
 
@@ -374,8 +429,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     sub.add_parser("list", help="list built-in scenarios and registered policies").set_defaults(func=cmd_list)
 
-    v = sub.add_parser("validate", help="check scenario files; exit 2 on the first kind of error")
-    v.add_argument("files", nargs="+", help="YAML files or built-in scenario names")
+    v = sub.add_parser("validate", help="check scenario files; print every error found and exit 2 if there is one")
+    v.add_argument("files", nargs="+", help="YAML files, built-in scenario names or 'random'")
     v.set_defaults(func=cmd_validate)
 
     r = sub.add_parser("run", help="run a policy on a scenario and report metrics")
@@ -467,7 +522,7 @@ def main(argv: list[str] | None = None) -> int:
         with _pickle_trust(getattr(args, "trust_pickle", False)):
             return int(args.func(args))
     except ScenarioError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        _print_scenario_error(exc)
         return 2
     except UnknownPolicyError as exc:
         print(f"error: {exc.args[0] if exc.args else exc}", file=sys.stderr)

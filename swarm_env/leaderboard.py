@@ -68,6 +68,7 @@ import numpy as np
 
 from swarm_env.env import SwarmEnv, env_kwargs_for
 from swarm_env.evaluation import mean_ci95_t, summarize
+from swarm_env.jsonio import dumps
 from swarm_env.policies import (
     TRUST_PICKLE_ENV, ModelFileError, PolicyError, UnknownPolicyError, acts_on, load_policy, pickle_trusted,
     registered_policies, training_runs,
@@ -634,7 +635,7 @@ class Leaderboard:
     def to_json(self, path: str | os.PathLike[str]) -> Path:
         """Write everything: inputs, rows with their summaries, every episode's metrics."""
         path = Path(path)
-        path.write_text(json.dumps(self.to_dict(), indent=1, allow_nan=False, default=_json_default))
+        path.write_text(dumps(self.to_dict(), indent=1))
         return path
 
     @classmethod
@@ -645,14 +646,6 @@ class Leaderboard:
                 for r in doc["rows"]]
         return cls(doc["policies"], doc["scenarios"], doc["seeds"], doc["env_kwargs"], rows, doc["episodes"],
                    doc.get("wall_time", 0.0), doc.get("workers", 1))
-
-
-def _json_default(x: Any) -> Any:
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, (tuple, set, range)):
-        return list(x)
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
 
 
 # --------------------------------------------------------------------------- videos
@@ -757,4 +750,4 @@ def _worst_record(board: Leaderboard, entry: Mapping[str, Any], folder: Path | N
 
 def _json_roundtrip(x: Any) -> Any:
     # compare as JSON would store them, so a board read back with from_json compares equal too
-    return json.loads(json.dumps(x, default=_json_default))
+    return json.loads(dumps(x, indent=None))

@@ -60,14 +60,19 @@ def paired_differences(doc: dict[str, Any], policy: str, baseline: str, scenario
     return out
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of ``python -m swarm_env.paired``."""
     parser = argparse.ArgumentParser(prog="python -m swarm_env.paired", description=__doc__.splitlines()[0])
     parser.add_argument("leaderboard", help="a leaderboard.json written by swarm-env evaluate --out")
     parser.add_argument("--baseline", default="pursuit", help="the policy every other one is compared with")
     parser.add_argument("--scenario", help="only this scenario's episodes (default: all)")
     parser.add_argument("--per-seed", action="store_true",
                         help="also one row per training seed of each learned method (e.g. mappo:s0)")
-    args = parser.parse_args(argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
     try:
         doc = json.loads(Path(args.leaderboard).read_text())
         policies = []

@@ -63,6 +63,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from swarm_env.jsonio import dumps
 from swarm_env.env import SwarmEnv
 from swarm_env.evaluation import run_episode
 from swarm_env.policies import Policy
@@ -269,16 +270,6 @@ def record_episode(
 
 
 # --------------------------------------------------------------------------- files
-def _json_default(x: Any) -> Any:
-    if isinstance(x, np.generic):
-        return x.item()
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, (tuple, set, range)):
-        return list(x)
-    raise TypeError(f"not JSON serialisable: {type(x).__name__}")
-
-
 def save_episode(record: EpisodeRecord, directory: str | os.PathLike[str]) -> Path:
     """Write ``record`` to ``directory/episode_<k>/`` (replacing an older folder of that name) and
     return that folder. The folder is written under a temporary name and renamed into place."""
@@ -296,7 +287,7 @@ def save_episode(record: EpisodeRecord, directory: str | os.PathLike[str]) -> Pa
             "steps": record.steps, "digest_every": record.digest_every, "digest": DIGEST_DESCRIPTION,
             "platform": record.platform, "metrics": record.metrics,
         }
-        (tmp / _META).write_text(json.dumps(meta, indent=1, default=_json_default) + "\n")
+        (tmp / _META).write_text(dumps(meta, indent=1) + "\n")
         text = yaml.safe_dump(scenario_to_dict(record.scenario), sort_keys=False)
         if _scenario_from_yaml(text, str(tmp / _SCENARIO)) != dataclasses.replace(record.scenario, source=str(tmp / _SCENARIO)):
             # the replay would run another world: refuse to write a record that cannot replay

@@ -36,6 +36,11 @@ class ScenarioError(ValueError):
 
     The message names the source (file path or ``<dict>``), the key path
     (e.g. ``robots.max_speed``) and what was expected.
+
+    Validation reports every problem it finds, not only the first: ``errors`` holds
+    them all (one :class:`ScenarioError` each, in file order; ``(self,)`` for a single
+    one). An error made by :meth:`several` takes ``source``, ``key``, ``expected`` and
+    ``got`` from the first problem, and its message is one line per problem.
     """
 
     def __init__(self, source: str, key: str, expected: str, got: object = None) -> None:
@@ -43,8 +48,24 @@ class ScenarioError(ValueError):
         self.key = key
         self.expected = expected
         self.got = got
+        self.errors: tuple[ScenarioError, ...] = (self,)
         got_txt = "" if got is None else f", got {got!r}"
         super().__init__(f"{source}: {key}: expected {expected}{got_txt}")
+
+    @classmethod
+    def several(cls, errors: "list[ScenarioError] | tuple[ScenarioError, ...]") -> "ScenarioError":
+        """One error carrying all of ``errors`` (non-empty; nested ones are flattened):
+        the error itself when there is only one."""
+        flat = tuple(e for err in errors for e in err.errors)
+        if not flat:
+            raise ValueError("ScenarioError.several needs at least one error")
+        if len(flat) == 1:
+            return flat[0]
+        first = flat[0]
+        combined = cls(first.source, first.key, first.expected, first.got)
+        combined.errors = flat
+        combined.args = ("\n".join(str(e) for e in flat),)
+        return combined
 
 
 @dataclass(frozen=True)

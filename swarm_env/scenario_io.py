@@ -57,8 +57,9 @@ the one semantic gate (also passed by every scenario the ``random`` generator bu
 checks the rules below. The allowed keys of each section are the fields of its
 dataclass in :mod:`swarm_env.scenario`.
 
-Validation fails loudly: every problem raises :class:`~swarm_env.scenario.ScenarioError`
-naming the source (file path, or ``<dict>``), the key path (``robots.max_speed``,
+Validation fails loudly and completely: it goes on after a bad value wherever what follows
+does not depend on it, and raises one :class:`~swarm_env.scenario.ScenarioError` whose
+``errors`` lists every problem found (one message line each). Each names the source (file path, or ``<dict>``), the key path (``robots.max_speed``,
 ``formations[1].shape``, ``obstacles[2].points``; ``<file>`` for unreadable files and
 YAML syntax errors) and what was expected. Checked beyond types and ranges
 (``bool`` is not a number; numbers must be finite):
@@ -94,7 +95,7 @@ import difflib
 import math
 import numbers
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -167,6 +168,50 @@ _REWARD_KEYS = _keys(RewardSpec)
 _EPS = 1e-9
 
 
+class _Bad:
+    """The value of a field that failed validation (its error is already recorded)."""
+
+    def __repr__(self) -> str:
+        return "<invalid>"
+
+
+_BAD: Any = _Bad()
+
+
+class _Errors:
+    """The problems of one scenario, gathered so that one pass reports all of them.
+
+    ``ok(fn, *args, **kwargs)`` calls ``fn`` and returns its value, or records the
+    :class:`ScenarioError` it raised and returns ``_BAD``; it does not call ``fn`` at
+    all when an argument is ``_BAD``, so a check that depends on an invalid value is
+    skipped instead of reporting a consequence of an error already recorded.
+    """
+
+    def __init__(self) -> None:
+        self.errors: list[ScenarioError] = []
+
+    def __call__(self, fn: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        if any(a is _BAD for a in args) or any(v is _BAD for v in kwargs.values()):
+            return _BAD
+        try:
+            return fn(*args, **kwargs)
+        except ScenarioError as exc:
+            self.add(exc)
+            return _BAD
+
+    def add(self, exc: ScenarioError) -> None:
+        self.errors.extend(exc.errors)
+
+    @staticmethod
+    def all(values: tuple) -> Any:
+        """``values``, or ``_BAD`` if one of them is."""
+        return _BAD if any(v is _BAD for v in values) else values
+
+    def raise_all(self) -> None:
+        if self.errors:
+            raise ScenarioError.several(self.errors)
+
+
 # --------------------------------------------------------------------------- public API
 
 
@@ -224,20 +269,23 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
     src = str(source)
     if not isinstance(data, Mapping):
         raise ScenarioError(src, "<top level>", "a mapping of sections", _short(data))
-    _check_keys(src, data, "", _TOP_KEYS, _TOP_REQUIRED)
+    ok = _Errors()
+    _check_keys(src, data, "", _TOP_KEYS, _TOP_REQUIRED, ok)
 
     default_name = Path(src).stem if src not in ("<dict>", "") and not src.startswith("<") else "custom"
-    name = _string(src, data.get("name", default_name), "name", nonempty=True)
-    description = _string(src, data.get("description", ""), "description")
+    name = ok(_string, src, data.get("name", default_name), "name", nonempty=True)
+    description = ok(_string, src, data.get("description", ""), "description")
 
-    world = _parse_world(src, data["world"])
-    robots = _parse_robots(src, data["robots"])
-    leader = _parse_leader(src, data["leader"])
-    formations = _parse_formations(src, data["formations"], robots)
-    obstacles = _parse_list(src, data.get("obstacles", []), "obstacles", lambda v, k: _parse_obstacle(src, v, k))
-    humans = _parse_list(src, data.get("humans", []), "humans", lambda v, k: _parse_human(src, v, k))
-    sensors = _parse_sensors(src, data.get("sensors", {}))
-    reward = _parse_reward(src, data.get("reward", {}))
+    world = ok(_parse_world, src, data.get("world", _BAD), ok)
+    robots = ok(_parse_robots, src, data.get("robots", _BAD), ok)
+    leader = ok(_parse_leader, src, data.get("leader", _BAD), ok)
+    count = robots.count if isinstance(robots, RobotSpec) else _plain_count(data.get("robots"))
+    formations = ok(_parse_formations, src, data.get("formations", _BAD), count, ok)
+    obstacles = ok(_parse_list, src, data.get("obstacles", []), "obstacles", _parse_obstacle, ok)
+    humans = ok(_parse_list, src, data.get("humans", []), "humans", _parse_human, ok)
+    sensors = ok(_parse_sensors, src, data.get("sensors", {}), ok)
+    reward = ok(_parse_reward, src, data.get("reward", {}), ok)
+    ok.raise_all()  # a scenario is built only from sections that all parsed
 
     scn = Scenario(
         name=name,
@@ -265,10 +313,12 @@ def validate_scenario(scn: Scenario) -> Scenario:
     and the key path.
     """
     src = scn.source
-    _check_world(src, scn)
-    _check_geometry(src, scn)
-    _check_schedule(src, scn)
-    _cross_check(src, scn)
+    ok = _Errors()
+    ok(_check_world, src, scn)
+    _check_geometry(src, scn, ok)
+    _check_schedule(src, scn, ok)
+    _cross_check(src, scn, ok)
+    ok.raise_all()
     return scn
 
 
@@ -393,49 +443,38 @@ def _load_file(path: Path) -> Scenario:
 # --------------------------------------------------------------------------- sections
 
 
-def _parse_world(src: str, value: Any) -> WorldSpec:
+def _alone(parse: Callable[..., Any], src: str, value: Any) -> Any:
+    """``parse(src, value, ok)`` with its own collector: its value, or all its errors raised as one."""
+    ok = _Errors()
+    out = ok(parse, src, value, ok)
+    ok.raise_all()
+    return out
+
+
+def _parse_world(src: str, value: Any, ok: _Errors) -> WorldSpec:
     m = _mapping(src, value, "world")
-    _check_keys(src, m, "world", _WORLD_KEYS, ("size",))
-    size = _point(src, m["size"], "world.size")
-    for i, s in enumerate(size):
-        if s <= 0:
-            raise ScenarioError(src, f"world.size[{i}]", "a positive size (m)", s)
-    dt = _number(src, m.get("dt", WorldSpec.dt), "world.dt", positive=True)
-    substeps = _integer(src, m.get("substeps", WorldSpec.substeps), "world.substeps", minimum=1)
-    max_time = _number(src, m.get("max_time", WorldSpec.max_time), "world.max_time", positive=True)
-    tol = _number(src, m.get("settle_tolerance", WorldSpec.settle_tolerance), "world.settle_tolerance", positive=True)
-    return WorldSpec(size=size, dt=dt, substeps=substeps, max_time=max_time, settle_tolerance=tol)
+    _check_keys(src, m, "world", _WORLD_KEYS, ("size",), ok)
+    size = ok(_sizes, src, m.get("size", _BAD), "world.size", "a positive size (m)")
+    dt = ok(_number, src, m.get("dt", WorldSpec.dt), "world.dt", positive=True)
+    substeps = ok(_integer, src, m.get("substeps", WorldSpec.substeps), "world.substeps", minimum=1)
+    max_time = ok(_number, src, m.get("max_time", WorldSpec.max_time), "world.max_time", positive=True)
+    tol = ok(_number, src, m.get("settle_tolerance", WorldSpec.settle_tolerance), "world.settle_tolerance", positive=True)
+    return ok(WorldSpec, size=size, dt=dt, substeps=substeps, max_time=max_time, settle_tolerance=tol)
 
 
-def _parse_robots(src: str, value: Any) -> RobotSpec:
+def _parse_robots(src: str, value: Any, ok: _Errors) -> RobotSpec:
     m = _mapping(src, value, "robots")
-    _check_keys(src, m, "robots", _ROBOT_KEYS, ("count",))
-    count = _integer(src, m["count"], "robots.count", minimum=1)
-    radius = _number(src, m.get("radius", RobotSpec.radius), "robots.radius", positive=True)
-    max_speed = _number(src, m.get("max_speed", RobotSpec.max_speed), "robots.max_speed", positive=True)
-    max_turn = _number(src, m.get("max_turn_rate", RobotSpec.max_turn_rate), "robots.max_turn_rate", positive=True)
-    max_accel = _optional_positive(src, m.get("max_accel", RobotSpec.max_accel), "robots.max_accel")
-    max_turn_accel = _optional_positive(src, m.get("max_turn_accel", RobotSpec.max_turn_accel), "robots.max_turn_accel")
-    wheelbase = _number(src, m.get("wheelbase", RobotSpec.wheelbase), "robots.wheelbase", positive=True)
-
-    raw_start = m.get("start", "formation")
-    start: Any
-    if isinstance(raw_start, str):
-        if raw_start != "formation":
-            raise ScenarioError(src, "robots.start", "'formation' or a list of [x, y, theta] poses", raw_start)
-        start = "formation"
-    else:
-        poses = _sequence(src, raw_start, "robots.start", "'formation' or a list of [x, y, theta] poses")
-        if len(poses) != count:
-            raise ScenarioError(
-                src, "robots.start", f"one [x, y, theta] pose per follower (robots.count = {count})", f"{len(poses)} poses"
-            )
-        parsed = []
-        for i, p in enumerate(poses):
-            key = f"robots.start[{i}]"
-            parsed.append(_numbers(src, p, key, 3, "[x, y, theta_rad]"))
-        start = tuple(parsed)
-    return RobotSpec(
+    _check_keys(src, m, "robots", _ROBOT_KEYS, ("count",), ok)
+    count = ok(_integer, src, m.get("count", _BAD), "robots.count", minimum=1)
+    radius = ok(_number, src, m.get("radius", RobotSpec.radius), "robots.radius", positive=True)
+    max_speed = ok(_number, src, m.get("max_speed", RobotSpec.max_speed), "robots.max_speed", positive=True)
+    max_turn = ok(_number, src, m.get("max_turn_rate", RobotSpec.max_turn_rate), "robots.max_turn_rate", positive=True)
+    max_accel = ok(_optional_positive, src, m.get("max_accel", RobotSpec.max_accel), "robots.max_accel")
+    max_turn_accel = ok(_optional_positive, src, m.get("max_turn_accel", RobotSpec.max_turn_accel), "robots.max_turn_accel")
+    wheelbase = ok(_number, src, m.get("wheelbase", RobotSpec.wheelbase), "robots.wheelbase", positive=True)
+    start = ok(_start, src, m.get("start", "formation"), count, ok)
+    return ok(
+        RobotSpec,
         count=count,
         radius=radius,
         max_speed=max_speed,
@@ -447,59 +486,81 @@ def _parse_robots(src: str, value: Any) -> RobotSpec:
     )
 
 
-def _parse_leader(src: str, value: Any) -> LeaderSpec:
+def _start(src: str, raw_start: Any, count: int, ok: _Errors) -> Any:
+    """``robots.start``: ``"formation"`` or one checked ``[x, y, theta]`` pose per follower."""
+    if isinstance(raw_start, str):
+        if raw_start != "formation":
+            raise ScenarioError(src, "robots.start", "'formation' or a list of [x, y, theta] poses", raw_start)
+        return "formation"
+    poses = _sequence(src, raw_start, "robots.start", "'formation' or a list of [x, y, theta] poses")
+    if len(poses) != count:
+        raise ScenarioError(
+            src, "robots.start", f"one [x, y, theta] pose per follower (robots.count = {count})", f"{len(poses)} poses"
+        )
+    return ok.all(tuple(ok(_numbers, src, p, f"robots.start[{i}]", 3, "[x, y, theta_rad]") for i, p in enumerate(poses)))
+
+
+def _parse_leader(src: str, value: Any, ok: _Errors) -> LeaderSpec:
     m = _mapping(src, value, "leader")
-    _check_keys(src, m, "leader", _LEADER_KEYS, ("kind", "path", "speed"))
-    kind = _choice(src, m["kind"], "leader.kind", LEADER_KINDS)
-    speed = _number(src, m["speed"], "leader.speed", positive=True)
-    radius = _number(src, m.get("radius", LeaderSpec.radius), "leader.radius", positive=True)
-    max_turn = _number(src, m.get("max_turn_rate", LeaderSpec.max_turn_rate), "leader.max_turn_rate", positive=True)
-    lookahead = _number(src, m.get("lookahead", LeaderSpec.lookahead), "leader.lookahead", positive=True)
-    delay = _number(src, m.get("start_delay", LeaderSpec.start_delay), "leader.start_delay", nonnegative=True)
-    path = _path(src, m["path"], "leader.path")
-    return LeaderSpec(
-        kind=kind, path=path, speed=speed, radius=radius, max_turn_rate=max_turn, lookahead=lookahead, start_delay=delay
+    _check_keys(src, m, "leader", _LEADER_KEYS, ("kind", "path", "speed"), ok)
+    kind = ok(_choice, src, m.get("kind", _BAD), "leader.kind", LEADER_KINDS)
+    speed = ok(_number, src, m.get("speed", _BAD), "leader.speed", positive=True)
+    radius = ok(_number, src, m.get("radius", LeaderSpec.radius), "leader.radius", positive=True)
+    max_turn = ok(_number, src, m.get("max_turn_rate", LeaderSpec.max_turn_rate), "leader.max_turn_rate", positive=True)
+    lookahead = ok(_number, src, m.get("lookahead", LeaderSpec.lookahead), "leader.lookahead", positive=True)
+    delay = ok(_number, src, m.get("start_delay", LeaderSpec.start_delay), "leader.start_delay", nonnegative=True)
+    path = ok(_path, src, m.get("path", _BAD), "leader.path", ok)
+    return ok(
+        LeaderSpec, kind=kind, path=path, speed=speed, radius=radius, max_turn_rate=max_turn, lookahead=lookahead,
+        start_delay=delay,
     )
 
 
-def _parse_formations(src: str, value: Any, robots: RobotSpec) -> tuple[FormationSpec, ...]:
+def _plain_count(robots: Any) -> int | None:
+    """``robots.count`` when it is valid although another robots key is not (``None``: unknown)."""
+    n = robots.get("count") if isinstance(robots, Mapping) else None
+    return int(n) if isinstance(n, numbers.Integral) and not isinstance(n, (bool, np.bool_)) and n >= 1 else None
+
+
+def _parse_formations(src: str, value: Any, count: int | None, ok: _Errors) -> tuple[FormationSpec, ...]:
+    """``count`` is ``robots.count`` (``None`` when that is invalid: the offsets are then not counted)."""
     items = _sequence(src, value, "formations", "a list of at least one formation entry")
     if not items:
         raise ScenarioError(src, "formations", "at least one formation entry (the one active at t = 0)", [])
-    out: list[FormationSpec] = []
-    for i, item in enumerate(items):
-        key = f"formations[{i}]"
-        m = _mapping(src, item, key)
-        _check_keys(src, m, key, _FORMATION_KEYS, ("at", "shape"))
-        at = _number(src, m["at"], f"{key}.at", nonnegative=True)
-        shape = _choice(src, m["shape"], f"{key}.shape", FORMATION_SHAPES)
-        spacing = _number(src, m.get("spacing", FormationSpec.spacing), f"{key}.spacing", positive=True)
-        angle = _number(src, m.get("angle", FormationSpec.angle), f"{key}.angle")
-        columns = _integer(src, m.get("columns", FormationSpec.columns), f"{key}.columns", minimum=0)
-        offsets = None
-        if shape == "custom":
-            if "offsets" not in m or m["offsets"] is None:
-                raise ScenarioError(
-                    src, f"{key}.offsets", f"a list of {robots.count} [x, y] offsets (required by shape 'custom')"
-                )
-            pts = _sequence(src, m["offsets"], f"{key}.offsets", "a list of [x, y] offsets")
-            if len(pts) != robots.count:
-                raise ScenarioError(
-                    src,
-                    f"{key}.offsets",
-                    f"one [x, y] offset per follower (robots.count = {robots.count})",
-                    f"{len(pts)} offsets",
-                )
-            offsets = tuple(_point(src, p, f"{key}.offsets[{j}]") for j, p in enumerate(pts))
-        elif m.get("offsets") is not None:
+    return ok.all(tuple(ok(_parse_formation, src, item, f"formations[{i}]", count, ok) for i, item in enumerate(items)))
+
+
+def _parse_formation(src: str, item: Any, key: str, count: int | None, ok: _Errors) -> FormationSpec:
+    m = _mapping(src, item, key)
+    _check_keys(src, m, key, _FORMATION_KEYS, ("at", "shape"), ok)
+    at = ok(_number, src, m.get("at", _BAD), f"{key}.at", nonnegative=True)
+    shape = ok(_choice, src, m.get("shape", _BAD), f"{key}.shape", FORMATION_SHAPES)
+    spacing = ok(_number, src, m.get("spacing", FormationSpec.spacing), f"{key}.spacing", positive=True)
+    angle = ok(_number, src, m.get("angle", FormationSpec.angle), f"{key}.angle")
+    columns = ok(_integer, src, m.get("columns", FormationSpec.columns), f"{key}.columns", minimum=0)
+    offsets = ok(_offsets_of, src, m, key, shape, count, ok)
+    return ok(FormationSpec, at=at, shape=shape, spacing=spacing, angle=angle, offsets=offsets, columns=columns)
+
+
+def _offsets_of(src: str, m: Mapping[str, Any], key: str, shape: str, count: int | None, ok: _Errors) -> Any:
+    """A formation's ``offsets``: required (one per follower) for ``custom``, refused otherwise."""
+    if shape != "custom":
+        if m.get("offsets") is not None:
             raise ScenarioError(
                 src, f"{key}.offsets", f"no offsets for shape {shape!r} (offsets are for shape 'custom' only)", "offsets"
             )
-        out.append(FormationSpec(at=at, shape=shape, spacing=spacing, angle=angle, offsets=offsets, columns=columns))
-    return tuple(out)
+        return None
+    per = "per follower" if count is None else f"per follower (robots.count = {count})"
+    if "offsets" not in m or m["offsets"] is None:
+        n = "one" if count is None else str(count)
+        raise ScenarioError(src, f"{key}.offsets", f"a list of {n} [x, y] offsets (required by shape 'custom')")
+    pts = _sequence(src, m["offsets"], f"{key}.offsets", "a list of [x, y] offsets")
+    if count is not None and len(pts) != count:
+        raise ScenarioError(src, f"{key}.offsets", f"one [x, y] offset {per}", f"{len(pts)} offsets")
+    return ok.all(tuple(ok(_point, src, p, f"{key}.offsets[{j}]") for j, p in enumerate(pts)))
 
 
-def _parse_obstacle(src: str, value: Any, key: str) -> Obstacle:
+def _parse_obstacle(src: str, value: Any, key: str, ok: _Errors) -> Obstacle:
     m = _mapping(src, value, key)
     if "type" not in m:
         raise ScenarioError(
@@ -507,60 +568,68 @@ def _parse_obstacle(src: str, value: Any, key: str) -> Obstacle:
         )
     kind = _choice(src, m["type"], f"{key}.type", tuple(_OBSTACLE_KEYS))
     allowed = _OBSTACLE_KEYS[kind]
-    _check_keys(src, m, key, allowed, allowed[:-1] if kind == "rectangle" else allowed)
+    _check_keys(src, m, key, allowed, allowed[:-1] if kind == "rectangle" else allowed, ok)
     if kind == "circle":
-        center = _point(src, m["center"], f"{key}.center")
-        radius = _number(src, m["radius"], f"{key}.radius", positive=True)
-        return CircleObstacle(center=center, radius=radius)
+        center = ok(_point, src, m.get("center", _BAD), f"{key}.center")
+        radius = ok(_number, src, m.get("radius", _BAD), f"{key}.radius", positive=True)
+        return ok(CircleObstacle, center=center, radius=radius)
     if kind == "rectangle":
-        center = _point(src, m["center"], f"{key}.center")
-        size = _point(src, m["size"], f"{key}.size")
-        for i, s in enumerate(size):
-            if s <= 0:
-                raise ScenarioError(src, f"{key}.size[{i}]", "a positive side length (m)", s)
-        angle = _number(src, m.get("angle", RectangleObstacle.angle), f"{key}.angle")
-        return RectangleObstacle(center=center, size=size, angle=angle)
+        center = ok(_point, src, m.get("center", _BAD), f"{key}.center")
+        size = ok(_sizes, src, m.get("size", _BAD), f"{key}.size", "a positive side length (m)")
+        angle = ok(_number, src, m.get("angle", RectangleObstacle.angle), f"{key}.angle")
+        return ok(RectangleObstacle, center=center, size=size, angle=angle)
+    if "points" not in m:
+        return _BAD  # reported by _check_keys
     pts = _sequence(src, m["points"], f"{key}.points", "a list of at least 3 [x, y] vertices")
     if len(pts) < 3:
         raise ScenarioError(src, f"{key}.points", "at least 3 [x, y] vertices of a convex polygon", f"{len(pts)} points")
-    points = tuple(_point(src, p, f"{key}.points[{j}]") for j, p in enumerate(pts))
-    return PolygonObstacle(points=_convex_ccw(src, points, f"{key}.points"))
+    points = ok.all(tuple(ok(_point, src, p, f"{key}.points[{j}]") for j, p in enumerate(pts)))
+    return ok(PolygonObstacle, points=ok(_convex_ccw, src, points, f"{key}.points"))
 
 
-def _parse_human(src: str, value: Any, key: str) -> HumanSpec:
+def _parse_human(src: str, value: Any, key: str, ok: _Errors) -> HumanSpec:
     m = _mapping(src, value, key)
-    _check_keys(src, m, key, _HUMAN_KEYS, ("path",))
-    speed = _number(src, m.get("speed", HumanSpec.speed), f"{key}.speed", positive=True)
-    radius = _number(src, m.get("radius", HumanSpec.radius), f"{key}.radius", positive=True)
-    mode = _choice(src, m.get("mode", HumanSpec.mode), f"{key}.mode", HUMAN_MODES)
-    delay = _number(src, m.get("start_delay", HumanSpec.start_delay), f"{key}.start_delay", nonnegative=True)
-    behavior = _choice(src, m.get("behavior", HumanSpec.behavior), f"{key}.behavior", HUMAN_BEHAVIORS)
-    path = _path(src, m["path"], f"{key}.path")
-    return HumanSpec(path=path, speed=speed, radius=radius, mode=mode, start_delay=delay, behavior=behavior)
+    _check_keys(src, m, key, _HUMAN_KEYS, ("path",), ok)
+    speed = ok(_number, src, m.get("speed", HumanSpec.speed), f"{key}.speed", positive=True)
+    radius = ok(_number, src, m.get("radius", HumanSpec.radius), f"{key}.radius", positive=True)
+    mode = ok(_choice, src, m.get("mode", HumanSpec.mode), f"{key}.mode", HUMAN_MODES)
+    delay = ok(_number, src, m.get("start_delay", HumanSpec.start_delay), f"{key}.start_delay", nonnegative=True)
+    behavior = ok(_choice, src, m.get("behavior", HumanSpec.behavior), f"{key}.behavior", HUMAN_BEHAVIORS)
+    path = ok(_path, src, m.get("path", _BAD), f"{key}.path", ok)
+    return ok(HumanSpec, path=path, speed=speed, radius=radius, mode=mode, start_delay=delay, behavior=behavior)
 
 
-def _parse_sensors(src: str, value: Any) -> SensorSpec:
+def _parse_sensors(src: str, value: Any, ok: _Errors | None = None) -> SensorSpec:
+    """The ``sensors`` section; without ``ok`` (callers outside a file: env and generator arguments) its
+    errors are raised together."""
+    if ok is None:
+        return _alone(_parse_sensors, src, value)
     m = _mapping(src, value, "sensors")
-    _check_keys(src, m, "sensors", _SENSOR_KEYS, ())
+    _check_keys(src, m, "sensors", _SENSOR_KEYS, (), ok)
     d = SensorSpec()
-    return SensorSpec(
-        lidar_rays=_integer(src, m.get("lidar_rays", d.lidar_rays), "sensors.lidar_rays", minimum=1),
-        lidar_range=_number(src, m.get("lidar_range", d.lidar_range), "sensors.lidar_range", positive=True),
-        neighbors=_integer(src, m.get("neighbors", d.neighbors), "sensors.neighbors", minimum=0),
-        humans=_integer(src, m.get("humans", d.humans), "sensors.humans", minimum=0),
+    return ok(
+        SensorSpec,
+        lidar_rays=ok(_integer, src, m.get("lidar_rays", d.lidar_rays), "sensors.lidar_rays", minimum=1),
+        lidar_range=ok(_number, src, m.get("lidar_range", d.lidar_range), "sensors.lidar_range", positive=True),
+        neighbors=ok(_integer, src, m.get("neighbors", d.neighbors), "sensors.neighbors", minimum=0),
+        humans=ok(_integer, src, m.get("humans", d.humans), "sensors.humans", minimum=0),
     )
 
 
-def _parse_reward(src: str, value: Any) -> RewardSpec:
+def _parse_reward(src: str, value: Any, ok: _Errors | None = None) -> RewardSpec:
+    """The ``reward`` section; without ``ok``, as :func:`_parse_sensors`."""
+    if ok is None:
+        return _alone(_parse_reward, src, value)
     m = _mapping(src, value, "reward")
-    _check_keys(src, m, "reward", _REWARD_KEYS, ())
+    _check_keys(src, m, "reward", _REWARD_KEYS, (), ok)
     d = RewardSpec()
     # Weights are magnitudes: the sign of each term is fixed by the env (penalty or bonus).
-    vals = {k: _number(src, m.get(k, getattr(d, k)), f"reward.{k}", nonnegative=True) for k in _REWARD_KEYS}
+    vals = {k: ok(_number, src, m.get(k, getattr(d, k)), f"reward.{k}", nonnegative=True) for k in _REWARD_KEYS}
     for k in ("clearance_margin", "approach_margin"):  # divisors of their terms
-        if not vals[k] > 0:
-            raise ScenarioError(src, f"reward.{k}", "a number > 0 (m)", vals[k])
-    return RewardSpec(**vals)
+        if vals[k] is not _BAD and not vals[k] > 0:
+            ok.add(ScenarioError(src, f"reward.{k}", "a number > 0 (m)", vals[k]))
+            vals[k] = _BAD
+    return ok(RewardSpec, **vals)
 
 
 # --------------------------------------------------------------------------- cross-section checks
@@ -572,51 +641,58 @@ def _check_world(src: str, scn: Scenario) -> None:
         raise ScenarioError(src, "world.max_time", f"at least one control period (world.dt = {w.dt})", w.max_time)
 
 
-def _check_geometry(src: str, scn: Scenario) -> None:
+def _check_geometry(src: str, scn: Scenario, ok: _Errors) -> None:
     """Every point of the scenario inside the world (discs by their radius); paths of distinct
     waypoints; polygons convex, stored counter-clockwise."""
     world, r = scn.world, scn.robots
     if r.start != "formation":
         for i, pose in enumerate(r.start):
-            _inside(src, (pose[0], pose[1]), r.radius, world, f"robots.start[{i}]", "follower disc")
+            ok(_inside, src, (pose[0], pose[1]), r.radius, world, f"robots.start[{i}]", "follower disc")
     ld = scn.leader
     # A virtual leader is a point; a robot leader's whole disc must fit in the world.
     robot = ld.kind == "robot"
-    _check_path(src, ld.path, "leader.path", world, ld.radius if robot else 0.0, "robot leader disc" if robot else "waypoint")
+    _check_path(src, ld.path, "leader.path", world, ld.radius if robot else 0.0, "robot leader disc" if robot else "waypoint",
+                ok)
     for k, o in enumerate(scn.obstacles):
         key = f"obstacles[{k}]"
         if isinstance(o, PolygonObstacle):
             for j, p in enumerate(o.points):
-                _inside(src, p, 0.0, world, f"{key}.points[{j}]", "polygon vertex")
-            if _convex_ccw(src, o.points, f"{key}.points") != tuple(o.points):
-                raise ScenarioError(src, f"{key}.points", "convex polygon vertices in counter-clockwise order", list(o.points))
+                ok(_inside, src, p, 0.0, world, f"{key}.points[{j}]", "polygon vertex")
+            ok(_check_ccw, src, o.points, f"{key}.points")
         else:
-            _inside(src, o.center, 0.0, world, f"{key}.center", "obstacle centre")
+            ok(_inside, src, o.center, 0.0, world, f"{key}.center", "obstacle centre")
     for j, h in enumerate(scn.humans):
-        _check_path(src, h.path, f"humans[{j}].path", world, h.radius, "human disc")
+        _check_path(src, h.path, f"humans[{j}].path", world, h.radius, "human disc", ok)
 
 
-def _check_schedule(src: str, scn: Scenario) -> None:
+def _check_ccw(src: str, points: Sequence[Point], key: str) -> None:
+    if _convex_ccw(src, points, key) != tuple(points):
+        raise ScenarioError(src, key, "convex polygon vertices in counter-clockwise order", list(points))
+
+
+def _check_schedule(src: str, scn: Scenario, ok: _Errors) -> None:
     """The formation schedule: first at 0, strictly increasing; shape parameters that apply."""
     prev_at = -math.inf
     for i, f in enumerate(scn.formations):
         key = f"formations[{i}]"
         if i == 0 and f.at != 0.0:
-            raise ScenarioError(src, f"{key}.at", "0.0 for the first formation (one must be active from the start)", f.at)
-        if f.at <= prev_at:
-            raise ScenarioError(src, f"{key}.at", f"a time strictly after the previous entry's at = {prev_at}", f.at)
+            ok.add(ScenarioError(src, f"{key}.at", "0.0 for the first formation (one must be active from the start)", f.at))
+        elif f.at <= prev_at:
+            ok.add(ScenarioError(src, f"{key}.at", f"a time strictly after the previous entry's at = {prev_at}", f.at))
         prev_at = f.at
         if not 0.0 < f.angle < 180.0:
-            raise ScenarioError(src, f"{key}.angle", "an arm half-opening in degrees within (0, 180)", f.angle)
+            ok.add(ScenarioError(src, f"{key}.angle", "an arm half-opening in degrees within (0, 180)", f.angle))
         if f.shape == "wedge" and f.angle == 90.0:
-            raise ScenarioError(
+            ok.add(ScenarioError(
                 src, f"{key}.angle", "a wedge half-opening other than 90 degrees (its rows would coincide)", f.angle
-            )
+            ))
         if f.columns and f.shape != "grid":
-            raise ScenarioError(src, f"{key}.columns", f"no columns for shape {f.shape!r} (only 'grid' uses them)", f.columns)
+            ok.add(ScenarioError(src, f"{key}.columns", f"no columns for shape {f.shape!r} (only 'grid' uses them)",
+                                 f.columns))
         if f.shape == "custom" and (f.offsets is None or len(f.offsets) != scn.robots.count):
             got = "none" if f.offsets is None else f"{len(f.offsets)} offsets"
-            raise ScenarioError(src, f"{key}.offsets", f"one [x, y] offset per follower (robots.count = {scn.robots.count})", got)
+            ok.add(ScenarioError(src, f"{key}.offsets",
+                                 f"one [x, y] offset per follower (robots.count = {scn.robots.count})", got))
 
 
 def _tunnel_terms(scn: Scenario) -> tuple[float, float]:
@@ -629,26 +705,29 @@ def _tunnel_terms(scn: Scenario) -> tuple[float, float]:
     return 2.0 * v_max + v_human, min(radii)
 
 
-def _cross_check(src: str, scn: Scenario) -> None:
+def _cross_check(src: str, scn: Scenario, ok: _Errors) -> None:
     r, ld, w = scn.robots, scn.leader, scn.world
     if ld.speed > r.max_speed + _EPS:
-        raise ScenarioError(
+        ok.add(ScenarioError(
             src, "leader.speed", f"at most robots.max_speed = {r.max_speed} (followers could never keep up)", ld.speed
-        )
+        ))
 
     v_rel, r_min = _tunnel_terms(scn)
     need = min_substeps(scn)
     if w.substeps < need:
-        raise ScenarioError(
+        ok.add(ScenarioError(
             src,
             "world.substeps",
             f"at least {need}: the anti-tunnelling rule needs v_rel * dt / substeps <= r_min with "
             f"v_rel = {v_rel:g} m/s, dt = {w.dt:g} s, r_min = {r_min:g} m",
             w.substeps,
-        )
+        ))
 
-    _check_slots(src, scn)
-    _check_start(src, scn)
+    for i in range(len(scn.formations)):  # only formations whose own parameters passed (they are laid out here)
+        if not any(e.key.startswith(f"formations[{i}].") for e in ok.errors):
+            ok(_check_slots, src, scn, i)
+    if not ok.errors:  # the starting poses come from the first formation and the path: only once those are sound
+        ok(_check_start, src, scn)
 
 
 def _offsets(src: str, scn: Scenario, i: int) -> np.ndarray:
@@ -658,36 +737,36 @@ def _offsets(src: str, scn: Scenario, i: int) -> np.ndarray:
         raise ScenarioError(src, f"formations[{i}]", f"a formation that can be laid out ({exc})") from None
 
 
-def _check_slots(src: str, scn: Scenario) -> None:
-    """Slots of every formation must leave room for the follower discs (and a robot leader's disc)."""
+def _check_slots(src: str, scn: Scenario, i: int) -> None:
+    """The slots of formation ``i`` must leave room for the follower discs (and a robot leader's disc)."""
     r = scn.robots.radius
-    for i, f in enumerate(scn.formations):
-        key = f"formations[{i}]." + ("offsets" if f.shape == "custom" else "spacing")
-        got = [list(p) for p in f.offsets] if f.offsets is not None else f.spacing
-        off = _offsets(src, scn, i)
-        if off.shape[0] > 1:
-            d = np.linalg.norm(off[:, None, :] - off[None, :, :], axis=-1)
-            d[np.diag_indices_from(d)] = np.inf
-            a, b = np.unravel_index(int(np.argmin(d)), d.shape)
-            if d[a, b] < 2.0 * r - 1e-6:
-                raise ScenarioError(
-                    src,
-                    key,
-                    f"slots at least 2 * robots.radius = {2 * r:g} m apart (slots {a} and {b} are {d[a, b]:.3g} m apart)",
-                    got,
-                )
-        if scn.leader.kind == "robot":
-            norms = np.linalg.norm(off, axis=1)
-            k = int(np.argmin(norms))
-            need = r + scn.leader.radius
-            if norms[k] < need - 1e-6:
-                raise ScenarioError(
-                    src,
-                    key,
-                    f"slots at least robots.radius + leader.radius = {need:g} m from the robot leader "
-                    f"(slot {k} is {norms[k]:.3g} m from it)",
-                    got,
-                )
+    f = scn.formations[i]
+    key = f"formations[{i}]." + ("offsets" if f.shape == "custom" else "spacing")
+    got = [list(p) for p in f.offsets] if f.offsets is not None else f.spacing
+    off = _offsets(src, scn, i)
+    if off.shape[0] > 1:
+        d = np.linalg.norm(off[:, None, :] - off[None, :, :], axis=-1)
+        d[np.diag_indices_from(d)] = np.inf
+        a, b = np.unravel_index(int(np.argmin(d)), d.shape)
+        if d[a, b] < 2.0 * r - 1e-6:
+            raise ScenarioError(
+                src,
+                key,
+                f"slots at least 2 * robots.radius = {2 * r:g} m apart (slots {a} and {b} are {d[a, b]:.3g} m apart)",
+                got,
+            )
+    if scn.leader.kind == "robot":
+        norms = np.linalg.norm(off, axis=1)
+        k = int(np.argmin(norms))
+        need = r + scn.leader.radius
+        if norms[k] < need - 1e-6:
+            raise ScenarioError(
+                src,
+                key,
+                f"slots at least robots.radius + leader.radius = {need:g} m from the robot leader "
+                f"(slot {k} is {norms[k]:.3g} m from it)",
+                got,
+            )
 
 
 def start_poses(scn: Scenario) -> np.ndarray:
@@ -783,20 +862,23 @@ def _convex_ccw(src: str, points: Sequence[Point], key: str) -> tuple[Point, ...
     return tuple((float(x), float(y)) for x, y in np.asarray(out, dtype=np.float64))
 
 
-def _path(src: str, value: Any, key: str) -> tuple[Point, ...]:
+def _path(src: str, value: Any, key: str, ok: _Errors) -> tuple[Point, ...]:
     pts = _sequence(src, value, key, "a list of at least 2 [x, y] waypoints")
     if len(pts) < 2:
         raise ScenarioError(src, key, "at least 2 [x, y] waypoints", f"{len(pts)} points")
-    return tuple(_point(src, p, f"{key}[{i}]") for i, p in enumerate(pts))
+    return ok.all(tuple(ok(_point, src, p, f"{key}[{i}]") for i, p in enumerate(pts)))
 
 
-def _check_path(src: str, path: Sequence[Point], key: str, world: WorldSpec, margin: float, what: str) -> None:
+def _check_path(
+    src: str, path: Sequence[Point], key: str, world: WorldSpec, margin: float, what: str, ok: _Errors
+) -> None:
     if len(path) < 2:
-        raise ScenarioError(src, key, "at least 2 [x, y] waypoints", f"{len(path)} points")
+        ok.add(ScenarioError(src, key, "at least 2 [x, y] waypoints", f"{len(path)} points"))
+        return
     for i, p in enumerate(path):
-        _inside(src, p, margin, world, f"{key}[{i}]", what)
+        ok(_inside, src, p, margin, world, f"{key}[{i}]", what)
         if i and math.dist(p, path[i - 1]) < 1e-9:
-            raise ScenarioError(src, f"{key}[{i}]", "a waypoint different from the previous one", list(p))
+            ok.add(ScenarioError(src, f"{key}[{i}]", "a waypoint different from the previous one", list(p)))
 
 
 def _inside(src: str, p: Point, margin: float, world: WorldSpec, key: str, what: str) -> None:
@@ -900,26 +982,39 @@ def _point(src: str, value: Any, key: str) -> Point:
     return (x, y)
 
 
-def _parse_list(src: str, value: Any, key: str, parse) -> tuple:
+def _sizes(src: str, value: Any, key: str, expected: str) -> Point:
+    """A ``[w, h]`` pair of positive numbers (``expected`` says what each is)."""
+    size = _point(src, value, key)
+    for i, v in enumerate(size):
+        if v <= 0:
+            raise ScenarioError(src, f"{key}[{i}]", expected, v)
+    return size
+
+
+def _parse_list(src: str, value: Any, key: str, parse: Callable[..., Any], ok: _Errors) -> tuple:
+    """``parse(src, item, "key[i]", ok)`` of every item of an optional list section (``None``: empty)."""
     if value is None:
         return ()
     items = _sequence(src, value, key, "a list")
-    return tuple(parse(item, f"{key}[{i}]") for i, item in enumerate(items))
+    return ok.all(tuple(ok(parse, src, item, f"{key}[{i}]", ok) for i, item in enumerate(items)))
 
 
-def _check_keys(src: str, m: Mapping[str, Any], key: str, allowed: Sequence[str], required: Sequence[str]) -> None:
+def _check_keys(
+    src: str, m: Mapping[str, Any], key: str, allowed: Sequence[str], required: Sequence[str], ok: _Errors
+) -> None:
+    """Report (to ``ok``) every unknown key of the mapping ``m`` at ``key`` and every missing required one."""
     prefix = f"{key}." if key else ""
     for k in m:
         if not isinstance(k, str):
-            raise ScenarioError(src, f"{prefix}{k!r}", "string keys", k)
-        if k not in allowed:
+            ok.add(ScenarioError(src, f"{prefix}{k!r}", "string keys", k))
+        elif k not in allowed:
             close = difflib.get_close_matches(k, allowed, n=1)
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             where = f"the keys of {key}" if key else "the top-level sections"
-            raise ScenarioError(src, f"{prefix}{k}", f"one of {where}: {', '.join(allowed)}{hint}", k)
+            ok.add(ScenarioError(src, f"{prefix}{k}", f"one of {where}: {', '.join(allowed)}{hint}", k))
     for k in required:
         if k not in m:
-            raise ScenarioError(src, f"{prefix}{k}", "a value (required key missing)")
+            ok.add(ScenarioError(src, f"{prefix}{k}", "a value (required key missing)"))
 
 
 def _floats(p: Sequence[float]) -> list[float]:

@@ -7,7 +7,9 @@
   as a unicycle command ``(v, omega)``: in every physics substep the command is
   rate-limited (optional acceleration limits), the body's velocity is set along
   its heading and the solver resolves contacts, so robots push each other and
-  never overlap obstacles or walls;
+  obstacles and walls stop them; they may sink into what they hit by about one
+  substep's travel before the solver pushes them out (:func:`max_overlap` states
+  the bound);
 * humans are kinematic discs that push robots: ``scripted`` ones follow their paths
   exactly and do not react; reactive ones (``social_force``, ``orca``) walk at a velocity
   chosen once per control step by :mod:`swarm_env.humans`;
@@ -58,6 +60,39 @@ LEADER_GOAL_TOLERANCE = 0.2
 SLOT_MARGIN = formation_lib.SLOT_MARGIN  # re-exported: the slot projection's clearance beyond the radius
 #: The robot leader's velocity-obstacle search (paper 003 Fig. 1): the search's defaults.
 LEADER_VO = guidance.VOParams()
+
+
+#: In a pile-up (several robots pushing into one another or into an obstacle) the contact solver's
+#: iterations leave part of each push unresolved for a few substeps, so the overlap exceeds a single
+#: contact's bound; measured worst on paper_cbs_switch: x1.14 (robots) and x1.23 (obstacle). The
+#: stated bound (:func:`max_overlap`) allows this factor; tests/test_physics.py checks it.
+PILEUP_FACTOR = 1.5
+
+
+def max_overlap(scenario: Scenario) -> dict[str, float]:
+    """The deepest overlap (m) the physics lets a robot reach, per kind of contact: ``obstacle``
+    (static obstacles and walls) and ``robot`` (another follower or a robot leader).
+
+    pymunk has no continuous collision detection, and Chipmunk moves bodies *before* it finds
+    contacts in each substep of ``h = world.dt / world.substeps`` s: a contact that begins during
+    a substep is resolved only after the bodies have moved for the whole substep. So one contact
+    sinks by at most what it closes in one substep, plus the overlap the solver tolerates
+    (:data:`COLLISION_SLOP`):
+
+    * a robot into an obstacle or a wall: ``v * h + slop``, with ``v`` the fastest robot speed
+      (``max(robots.max_speed, leader.speed)``);
+    * two robots, both driving at each other: ``2 * v * h + slop``.
+
+    Each is multiplied by :data:`PILEUP_FACTOR` for pile-ups (an empirical allowance, not a
+    derivation). On ``paper_cbs_switch`` (0.5 m/s, h = 0.125 s) that is 0.101 m (obstacle) and
+    0.195 m (robot); on ``paper_vo_*`` (0.65 m/s, h = 0.025 s) 0.032 m and 0.056 m. Humans are
+    kinematic (infinitely heavy): one that walks into a robot pinned against an obstacle pushes
+    it in without bound, so contacts with humans are not covered. The anti-tunnelling rule
+    (:func:`swarm_env.scenario_io.required_substeps`) keeps ``2 * v * h`` at most one radius.
+    """
+    h = scenario.world.dt / scenario.world.substeps
+    v = max(scenario.robots.max_speed, scenario.leader.speed)
+    return {"obstacle": PILEUP_FACTOR * (v * h + COLLISION_SLOP), "robot": PILEUP_FACTOR * (2 * v * h + COLLISION_SLOP)}
 
 
 # Body property accessors, called directly: pymunk's Body routes every attribute assignment
@@ -625,4 +660,4 @@ class World:
         )
 
 
-__all__ = ["World", "COLLISION_SLOP", "LEADER_GOAL_TOLERANCE", "SLOT_MARGIN"]
+__all__ = ["World", "COLLISION_SLOP", "LEADER_GOAL_TOLERANCE", "PILEUP_FACTOR", "SLOT_MARGIN", "max_overlap"]

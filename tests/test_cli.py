@@ -48,6 +48,41 @@ def test_validate_good_and_bad_files(tmp_path: Path, capsys: pytest.CaptureFixtu
     assert "bad.yaml" in err and "max_sped" in err
 
 
+def test_validate_reports_every_error_and_accepts_random(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(GOOD.replace("max_speed", "max_sped").replace("radius: 0.25", "radius: -0.25")
+                   .replace("shape: v", "shape: vee"))
+    assert main(["validate", str(bad), "random", "paper_vo_0"]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.splitlines()
+    assert len(lines) == 3 and all(line.startswith(f"error: {bad}: ") for line in lines), lines
+    assert [line.split(": ")[2] for line in lines] == ["robots.max_sped", "robots.radius", "formations[0].shape"]
+    assert "ok: random (the generator" in captured.out and "ok: paper_vo_0" in captured.out
+
+
+def test_run_shows_policy_stats_as_a_table_and_video_progress(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import swarm_env.cli as cli
+
+    argv = ["run", "--scenario", "paper_vo_45", "--policy", "vo", "--max-cycles", "5", "--video", str(tmp_path / "v.mp4")]
+    assert main(argv) == 0  # not at a terminal (pytest captures stderr): no progress bar
+    captured = capsys.readouterr()
+    assert "frame" not in captured.err
+    lines = captured.out.splitlines()
+    head = lines.index(next(line for line in lines if line.startswith("policy stat ")))
+    assert lines[head].split() == ["policy", "stat", "value"] and set(lines[head + 1].replace(" ", "")) == {"-"}
+    rows = {line.split()[0]: line.split(None, 1)[1] for line in lines[head + 2 : head + 7]}
+    assert rows["decision_time_ms"].startswith("median=") and "calls=5" in rows["decision_time_ms"]
+    assert set(rows) == {"decision_time_ms", "infeasible_events", "infeasible_rate", "escape_turns", "min_clearance"}
+    assert max(len(line) for line in lines[head : head + 7]) < 100  # a small table, not one long JSON line
+
+    monkeypatch.setattr(cli, "_interactive", lambda: True)  # as at a terminal
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "video v.mp4" in err and "6/6" in err and "frame" in err  # the reset frame + 5 steps, bar at 100 %
+
+
 def test_run_writes_json_and_video(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out_json, out_video = tmp_path / "out.json", tmp_path / "out.mp4"
     code = main(["run", "--scenario", "paper_vo_0", "--policy", "random", "--episodes", "2", "--seed", "0",

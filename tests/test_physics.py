@@ -102,3 +102,58 @@ def test_acceleration_limit_is_enforced_per_substep() -> None:
     states = _drive(env, {"follower_0": np.array([1.0, 0.0], np.float32)}, 5)
     speeds = np.array([s.follower_twist[0, 0] for s in states])
     assert np.allclose(speeds, 0.5 * 0.1 * np.arange(1, 6), atol=1e-6)
+
+
+def _deepest_overlaps(env: SwarmEnv, aim: Any, steps: int) -> dict[str, float]:
+    """Drive every follower of ``env`` at full speed towards ``aim(state) -> (N, 2)`` points for ``steps``
+    steps and return the deepest overlap seen after any physics substep (m), per kind of contact."""
+    env.reset(seed=0)
+    world, scn = env._world, env.scenario
+    r, (w, h) = scn.robots.radius, scn.world.size
+    static = env.world_state().static
+    deepest = {"robot": 0.0, "obstacle": 0.0}
+    space_step = world.space.step
+
+    def measured_step(dt: float) -> None:  # the overlap can peak inside a control step: look after each substep
+        space_step(dt)
+        xy = np.array([tuple(b.position) for b in world._bodies])
+        d = np.linalg.norm(xy[:, None] - xy[None], axis=-1)
+        np.fill_diagonal(d, np.inf)
+        deepest["robot"] = max(deepest["robot"], 2 * r - float(d.min()))
+        wall = np.minimum(np.minimum(xy[:, 0], w - xy[:, 0]), np.minimum(xy[:, 1], h - xy[:, 1]))
+        clearance = np.minimum(static.distance(xy, walls=False), wall)
+        deepest["obstacle"] = max(deepest["obstacle"], r - float(clearance.min()))
+
+    world.space.step = measured_step
+    w_max = scn.robots.max_turn_rate
+    for _ in range(steps):
+        st = env.world_state()
+        pose = st.follower_pose
+        to = aim(st) - pose[:, :2]
+        err = (np.arctan2(to[:, 1], to[:, 0]) - pose[:, 2] + np.pi) % (2 * np.pi) - np.pi
+        turn = np.clip(err / (w_max * scn.world.dt), -1.0, 1.0)
+        env.step({a: np.array([1.0, turn[i]], np.float32) for i, a in enumerate(env.agents)})
+    return deepest
+
+
+def test_overlap_on_paper_cbs_switch_stays_within_the_stated_bound() -> None:
+    """README's overlap bound (swarm_env.world.max_overlap), measured where it is largest: paper_cbs_switch
+    (dt 0.5 s, 4 substeps: 6.25 cm of travel per substep), all 8 followers driven at full speed into one
+    another (a pile-up at their centroid) and into one obstacle. Both runs must reach at least a single
+    contact's depth (so the test is aggressive enough to fail) and stay within the stated bound."""
+    from swarm_env.world import COLLISION_SLOP, PILEUP_FACTOR, max_overlap
+
+    env = SwarmEnv("paper_cbs_switch")
+    bound = max_overlap(env.scenario)
+    vh = env.scenario.robots.max_speed * env.scenario.world.dt / env.scenario.world.substeps
+    assert vh == pytest.approx(0.0625)
+    assert bound == pytest.approx({"robot": PILEUP_FACTOR * (2 * vh + COLLISION_SLOP),
+                                   "obstacle": PILEUP_FACTOR * (vh + COLLISION_SLOP)})
+
+    pile = _deepest_overlaps(env, lambda st: np.repeat(st.follower_pose[:, :2].mean(0, keepdims=True), 8, 0), 60)
+    assert 2 * vh <= pile["robot"] <= bound["robot"], pile  # measured 0.148 m (bound 0.195 m)
+
+    obstacle = env.scenario.obstacles[1]  # a disc 2 m beside the start of the V's outer arm
+    into = _deepest_overlaps(env, lambda st: np.repeat(np.array([obstacle.center]), 8, 0), 100)
+    assert vh <= into["obstacle"] <= bound["obstacle"], into  # measured 0.083 m (bound 0.101 m)
+    assert into["robot"] <= bound["robot"], into

@@ -329,6 +329,7 @@ def test_bad_file_names_file_and_key(case: str, edit, key: str, fragment: str, t
         load_scenario(path)
     msg = str(err.value)
     assert err.value.key == key, msg
+    assert len(err.value.errors) == 1, msg  # one mistake, one error: nothing reported as its consequence
     assert f"bad_{case}.yaml" in msg and key in msg, msg
     assert fragment in msg, msg
     # The same mapping, validated directly, names <dict> and the same key.
@@ -378,3 +379,41 @@ def test_min_substeps_is_the_boundary() -> None:
     data["world"]["substeps"] = 7
     with pytest.raises(ScenarioError, match="at least 8"):
         scenario_from_dict(data)
+
+
+def test_every_error_of_a_file_is_reported(tmp_path: Path) -> None:
+    """Validation goes on after a bad value: one error per problem, in file order, each naming file and key;
+    checks that depend on a bad value are skipped rather than reported."""
+    data = copy.deepcopy(_minimal())
+    data["world"]["size"] = [20, -14]
+    data["robots"]["max_sped"] = 0.5  # unknown key
+    data["robots"]["radius"] = -1.0
+    data["leader"]["kind"] = "robott"
+    data["formations"].append({"at": 30.0, "shape": "custom", "offsets": [[-1.0, 1.0]]})  # 1 offset, 2 robots
+    data["obstacles"] = [{"type": "circle", "center": [8, 11]}, {"type": "polygon", "points": [[4, 4], [5, 4]]}]
+    data["humans"] = [{"path": [[14, 10], [4, 10]], "speed": -0.5, "mode": "sometimes"}]
+    path = tmp_path / "many.yaml"
+    path.write_text(yaml.safe_dump(data, sort_keys=False))
+    with pytest.raises(ScenarioError) as err:
+        load_scenario(path)
+    keys = [e.key for e in err.value.errors]
+    assert keys == ["world.size[1]", "robots.max_sped", "robots.radius", "leader.kind", "formations[1].offsets",
+                    "obstacles[0].radius", "obstacles[1].points", "humans[0].speed", "humans[0].mode"], keys
+    lines = str(err.value).splitlines()
+    assert len(lines) == len(keys) and all(line.startswith(f"{path}: {k}: expected ") for line, k in zip(lines, keys))
+    assert err.value.key == "world.size[1]"  # the first problem's fields, as for a single error
+
+
+def test_semantic_errors_are_all_reported() -> None:
+    data = copy.deepcopy(_minimal())
+    data["leader"]["path"] = [[2, 7], [2, 7], [30, 7]]  # a repeated waypoint and one outside the world
+    data["formations"] = [{"at": 1.0, "shape": "v", "spacing": 1.0, "angle": 45},
+                          {"at": 0.5, "shape": "line", "spacing": 1.0, "angle": 200}]
+    data["leader"]["speed"] = 5.0
+    with pytest.raises(ScenarioError) as err:
+        scenario_from_dict(data)
+    keys = [e.key for e in err.value.errors]
+    for key in ("leader.path[1]", "leader.path[2]", "formations[0].at", "formations[1].at", "formations[1].angle",
+                "leader.speed"):
+        assert key in keys, (key, keys)
+    assert len(keys) == len(set(keys)) and all(str(e).startswith("<dict>: ") for e in err.value.errors)

@@ -199,3 +199,12 @@ def test_the_bridge_steps_shielded_copies(tmp_path):
     obs, rewards, dones, infos = venv.step(np.ones((venv.num_envs, 2), np.float32))
     assert all("shield_correction" in info for info in infos)
     venv.close()
+
+
+def test_progress_bar_ends_at_the_steps_actually_taken(tmp_path, capsys):
+    """SB3 stops between whole rollouts (here 2 copies x 2 followers x 32 steps = 128 agent-steps), so a budget
+    of 100 takes 128 steps: the bar's total is 128, and it ends at 100 %, not at 128/100."""
+    run = train_mod.train(_tiny(tmp_path, total_steps=100, eval_every=0, checkpoint_every=0, progress=True))
+    assert json.loads((run / "summary.json").read_text())["agent_steps"] == 128
+    final = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
+    assert "100%" in final and "128/128" in final, final

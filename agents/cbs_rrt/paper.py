@@ -19,7 +19,6 @@ imported lazily (it is an optional dependency, ``pip install swarm-env[plots]``)
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import time
 from pathlib import Path
@@ -35,6 +34,7 @@ from agents.cbs_rrt.policy import CBSRRTExpert, ReplanRecord
 from agents.cbs_rrt.rrt import GoalSpec
 from agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
 from swarm_env.evaluation import run_episode
+from swarm_env.jsonio import write_json
 from swarm_env.state import WorldState
 
 SCENARIO = "paper_cbs_switch"
@@ -461,7 +461,7 @@ def main(argv: list[str] | None = None) -> int:
     _, n_before, n_after = before_after(at_switch, record, out)
     fig3 = (n_before, n_after, record.result.nodes_expanded, record.result.low_level_calls, record.wall_time,
             record.result.fallback_used)
-    (out / "results.json").write_text(json.dumps(rows, indent=1, default=str))
+    write_json(out / "results.json", rows, indent=1, default=str)
     refs = {spec: run_reference(spec) for spec in ("vo", "orca")}
     reactive = [run_episode(swarm_env.parallel_env("crowd_reactive"), CBSRRTExpert(), seed) for seed in range(3)]
     md = out.parent / f"{out.name}.md"
