@@ -63,9 +63,9 @@ from typing import Any
 import numpy as np
 import yaml
 
-from swarm_env.jsonio import dumps
 from swarm_env.env import SwarmEnv
 from swarm_env.evaluation import run_episode
+from swarm_env.jsonio import dumps
 from swarm_env.policies import Policy
 from swarm_env.scenario import Scenario
 from swarm_env.scenario_io import scenario_from_dict, scenario_to_dict
