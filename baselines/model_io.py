@@ -3,7 +3,7 @@
 A saved model is a directory (or its ``model.zip``) holding::
 
     policy.safetensors + policy.json   the policy network and its observation statistics as
-                                       tensors and JSON (baselines.safe_io): loading cannot run code
+                                       tensors and JSON (swarm_env_baselines.safe_io): loading cannot run code
     model.zip          the SB3 model (``model.save``), for resuming and warm starts
     vecnormalize.pkl   optional: the VecNormalize statistics the model was trained with
 
@@ -14,11 +14,11 @@ pickled pair, for training. :class:`SB3Policy` feeds each follower's
 observation through the same normalisation, then ``model.predict`` on the
 stacked batch (parameter sharing), deterministic by default. ``bc`` models are
 PPO-format checkpoints whose policy network was trained by behaviour cloning
-(see :mod:`baselines.bc`).
+(see :mod:`swarm_env_baselines.bc`).
 
 Every spec needs a path: the v0 checkpoints that ``ppo`` and ``bc`` once loaded without one
 were retired in issue 10 (trained on swarm_env_v0 from an uncommitted tree; superseded by the
-shipped methods of :mod:`baselines.mappo_policy`), and a bare name says so.
+shipped methods of :mod:`swarm_env_baselines.mappo_policy`), and a bare name says so.
 """
 
 from __future__ import annotations
@@ -86,9 +86,9 @@ def resolve_model_path(path: str | Path) -> Path:
 
 
 def save_model(model: "BaseAlgorithm", directory: str | Path, vecnorm: "VecNormalize | None" = None) -> Path:
-    """Write the policy as tensors + JSON (:func:`baselines.safe_io.save_policy`), and ``model.zip``
+    """Write the policy as tensors + JSON (:func:`swarm_env_baselines.safe_io.save_policy`), and ``model.zip``
     (and ``vecnormalize.pkl`` if given) for training, into ``directory``; returns the directory."""
-    from baselines.safe_io import save_policy
+    from swarm_env_baselines.safe_io import save_policy
 
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
@@ -164,7 +164,7 @@ def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
     # A policy loaded by name is for scoring, so the process gets one torch thread; load_model itself
     # (used by training's --init-from) leaves the thread count alone.
     torch.set_num_threads(1)
-    from baselines.safe_io import has_safe_policy, load_policy_dir
+    from swarm_env_baselines.safe_io import has_safe_policy, load_policy_dir
 
     where = Path(path).expanduser()  # type: ignore[arg-type]
     model: Any
@@ -187,12 +187,12 @@ def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
 
 
 def make_ppo_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
-    """Entry point ``ppo:PATH``: a PPO model saved by ``python -m baselines.train``."""
+    """Entry point ``ppo:PATH``: a PPO model saved by ``swarm-env train sb3``."""
     return _make("ppo", env, arg)
 
 
 def make_bc_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
-    """Entry point ``bc:PATH``: a behaviour-cloned policy saved by ``python -m baselines.bc``."""
+    """Entry point ``bc:PATH``: a behaviour-cloned policy saved by ``swarm-env bc``."""
     return _make("bc", env, arg)
 
 

@@ -8,7 +8,7 @@ A policy directory in this format holds::
 
 SB3's own ``model.zip`` stores parts of the model with cloudpickle and ``VecNormalize`` pickles
 itself; unpickling either can run arbitrary code. :func:`save_policy` writes the network and the
-statistics in this format beside them (``baselines.model_io.save_model`` does it for every saved
+statistics in this format beside them (``swarm_env_baselines.model_io.save_model`` does it for every saved
 model), and :func:`load_policy_dir` rebuilds the policy from it with no pickle involved, for
 scoring. Training state (optimizer, replay buffer, schedules) is not part of the format: resuming
 or warm-starting training still reads ``model.zip``.
@@ -91,7 +91,7 @@ def load_policy_dir(directory: str | Path) -> tuple[Any, ObsNormalizer | None, s
     """
     from safetensors.torch import load_file
 
-    from baselines.model_io import algorithm_class
+    from swarm_env_baselines.model_io import algorithm_class
 
     d = Path(directory)
     cfg_path = d / CONFIG_FILE
@@ -212,7 +212,7 @@ def _normalization_from_json(d: dict[str, Any] | None, source: Path) -> ObsNorma
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m baselines.safe_io DIR [DIR ...] [--algo ppo]``: write the tensors + JSON files
+    """``swarm-env convert DIR [DIR ...] [--algo ppo]``: write the tensors + JSON files
     beside the ``model.zip`` / ``vecnormalize.pkl`` of older run directories.
 
     Converting unpickles those files once: run it only on files you trust (your own runs).
@@ -220,9 +220,9 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     import sys
 
-    from baselines.model_io import load_model
+    from swarm_env_baselines.model_io import load_model
 
-    parser = argparse.ArgumentParser(prog="python -m baselines.safe_io", description=main.__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="swarm-env convert", description=main.__doc__.split("\n\n")[0])
     parser.add_argument("dirs", nargs="+", help="run or checkpoint directories holding model.zip")
     parser.add_argument("--algo", default="ppo", help="the algorithm that saved them (ppo, sac, a2c, td3, ddpg; bc = ppo)")
     args = parser.parse_args(argv)

@@ -2,16 +2,16 @@
 
 .. code-block:: console
 
-    python -m baselines.train --algo ppo --scenario random --total-steps 2e6 --seed 0
+    swarm-env train sb3 --algo ppo --scenario random --total-steps 2e6 --seed 0
 
-Every :class:`~baselines.config.TrainConfig` field is an option (``--help`` lists
+Every :class:`~swarm_env_baselines.config.TrainConfig` field is an option (``--help`` lists
 them with their documentation). A run writes a directory
 ``<runs_dir>/<run_name>/``::
 
-    config.json        the exact TrainConfig (python -m baselines.train --config it repeats the run)
+    config.json        the exact TrainConfig (swarm-env train sb3 --config it repeats the run)
     versions.json      python, platform, package versions, git commit, command line
     model.zip          the final model (+ vecnormalize.pkl: its observation/reward statistics)
-    best/              the model with the best validation score (see baselines.callbacks)
+    best/              the model with the best validation score (see swarm_env_baselines.callbacks)
     checkpoints/       periodic checkpoints
     eval.csv           validation metrics over training (the learning curve's data)
     learning_curve.png validation formation error and collisions over agent-steps
@@ -36,7 +36,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from baselines.config import TrainConfig, add_dataclass_options, parse_seeds, policy_kwargs
+from swarm_env_baselines.config import TrainConfig, add_dataclass_options, parse_seeds, policy_kwargs
 
 PACKAGES = ("swarm-env", "numpy", "torch", "stable-baselines3", "gymnasium", "pettingzoo", "pymunk", "tensorboard")
 
@@ -66,7 +66,7 @@ def _env_kwargs(cfg: TrainConfig) -> dict[str, Any]:
 
 
 def _make_model(cfg: TrainConfig, venv: Any, log_dir: Path) -> Any:
-    from baselines.model_io import algorithm_class
+    from swarm_env_baselines.model_io import algorithm_class
 
     cls = algorithm_class(cfg.algo)
     common: dict[str, Any] = {
@@ -100,7 +100,7 @@ def _make_model(cfg: TrainConfig, venv: Any, log_dir: Path) -> Any:
 
 def _warm_start(model: Any, venv: Any, cfg: TrainConfig) -> None:
     """Copy a saved model's weights (and VecNormalize observation statistics) into ``model``."""
-    from baselines.model_io import load_model
+    from swarm_env_baselines.model_io import load_model
 
     assert cfg.init_from is not None
     source, source_norm = load_model(cfg.init_from, "ppo" if cfg.algo in ("ppo", "bc") else cfg.algo)
@@ -124,10 +124,10 @@ def train(cfg: TrainConfig) -> Path:
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from baselines.callbacks import CheckpointCallback, EvalCallback, TqdmCallback
-    from baselines.model_io import save_model
-    from baselines.plots import plot_learning_curve
-    from baselines.vec_env import make_vec_env
+    from swarm_env_baselines.callbacks import CheckpointCallback, EvalCallback, TqdmCallback
+    from swarm_env_baselines.model_io import save_model
+    from swarm_env_baselines.plots import plot_learning_curve
+    from swarm_env_baselines.vec_env import make_vec_env
 
     torch.set_num_threads(cfg.torch_threads)
     stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
@@ -148,7 +148,7 @@ def train(cfg: TrainConfig) -> Path:
     if cfg.init_from:
         _warm_start(model, venv, cfg)
     if cfg.freeze_obs_stats and vecnorm is not None:
-        from baselines.model_io import FrozenRunningMeanStd
+        from swarm_env_baselines.model_io import FrozenRunningMeanStd
 
         frozen = FrozenRunningMeanStd(shape=vecnorm.obs_rms.mean.shape)
         frozen.mean, frozen.var, frozen.count = vecnorm.obs_rms.mean.copy(), vecnorm.obs_rms.var.copy(), vecnorm.obs_rms.count
@@ -188,7 +188,7 @@ def train(cfg: TrainConfig) -> Path:
 def build_parser() -> argparse.ArgumentParser:
     """One option per :class:`TrainConfig` field, its help text taken from the field's ``#:`` comment."""
     parser = argparse.ArgumentParser(
-        prog="python -m baselines.train",
+        prog="swarm-env train sb3",
         description="Train an SB3 policy (parameter sharing over all followers) on the swarm env.",
     )
     parser.add_argument("--config", help="start from this config.json (e.g. a previous run's); options override it")

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 
 import swarm_env
-from agents.cbs_rrt.policy import CBSRRTExpert
+from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
 from swarm_env.evaluation import run_episode
 
 

@@ -1,19 +1,23 @@
-"""The ``swarm-env`` command line: ``list``, ``validate``, ``run``, ``bench``, ``evaluate``.
+"""The ``swarm-env`` command line: ``list``, ``validate``, ``run``, ``bench``, ``evaluate``, and the
+commands of the experts and baselines (``train``, ``bc``, ``demos``, ``ship``, ``curves``, ``convert``,
+``reproduce``; see :data:`MODULE_COMMANDS`).
 
 Exit codes: 0 success, 2 bad input (unknown scenario or policy, invalid
-scenario file, bad option), 1 anything else.
+scenario file, bad option, an optional extra that is not installed), 1 anything else.
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib
 import json
 import sys
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 
-from swarm_env.extras import MissingExtraError
+import swarm_env
+from swarm_env.extras import MissingExtraError, extra_for_module, missing_distributions, missing_extra_error
 from swarm_env.policies import PolicyError, UnknownPolicyError
 from swarm_env.scenario import ScenarioError
 
@@ -68,7 +72,7 @@ def format_episode(episode: dict[str, Any]) -> str:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from swarm_env.policies import registered_policies
+    from swarm_env.policies import policy_extra, registered_policies
     from swarm_env.scenario_io import list_scenarios, load_scenario
 
     print("scenarios:")
@@ -80,7 +84,10 @@ def cmd_list(args: argparse.Namespace) -> int:
         print(f"  {name:<18} {desc}")
     print("policies:")
     for name, target in registered_policies().items():
-        print(f"  {name:<18} {target}")
+        extra = policy_extra(name)
+        missing = missing_distributions(extra) if extra else []
+        note = f"  (not installed: pip install 'swarm-env[{extra}]' for {', '.join(missing)})" if missing else ""
+        print(f"  {name:<18} {target}{note}")
     return 0
 
 
@@ -298,8 +305,60 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Commands run by a module's own ``main(argv)``, which gets the rest of the command line: that module's
+#: parser owns the options (``swarm-env train mappo --help`` prints them), so none is repeated here.
+#: ``(words) -> (module, help)``; each module also runs as ``python -m MODULE``. The modules are named,
+#: not imported, here (as the policy registry names its entry points): ``swarm_env`` itself never imports
+#: ``swarm_env_agents`` or ``swarm_env_baselines``.
+MODULE_COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
+    ("train", "mappo"): ("swarm_env_baselines.mappo", "MAPPO / IPPO (--critic local), our PyTorch PPO: the shipped methods"),
+    ("train", "sb3"): ("swarm_env_baselines.train", "stable-baselines3 PPO / SAC / A2C / TD3 with parameter sharing"),
+    ("train", "rllib"): ("swarm_env_baselines.rllib_train", "RLlib's PPO on Ray, one machine or a cluster (extras rl, ray)"),
+    ("bc",): ("swarm_env_baselines.bc", "behaviour cloning (+ DAgger) of a scripted expert into PPO's policy network"),
+    ("demos",): ("swarm_env_baselines.demos", "record a scripted expert's demonstrations (cached .npz)"),
+    ("ship",): ("swarm_env_baselines.ship", "copy a finished `train mappo` run into checkpoints/<method>/s<k>"),
+    ("curves",): ("swarm_env_baselines.plots", "the shipped methods' learning curves in one figure"),
+    ("convert",): ("swarm_env_baselines.safe_io", "write tensors + JSON beside an older SB3 run's pickles"),
+    ("reproduce", "vo"): ("swarm_env_agents.vo_paper", "paper 003's experiments with the vo expert (docs/vo_expert.md)"),
+    ("reproduce", "cbs_rrt"): ("swarm_env_agents.cbs_rrt.paper", "paper 000's experiment with the cbs_rrt expert (docs/cbs_rrt.md)"),
+}
+
+_GROUP_HELP = {
+    "train": "train a learned policy: mappo (MAPPO/IPPO), sb3 (stable-baselines3) or rllib",
+    "reproduce": "rerun a paper's experiments with its expert and write its report: vo (paper 003), cbs_rrt (paper 000)",
+}
+
+
+def _group_usage(group: str) -> str:
+    subs = {words[1]: text for words, (_, text) in MODULE_COMMANDS.items() if words[0] == group and len(words) > 1}
+    lines = [f"usage: swarm-env {group} {{{','.join(subs)}}} [OPTIONS]", "", _GROUP_HELP[group], ""]
+    lines += [f"  {name:<10} {text}" for name, text in subs.items()]
+    lines += ["", f"swarm-env {group} NAME --help lists NAME's options."]
+    return "\n".join(lines)
+
+
+def run_module_command(argv: list[str]) -> int:
+    """Run the :data:`MODULE_COMMANDS` entry that ``argv`` starts with, passing it the rest of ``argv``.
+
+    ``argv[0]`` must be a command word of the table. A group (``train``, ``reproduce``) without a known
+    second word prints its usage (exit 0 for ``--help``/``-h``, else 2). The module's ``main`` returns the
+    exit code (its argparse exits on ``--help`` or a bad option, as usual).
+    """
+    for words, (module, _) in MODULE_COMMANDS.items():
+        if tuple(argv[: len(words)]) == words:
+            return int(importlib.import_module(module).main(argv[len(words):]) or 0)
+    group = argv[0]
+    asked = argv[1:2] in (["-h"], ["--help"])
+    if not asked:
+        got = f"unknown {group} command {argv[1]!r}" if len(argv) > 1 else f"{group} needs a command"
+        print(f"error: {got}", file=sys.stderr)
+    print(_group_usage(group), file=sys.stdout if asked else sys.stderr)
+    return 0 if asked else 2
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="swarm-env", description="Leader-follower swarm environment (PettingZoo + pymunk).")
+    p.add_argument("--version", action="version", version=f"swarm-env {swarm_env.__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     sub.add_parser("list", help="list built-in scenarios and registered policies").set_defaults(func=cmd_list)
@@ -371,10 +430,33 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--fps", type=float, default=20.0, help="video frames per second")
     e.add_argument("--quiet", action="store_true", help="no progress bars")
     e.set_defaults(func=cmd_evaluate)
+
+    # Listed for --help only: main() hands these command lines to their modules before parsing.
+    for word in dict.fromkeys(words[0] for words in MODULE_COMMANDS):
+        _, text = MODULE_COMMANDS.get((word,), ("", _GROUP_HELP.get(word, "")))
+        sub.add_parser(word, help=text, add_help=False)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        if argv and argv[0] in {words[0] for words in MODULE_COMMANDS}:
+            return run_module_command(argv)
+        return _main(argv)
+    except MissingExtraError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except ImportError as exc:  # an optional dependency imported where it is used, e.g. by a training command
+        extra = extra_for_module(exc.name)
+        if extra is None:
+            raise
+        command = " ".join(argv[:2]) if argv else "this command"
+        print(f"error: {missing_extra_error(extra, f'swarm-env {command}', str(exc))}", file=sys.stderr)
+        return 2
+
+
+def _main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
     for flag in ("episodes", "max_cycles", "steps", "repeats"):
         value = getattr(args, flag, None)
@@ -390,9 +472,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc.args[0] if exc.args else exc}", file=sys.stderr)
         return 2
     except PolicyError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except MissingExtraError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 
