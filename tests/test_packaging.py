@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib
 import importlib.metadata
 import json
+import shutil
 import subprocess
 import sys
 import tarfile
@@ -173,11 +174,20 @@ def test_the_wheel_and_sdist_install_unique_names_and_the_license(tmp_path: Path
     entry points into the installed names, and the LICENSE; the sdist holds the LICENSE too."""
     if not (ROOT / ".git").exists():
         pytest.skip("needs a git checkout")
+    # Built from a copy of the checkout's files (tracked or not ignored), so that the build leaves no build/
+    # or egg-info behind in the checkout and sees no stray build products.
+    source = tmp_path / "src"
+    listed = subprocess.run(["git", "ls-files", "--cached", "--others", "--exclude-standard"], cwd=ROOT,
+                            capture_output=True, text=True, check=True).stdout.splitlines()
+    for name in listed:
+        if (ROOT / name).is_file():
+            (source / name).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(ROOT / name, source / name)
     built = tmp_path / "built.txt"  # the backend prints its log on stdout: the names go to a file
     code = ("import sys, setuptools.build_meta as b; from pathlib import Path; "
             "out, built = sys.argv[1:3]; "  # before the backend rewrites sys.argv
             "Path(built).write_text(b.build_wheel(out) + ' ' + b.build_sdist(out))")
-    out = subprocess.run([sys.executable, "-c", code, str(tmp_path), str(built)], cwd=ROOT, capture_output=True,
+    out = subprocess.run([sys.executable, "-c", code, str(tmp_path), str(built)], cwd=source, capture_output=True,
                          text=True, timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
     wheel_name, sdist_name = built.read_text().split()
