@@ -318,12 +318,15 @@ def policy_extra(name: str) -> str | None:
 
 
 def _missing_extra(name: str, exc: ImportError) -> Exception:
-    """The one-line :class:`~swarm_env.extras.MissingExtraError` for a policy whose import failed: the extra
-    its entry point declares, else the one that installs the missing module; ``exc`` itself when neither
-    is known (a bug, not a missing extra)."""
-    from swarm_env.extras import extra_for_module, missing_extra_error
+    """The one-line :class:`~swarm_env.extras.MissingExtraError` for a policy whose import failed: naming
+    the extra that installs the missing module, else the extra its entry point declares if that one is
+    not (fully) installed; ``exc`` itself otherwise (an import error with every extra in place is a bug,
+    not a missing extra, and keeps its traceback)."""
+    from swarm_env.extras import extra_for_module, missing_distributions, missing_extra_error
 
-    extra = policy_extra(name) or extra_for_module(getattr(exc, "name", None))
+    declared = policy_extra(name)
+    extra = extra_for_module(getattr(exc, "name", None)) or (
+        declared if declared and missing_distributions(declared) else None)
     return missing_extra_error(extra, f"policy {name!r}", str(exc)) if extra else exc
 
 
@@ -369,9 +372,9 @@ def acts_on(spec: str) -> str:
     (its ``acts_on`` attribute) or is not installed. ``shield:SPEC`` and a policy executed through
     the safety layer read the state (the shield does) and say so: ``"observations + shield"``.
     """
-    name, _, arg = spec.partition(":")
     from swarm_env.extras import MissingExtraError
 
+    name, _, arg = spec.partition(":")
     try:
         factory = _factory(name)
     except (UnknownPolicyError, MissingExtraError):

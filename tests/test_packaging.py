@@ -92,6 +92,13 @@ def test_a_policy_without_its_extra_fails_in_one_line(spec: str, missing: str, m
     assert err.count("\n") == 1 and "pip install 'swarm-env[rl]'" in err and missing in err
 
 
+def test_an_import_error_with_the_extra_installed_keeps_its_traceback(monkeypatch: pytest.MonkeyPatch) -> None:
+    pytest.importorskip("stable_baselines3")
+    monkeypatch.setitem(sys.modules, "swarm_env_baselines.model_io", None)  # a broken module, not a missing extra
+    with pytest.raises(ModuleNotFoundError, match="swarm_env_baselines.model_io"):
+        load_policy("ppo:runs/x", swarm_env.SwarmEnv("paper_vo_0"))
+
+
 def test_a_module_command_without_its_extra_fails_in_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
                                                               capsys: pytest.CaptureFixture[str]) -> None:
     _without(monkeypatch, "torch", "swarm_env_baselines")
