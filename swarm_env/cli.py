@@ -84,9 +84,11 @@ def cmd_list(args: argparse.Namespace) -> int:
         print(f"  {name:<18} {desc}")
     print("policies:")
     for name, target in registered_policies().items():
-        extra = policy_extra(name)
-        missing = missing_distributions(extra) if extra else []
-        note = f"  (not installed: pip install 'swarm-env[{extra}]' for {', '.join(missing)})" if missing else ""
+        declared = policy_extra(name)  # (distribution, extras): a third party's policy names its own package
+        missing = missing_distributions(declared[1], declared[0]) if declared else []
+        note = ""
+        if declared and missing:
+            note = f"  (not installed: pip install '{declared[0]}[{declared[1]}]' for {', '.join(missing)})"
         print(f"  {name:<18} {target}{note}")
     return 0
 

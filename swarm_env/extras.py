@@ -21,10 +21,10 @@ class MissingExtraError(RuntimeError):
     """A feature needs an optional extra that is not installed (the message names the pip command)."""
 
 
-def missing_extra_error(extra: str, feature: str, detail: str) -> MissingExtraError:
+def missing_extra_error(extra: str, feature: str, detail: str, distribution: str = DISTRIBUTION) -> MissingExtraError:
     """The one-line error saying that ``feature`` needs ``pip install 'swarm-env[extra]'`` (``detail``:
-    what failed, e.g. ``No module named 'torch'``)."""
-    return MissingExtraError(f"{feature} needs the optional extra: pip install '{DISTRIBUTION}[{extra}]' "
+    what failed, e.g. ``No module named 'torch'``; ``distribution``: whose extra it is)."""
+    return MissingExtraError(f"{feature} needs the optional extra: pip install '{distribution}[{extra}]' "
                              f"(or pip install -e '.[{extra}]' in a checkout); {detail}")
 
 
@@ -42,11 +42,11 @@ def _normalize(name: str) -> str:
     return re.sub(r"[-_.]+", "-", name).lower()
 
 
-def _extra_distributions() -> dict[str, list[str]]:
+def _extra_distributions(distribution: str = DISTRIBUTION) -> dict[str, list[str]]:
     """Extra -> the normalised names of the distributions it installs, in ``pyproject.toml``'s order;
-    empty when this distribution is not installed (a bare checkout on ``sys.path``)."""
+    empty when ``distribution`` is not installed (e.g. a bare checkout on ``sys.path``)."""
     try:
-        requirements = metadata.requires(DISTRIBUTION) or []
+        requirements = metadata.requires(distribution) or []
     except metadata.PackageNotFoundError:
         return {}
     extras: dict[str, list[str]] = {}
@@ -79,10 +79,11 @@ def extra_for_module(module: str | None) -> str | None:
     return None
 
 
-def missing_distributions(extras: str) -> list[str]:
-    """The distributions of ``extras`` (one name, or several joined by commas as pip writes them:
-    ``"rl,ray"``) that are not installed; ``[]`` when all are, or when the extra is unknown."""
-    wanted = _extra_distributions()
+def missing_distributions(extras: str, distribution: str = DISTRIBUTION) -> list[str]:
+    """The distributions that ``distribution``'s ``extras`` (one name, or several joined by commas as pip
+    writes them: ``"rl,ray"``) install and that are not installed; ``[]`` when all are, or when the extra
+    is unknown."""
+    wanted = _extra_distributions(distribution)
     missing: list[str] = []
     for extra in filter(None, (e.strip() for e in extras.split(","))):
         missing += [d for d in wanted.get(extra, []) if d not in missing and not _installed(d)]

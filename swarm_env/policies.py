@@ -309,11 +309,16 @@ def registered_policies() -> dict[str, str]:
     return dict(sorted(found.items()))
 
 
-def policy_extra(name: str) -> str | None:
-    """The optional extra that the registered policy ``name`` needs, as its entry point declares it
-    (``ppo = "pkg.module:factory [rl]"`` -> ``"rl"``; several joined by commas), or ``None``."""
+def policy_extra(name: str) -> tuple[str, str] | None:
+    """``(distribution, extras)``: the optional extra that the registered policy ``name`` needs, as its
+    entry point declares it (``ppo = "pkg.module:factory [rl]"`` in ``swarm-env``'s pyproject.toml ->
+    ``("swarm-env", "rl")``; several extras joined by commas), or ``None``."""
+    from swarm_env.extras import DISTRIBUTION
+
     for ep in entry_points(group=ENTRY_POINT_GROUP, name=name):
-        return ",".join(ep.extras) or None
+        if not ep.extras:
+            return None
+        return (ep.dist.name if ep.dist is not None else DISTRIBUTION), ",".join(ep.extras)
     return None
 
 
@@ -324,10 +329,13 @@ def _missing_extra(name: str, exc: ImportError) -> Exception:
     not a missing extra, and keeps its traceback)."""
     from swarm_env.extras import extra_for_module, missing_distributions, missing_extra_error
 
+    found = extra_for_module(getattr(exc, "name", None))
+    if found:
+        return missing_extra_error(found, f"policy {name!r}", str(exc))
     declared = policy_extra(name)
-    extra = extra_for_module(getattr(exc, "name", None)) or (
-        declared if declared and missing_distributions(declared) else None)
-    return missing_extra_error(extra, f"policy {name!r}", str(exc)) if extra else exc
+    if declared and missing_distributions(declared[1], declared[0]):
+        return missing_extra_error(declared[1], f"policy {name!r}", str(exc), declared[0])
+    return exc
 
 
 def _factory(name: str) -> Callable[..., Any]:

@@ -115,7 +115,7 @@ def test_list_marks_the_policies_whose_extra_is_missing(monkeypatch: pytest.Monk
     assert main(["list"]) == 0
     lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith("  ")}
     for name in ("ppo", "sac", "bc", "mappo", "residual_vo"):
-        assert policy_extra(name) == "rl"
+        assert policy_extra(name) == ("swarm-env", "rl")
         assert "not installed: pip install 'swarm-env[rl]' for stable-baselines3" in lines[name]
     for name in ("vo", "cbs_rrt", "pursuit", "random"):
         assert "not installed" not in lines[name]
