@@ -324,18 +324,16 @@ def policy_extra(name: str) -> tuple[str, str] | None:
 
 def _missing_extra(name: str, exc: ImportError) -> Exception:
     """The one-line :class:`~swarm_env.extras.MissingExtraError` for a policy whose import failed: naming
-    the extra that installs the missing module, else the extra its entry point declares if that one is
-    not (fully) installed; ``exc`` itself otherwise (an import error with every extra in place is a bug,
-    not a missing extra, and keeps its traceback)."""
+    the extra its entry point declares if that one is not (fully) installed, else swarm-env's extra that
+    installs the missing module; ``exc`` itself otherwise (an import error with every extra in place is a
+    bug, not a missing extra, and keeps its traceback)."""
     from swarm_env.extras import extra_for_module, missing_distributions, missing_extra_error
 
-    found = extra_for_module(getattr(exc, "name", None))
-    if found:
-        return missing_extra_error(found, f"policy {name!r}", str(exc))
     declared = policy_extra(name)
     if declared and missing_distributions(declared[1], declared[0]):
         return missing_extra_error(declared[1], f"policy {name!r}", str(exc), declared[0])
-    return exc
+    found = extra_for_module(getattr(exc, "name", None))
+    return missing_extra_error(found, f"policy {name!r}", str(exc)) if found else exc
 
 
 def _factory(name: str) -> Callable[..., Any]:

@@ -73,7 +73,11 @@ def test_top_level_help_lists_the_module_commands(capsys: pytest.CaptureFixture[
 
 
 def _without(monkeypatch: pytest.MonkeyPatch, missing: str, *reimported: str) -> None:
-    """Make ``import missing`` fail as if it were not installed, and forget the modules that import it."""
+    """Make ``import missing`` fail as if it were not installed (its distribution too, for the package
+    metadata), and forget the modules that import it."""
+    installed = extras._installed
+    distribution = missing.replace("_", "-")
+    monkeypatch.setattr(extras, "_installed", lambda dist: dist != distribution and installed(dist))
     for name in [m for m in sys.modules if m == missing or m.startswith(missing + ".")] or [missing]:
         monkeypatch.setitem(sys.modules, name, None)  # None in sys.modules: importing it raises ModuleNotFoundError
     for name in [m for m in sys.modules if m.startswith(reimported)]:
