@@ -2,19 +2,19 @@
 
 .. code-block:: console
 
-    python -m baselines.bc --expert vo --scenario random --train-seeds 0-199 --out runs/bc_vo [--seed 0] \\
+    swarm-env bc --expert vo --scenario random --train-seeds 0-199 --out runs/bc_vo [--seed 0] \\
         [--epochs N] [--dagger-iters K --dagger-seeds 300-499] [--env KEY=VALUE ...]
 
 What it does, top to bottom (:func:`train_bc`):
 
 1. **Demonstrations** of ``expert`` on the training seeds, from the cache of
-   :mod:`baselines.demos` (recorded on first use).
+   :mod:`swarm_env_baselines.demos` (recorded on first use).
 2. **Split by episode**: a seeded ``val_fraction`` of the demo *episodes* (not
    transitions: consecutive steps are nearly identical, so a transition split
    would leak) is held out for validation.
 3. **The network**: ``PPO("MlpPolicy", VecNormalize(make_vec_env(scenario, 1)),
    policy_kwargs=policy_kwargs(net_arch), seed=seed)``, exactly what
-   ``python -m baselines.train`` builds, so the result is a warm start for PPO
+   ``swarm-env train sb3`` builds, so the result is a warm start for PPO
    (``--init-from``) and loads as ``bc:OUT`` / ``ppo:OUT``.
 4. **Normalisation statistics from the demos**: the ``VecNormalize``'s
    ``obs_rms`` (mean, variance, count) is set from the training observations;
@@ -56,7 +56,7 @@ What it does, top to bottom (:func:`train_bc`):
    :func:`swarm_env.evaluation.run_episode`; ``eval.csv`` has one row per stage.
 
 Outputs in ``out``: ``policy.safetensors`` + ``policy.json`` (what ``bc:OUT`` loads, no pickle)
-and SB3's ``model.zip`` + ``vecnormalize.pkl`` (:func:`baselines.model_io.save_model`), ``bc_config.json`` (the config, the
+and SB3's ``model.zip`` + ``vecnormalize.pkl`` (:func:`swarm_env_baselines.model_io.save_model`), ``bc_config.json`` (the config, the
 demo file and its key, package versions), ``bc_log.csv`` (per epoch: train NLL,
 validation NLL, validation action MSE of the deterministic action, value
 losses, the policy's std; epoch 0 is the untrained network), ``eval.csv``,
@@ -84,8 +84,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from baselines.config import NET_ARCH, add_dataclass_options, parse_seeds, policy_kwargs
-from baselines.demos import Demos, generate_demos, load_demos
+from swarm_env_baselines.config import NET_ARCH, add_dataclass_options, parse_seeds, policy_kwargs
+from swarm_env_baselines.demos import Demos, generate_demos, load_demos
 
 if TYPE_CHECKING:
     import torch
@@ -258,11 +258,11 @@ def _tensors(demos: Demos, vecnorm: "VecNormalize", gamma: float) -> _Tensors:
 
 
 def make_bc_model(scenario: str, env_kwargs: dict[str, Any], net_arch: Sequence[int], seed: int, gamma: float = 0.99) -> tuple["PPO", "VecNormalize"]:
-    """The PPO model (CPU) and the VecNormalize wrapper that ``baselines.train`` would build for this env."""
+    """The PPO model (CPU) and the VecNormalize wrapper that ``swarm_env_baselines.train`` would build for this env."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from baselines.vec_env import make_vec_env
+    from swarm_env_baselines.vec_env import make_vec_env
 
     venv = make_vec_env(scenario, 1, **env_kwargs)
     vecnorm = VecNormalize(venv, norm_obs=True, norm_reward=True, gamma=gamma)
@@ -364,13 +364,13 @@ def dagger_rollouts(
 ) -> tuple[Demos, list[dict[str, Any]]]:
     """Play the learner (a beta-mixture with the expert) on ``seeds``; every visited observation labelled by the expert.
 
-    Returns the labelled transitions (same layout as :mod:`baselines.demos`,
+    Returns the labelled transitions (same layout as :mod:`swarm_env_baselines.demos`,
     ``actions`` = the expert's) and the per-episode metrics of the executed behaviour.
     """
     from tqdm.auto import tqdm
 
-    from baselines.demos import _stack, append_step, episode_arrays
-    from baselines.model_io import SB3Policy
+    from swarm_env_baselines.demos import _stack, append_step, episode_arrays
+    from swarm_env_baselines.model_io import SB3Policy
     from swarm_env.env import SwarmEnv
     from swarm_env.policies import load_policy
 
@@ -415,7 +415,7 @@ def evaluate_model(
     """:func:`swarm_env.evaluation.summarize` of the deterministic policy on ``seeds`` (one evaluation path)."""
     from tqdm.auto import tqdm
 
-    from baselines.model_io import SB3Policy
+    from swarm_env_baselines.model_io import SB3Policy
     from swarm_env.env import SwarmEnv
     from swarm_env.evaluation import run_episode, summarize
 
@@ -489,7 +489,7 @@ def train_bc(cfg: BCConfig) -> Path:
     import torch
     from tqdm.auto import tqdm
 
-    from baselines.model_io import save_model
+    from swarm_env_baselines.model_io import save_model
 
     torch.set_num_threads(cfg.torch_threads)
     out = Path(cfg.out)
@@ -568,7 +568,7 @@ def train_bc(cfg: BCConfig) -> Path:
         _write_csv(out / "eval.csv", EVAL_COLUMNS, eval_rows)
     plot_bc_curve(log_rows, out / "learning_curve.png", title=f"BC of {cfg.expert} on {cfg.scenario} (seed {cfg.seed})")
     try:
-        from baselines.train import package_versions
+        from swarm_env_baselines.train import package_versions
 
         versions: dict[str, Any] = package_versions()
     except ImportError:  # the training module is optional for BC
@@ -597,7 +597,7 @@ def train_bc(cfg: BCConfig) -> Path:
 
 def build_parser() -> argparse.ArgumentParser:
     """One option per :class:`BCConfig` field, its help text from the field's ``#:`` comment."""
-    parser = argparse.ArgumentParser(prog="python -m baselines.bc", description="Behaviour cloning (+ DAgger) of a scripted expert into PPO's policy network.")
+    parser = argparse.ArgumentParser(prog="swarm-env bc", description="Behaviour cloning (+ DAgger) of a scripted expert into PPO's policy network.")
     add_dataclass_options(parser, BCConfig, required=("out",))
     return parser
 

@@ -2,7 +2,7 @@
 
 The evaluation callback scores the current model through the same path as the
 leaderboard (:func:`swarm_env.evaluation.run_episode` with
-:class:`~baselines.model_io.SB3Policy`), so "eval" numbers during training and
+:class:`~swarm_env_baselines.model_io.SB3Policy`), so "eval" numbers during training and
 leaderboard numbers mean the same thing.
 """
 
@@ -19,7 +19,7 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecNormalize
 
-from baselines.model_io import SB3Policy, save_model
+from swarm_env_baselines.model_io import SB3Policy, save_model
 from swarm_env.env import SwarmEnv
 from swarm_env.evaluation import run_episode, summarize
 from swarm_env.policies import ShieldedPolicy

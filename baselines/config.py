@@ -1,4 +1,4 @@
-"""The typed training configuration; its field docs are the ``python -m baselines.train`` CLI help.
+"""The typed training configuration; its field docs are the ``swarm-env train sb3`` CLI help.
 
 Every field of :class:`TrainConfig` is a command-line option (``total_steps`` ->
 ``--total-steps``); the help text of each option is the ``#:`` comment above
@@ -111,7 +111,7 @@ class TrainConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        from baselines.model_io import algorithm_class
+        from swarm_env_baselines.model_io import algorithm_class
 
         algorithm_class(self.algo)  # raises on an unknown name
         if self.action_type not in ("continuous", "discrete"):

@@ -2,7 +2,7 @@
 
 .. code-block:: console
 
-    python -m baselines.demos --expert vo --scenario random --seeds 0-199 [--env KEY=VALUE ...] \\
+    swarm-env demos --expert vo --scenario random --seeds 0-199 [--env KEY=VALUE ...] \\
         [--cache-dir demos] [--workers 2]
 
 prints the path of the demonstration file. :func:`generate_demos` plays the
@@ -355,7 +355,7 @@ def load_demos(path: str | Path) -> Demos:
     if p.suffix == ".json":
         p = p.with_suffix(".npz")
     if not p.is_file():
-        raise FileNotFoundError(f"no demonstration file at {path} (expected a .npz written by baselines.demos)")
+        raise FileNotFoundError(f"no demonstration file at {path} (expected a .npz written by swarm_env_baselines.demos)")
     with np.load(p) as data:
         missing = [name for name in (*ARRAYS, "episode_seeds") if name not in data.files]
         if missing:
@@ -370,7 +370,7 @@ def load_demos(path: str | Path) -> Demos:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="python -m baselines.demos", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="swarm-env demos", description=__doc__.split("\n\n")[0])
     parser.add_argument("--expert", default="vo", help="policy spec of the expert: vo, cbs_rrt, vo:KEY=VALUE, ... (default: vo)")
     parser.add_argument("--scenario", default="random", help="built-in scenario name, YAML path, or random (default: random)")
     parser.add_argument("--seeds", default="0-199", help="episode seeds, e.g. 0-199 or 0,5,7-8 (default: 0-199)")
@@ -382,7 +382,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from baselines.config import parse_seeds
+    from swarm_env_baselines.config import parse_seeds
     from swarm_env.cli import parse_env_items
     from swarm_env.policies import PolicyError, UnknownPolicyError
 

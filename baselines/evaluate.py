@@ -1,4 +1,4 @@
-"""``python -m baselines.evaluate ...``: the leaderboard command, same as ``swarm-env evaluate ...``.
+"""``python -m swarm_env_baselines.evaluate ...``: the leaderboard command, same as ``swarm-env evaluate ...``.
 
 One implementation lives in :mod:`swarm_env.leaderboard` (and :func:`swarm_env.cli.cmd_evaluate`);
 this module forwards its arguments there. RL models take part as registered policies

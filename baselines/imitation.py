@@ -7,7 +7,7 @@ and the expert labels the states the student visits (Ross et al. 2011), so the s
 to recover from its own mistakes. After each round the student is fitted to all labels so far
 (mean squared error, Adam). The observation statistics come from round 0 and stay fixed.
 
-:mod:`baselines.mappo` uses it to warm-start PPO (``--pretrain vo``): a few minutes of DAgger
+:mod:`swarm_env_baselines.mappo` uses it to warm-start PPO (``--pretrain vo``): a few minutes of DAgger
 teach the network to hold its slot, which PPO from scratch needs millions of steps for. It
 does not teach avoidance: measured on validation seeds 500-549, a DAgger student of ``vo``
 has about as many collisions as ``pursuit`` (docs/baselines.md gives the figures), because the
@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from baselines.ppo_core import RunningMeanStd
+from swarm_env_baselines.ppo_core import RunningMeanStd
 
 
 @dataclass(frozen=True)

@@ -2,11 +2,11 @@
 
 .. code-block:: console
 
-    python -m baselines.mappo --scenario random --total-steps 2e6 --seed 0                  # MAPPO
-    python -m baselines.mappo --scenario random --total-steps 2e6 --seed 0 --critic local   # IPPO
-    python -m baselines.mappo ... --shield teach --imitation-coef 1.0   # the safety layer as a teacher
-    python -m baselines.mappo ... --shield execute                      # trained through the safety layer
-    python -m baselines.mappo ... --residual vo --shield execute        # a learned correction of vo
+    swarm-env train mappo --scenario random --total-steps 2e6 --seed 0                  # MAPPO
+    swarm-env train mappo --scenario random --total-steps 2e6 --seed 0 --critic local   # IPPO
+    swarm-env train mappo ... --shield teach --imitation-coef 1.0   # the safety layer as a teacher
+    swarm-env train mappo ... --shield execute                      # trained through the safety layer
+    swarm-env train mappo ... --residual vo --shield execute        # a learned correction of vo
 
 A small PyTorch implementation in the CleanRL spirit, written to read top to bottom. The
 actor maps one follower's observation to a Gaussian over its normalised twist (parameter
@@ -21,7 +21,7 @@ drawn (``train.csv``'s ``first_ratio_error`` stays 0).
 Options that the shipped baselines use (docs/baselines.md gives their commands and results):
 
 * ``pretrain`` (default ``vo``): a DAgger warm start of the actor from that expert
-  (:mod:`baselines.imitation`, a few minutes) so that PPO starts from a policy that holds its
+  (:mod:`swarm_env_baselines.imitation`, a few minutes) so that PPO starts from a policy that holds its
   slot; the observation statistics are then fixed. ``--pretrain none`` starts from scratch.
 * ``shield``: the VO safety layer of :mod:`swarm_env.safety`. ``execute``: every copy is a
   :class:`swarm_env.wrappers.SafetyShield`, the env executes the safe actions and the policy is
@@ -43,7 +43,7 @@ the test seeds ``1000-1049`` are left to the leaderboard.
 
 A run directory ``<runs_dir>/<run_name>/`` holds ``config.json``, ``versions.json``,
 ``policy.safetensors`` + ``policy.json`` (actor, critic and normalisation statistics as
-tensors and JSON: loading runs no code; :mod:`baselines.mappo_policy`), ``best/``,
+tensors and JSON: loading runs no code; :mod:`swarm_env_baselines.mappo_policy`), ``best/``,
 ``pretrain.csv`` (DAgger rounds), ``eval.csv`` (validation, streamed), ``train.csv`` (losses,
 action std, contact and intervention rates per update, time spent in rollouts and updates),
 ``learning_curve.png`` and ``summary.json``. Load it with ``mappo:<run dir>`` (or
@@ -65,8 +65,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from baselines.mappo_policy import MAPPOPolicy, ResidualPolicy, residual_action, save_run_policy
-from baselines.ppo_core import RunningMeanStd, gae, mlp, ppo_policy_loss
+from swarm_env_baselines.mappo_policy import MAPPOPolicy, ResidualPolicy, residual_action, save_run_policy
+from swarm_env_baselines.ppo_core import RunningMeanStd, gae, mlp, ppo_policy_loss
 
 #: Model selection: a collision costs as much as this many metres of mean formation error.
 COLLISION_COST_M = 1.0
@@ -234,7 +234,7 @@ def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str,
     float32 weights and statistics as the live actor, so the same result bit for bit)."""
     import torch
 
-    from baselines.mappo_policy import load_run_policy
+    from swarm_env_baselines.mappo_policy import load_run_policy
     from swarm_env.env import SwarmEnv
 
     torch.set_num_threads(1)
@@ -249,7 +249,7 @@ def _replace_dir(src: Path, dst: Path) -> None:
     """Make ``dst`` a copy of ``src``, swapped in whole (a reader never sees half a model)."""
     import shutil
 
-    from baselines.safe_io import swap_in_dir
+    from swarm_env_baselines.safe_io import swap_in_dir
 
     tmp = dst.with_name(f".{dst.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -327,7 +327,7 @@ class Trainer:
     # ---------------------------------------------------------------- warm start
     def pretrain(self) -> None:
         """DAgger from ``cfg.pretrain`` (worlds 10000 + 1000 * seed on), then fixed observation statistics."""
-        from baselines.imitation import DaggerSettings, dagger
+        from swarm_env_baselines.imitation import DaggerSettings, dagger
 
         cfg = self.cfg
         settings = DaggerSettings(expert=cfg.pretrain, rounds=cfg.pretrain_rounds, episodes=cfg.pretrain_episodes,
@@ -520,8 +520,8 @@ def train(cfg: MAPPOConfig) -> Path:
     import torch
     from tqdm import tqdm
 
-    from baselines.config import parse_seeds
-    from baselines.train import package_versions
+    from swarm_env_baselines.config import parse_seeds
+    from swarm_env_baselines.train import package_versions
 
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     run_dir = Path(cfg.runs_dir) / (cfg.run_name or f"{cfg.kind}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}")
@@ -632,16 +632,16 @@ def train(cfg: MAPPOConfig) -> Path:
                "steps_per_s": round(steps_done / (wall - pretrain_s), 1), "best_score": best,
                "best": min(history, key=lambda r: r["score"]), "final": history[-1]}
     write_json(run_dir / "summary.json", summary)
-    from baselines.plots import plot_learning_curve
+    from swarm_env_baselines.plots import plot_learning_curve
 
     plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
     return run_dir
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from baselines.config import add_dataclass_options
+    from swarm_env_baselines.config import add_dataclass_options
 
-    parser = argparse.ArgumentParser(prog="python -m baselines.mappo", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="swarm-env train mappo", description=__doc__.split("\n\n")[0])
     add_dataclass_options(parser, MAPPOConfig)
     return parser
 

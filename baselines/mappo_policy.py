@@ -1,6 +1,6 @@
 """Trained MAPPO/IPPO actors as swarm_env policies, their files, and the shipped checkpoints.
 
-A run directory of :mod:`baselines.mappo` (and each of its ``best/``) holds::
+A run directory of :mod:`swarm_env_baselines.mappo` (and each of its ``best/``) holds::
 
     policy.safetensors   actor, log_std and critic tensors (safetensors: data only)
     policy.json          {"format", "config" (the run's MAPPOConfig), "obs_rms", "state_rms"}
@@ -17,7 +17,7 @@ Policy specs (entry points of the ``swarm_env.policies`` group):
   (``baselines/checkpoints/<method>/s<k>``), each trained with three seeds: the bare name is
   seed 0 for ``swarm-env run`` and all three seeds for a leaderboard
   (:func:`swarm_env.policies.training_runs`), ``NAME:s1`` one seed, ``NAME:PATH`` any run
-  directory of :mod:`baselines.mappo` (or its ``best/``; a residual run brings its expert along). ``mappo_shielded`` and ``residual_vo`` execute through the safety layer
+  directory of :mod:`swarm_env_baselines.mappo` (or its ``best/``; a residual run brings its expert along). ``mappo_shielded`` and ``residual_vo`` execute through the safety layer
   (:class:`swarm_env.policies.ShieldedPolicy`), as they were trained; ``mappo_shielded_bare``
   is ``mappo_shielded``'s networks acting alone.
 """
@@ -30,7 +30,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from baselines.ppo_core import RunningMeanStd, mlp
+from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
 from swarm_env.jsonio import write_json
 from swarm_env.policies import OBSERVATIONS, STATE
 from swarm_env.state import WorldState
@@ -126,7 +126,7 @@ def save_run_policy(directory: Path, actor: Any, log_std: Any, critic: Any, obs_
     """Write ``policy.safetensors`` (actor, log_std, critic) and ``policy.json`` into ``directory``, atomically."""
     from safetensors.torch import save_file
 
-    from baselines.safe_io import _atomic
+    from swarm_env_baselines.safe_io import _atomic
 
     directory.mkdir(parents=True, exist_ok=True)
     tensors = {f"actor.{k}": v.detach().contiguous() for k, v in actor.state_dict().items()}
@@ -148,7 +148,7 @@ def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd
     """
     import torch
 
-    from baselines.safe_io import one_line, read_description, read_tensors
+    from swarm_env_baselines.safe_io import one_line, read_description, read_tensors
 
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FORMAT)
@@ -159,7 +159,7 @@ def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd
         if config.get("residual"):
             float(config["residual_scale"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{d / CONFIG_FILE}: not a run description of baselines.mappo ({one_line(exc)})") from None
+        raise ValueError(f"{d / CONFIG_FILE}: not a run description of swarm_env_baselines.mappo ({one_line(exc)})") from None
     actor = mlp([obs_rms.mean.shape[0], *hidden, 2])
     tensors = read_tensors(d / WEIGHTS_FILE)
     try:
@@ -238,7 +238,7 @@ def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str, act
 make_ippo = _method_factory("ippo", "ippo", False, "Entry point ``ippo[:s<k>|:PATH]``: the shipped IPPO runs.")
 make_mappo = _method_factory(
     "mappo", "mappo", False,
-    "Entry point ``mappo[:s<k>|:PATH]``: the shipped MAPPO runs, or any run directory of baselines.mappo.")
+    "Entry point ``mappo[:s<k>|:PATH]``: the shipped MAPPO runs, or any run directory of swarm_env_baselines.mappo.")
 make_mappo_shielded = _method_factory(
     "mappo_shielded", "mappo_shielded", True,
     "Entry point ``mappo_shielded[:s<k>|:PATH]``: the shipped shield-trained MAPPO runs, executed through the shield.")

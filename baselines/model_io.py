@@ -3,7 +3,7 @@
 A saved model is a directory holding::
 
     policy.safetensors + policy.json   the policy network, its observation and return statistics,
-                                       as tensors and JSON (baselines.safe_io): loading cannot run code
+                                       as tensors and JSON (swarm_env_baselines.safe_io): loading cannot run code
     model.zip          the SB3 model (``model.save``), for SB3's own tools and for resuming training
     vecnormalize.pkl   the VecNormalize object the model was trained with (SB3's format)
 
@@ -16,7 +16,7 @@ statistics from it, or, for an older directory without it, the tensors from ``mo
 directory as a policy, its ``vecnormalize.pkl``, and :func:`load_model` (the whole SB3 model), is
 refused with a :class:`~swarm_env.policies.ModelFileError` unless the caller opts in
 (:func:`swarm_env.policies.pickle_trusted`: ``trust_pickle=True``, ``SWARM_ENV_TRUST_PICKLE=1``,
-or ``--trust-pickle`` on the command lines). ``python -m baselines.safe_io DIR --trust-pickle``
+or ``--trust-pickle`` on the command lines). ``python -m swarm_env_baselines.safe_io DIR --trust-pickle``
 converts such a directory once.
 
 Every file problem (missing, truncated or corrupt, another algorithm's model, a refused pickle) is a
@@ -24,11 +24,11 @@ Every file problem (missing, truncated or corrupt, another algorithm's model, a 
 :class:`SB3Policy` feeds each follower's observation through the same normalisation, then
 ``model.predict`` on the stacked batch (parameter sharing), deterministic by default. ``bc``
 models are PPO-format checkpoints whose policy network was trained by behaviour cloning (see
-:mod:`baselines.bc`).
+:mod:`swarm_env_baselines.bc`).
 
 Every spec needs a path: the v0 checkpoints that ``ppo`` and ``bc`` once loaded without one
 were retired in issue 10 (trained on swarm_env_v0 from an uncommitted tree; superseded by the
-shipped methods of :mod:`baselines.mappo_policy`), and a bare name says so.
+shipped methods of :mod:`swarm_env_baselines.mappo_policy`), and a bare name says so.
 """
 
 from __future__ import annotations
@@ -121,7 +121,7 @@ def check_sb3_zip(path: Path, algo: str) -> dict[str, Any]:
     except ModelFileError:
         raise
     except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:  # zlib errors and bad JSON are ValueErrors
-        from baselines.safe_io import one_line
+        from swarm_env_baselines.safe_io import one_line
 
         raise ModelFileError(f"{path}: not a readable stable-baselines3 model archive, truncated or corrupt "
                              f"({one_line(exc)})") from None
@@ -142,7 +142,7 @@ def load_vecnormalize(path: Path, *, trust_pickle: bool | None = None) -> "VecNo
     a :class:`ModelFileError` naming the file if it is not a readable VecNormalize pickle."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from baselines.safe_io import one_line, refuse_pickle
+    from swarm_env_baselines.safe_io import one_line, refuse_pickle
 
     refuse_pickle(path, "a Python pickle (VecNormalize statistics)", trust_pickle)
     try:
@@ -158,10 +158,10 @@ def load_vecnormalize(path: Path, *, trust_pickle: bool | None = None) -> "VecNo
 
 
 def save_model(model: "BaseAlgorithm", directory: str | Path, vecnorm: "VecNormalize | None" = None) -> Path:
-    """Write the policy and its statistics as tensors + JSON (:func:`baselines.safe_io.save_policy`), and
+    """Write the policy and its statistics as tensors + JSON (:func:`swarm_env_baselines.safe_io.save_policy`), and
     ``model.zip`` (and ``vecnormalize.pkl`` if given) for SB3's tools and resuming, into ``directory``;
     returns the directory."""
-    from baselines.safe_io import save_policy
+    from swarm_env_baselines.safe_io import save_policy
 
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
@@ -183,7 +183,7 @@ def load_model(path: str | Path, algo: str = "ppo", *, trust_pickle: bool | None
     the file) for a refused, truncated, corrupt or other-algorithm file; a corrupt archive or another
     algorithm is reported before anything is unpickled.
     """
-    from baselines.safe_io import one_line, refuse_pickle
+    from swarm_env_baselines.safe_io import one_line, refuse_pickle
 
     model_path = resolve_model_path(path)
     check_sb3_zip(model_path, algo)
@@ -212,8 +212,8 @@ def load_warm_start(path: str | Path, algo: str, *, trust_pickle: bool | None = 
     there is a ``vecnormalize.pkl``, its statistics (a pickle: refused unless trusted). Raises
     ``FileNotFoundError`` or :class:`ModelFileError` naming the file.
     """
-    from baselines.safe_io import FORMAT as SAFE_FORMAT
-    from baselines.safe_io import (
+    from swarm_env_baselines.safe_io import FORMAT as SAFE_FORMAT
+    from swarm_env_baselines.safe_io import (
         CONFIG_FILE, WEIGHTS_FILE, has_safe_policy, one_line, read_description, read_tensors, saved_statistics,
     )
 
@@ -297,7 +297,7 @@ def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
     # A policy loaded by name is for scoring, so the process gets one torch thread; load_model itself
     # (used by training's --init-from) leaves the thread count alone.
     torch.set_num_threads(1)
-    from baselines.safe_io import CONFIG_FILE, WEIGHTS_FILE, has_safe_policy, load_policy_dir
+    from swarm_env_baselines.safe_io import CONFIG_FILE, WEIGHTS_FILE, has_safe_policy, load_policy_dir
 
     where = Path(path).expanduser()
     # The directory, or the directory of its model.zip: save_model wrote the safe pair from the same model.
@@ -327,12 +327,12 @@ def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
 
 
 def make_ppo_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
-    """Entry point ``ppo:PATH``: a PPO model saved by ``python -m baselines.train``."""
+    """Entry point ``ppo:PATH``: a PPO model saved by ``swarm-env train sb3``."""
     return _make("ppo", env, arg)
 
 
 def make_bc_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
-    """Entry point ``bc:PATH``: a behaviour-cloned policy saved by ``python -m baselines.bc``."""
+    """Entry point ``bc:PATH``: a behaviour-cloned policy saved by ``swarm-env bc``."""
     return _make("bc", env, arg)
 
 

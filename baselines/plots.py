@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 def read_eval_csv(path: str | Path) -> dict[str, list[float]]:
-    """Columns of an ``eval.csv`` written by :class:`baselines.callbacks.EvalCallback`, as float lists."""
+    """Columns of an ``eval.csv`` written by :class:`swarm_env_baselines.callbacks.EvalCallback`, as float lists."""
     with open(path, newline="") as fh:
         rows = list(csv.DictReader(fh))
     if not rows:
@@ -126,7 +126,7 @@ def plot_methods_learning_curves(
 
 def shipped_eval_csvs(methods: list[str]) -> dict[str, list[Path]]:
     """Each shipped method's training seeds' ``eval.csv`` (``baselines/checkpoints/<method>/s<k>/``)."""
-    from baselines.mappo_policy import CHECKPOINTS
+    from swarm_env_baselines.mappo_policy import CHECKPOINTS
 
     found = {m: sorted((CHECKPOINTS / m).glob("s*/eval.csv")) for m in methods}
     missing = [m for m, paths in found.items() if not paths]
@@ -136,12 +136,12 @@ def shipped_eval_csvs(methods: list[str]) -> dict[str, list[Path]]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m baselines.plots``: the learning curves of the shipped methods in one figure."""
+    """``swarm-env curves``: the learning curves of the shipped methods in one figure."""
     import argparse
     import sys
 
     parser = argparse.ArgumentParser(
-        prog="python -m baselines.plots",
+        prog="swarm-env curves",
         description="Validation learning curves (mean and min-max band over training seeds) of shipped methods, "
                     "with reference policies scored on the same validation worlds.")
     parser.add_argument("--methods", nargs="+", default=["ippo", "mappo", "mappo_shielded", "residual_vo"])

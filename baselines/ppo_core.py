@@ -1,4 +1,4 @@
-"""The numerical pieces of PPO shared by :mod:`baselines.mappo` and :mod:`baselines.imitation`.
+"""The numerical pieces of PPO shared by :mod:`swarm_env_baselines.mappo` and :mod:`swarm_env_baselines.imitation`.
 
 Running statistics (observation and return normalisation), generalised advantage estimation,
 the MLPs, and the clipped PPO loss. Nothing here touches an env.

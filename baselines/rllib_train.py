@@ -1,7 +1,7 @@
 """Multi-agent PPO with RLlib on Ray: one policy shared by every follower, on this machine or a cluster.
 
-    python -m baselines.rllib_train --total-steps 200000 --num-env-runners 2 --out runs/rllib_ppo
-    python -m baselines.rllib_train --address auto --num-env-runners 16 ...   # on a running cluster
+    swarm-env train rllib --total-steps 200000 --num-env-runners 2 --out runs/rllib_ppo
+    swarm-env train rllib --address auto --num-env-runners 16 ...   # on a running cluster
 
 RLlib's new API stack: :class:`ray.rllib.env.wrappers.pettingzoo_env.ParallelPettingZooEnv` over
 :class:`swarm_env.env.SwarmEnv` (fixed teams keep its one-reset agent list valid), every agent id
@@ -23,7 +23,7 @@ Outputs in ``--out`` (written atomically):
 
 A centralised critic (MAPPO) is not offered here: RLlib's new stack would need a custom
 ``MultiRLModule`` plus a learner connector that adds the global state to every agent's batch;
-:mod:`baselines.mappo` has one.
+:mod:`swarm_env_baselines.mappo` has one.
 """
 
 from __future__ import annotations
@@ -110,7 +110,7 @@ def export_policy(module: Any, directory: Path, cfg: RLlibConfig) -> Path:
     import torch
     from safetensors.torch import save_file
 
-    from baselines.safe_io import _atomic
+    from swarm_env_baselines.safe_io import _atomic
 
     parts = list(module.encoder.actor_encoder.modules()) + list(module.pi.modules())
     leaves = [m for m in parts if not list(m.children())]
@@ -150,9 +150,9 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
     """The exported actor of an RLlib run as a policy acting with its mean (no Ray, no pickle)."""
     import torch
 
-    from baselines.mappo_policy import MAPPOPolicy
-    from baselines.ppo_core import mlp
-    from baselines.safe_io import one_line, read_description, read_tensors
+    from swarm_env_baselines.mappo_policy import MAPPOPolicy
+    from swarm_env_baselines.ppo_core import mlp
+    from swarm_env_baselines.safe_io import one_line, read_description, read_tensors
 
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FORMAT)
@@ -174,11 +174,11 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
 
 
 def make_rllib_policy(env: Any, arg: str | None = None) -> Any:
-    """Entry point ``rllib:DIR``: the actor exported by ``python -m baselines.rllib_train --out DIR``."""
+    """Entry point ``rllib:DIR``: the actor exported by ``swarm-env train rllib --out DIR``."""
     from swarm_env.policies import ModelFileError, PolicyError
 
     if not arg:
-        raise PolicyError("policy 'rllib' needs a run directory: rllib:DIR (written by python -m baselines.rllib_train)")
+        raise PolicyError("policy 'rllib' needs a run directory: rllib:DIR (written by swarm-env train rllib)")
     try:
         policy = load_rllib_policy(arg, name=f"rllib:{arg}")
     except ValueError as exc:
@@ -200,14 +200,14 @@ def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = Tr
     which unpickles: refused (a :class:`~swarm_env.policies.ModelFileError`) unless ``trust_pickle``
     (:func:`swarm_env.policies.pickle_trusted`)."""
     if resume:
-        from baselines.safe_io import refuse_pickle
+        from swarm_env_baselines.safe_io import refuse_pickle
 
         refuse_pickle(out / "rllib_checkpoint", "RLlib's checkpoint (pickled state)", trust_pickle, convert=False)
     import ray
     from ray.tune.registry import register_env
 
-    from baselines.safe_io import _atomic
-    from baselines.train import package_versions
+    from swarm_env_baselines.safe_io import _atomic
+    from swarm_env_baselines.train import package_versions
 
     out.mkdir(parents=True, exist_ok=True)
     started = not ray.is_initialized()
@@ -263,7 +263,7 @@ def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = Tr
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="python -m baselines.rllib_train", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(prog="swarm-env train rllib", description=__doc__.splitlines()[0])
     p.add_argument("--scenario", default="random")
     p.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                    help="SwarmEnv keyword (repeatable; values are YAML: n_followers=4, n_humans=[0,3])")

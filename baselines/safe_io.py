@@ -8,7 +8,7 @@ A policy directory in this format holds::
 
 SB3's own ``model.zip`` stores parts of the model with cloudpickle and ``VecNormalize`` pickles
 itself; unpickling either can run arbitrary code. :func:`save_policy` writes the network and the
-statistics in this format beside them (``baselines.model_io.save_model`` does it for every saved
+statistics in this format beside them (``swarm_env_baselines.model_io.save_model`` does it for every saved
 model), and :func:`load_policy_dir` rebuilds the policy from it with no pickle involved, for
 scoring; :func:`saved_statistics` gives the normalisation statistics (observations and returns)
 to a warm start. Training state (optimizer, replay buffer, schedules) is not part of the format.
@@ -95,7 +95,7 @@ def load_policy_dir(directory: str | Path) -> tuple[Any, ObsNormalizer | None, s
     Raises ``ValueError`` naming the file and what is wrong (a missing or unreadable file, unknown
     format, a missing key, tensors that do not fit the network).
     """
-    from baselines.model_io import algorithm_class
+    from swarm_env_baselines.model_io import algorithm_class
 
     d = Path(directory)
     cfg_path = d / CONFIG_FILE
@@ -178,8 +178,8 @@ def read_description(path: Path, fmt: str) -> dict[str, Any]:
 
 def _loader_of(fmt: Any) -> str | None:
     """The policy specs that load a description of format ``fmt`` (for the error that meets the wrong one)."""
-    from baselines.mappo_policy import FORMAT as MAPPO_FORMAT
-    from baselines.rllib_train import FORMAT as RLLIB_FORMAT
+    from swarm_env_baselines.mappo_policy import FORMAT as MAPPO_FORMAT
+    from swarm_env_baselines.rllib_train import FORMAT as RLLIB_FORMAT
 
     return {FORMAT: "ppo:PATH, sac:PATH or bc:PATH", RLLIB_FORMAT: "rllib:PATH",
             MAPPO_FORMAT: "mappo:PATH, ippo:PATH, mappo_shielded:PATH or residual_vo:PATH"}.get(fmt)
@@ -193,7 +193,7 @@ def refuse_pickle(path: Path, what: str, trust_pickle: bool | None, convert: boo
 
     if pickle_trusted(trust_pickle):
         return
-    remedy = (f", or convert it once: python -m baselines.safe_io {path.parent} --trust-pickle" if convert else "")
+    remedy = (f", or convert it once: swarm-env convert {path.parent} --trust-pickle" if convert else "")
     raise ModelFileError(f"{path}: loading it would unpickle {what}, and unpickling runs any code the file carries; "
                          f"refused. If you trust its source, opt in with --trust-pickle, SWARM_ENV_TRUST_PICKLE=1 or "
                          f"trust_pickle=True in Python{remedy} (docs/baselines.md, 'Model files and safety')")
@@ -296,7 +296,7 @@ def _normalization_from_json(d: dict[str, Any] | None, source: Path) -> ObsNorma
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m baselines.safe_io DIR [DIR ...] [--algo ppo] --trust-pickle``: write the tensors + JSON
+    """``swarm-env convert DIR [DIR ...] [--algo ppo] --trust-pickle``: write the tensors + JSON
     files beside the ``model.zip`` / ``vecnormalize.pkl`` of older run directories.
 
     Converting unpickles those files once, so it asks for the same opt-in as loading them
@@ -306,9 +306,9 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     import sys
 
-    from baselines.model_io import load_model
+    from swarm_env_baselines.model_io import load_model
 
-    parser = argparse.ArgumentParser(prog="python -m baselines.safe_io", description=main.__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="swarm-env convert", description=main.__doc__.split("\n\n")[0])
     parser.add_argument("dirs", nargs="+", help="run or checkpoint directories holding model.zip")
     parser.add_argument("--algo", default="ppo", help="the algorithm that saved them (ppo, sac, a2c, td3, ddpg; bc = ppo)")
     parser.add_argument("--trust-pickle", action="store_true",

@@ -1,6 +1,6 @@
-"""Ship a :mod:`baselines.mappo` run as a checkpoint: copy its model-selected policy and records, write the README.
+"""Ship a :mod:`swarm_env_baselines.mappo` run as a checkpoint: copy its model-selected policy and records, write the README.
 
-``python -m baselines.ship RUN_DIR --method residual_vo --seed s0`` copies, from ``RUN_DIR``,
+``swarm-env ship RUN_DIR --method residual_vo --seed s0`` copies, from ``RUN_DIR``,
 the best validation policy (``best/policy.safetensors`` + ``best/policy.json``) and the run's
 records (``config.json``, ``versions.json``, ``summary.json``, ``eval.csv``, ``train.csv``,
 ``pretrain.csv`` when there was a warm start, ``learning_curve.png``) into
@@ -28,8 +28,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from baselines.mappo_policy import CHECKPOINTS, CONFIG_FILE, WEIGHTS_FILE
-from baselines.safe_io import swap_in_dir
+from swarm_env_baselines.mappo_policy import CHECKPOINTS, CONFIG_FILE, WEIGHTS_FILE
+from swarm_env_baselines.safe_io import swap_in_dir
 
 #: Records copied from the run directory (the ones marked optional may be absent).
 RECORDS = ("config.json", "versions.json", "summary.json", "eval.csv", "train.csv", "learning_curve.png")
@@ -88,7 +88,7 @@ def ship_run(run_dir: str | os.PathLike[str], method: str, seed: str, *, dest: P
     files += [run / r for r in OPTIONAL_RECORDS if (run / r).exists()]
     for f in files:
         if not f.is_file():
-            raise ShipError(f"{f}: missing (expected a finished baselines.mappo run directory)")
+            raise ShipError(f"{f}: missing (expected a finished swarm_env_baselines.mappo run directory)")
     target = dest / method / seed
     staging = target.with_name(f".{seed}.staging")
     shutil.rmtree(staging, ignore_errors=True)
@@ -112,9 +112,18 @@ def time_breakdown(seed_dir: Path) -> dict[str, float]:
 
 
 def training_command(versions: dict[str, Any]) -> str:
-    """The command line that trained a run, as ``python -m baselines.mappo ...``."""
-    argv = list(versions.get("argv") or [])
-    return shlex.join(["python", "-m", "baselines.mappo", *argv[1:]])
+    """The command line that trained a run, from its recorded ``argv``: ``swarm-env ...`` for a run
+    started by the ``swarm-env`` command, ``python -m <package>.mappo ...`` for one started as a
+    module (``python -m baselines.mappo`` from a checkout's root was the command before the installed
+    package was named ``swarm_env_baselines``; the shipped seeds were trained that way), and
+    ``swarm-env train mappo ...`` with the recorded arguments otherwise (a run started from Python)."""
+    argv = [str(a) for a in versions.get("argv") or [""]]
+    launcher = Path(argv[0])
+    if launcher.name == "swarm-env":
+        return shlex.join(["swarm-env", *argv[1:]])
+    if launcher.name == "mappo.py":
+        return shlex.join(["python", "-m", f"{launcher.parent.name}.mappo", *argv[1:]])
+    return shlex.join(["swarm-env", "train", "mappo", *argv[1:]])
 
 
 def _seed_rows(method_dir: Path) -> list[tuple[str, Path]]:
@@ -185,8 +194,8 @@ def write_method_readme(method: str, *, dest: Path = CHECKPOINTS, description: s
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m baselines.ship", description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_dir", help="a finished baselines.mappo run directory")
+    parser = argparse.ArgumentParser(prog="swarm-env ship", description=__doc__.split("\n\n")[0])
+    parser.add_argument("run_dir", help="a finished swarm_env_baselines.mappo run directory")
     parser.add_argument("--method", required=True, help="checkpoint name, e.g. residual_vo")
     parser.add_argument("--seed", required=True, help="training-seed label, e.g. s0")
     parser.add_argument("--description", default="", help="one paragraph for the README's head (default: the method's own)")

@@ -2,18 +2,18 @@
 
 .. code-block:: console
 
-    python -m baselines.train --algo ppo --scenario random --total-steps 2e6 --seed 0
+    swarm-env train sb3 --algo ppo --scenario random --total-steps 2e6 --seed 0
 
-Every :class:`~baselines.config.TrainConfig` field is an option (``--help`` lists
+Every :class:`~swarm_env_baselines.config.TrainConfig` field is an option (``--help`` lists
 them with their documentation). A run writes a directory
 ``<runs_dir>/<run_name>/``::
 
-    config.json        the exact TrainConfig (python -m baselines.train --config it repeats the run)
+    config.json        the exact TrainConfig (swarm-env train sb3 --config it repeats the run)
     versions.json      python, platform, package versions, git commit, command line
     policy.safetensors the final policy network and, in policy.json, its observation/return
     policy.json        statistics: what ppo:<run dir> and --init-from read (no pickle involved)
     model.zip          the final SB3 model (+ vecnormalize.pkl), for SB3's own tools (pickles)
-    best/              the model with the best validation score (see baselines.callbacks)
+    best/              the model with the best validation score (see swarm_env_baselines.callbacks)
     checkpoints/       periodic checkpoints
     eval.csv           validation metrics over training (the learning curve's data)
     learning_curve.png validation formation error and collisions over agent-steps
@@ -41,7 +41,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-from baselines.config import TrainConfig, add_dataclass_options, parse_seeds, policy_kwargs
+from swarm_env_baselines.config import TrainConfig, add_dataclass_options, parse_seeds, policy_kwargs
 
 PACKAGES = ("swarm-env", "numpy", "torch", "stable-baselines3", "gymnasium", "pettingzoo", "pymunk", "tensorboard")
 
@@ -71,7 +71,7 @@ def _env_kwargs(cfg: TrainConfig) -> dict[str, Any]:
 
 
 def _make_model(cfg: TrainConfig, venv: Any, log_dir: Path) -> Any:
-    from baselines.model_io import algorithm_class
+    from swarm_env_baselines.model_io import algorithm_class
 
     cls = algorithm_class(cfg.algo)
     common: dict[str, Any] = {
@@ -105,8 +105,8 @@ def _make_model(cfg: TrainConfig, venv: Any, log_dir: Path) -> Any:
 
 def _warm_start(model: Any, venv: Any, cfg: TrainConfig, trust_pickle: bool | None = None) -> None:
     """Copy a saved model's weights (and VecNormalize observation and return statistics) into ``model``
-    (:func:`baselines.model_io.load_warm_start`: a pickle only with ``trust_pickle``)."""
-    from baselines.model_io import load_warm_start
+    (:func:`swarm_env_baselines.model_io.load_warm_start`: a pickle only with ``trust_pickle``)."""
+    from swarm_env_baselines.model_io import load_warm_start
 
     assert cfg.init_from is not None
     weights, obs_rms, ret_rms = load_warm_start(cfg.init_from, cfg.algo, trust_pickle=trust_pickle)
@@ -133,10 +133,10 @@ def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from baselines.callbacks import CheckpointCallback, EvalCallback, TqdmCallback
-    from baselines.model_io import save_model
-    from baselines.plots import plot_learning_curve
-    from baselines.vec_env import make_vec_env
+    from swarm_env_baselines.callbacks import CheckpointCallback, EvalCallback, TqdmCallback
+    from swarm_env_baselines.model_io import save_model
+    from swarm_env_baselines.plots import plot_learning_curve
+    from swarm_env_baselines.vec_env import make_vec_env
 
     torch.set_num_threads(cfg.torch_threads)
     stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
@@ -157,7 +157,7 @@ def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
     if cfg.init_from:
         _warm_start(model, venv, cfg, trust_pickle)
     if cfg.freeze_obs_stats and vecnorm is not None:
-        from baselines.model_io import FrozenRunningMeanStd
+        from swarm_env_baselines.model_io import FrozenRunningMeanStd
 
         frozen = FrozenRunningMeanStd(shape=vecnorm.obs_rms.mean.shape)
         frozen.mean, frozen.var, frozen.count = vecnorm.obs_rms.mean.copy(), vecnorm.obs_rms.var.copy(), vecnorm.obs_rms.count
@@ -197,7 +197,7 @@ def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
 def build_parser() -> argparse.ArgumentParser:
     """One option per :class:`TrainConfig` field, its help text taken from the field's ``#:`` comment."""
     parser = argparse.ArgumentParser(
-        prog="python -m baselines.train",
+        prog="swarm-env train sb3",
         description="Train an SB3 policy (parameter sharing over all followers) on the swarm env.",
     )
     parser.add_argument("--config", help="start from this config.json (e.g. a previous run's); options override it")

@@ -29,7 +29,7 @@ import time
 from typing import Any
 
 import swarm_env
-from agents.cbs_rrt.policy import CBSRRTExpert
+from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
 from swarm_env.evaluation import run_episode
 from swarm_env.jsonio import dumps
 

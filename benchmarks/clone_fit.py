@@ -4,7 +4,7 @@
 
 Plays ``vo`` on ``random`` worlds (training seeds 10000-10059, held-out 10060-10074: the DAgger
 warm start's seed range), records every follower's observation and ``vo``'s normalised action,
-fits an MLP of each requested size with DAgger's own fitting (:func:`baselines.imitation.fit`)
+fits an MLP of each requested size with DAgger's own fitting (:func:`swarm_env_baselines.imitation.fit`)
 and prints the training and held-out MSE. A held-out error that does not fall with capacity says
 the clone's limit is not the network's size.
 """
@@ -25,8 +25,8 @@ def main() -> None:
 
     import torch
 
-    from baselines.imitation import DaggerSettings, fit, rollouts
-    from baselines.ppo_core import RunningMeanStd, mlp
+    from swarm_env_baselines.imitation import DaggerSettings, fit, rollouts
+    from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
     from swarm_env.env import SwarmEnv
     from swarm_env.policies import load_policy
 

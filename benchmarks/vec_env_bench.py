@@ -7,7 +7,7 @@ episodes have 2-8 followers, only present followers count) for:
 
 * ``env``: ``n_copies`` bare :class:`~swarm_env.env.SwarmEnv` copies stepped in
   a Python loop with dict actions (what any bridge must at least do);
-* ``bridge``: :class:`baselines.vec_env.SwarmVecEnv` with the same copies, in
+* ``bridge``: :class:`swarm_env_baselines.vec_env.SwarmVecEnv` with the same copies, in
   process (``n_procs=1``) and over two worker processes (``n_procs=2``).
 
 Medians over ``--repeats`` runs, measured in the same process so the ratios
@@ -22,7 +22,7 @@ import time
 
 import numpy as np
 
-from baselines.vec_env import make_vec_env
+from swarm_env_baselines.vec_env import make_vec_env
 from swarm_env.env import SwarmEnv
 
 

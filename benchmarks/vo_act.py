@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from agents.vo_expert import VOExpert
+from swarm_env_agents.vo_expert import VOExpert
 from swarm_env import guidance
 from swarm_env.env import SwarmEnv
 from swarm_env.safety import safe_follower_twists

@@ -10,7 +10,7 @@ slot per agent; ``concat_vec_envs_v1`` stacks ``copies`` of it into an SB3 ``Vec
 ``copies * n_followers`` slots, so SB3's PPO trains a single (parameter-shared) policy on every
 follower's experience. SuperSuit needs every agent to act in every step (no agent may leave
 early): swarm-env's fixed teams satisfy that. This repository's own bridge,
-``baselines.vec_env.SwarmVecEnv``, does the same for ``python -m baselines.train``.
+``swarm_env_baselines.vec_env.SwarmVecEnv``, does the same for ``swarm-env train sb3``.
 """
 
 from __future__ import annotations

@@ -1,7 +1,10 @@
-"""The ``swarm-env`` command line: ``list``, ``validate``, ``run``, ``bench``, ``evaluate``.
+"""The ``swarm-env`` command line: ``list``, ``validate``, ``run``, ``bench``, ``evaluate``, and the
+commands of the experts and baselines (``train``, ``bc``, ``demos``, ``ship``, ``curves``, ``convert``,
+``reproduce``; see :data:`MODULE_COMMANDS`).
 
 Exit codes: 0 success, 2 bad input (unknown scenario or policy, invalid
-scenario file, bad option, a missing, corrupt or refused model file), 1 anything else.
+scenario file, bad option, a missing, corrupt or refused model file, an optional extra that is not
+installed), 1 anything else.
 
 ``run`` and ``evaluate`` refuse model files that would be unpickled (SB3's ``model.zip``
 without the ``policy.safetensors`` + ``policy.json`` beside it, ``vecnormalize.pkl``):
@@ -13,13 +16,15 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import importlib
 import os
 import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
-from swarm_env.extras import MissingExtraError
+import swarm_env
+from swarm_env.extras import MissingExtraError, extra_for_module, missing_distributions, missing_extra_error
 from swarm_env.policies import TRUST_PICKLE_ENV, PolicyError, UnknownPolicyError
 from swarm_env.scenario import ScenarioError
 
@@ -103,7 +108,7 @@ def _print_scenario_error(exc: ScenarioError) -> None:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from swarm_env.policies import registered_policies
+    from swarm_env.policies import policy_extra, registered_policies
     from swarm_env.scenario_io import list_scenarios, load_scenario
 
     print("scenarios:")
@@ -115,7 +120,12 @@ def cmd_list(args: argparse.Namespace) -> int:
         print(f"  {name:<18} {desc}")
     print("policies:")
     for name, target in registered_policies().items():
-        print(f"  {name:<18} {target}")
+        declared = policy_extra(name)  # (distribution, extras): a third party's policy names its own package
+        missing = missing_distributions(declared[1], declared[0]) if declared else []
+        note = ""
+        if declared and missing:
+            note = f"  (not installed: pip install '{declared[0]}[{declared[1]}]' for {', '.join(missing)})"
+        print(f"  {name:<18} {target}{note}")
     return 0
 
 
@@ -423,8 +433,60 @@ def _pickle_trust(on: bool) -> Iterator[None]:
             os.environ[TRUST_PICKLE_ENV] = before
 
 
+#: Commands run by a module's own ``main(argv)``, which gets the rest of the command line: that module's
+#: parser owns the options (``swarm-env train mappo --help`` prints them), so none is repeated here.
+#: ``(words) -> (module, help)``; each module also runs as ``python -m MODULE``. The modules are named,
+#: not imported, here (as the policy registry names its entry points): ``swarm_env`` itself never imports
+#: ``swarm_env_agents`` or ``swarm_env_baselines``.
+MODULE_COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
+    ("train", "mappo"): ("swarm_env_baselines.mappo", "MAPPO / IPPO (--critic local), our PyTorch PPO: the shipped methods"),
+    ("train", "sb3"): ("swarm_env_baselines.train", "stable-baselines3 PPO / SAC / A2C / TD3 with parameter sharing"),
+    ("train", "rllib"): ("swarm_env_baselines.rllib_train", "RLlib's PPO on Ray, one machine or a cluster (extras rl, ray)"),
+    ("bc",): ("swarm_env_baselines.bc", "behaviour cloning (+ DAgger) of a scripted expert into PPO's policy network"),
+    ("demos",): ("swarm_env_baselines.demos", "record a scripted expert's demonstrations (cached .npz)"),
+    ("ship",): ("swarm_env_baselines.ship", "copy a finished `train mappo` run into checkpoints/<method>/s<k>"),
+    ("curves",): ("swarm_env_baselines.plots", "the shipped methods' learning curves in one figure"),
+    ("convert",): ("swarm_env_baselines.safe_io", "write tensors + JSON beside an older SB3 run's pickles"),
+    ("reproduce", "vo"): ("swarm_env_agents.vo_paper", "paper 003's experiments with the vo expert (docs/vo_expert.md)"),
+    ("reproduce", "cbs_rrt"): ("swarm_env_agents.cbs_rrt.paper", "paper 000's experiment with the cbs_rrt expert (docs/cbs_rrt.md)"),
+}
+
+_GROUP_HELP = {
+    "train": "train a learned policy: mappo (MAPPO/IPPO), sb3 (stable-baselines3) or rllib",
+    "reproduce": "rerun a paper's experiments with its expert and write its report: vo (paper 003), cbs_rrt (paper 000)",
+}
+
+
+def _group_usage(group: str) -> str:
+    subs = {words[1]: text for words, (_, text) in MODULE_COMMANDS.items() if words[0] == group and len(words) > 1}
+    lines = [f"usage: swarm-env {group} {{{','.join(subs)}}} [OPTIONS]", "", _GROUP_HELP[group], ""]
+    lines += [f"  {name:<10} {text}" for name, text in subs.items()]
+    lines += ["", f"swarm-env {group} NAME --help lists NAME's options."]
+    return "\n".join(lines)
+
+
+def run_module_command(argv: list[str]) -> int:
+    """Run the :data:`MODULE_COMMANDS` entry that ``argv`` starts with, passing it the rest of ``argv``.
+
+    ``argv[0]`` must be a command word of the table. A group (``train``, ``reproduce``) without a known
+    second word prints its usage (exit 0 for ``--help``/``-h``, else 2). The module's ``main`` returns the
+    exit code (its argparse exits on ``--help`` or a bad option, as usual).
+    """
+    for words, (module, _) in MODULE_COMMANDS.items():
+        if tuple(argv[: len(words)]) == words:
+            return int(importlib.import_module(module).main(argv[len(words):]) or 0)
+    group = argv[0]
+    asked = argv[1:2] in (["-h"], ["--help"])
+    if not asked:
+        got = f"unknown {group} command {argv[1]!r}" if len(argv) > 1 else f"{group} needs a command"
+        print(f"error: {got}", file=sys.stderr)
+    print(_group_usage(group), file=sys.stdout if asked else sys.stderr)
+    return 0 if asked else 2
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="swarm-env", description="Leader-follower swarm environment (PettingZoo + pymunk).")
+    p.add_argument("--version", action="version", version=f"swarm-env {swarm_env.__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
     sub.add_parser("list", help="list built-in scenarios and registered policies").set_defaults(func=cmd_list)
@@ -508,10 +570,33 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--quiet", action="store_true", help="no progress bars")
     e.add_argument("--trust-pickle", action="store_true", help=TRUST_PICKLE_HELP)
     e.set_defaults(func=cmd_evaluate)
+
+    # Listed for --help only: main() hands these command lines to their modules before parsing.
+    for word in dict.fromkeys(words[0] for words in MODULE_COMMANDS):
+        _, text = MODULE_COMMANDS.get((word,), ("", _GROUP_HELP.get(word, "")))
+        sub.add_parser(word, help=text, add_help=False)
     return p
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        if argv and argv[0] in {words[0] for words in MODULE_COMMANDS}:
+            return run_module_command(argv)
+        return _main(argv)
+    except MissingExtraError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except ImportError as exc:  # an optional dependency imported where it is used, e.g. by a training command
+        extra = extra_for_module(exc.name)
+        if extra is None:
+            raise
+        command = " ".join(argv[:2]) if argv else "this command"
+        print(f"error: {missing_extra_error(extra, f'swarm-env {command}', str(exc))}", file=sys.stderr)
+        return 2
+
+
+def _main(argv: list[str]) -> int:
     args = build_parser().parse_args(argv)
     for flag in ("episodes", "max_cycles", "steps", "repeats"):
         value = getattr(args, flag, None)
@@ -528,9 +613,6 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc.args[0] if exc.args else exc}", file=sys.stderr)
         return 2
     except PolicyError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    except MissingExtraError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
 

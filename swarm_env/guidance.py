@@ -38,7 +38,7 @@ head-on case with ``tau = 0.5``; none below the radii with the arc model).
 Batches: :func:`vo_select_batch` runs the selection for ``N`` robots in one
 vectorised pass over one shared list of discs (``disc_mask`` says which discs
 each robot avoids, so a robot can be left out of its own list); the scripted VO
-expert (``agents.vo_expert``) drives all followers with it. :func:`vo_select`
+expert (``swarm_env_agents.vo_expert``) drives all followers with it. :func:`vo_select`
 is its ``N = 1`` case, used by the env's robot leader: one implementation.
 
 Robots that all run this rule should mark each other ``reciprocal`` (RVO: each

@@ -332,14 +332,48 @@ def registered_policies() -> dict[str, str]:
     """Name -> ``module:attr`` of every policy in the entry-point group (plus the built-ins)."""
     found = {name: f"{fn.__module__}:{fn.__qualname__}" for name, fn in _BUILTIN.items()}
     for ep in entry_points(group=ENTRY_POINT_GROUP):
-        found[ep.name] = ep.value
+        found[ep.name] = f"{ep.module}:{ep.attr}"
     return dict(sorted(found.items()))
 
 
-def _factory(name: str) -> Callable[..., Any]:
-    """The factory registered as ``name`` (entry points first, then the built-ins)."""
+def policy_extra(name: str) -> tuple[str, str] | None:
+    """``(distribution, extras)``: the optional extra that the registered policy ``name`` needs, as its
+    entry point declares it (``ppo = "pkg.module:factory [rl]"`` in ``swarm-env``'s pyproject.toml ->
+    ``("swarm-env", "rl")``; several extras joined by commas), or ``None``."""
+    from swarm_env.extras import DISTRIBUTION
+
     for ep in entry_points(group=ENTRY_POINT_GROUP, name=name):
-        return ep.load()
+        if not ep.extras:
+            return None
+        return (ep.dist.name if ep.dist is not None else DISTRIBUTION), ",".join(ep.extras)
+    return None
+
+
+def _missing_extra(name: str, exc: ImportError) -> Exception:
+    """The one-line :class:`~swarm_env.extras.MissingExtraError` for a policy whose import failed: naming
+    the extra its entry point declares if that one is not (fully) installed, else swarm-env's extra that
+    installs the missing module; ``exc`` itself otherwise (an import error with every extra in place is a
+    bug, not a missing extra, and keeps its traceback)."""
+    from swarm_env.extras import extra_for_module, missing_distributions, missing_extra_error
+
+    declared = policy_extra(name)
+    if declared and missing_distributions(declared[1], declared[0]):
+        return missing_extra_error(declared[1], f"policy {name!r}", str(exc), declared[0])
+    found = extra_for_module(getattr(exc, "name", None))
+    return missing_extra_error(found, f"policy {name!r}", str(exc)) if found else exc
+
+
+def _factory(name: str) -> Callable[..., Any]:
+    """The factory registered as ``name`` (entry points first, then the built-ins). Raises
+    :class:`~swarm_env.extras.MissingExtraError` when its module needs an extra that is not installed."""
+    for ep in entry_points(group=ENTRY_POINT_GROUP, name=name):
+        try:
+            return ep.load()
+        except ImportError as exc:
+            error = _missing_extra(name, exc)
+            if error is exc:
+                raise
+            raise error from None
     factory = _BUILTIN.get(name)
     if factory is None:
         known = ", ".join(registered_policies())
@@ -371,10 +405,12 @@ def acts_on(spec: str) -> str:
     (its ``acts_on`` attribute) or is not installed. ``shield:SPEC`` and a policy executed through
     the safety layer read the state (the shield does) and say so: ``"observations + shield"``.
     """
+    from swarm_env.extras import MissingExtraError
+
     name, _, arg = spec.partition(":")
     try:
         factory = _factory(name)
-    except UnknownPolicyError:
+    except (UnknownPolicyError, MissingExtraError):
         return "?"
     if factory is ShieldedPolicy:
         inner = acts_on(arg) if arg else "?"
@@ -386,7 +422,9 @@ def load_policy(spec: str | Any, env: "SwarmEnv") -> Policy:
     """Build a policy from ``"name"`` / ``"name:arg"`` or wrap a model object.
 
     Raises :class:`UnknownPolicyError` (a ``KeyError``) naming the known policies when ``name`` is
-    unknown, and :class:`PolicyError` (a ``ValueError``) when the factory rejects ``arg`` or the env.
+    unknown, :class:`PolicyError` (a ``ValueError``) when the factory rejects ``arg`` or the env, and
+    :class:`~swarm_env.extras.MissingExtraError` (one line naming the pip command) when the policy needs
+    an optional extra that is not installed.
     """
     if not isinstance(spec, str):
         if isinstance(spec, Policy):
@@ -398,6 +436,11 @@ def load_policy(spec: str | Any, env: "SwarmEnv") -> Policy:
         policy = factory(env, arg or None)
     except PolicyError:
         raise
+    except ImportError as exc:  # a factory that imports its extra only when called
+        error = _missing_extra(name, exc)
+        if error is exc:
+            raise
+        raise error from None
     except ValueError as exc:  # a factory's documented way to reject its argument or the env
         message = str(exc) if str(exc).startswith("policy ") else f"policy {spec!r}: {exc}"
         raise PolicyError(message) from exc

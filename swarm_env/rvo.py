@@ -1,6 +1,6 @@
 """RVO2 (the reference ORCA library, through ``pyrvo``) set up for a swarm_env map.
 
-Shared by the ``orca`` reference policy (:mod:`agents.orca`) and the humans with
+Shared by the ``orca`` reference policy (:mod:`swarm_env_agents.orca`) and the humans with
 ``behavior: orca`` (:mod:`swarm_env.humans`): both need an RVO2 simulator holding the map's
 obstacles. ``pyrvo`` is the ``orca`` extra; :func:`simulator` raises
 :class:`~swarm_env.extras.MissingExtraError` naming it when it is missing.

@@ -6,7 +6,7 @@ closest to it, from the velocity-obstacle search of :func:`swarm_env.guidance.vo
 reciprocally: each takes half), a robot leader, the humans (with an extra margin, since they
 do not avoid robots) and the static map. A preferred twist that is already safe comes back
 unchanged. It is the one implementation behind the ``vo`` expert
-(:class:`agents.vo_expert.VOExpert`, which prefers pure pursuit of its slot) and the safety
+(:class:`swarm_env_agents.vo_expert.VOExpert`, which prefers pure pursuit of its slot) and the safety
 layer any learner can use (:class:`swarm_env.wrappers.SafetyShield`, which prefers the
 learner's action).
 """

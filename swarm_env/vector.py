@@ -3,7 +3,7 @@
 :class:`SwarmVectorEnv` holds ``M`` worlds (each a :class:`~swarm_env.env.SwarmEnv` with its own
 pymunk space, generator and metrics, optionally in a :class:`~swarm_env.wrappers.SafetyShield`)
 and exposes them as one environment with a leading batch axis, the shape TorchRL/BenchMARL
-(``batch_size=[M]``), SB3's ``VecEnv`` (:mod:`baselines.vec_env` is built on it) and hand-written
+(``batch_size=[M]``), SB3's ``VecEnv`` (:mod:`swarm_env_baselines.vec_env` is built on it) and hand-written
 PPO loops want::
 
     venv = SwarmVectorEnv("random", num_envs=64)

@@ -1,4 +1,4 @@
-"""The SB3 bridge (baselines.vec_env): seeding, auto-reset, truncation info, fixed teams, worker processes."""
+"""The SB3 bridge (swarm_env_baselines.vec_env): seeding, auto-reset, truncation info, fixed teams, worker processes."""
 
 from __future__ import annotations
 
@@ -10,8 +10,8 @@ pytest.importorskip("stable_baselines3")
 import gymnasium  # noqa: E402
 from stable_baselines3 import PPO  # noqa: E402
 
-from baselines.config import policy_kwargs  # noqa: E402
-from baselines.vec_env import EnvFactory, SwarmVecEnv, make_vec_env  # noqa: E402
+from swarm_env_baselines.config import policy_kwargs  # noqa: E402
+from swarm_env_baselines.vec_env import EnvFactory, SwarmVecEnv, make_vec_env  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 
 SMALL = {"n_followers": 3, "n_obstacles": (1, 3), "n_humans": (0, 1), "world_size": (12.0, 12.0)}

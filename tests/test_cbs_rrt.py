@@ -10,16 +10,16 @@ import math
 import numpy as np
 import pytest
 
-from agents.cbs_rrt.cbs import CBS
-from agents.cbs_rrt.conflicts import find_conflicts, pair_first_conflict, pair_min_distance
-from agents.cbs_rrt.constraints import Constraint, ConstraintTable
-from agents.cbs_rrt.distance_field import DistanceField, distance_field
-from agents.cbs_rrt.goals import FormationGoals
-from agents.cbs_rrt.grid import GridAStar, GridConflicts, VertexConstraint, parse_grid
-from agents.cbs_rrt.policy import CBSRRTExpert, make_policy
-from agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
-from agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
-from agents.cbs_rrt.timed_path import PRIM, TAIL, WAIT, TimedPath
+from swarm_env_agents.cbs_rrt.cbs import CBS
+from swarm_env_agents.cbs_rrt.conflicts import find_conflicts, pair_first_conflict, pair_min_distance
+from swarm_env_agents.cbs_rrt.constraints import Constraint, ConstraintTable
+from swarm_env_agents.cbs_rrt.distance_field import DistanceField, distance_field
+from swarm_env_agents.cbs_rrt.goals import FormationGoals
+from swarm_env_agents.cbs_rrt.grid import GridAStar, GridConflicts, VertexConstraint, parse_grid
+from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert, make_policy
+from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
+from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
+from swarm_env_agents.cbs_rrt.timed_path import PRIM, TAIL, WAIT, TimedPath
 from swarm_env.env import SwarmEnv
 from swarm_env.evaluation import run_episode
 from swarm_env.geometry import StaticMap

@@ -20,7 +20,7 @@ def _overlap(a, b) -> bool:
 
 
 def test_vo_paths_figure_has_axes_in_metres_and_humans_apart_from_followers() -> None:
-    from agents.vo_paper import paths_figure
+    from swarm_env_agents.vo_paper import paths_figure
     from swarm_env.scenario_io import load_scenario
 
     t = np.linspace(0, 1, 20)
@@ -49,7 +49,7 @@ def _eval_csv(path: Path) -> Path:
 @pytest.mark.parametrize("kind", ["one run", "methods"])
 def test_learning_curve_legend_sits_outside_the_panels(kind: str, tmp_path: Path,
                                                        monkeypatch: pytest.MonkeyPatch) -> None:
-    from baselines import plots
+    from swarm_env_baselines import plots
 
     figures: list = []
     monkeypatch.setattr(plt, "close", lambda fig=None: figures.append(fig))

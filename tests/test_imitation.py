@@ -10,10 +10,10 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-import baselines.demos as demos_mod
-from baselines.bc import BCConfig, dagger_rollouts, discounted_returns, running_returns, split_episodes, train_bc
-from baselines.demos import ARRAYS, generate_demos, load_demos
-from baselines.model_io import load_model
+import swarm_env_baselines.demos as demos_mod
+from swarm_env_baselines.bc import BCConfig, dagger_rollouts, discounted_returns, running_returns, split_episodes, train_bc
+from swarm_env_baselines.demos import ARRAYS, generate_demos, load_demos
+from swarm_env_baselines.model_io import load_model
 from swarm_env.env import SwarmEnv
 from swarm_env.evaluation import run_episode
 from swarm_env.policies import load_policy
@@ -202,7 +202,7 @@ def test_bc_config_rejects_bad_input(cache, tmp_path):
         _bc(cache, tmp_path, dagger_iters=1, dagger_seeds="10-20")
     with pytest.raises(ValueError, match="epochs"):
         _bc(cache, tmp_path, epochs=0)
-    from baselines.bc import main
+    from swarm_env_baselines.bc import main
 
     assert main(["--out", str(tmp_path / "x"), "--expert", "nope", "--train-seeds", "0", "--cache-dir", str(cache), "--no-progress"]) == 2
     assert main(["--out", str(tmp_path / "x"), "--train-seeds", "0-399", "--cache-dir", str(cache)]) == 2  # overlaps dagger seeds

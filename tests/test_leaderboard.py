@@ -307,7 +307,7 @@ def test_cli_bad_input_exits_2_before_any_episode(
 
 
 def test_baselines_evaluate_help() -> None:
-    proc = subprocess.run([sys.executable, "-m", "baselines.evaluate", "--help"], capture_output=True, text=True,
+    proc = subprocess.run([sys.executable, "-m", "swarm_env_baselines.evaluate", "--help"], capture_output=True, text=True,
                           cwd=Path(__file__).resolve().parents[1])
     assert proc.returncode == 0, proc.stderr
     assert "--policies" in proc.stdout and "--scenario-seeds" in proc.stdout

@@ -1,4 +1,4 @@
-"""MAPPO / IPPO (baselines.mappo): the estimator, the statistics, DAgger, tiny runs end to end in every
+"""MAPPO / IPPO (swarm_env_baselines.mappo): the estimator, the statistics, DAgger, tiny runs end to end in every
 mode (central/local critic, shield off/teach/execute, residual), determinism, the saved files."""
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
-from baselines import mappo, mappo_policy  # noqa: E402
-from baselines.ppo_core import RunningMeanStd, gae  # noqa: E402
+from swarm_env_baselines import mappo, mappo_policy  # noqa: E402
+from swarm_env_baselines.ppo_core import RunningMeanStd, gae  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.evaluation import run_episode  # noqa: E402
 from swarm_env.policies import PolicyError, ShieldedPolicy, load_policy  # noqa: E402
@@ -60,10 +60,10 @@ def test_running_statistics_match_numpy_and_freeze() -> None:
 def test_dagger_warm_start_fits_the_expert_and_freezes_the_statistics() -> None:
     import torch
 
-    from baselines.imitation import DaggerSettings, dagger
-    from baselines.ppo_core import mlp
+    from swarm_env_baselines.imitation import DaggerSettings, dagger
+    from swarm_env_baselines.ppo_core import mlp
 
-    from baselines.imitation import rollouts
+    from swarm_env_baselines.imitation import rollouts
     from swarm_env.policies import load_policy
 
     torch.manual_seed(0)
@@ -213,7 +213,7 @@ def test_a_learned_policy_plays_the_same_episode_bit_for_bit_in_other_processes(
 
 
 def test_a_finished_clean_run_ships_with_its_records_and_a_readme(tmp_path) -> None:
-    from baselines import ship
+    from swarm_env_baselines import ship
 
     run = mappo.train(_cfg(tmp_path, total_steps=512, eval_every=256))
     versions = json.loads((run / "versions.json").read_text())
@@ -230,7 +230,7 @@ def test_a_finished_clean_run_ships_with_its_records_and_a_readme(tmp_path) -> N
     shipped_again = ship.ship_run(run, "mappo", "s0", dest=dest)  # replaces the old copy whole
     assert shipped_again == target and not list(target.parent.glob(".*"))
     readme = ship.write_method_readme("mappo", dest=dest).read_text()
-    assert "python -m baselines.mappo" in readme and "centralised" in readme
+    assert "swarm-env train mappo" in readme and "centralised" in readme
     t = ship.time_breakdown(target)
     assert t["rollout"] > 0 and t["update"] > 0 and t["wall"] >= t["rollout"] + t["update"]
     policy = load_policy(f"mappo:{target}", SwarmEnv("random", **TINY_ENV))

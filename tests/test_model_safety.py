@@ -24,9 +24,9 @@ import pytest
 pytest.importorskip("stable_baselines3")
 pytest.importorskip("safetensors")
 
-from baselines import model_io, safe_io  # noqa: E402
-from baselines import train as train_mod  # noqa: E402
-from baselines.mappo_policy import shipped_run  # noqa: E402
+from swarm_env_baselines import model_io, safe_io  # noqa: E402
+from swarm_env_baselines import train as train_mod  # noqa: E402
+from swarm_env_baselines.mappo_policy import shipped_run  # noqa: E402
 from swarm_env import cli  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.evaluation import run_episode  # noqa: E402
@@ -291,7 +291,7 @@ def test_the_leaderboard_stops_on_a_bad_model_file(run, tmp_path, capsys) -> Non
 
 def test_resuming_an_rllib_run_asks_for_the_opt_in(tmp_path, capsys) -> None:
     """RLlib's checkpoint is pickled state: --resume is refused before Ray is even imported."""
-    from baselines import rllib_train
+    from swarm_env_baselines import rllib_train
 
     assert rllib_train.main(["--out", str(tmp_path / "run"), "--resume", "--no-progress"]) == 2
     err = capsys.readouterr().err

@@ -1,4 +1,4 @@
-"""The ORCA reference policy (agents.orca, RVO2 through pyrvo)."""
+"""The ORCA reference policy (swarm_env_agents.orca, RVO2 through pyrvo)."""
 
 from __future__ import annotations
 

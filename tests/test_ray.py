@@ -32,7 +32,7 @@ def test_ray_backend_gives_the_local_results() -> None:
 def test_rllib_ppo_trains_and_its_exported_actor_is_the_modules_mean(tmp_path: Path) -> None:
     import torch
 
-    from baselines.rllib_train import RLlibConfig, build_config, export_policy, load_rllib_policy, train
+    from swarm_env_baselines.rllib_train import RLlibConfig, build_config, export_policy, load_rllib_policy, train
     from swarm_env.env import SwarmEnv
     from swarm_env.evaluation import run_episode
     from swarm_env.policies import load_policy
@@ -53,7 +53,7 @@ def test_rllib_ppo_trains_and_its_exported_actor_is_the_modules_mean(tmp_path: P
     try:
         from ray.tune.registry import register_env
 
-        from baselines.rllib_train import ENV_NAME, SHARED, _env_creator
+        from swarm_env_baselines.rllib_train import ENV_NAME, SHARED, _env_creator
 
         register_env(ENV_NAME, _env_creator)
         algo = build_config(RLlibConfig("paper_vo_90", num_env_runners=0)).build_algo()

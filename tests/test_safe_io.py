@@ -1,4 +1,4 @@
-"""Policies as tensors + JSON (baselines.safe_io): written by every save, loaded without unpickling anything."""
+"""Policies as tensors + JSON (swarm_env_baselines.safe_io): written by every save, loaded without unpickling anything."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ pytest.importorskip("safetensors")
 
 import torch  # noqa: E402
 
-from baselines import model_io, safe_io  # noqa: E402
-from baselines import train as train_mod  # noqa: E402
+from swarm_env_baselines import model_io, safe_io  # noqa: E402
+from swarm_env_baselines import train as train_mod  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.evaluation import run_episode  # noqa: E402
 from swarm_env.policies import PolicyError, load_policy  # noqa: E402

@@ -72,7 +72,7 @@ def test_discrete_envs_are_refused() -> None:
 
 
 def test_the_vo_expert_is_the_same_avoidance() -> None:
-    from agents.vo_expert import VOExpert
+    from swarm_env_agents.vo_expert import VOExpert
 
     env = swarm_env.parallel_env("paper_vo_45")
     env.reset(seed=0)

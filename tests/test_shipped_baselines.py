@@ -1,4 +1,4 @@
-"""The shipped checkpoints (baselines/checkpoints/<method>/s<k>: the methods of :mod:`baselines.mappo`,
+"""The shipped checkpoints (baselines/checkpoints/<method>/s<k>: the methods of :mod:`swarm_env_baselines.mappo`,
 three training seeds each) are clean, safe and documented, and their test episodes in
 ``docs/leaderboard/leaderboard.json`` replay bit for bit. The v0 SB3 checkpoints are retired.
 """
@@ -11,13 +11,13 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from baselines.mappo_policy import CHECKPOINTS, SHIPPED_SEEDS  # noqa: E402
+from swarm_env_baselines.mappo_policy import CHECKPOINTS, SHIPPED_SEEDS  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.evaluation import run_episode  # noqa: E402
 from swarm_env.leaderboard import _behaviour, _json_roundtrip  # noqa: E402
 from swarm_env.policies import PolicyError, load_policy  # noqa: E402
 
-#: The methods of baselines.mappo, one directory per training seed.
+#: The methods of swarm_env_baselines.mappo, one directory per training seed.
 METHODS = ("ippo", "mappo", "mappo_shielded", "residual_vo")
 LEADERBOARD = CHECKPOINTS.parents[1] / "docs" / "leaderboard" / "leaderboard.json"
 
@@ -36,7 +36,7 @@ def test_a_retired_v0_name_says_what_to_use_instead(name):
 @pytest.mark.parametrize("method", METHODS)
 def test_a_shipped_method_has_three_clean_safe_seeds(method):
     readme = (CHECKPOINTS / method / "README.md").read_text()
-    assert "python -m baselines.mappo" in readme and "| s2 |" in readme
+    assert "python -m baselines.mappo" in readme and "| s2 |" in readme  # trained before the rename (ship.training_command)
     for seed in SHIPPED_SEEDS:
         d = CHECKPOINTS / method / seed
         files = {p.name for p in d.iterdir()}

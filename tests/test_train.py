@@ -1,4 +1,4 @@
-"""baselines.train / config / model_io: a tiny run end to end, the CLI, warm starts, loading as a policy."""
+"""swarm_env_baselines.train / config / model_io: a tiny run end to end, the CLI, warm starts, loading as a policy."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from baselines import train as train_mod  # noqa: E402
-from baselines.config import TrainConfig, field_help, parse_seeds  # noqa: E402
-from baselines.model_io import SB3Policy, load_model, load_warm_start  # noqa: E402
+from swarm_env_baselines import train as train_mod  # noqa: E402
+from swarm_env_baselines.config import TrainConfig, field_help, parse_seeds  # noqa: E402
+from swarm_env_baselines.model_io import SB3Policy, load_model, load_warm_start  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.evaluation import run_episode  # noqa: E402
 from swarm_env.policies import PolicyError, load_policy  # noqa: E402
@@ -60,7 +60,7 @@ def test_warm_start_copies_weights_and_normalisation(tmp_path):
     model = None
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from baselines.vec_env import make_vec_env
+    from swarm_env_baselines.vec_env import make_vec_env
 
     venv = VecNormalize(make_vec_env("random", 2, **TINY_ENV))
     model = train_mod._make_model(cfg, venv, tmp_path / "logs")
@@ -153,7 +153,7 @@ def test_a_command_line_run_with_frozen_statistics_loads_elsewhere(tmp_path):
             "--run-name", "cli", "--no-progress", "--freeze-obs-stats"]
     for key, value in TINY_ENV.items():
         args += ["--env", f"{key}={json.dumps(value)}"]
-    subprocess.run([sys.executable, "-m", "baselines.train", *args], check=True, capture_output=True)
+    subprocess.run([sys.executable, "-m", "swarm_env_baselines.train", *args], check=True, capture_output=True)
     env = SwarmEnv("random", **TINY_ENV)
     assert run_episode(env, load_policy(f"ppo:{tmp_path / 'cli'}", env), seed=1000)["steps"] == 30
 
@@ -191,7 +191,7 @@ def test_a_shielded_run_trains_and_evaluates_through_the_safety_layer(tmp_path):
 
 
 def test_the_bridge_steps_shielded_copies(tmp_path):
-    from baselines.vec_env import make_vec_env
+    from swarm_env_baselines.vec_env import make_vec_env
 
     venv = make_vec_env("random", 2, shield=True, seed=0, **TINY_ENV)
     venv.reset()

@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from agents.vo_expert import VOExpert, make_policy
+from swarm_env_agents.vo_expert import VOExpert, make_policy
 from swarm_env.env import SwarmEnv
 from swarm_env.evaluation import run_episode
 from swarm_env.geometry import StaticMap

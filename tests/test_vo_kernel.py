@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agents.vo_expert import VOExpert
+from swarm_env_agents.vo_expert import VOExpert
 from swarm_env import guidance
 from swarm_env.env import SwarmEnv
 from swarm_env.geometry import StaticMap

@@ -11,8 +11,8 @@ It works with any pair of objects that satisfy two small protocols:
 
 * :class:`LowLevelPlanner` — ``plan(agent, constraints) -> path | None``,
   ``cost(agent, path) -> float``, ``stationary(agent) -> path``. The swarm uses
-  a motion-primitive RRT (:mod:`agents.cbs_rrt.swarm`); tests plug in a grid
-  space-time A* (:mod:`agents.cbs_rrt.grid`) and check optimal costs.
+  a motion-primitive RRT (:mod:`swarm_env_agents.cbs_rrt.swarm`); tests plug in a grid
+  space-time A* (:mod:`swarm_env_agents.cbs_rrt.grid`) and check optimal costs.
 * :class:`ConflictModel` — ``first_conflict(paths, fixed)``, ``split(conflict)``
   (one ``(agent, constraint)`` per child) and ``all_conflicts(paths, fixed)``.
   A constraint may carry a ``weaker`` alternative (an attribute; a chain) that

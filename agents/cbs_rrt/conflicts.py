@@ -2,7 +2,7 @@
 
 Two robots are *in conflict* when their centres come closer than a threshold
 ``D`` (``2 * radius + margin``) at the same time. Paths are piecewise linear in
-time (see :mod:`agents.cbs_rrt.timed_path`), so over the common time interval
+time (see :mod:`swarm_env_agents.cbs_rrt.timed_path`), so over the common time interval
 of two paths, between consecutive breakpoints of either, both robots move in
 straight lines at constant speeds and their relative position
 ``r(s) = r0 + s dr`` (``s in [0, 1]``) is linear: the first time ``|r| < D`` is
@@ -25,7 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
-from agents.cbs_rrt.timed_path import TimedPath
+from swarm_env_agents.cbs_rrt.timed_path import TimedPath
 
 __all__ = [
     "Conflict",

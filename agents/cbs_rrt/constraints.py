@@ -23,8 +23,8 @@ from typing import Sequence
 
 import numpy as np
 
-from agents.cbs_rrt.conflicts import pair_first_conflict
-from agents.cbs_rrt.timed_path import START, TimedPath
+from swarm_env_agents.cbs_rrt.conflicts import pair_first_conflict
+from swarm_env_agents.cbs_rrt.timed_path import START, TimedPath
 
 __all__ = ["Constraint", "ConstraintTable"]
 
@@ -35,7 +35,7 @@ class Constraint:
     ``[t[0], t[-1]]`` (linear between samples). ``other`` is the robot whose path the disc
     follows (``-1`` if none), for reports. ``weaker``: an alternative that also excludes the
     conflict this constraint came from, for CBS to use when the robot cannot satisfy this one
-    (see :class:`agents.cbs_rrt.cbs.CBS`)."""
+    (see :class:`swarm_env_agents.cbs_rrt.cbs.CBS`)."""
 
     agent: int
     t: np.ndarray

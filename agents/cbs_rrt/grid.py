@@ -1,4 +1,4 @@
-"""Classic grid multi-agent path finding for :class:`agents.cbs_rrt.cbs.CBS` (tests, teaching).
+"""Classic grid multi-agent path finding for :class:`swarm_env_agents.cbs_rrt.cbs.CBS` (tests, teaching).
 
 4-connected grid, unit-time moves and waits, sum-of-individual-costs: an agent's
 cost is the time at which it reaches its goal for good (it stays there

@@ -3,14 +3,14 @@
 Three layers (paper 000 Fig. 1), run from the privileged
 :class:`~swarm_env.state.WorldState`:
 
-1. **Formation control** (:mod:`agents.cbs_rrt.goals`): every follower's goal
+1. **Formation control** (:mod:`swarm_env_agents.cbs_rrt.goals`): every follower's goal
    course over the planning window — its slot predicted along the leader's
    trajectory (exact for a virtual leader), with the scheduled formation
    switches, moved out of obstacles and apart from the other goals.
-2. **Conflict management** (:mod:`agents.cbs_rrt.cbs`, :mod:`agents.cbs_rrt.swarm`):
+2. **Conflict management** (:mod:`swarm_env_agents.cbs_rrt.cbs`, :mod:`swarm_env_agents.cbs_rrt.swarm`):
    Conflict-Based Search over all followers, conflicts checked continuously
    between timed paths, with the paper's fallbacks.
-3. **Individual path planning** (:mod:`agents.cbs_rrt.rrt`): a goal-biased RRT
+3. **Individual path planning** (:mod:`swarm_env_agents.cbs_rrt.rrt`): a goal-biased RRT
    over motion primitives in space-time with a buffer zone, CBS constraints
    and smoothing; the path joins the goal course and follows it.
 
@@ -59,14 +59,14 @@ from typing import TYPE_CHECKING, Any, Sequence
 
 import numpy as np
 
-from agents.cbs_rrt.cbs import CBS, CBSResult
-from agents.cbs_rrt.constraints import Constraint
-from agents.cbs_rrt.distance_field import distance_field
-from agents.cbs_rrt.goals import FormationGoals, GoalWindow
-from agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
-from agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
-from agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
-from agents.cbs_rrt.timed_path import TimedPath
+from swarm_env_agents.cbs_rrt.cbs import CBS, CBSResult
+from swarm_env_agents.cbs_rrt.constraints import Constraint
+from swarm_env_agents.cbs_rrt.distance_field import distance_field
+from swarm_env_agents.cbs_rrt.goals import FormationGoals, GoalWindow
+from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
+from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
+from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
+from swarm_env_agents.cbs_rrt.timed_path import TimedPath
 from swarm_env.guidance import pure_pursuit
 from swarm_env.paths import human_states
 from swarm_env.policies import expert_factory
@@ -143,7 +143,7 @@ class CBSRRTExpert:
     RRT:
         rrt_iterations: expansions per root call (no constraints); rrt_child_iterations: per
             call under CBS constraints; rrt_strong_iterations: per call with a strong
-            constraint (it has a weaker fallback, see :mod:`agents.cbs_rrt.swarm`);
+            constraint (it has a weaker fallback, see :mod:`swarm_env_agents.cbs_rrt.swarm`);
         goal_bias; max_wait (s);
         smoothing: run the smoothing pass.
 
@@ -154,7 +154,7 @@ class CBSRRTExpert:
         constraint_window: the weak constraint (a disc at the other robot's position) covers
             this long after the conflict (s).
         strong_constraints: first ask a child to keep clear of the other robot's whole path
-            (see :mod:`agents.cbs_rrt.swarm`); ``False``: the weak constraint only.
+            (see :mod:`swarm_env_agents.cbs_rrt.swarm`); ``False``: the weak constraint only.
         reuse_approach: keep a still-valid plan of a robot that is on its way to its slot as
             its CBS root path (otherwise only robots already in formation keep theirs); a
             rolling horizon that replans the approach every few seconds can otherwise keep

@@ -15,9 +15,9 @@ One robot, one call of :meth:`PrimitiveRRT.plan`:
   tree cheap to grow in Python.
 * **Validity.** Every sample point of a primitive must keep the robot's
   ``buffer`` (radius + margin, the paper's buffer zone) from obstacles and walls,
-  read from a :class:`~agents.cbs_rrt.distance_field.DistanceField` in one
+  read from a :class:`~swarm_env_agents.cbs_rrt.distance_field.DistanceField` in one
   vectorised lookup per expansion, and lie outside every CBS constraint at its
-  time (:class:`~agents.cbs_rrt.constraints.ConstraintTable`). A robot that
+  time (:class:`~swarm_env_agents.cbs_rrt.constraints.ConstraintTable`). A robot that
   starts inside the buffer may leave it (the required clearance grows with the
   distance from the start, see ``RRTConfig``). When constraints block every primitive but the
   robot could stand still, a *wait* node (same pose, ``wait_step`` later) is
@@ -50,10 +50,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from agents.cbs_rrt.constraints import ConstraintTable
-from agents.cbs_rrt.distance_field import DistanceField
-from agents.cbs_rrt.primitives import MotionPrimitives
-from agents.cbs_rrt.timed_path import PRIM, START, TAIL, WAIT, TimedPath
+from swarm_env_agents.cbs_rrt.constraints import ConstraintTable
+from swarm_env_agents.cbs_rrt.distance_field import DistanceField
+from swarm_env_agents.cbs_rrt.primitives import MotionPrimitives
+from swarm_env_agents.cbs_rrt.timed_path import PRIM, START, TAIL, WAIT, TimedPath
 
 __all__ = ["GoalSpec", "RRTConfig", "RRTResult", "PrimitiveRRT"]
 

@@ -1,23 +1,23 @@
 """The swarm's CBS instance: the RRT as low-level planner and continuous conflicts between timed paths.
 
 One replanning of the whole swarm at time ``t0`` over ``[t0, t1]`` is a CBS
-problem (:class:`agents.cbs_rrt.cbs.CBS`) made of
+problem (:class:`swarm_env_agents.cbs_rrt.cbs.CBS`) made of
 
-* :class:`RRTLowLevel` — plans one robot with :class:`~agents.cbs_rrt.rrt.PrimitiveRRT`
+* :class:`RRTLowLevel` — plans one robot with :class:`~swarm_env_agents.cbs_rrt.rrt.PrimitiveRRT`
   from its current pose to its moving formation goal under its constraints;
   the cost of a path is paper 000's ``dist(s_i, G_i)`` summed over the window:
   the integral of the distance to the goal (m s), so CBS prefers the solution
   that keeps the formation best;
 * :class:`TimedConflicts` — the first conflict between two timed paths
-  (:func:`~agents.cbs_rrt.conflicts.find_conflicts`, continuous), split into two
+  (:func:`~swarm_env_agents.cbs_rrt.conflicts.find_conflicts`, continuous), split into two
   children: robot ``a`` must keep clear of robot ``b``'s planned path (all of it,
   or failing that around the conflict, or failing that of ``b``'s position at
   the conflict for a few seconds), or the other way round
-  (:class:`~agents.cbs_rrt.constraints.Constraint`, see :meth:`TimedConflicts.split`).
+  (:class:`~swarm_env_agents.cbs_rrt.constraints.Constraint`, see :meth:`TimedConflicts.split`).
   A robot that CBS has fixed (stationary) is avoided over the whole window.
 
 A child is first made by *repairing* the robot's path in the parent node with
-waits (:meth:`~agents.cbs_rrt.rrt.PrimitiveRRT.repair`); only if that fails is
+waits (:meth:`~swarm_env_agents.cbs_rrt.rrt.PrimitiveRRT.repair`); only if that fails is
 the RRT run again, with a smaller budget than at the root and without partial
 paths.
 """
@@ -29,10 +29,10 @@ from typing import Sequence
 
 import numpy as np
 
-from agents.cbs_rrt.conflicts import Conflict, find_conflicts, pair_min_distance
-from agents.cbs_rrt.constraints import Constraint, ConstraintTable
-from agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT
-from agents.cbs_rrt.timed_path import TimedPath
+from swarm_env_agents.cbs_rrt.conflicts import Conflict, find_conflicts, pair_min_distance
+from swarm_env_agents.cbs_rrt.constraints import Constraint, ConstraintTable
+from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT
+from swarm_env_agents.cbs_rrt.timed_path import TimedPath
 
 __all__ = ["RRTLowLevel", "TimedConflicts", "PathConflict"]
 

@@ -7,7 +7,7 @@ stays where it is (it *parks*), before the first it is at the first. The
 samples come from three kinds of pieces:
 
 * ``PRIM`` — the samples of a motion primitive (an arc, see
-  :mod:`agents.cbs_rrt.primitives`); the path's *nodes* (the RRT tree nodes it
+  :mod:`swarm_env_agents.cbs_rrt.primitives`); the path's *nodes* (the RRT tree nodes it
   went through) are the primitive boundaries;
 * ``WAIT`` — standing still for a while (a node at the same pose, later);
 * ``TAIL`` — following the formation goal (the predicted slot of the robot)
