@@ -33,7 +33,7 @@ import numpy as np
 
 from swarm_env.extras import require
 from swarm_env.guidance import pure_pursuit, slot_velocities
-from swarm_env.policies import expert_factory
+from swarm_env.harness.policies import expert_factory
 from swarm_env.rvo import simulator
 from swarm_env.state import WorldState
 

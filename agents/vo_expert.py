@@ -57,7 +57,7 @@ import numpy as np
 
 from swarm_env.guidance import pure_pursuit, slot_velocities
 from swarm_env.safety import AvoidanceParams, safe_follower_twists
-from swarm_env.policies import expert_factory
+from swarm_env.harness.policies import expert_factory
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -69,7 +69,7 @@ __all__ = ["VOExpert", "make_policy"]
 class VOExpert:
     """Pure pursuit to the formation slot + sampled velocity obstacles, per follower.
 
-    A :class:`swarm_env.policies.Policy`: ``reset(env, seed)``, ``act(observations,
+    A :class:`swarm_env.harness.policies.Policy`: ``reset(env, seed)``, ``act(observations,
     state) -> {agent: action}`` (continuous actions ``(v / max_speed, omega /
     max_turn_rate)`` in ``[-1, 1]``, float32), ``stats()``. Deterministic: it
     draws no random numbers (``seed`` is ignored), so the same state gives the

@@ -14,7 +14,7 @@ Writes into ``--out``:
 * ``results.json`` — all numbers;
 
 and the report ``docs/vo_expert.md`` (``--doc``) with the side-by-side tables.
-Every episode goes through :func:`swarm_env.evaluation.run_episode`, the one
+Every episode goes through :func:`swarm_env.harness.evaluation.run_episode`, the one
 evaluation path; the expert is wrapped by a recorder that keeps the states
 it was shown.
 """
@@ -34,9 +34,9 @@ import numpy as np  # noqa: E402
 
 from swarm_env_agents.vo_expert import VOExpert  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.evaluation import mean_ci95, run_episode  # noqa: E402
+from swarm_env.harness.evaluation import mean_ci95, run_episode  # noqa: E402
 from swarm_env.jsonio import write_json  # noqa: E402
-from swarm_env.policies import load_policy  # noqa: E402
+from swarm_env.harness.policies import load_policy  # noqa: E402
 from swarm_env.state import WorldState  # noqa: E402
 
 PAPER_SCENARIOS = ("paper_vo_0", "paper_vo_45", "paper_vo_90")
@@ -303,7 +303,7 @@ def contacts_of(seed: int, knobs: dict[str, Any], expert_kwargs: dict[str, Any] 
 
 def save_video(seed: int, knobs: dict[str, Any], path: Path, expert_kwargs: dict[str, Any] | None = None) -> None:
     """Replay an episode with rendering and write it as an mp4 (the same episode: all is seeded)."""
-    from swarm_env.video import VideoWriter
+    from swarm_env.harness.video import VideoWriter
 
     env = SwarmEnv("random", render_mode="rgb_array", team_seed=seed, **knobs)
     policy = VOExpert(**(expert_kwargs or {}))

@@ -53,7 +53,7 @@ What it does, top to bottom (:func:`train_bc`):
    multiplies the training time by about six (1 -> 6 minutes here).
 7. **Validation rollouts** (``eval_seeds``, default 500-509): after BC and
    after each DAgger iteration the policy plays those seeds through
-   :func:`swarm_env.evaluation.run_episode`; ``eval.csv`` has one row per stage.
+   :func:`swarm_env.harness.evaluation.run_episode`; ``eval.csv`` has one row per stage.
 
 Outputs in ``out``: ``policy.safetensors`` + ``policy.json`` (what ``bc:OUT`` loads, no pickle)
 and SB3's ``model.zip`` + ``vecnormalize.pkl`` (:func:`swarm_env_baselines.model_io.save_model`), ``bc_config.json`` (the config, the
@@ -372,7 +372,7 @@ def dagger_rollouts(
     from swarm_env_baselines.demos import _stack, append_step, episode_arrays
     from swarm_env_baselines.model_io import SB3Policy
     from swarm_env.env import SwarmEnv
-    from swarm_env.policies import load_policy
+    from swarm_env.harness.policies import load_policy
 
     rng = rng if rng is not None else np.random.default_rng(0)
     env = SwarmEnv(scenario, **dict(env_kwargs or {}))
@@ -412,12 +412,12 @@ def dagger_rollouts(
 def evaluate_model(
     model: "PPO", vecnorm: "VecNormalize | None", scenario: str, seeds: Sequence[int], *, env_kwargs: dict[str, Any] | None = None, progress: bool = False
 ) -> dict[str, Any]:
-    """:func:`swarm_env.evaluation.summarize` of the deterministic policy on ``seeds`` (one evaluation path)."""
+    """:func:`swarm_env.harness.evaluation.summarize` of the deterministic policy on ``seeds`` (one evaluation path)."""
     from tqdm.auto import tqdm
 
     from swarm_env_baselines.model_io import SB3Policy
     from swarm_env.env import SwarmEnv
-    from swarm_env.evaluation import run_episode, summarize
+    from swarm_env.harness.evaluation import run_episode, summarize
 
     env = SwarmEnv(scenario, **dict(env_kwargs or {}))
     try:
@@ -610,7 +610,7 @@ def config_from_args(argv: list[str] | None = None) -> BCConfig:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env.policies import PolicyError, UnknownPolicyError
+    from swarm_env.harness.policies import PolicyError, UnknownPolicyError
 
     try:
         cfg = config_from_args(argv)

@@ -1,7 +1,7 @@
 """SB3 callbacks of a training run: progress bar, periodic evaluation on validation seeds, checkpoints.
 
 The evaluation callback scores the current model through the same path as the
-leaderboard (:func:`swarm_env.evaluation.run_episode` with
+leaderboard (:func:`swarm_env.harness.evaluation.run_episode` with
 :class:`~swarm_env_baselines.model_io.SB3Policy`), so "eval" numbers during training and
 leaderboard numbers mean the same thing.
 """
@@ -21,8 +21,8 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from swarm_env_baselines.model_io import SB3Policy, save_model
 from swarm_env.env import SwarmEnv
-from swarm_env.evaluation import run_episode, summarize
-from swarm_env.policies import ShieldedPolicy
+from swarm_env.harness.evaluation import run_episode, summarize
+from swarm_env.harness.policies import ShieldedPolicy
 
 #: Model selection score = formation error (m) + this many metres per collision (lower is better).
 COLLISION_COST_M = 0.1

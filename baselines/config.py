@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm_env.jsonio import dumps
-from swarm_env.leaderboard import parse_seeds
+from swarm_env.harness.leaderboard import parse_seeds
 
 __all__ = ["NET_ARCH", "TrainConfig", "field_help", "parse_seeds", "policy_kwargs"]
 
@@ -183,7 +183,7 @@ def add_dataclass_options(parser: "argparse.ArgumentParser", cls: type, *, requi
     """
     import argparse
 
-    from swarm_env.cli import parse_env_item
+    from swarm_env.harness.cli import parse_env_item
 
     def env_item(text: str) -> tuple[str, Any]:
         try:

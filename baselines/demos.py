@@ -7,7 +7,7 @@
 
 prints the path of the demonstration file. :func:`generate_demos` plays the
 registered policy ``expert`` (``vo``, ``cbs_rrt`` or any policy spec that
-:func:`swarm_env.policies.load_policy` accepts) for one episode per seed on
+:func:`swarm_env.harness.policies.load_policy` accepts) for one episode per seed on
 ``SwarmEnv(scenario, **env_kwargs)`` and records, per present follower per
 step:
 
@@ -34,7 +34,7 @@ followers per episode; only the present followers have rows.
 Cache: the file pair ``<cache_dir>/<expert>_<scenario>_<key>.npz`` (compressed
 arrays) and ``.json`` (metadata: the request, the number of transitions, the
 per-episode metrics from :meth:`SwarmEnv.episode_metrics` and their
-:func:`swarm_env.evaluation.summarize`). ``key`` is a hash of the request:
+:func:`swarm_env.harness.evaluation.summarize`). ``key`` is a hash of the request:
 expert spec, scenario, seeds, env kwargs, the ``swarm_env`` version and the file
 format version. The same request reuses the file (said on stderr); any
 difference regenerates it. The hash does not see code changes under an
@@ -166,7 +166,7 @@ def _record_episode(expert: str, scenario: str, env_kwargs: dict[str, Any], seed
     A module-level function so a process pool can pickle it.
     """
     from swarm_env.env import SwarmEnv
-    from swarm_env.policies import load_policy
+    from swarm_env.harness.policies import load_policy
 
     env = SwarmEnv(scenario, **env_kwargs)
     try:
@@ -306,7 +306,7 @@ def generate_demos(
     written to a temporary name and renamed, the ``.json`` last, so an
     interrupted run never leaves a file that looks complete.
     """
-    from swarm_env.evaluation import summarize
+    from swarm_env.harness.evaluation import summarize
 
     request = demo_request(expert, scenario, seeds, env_kwargs)
     path = demo_path(expert, scenario, seeds, env_kwargs=env_kwargs, cache_dir=cache_dir)
@@ -383,8 +383,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     from swarm_env_baselines.config import parse_seeds
-    from swarm_env.cli import parse_env_items
-    from swarm_env.policies import PolicyError, UnknownPolicyError
+    from swarm_env.harness.cli import parse_env_items
+    from swarm_env.harness.policies import PolicyError, UnknownPolicyError
 
     args = build_parser().parse_args(argv)
     try:

@@ -1,6 +1,6 @@
 """``python -m swarm_env_baselines.evaluate ...``: the leaderboard command, same as ``swarm-env evaluate ...``.
 
-One implementation lives in :mod:`swarm_env.leaderboard` (and :func:`swarm_env.cli.cmd_evaluate`);
+One implementation lives in :mod:`swarm_env.harness.leaderboard` (and :func:`swarm_env.harness.cli.cmd_evaluate`);
 this module forwards its arguments there. RL models take part as registered policies
 (``ppo:PATH``, ``bc:PATH``, ... in the ``swarm_env.policies`` entry-point group), like the experts.
 """
@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import sys
 
-from swarm_env.cli import main as swarm_env_main
+from swarm_env.harness.cli import main as swarm_env_main
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -97,7 +97,7 @@ def dagger(env: Any, actor: Any, obs_rms: RunningMeanStd, settings: DaggerSettin
     """
     import torch
 
-    from swarm_env.policies import load_policy
+    from swarm_env.harness.policies import load_policy
 
     expert = load_policy(settings.expert, env)
 

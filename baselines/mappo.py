@@ -217,8 +217,8 @@ def evaluate(policy: MAPPOPolicy, cfg: MAPPOConfig, seeds: list[int]) -> dict[st
     """Score ``policy`` on ``seeds`` with the leaderboard's episode loop, through the shield when the run
     executes through it (``shield="execute"``); ``score`` is formation error + 1 m per collision."""
     from swarm_env.env import SwarmEnv
-    from swarm_env.evaluation import run_episode, summarize
-    from swarm_env.policies import ShieldedPolicy
+    from swarm_env.harness.evaluation import run_episode, summarize
+    from swarm_env.harness.policies import ShieldedPolicy
 
     env = SwarmEnv(cfg.scenario, **cfg.env_kwargs)
     scored: Any = ShieldedPolicy.around(policy) if cfg.shield == "execute" else policy
@@ -312,7 +312,7 @@ class Trainer:
         self.ret_rms = RunningMeanStd(())
         self.experts: list[Any] = []
         if cfg.residual:
-            from swarm_env.policies import load_policy
+            from swarm_env.harness.policies import load_policy
 
             self.experts = [load_policy(cfg.residual, e.unwrapped) for e in self.envs]
         self.shield_params: Any = None
@@ -492,7 +492,7 @@ class Trainer:
     def policy(self) -> MAPPOPolicy:
         """The current actor as a deterministic policy (with frozen copies of the statistics)."""
         if self.cfg.residual:
-            from swarm_env.policies import load_policy
+            from swarm_env.harness.policies import load_policy
 
             expert = load_policy(self.cfg.residual, self.envs[0].unwrapped)
             return ResidualPolicy(self.actor, self.obs_rms.copy(), expert, self.cfg.residual_scale)

@@ -6,7 +6,7 @@ A run directory of :mod:`swarm_env_baselines.mappo` (and each of its ``best/``) 
     policy.json          {"format", "config" (the run's MAPPOConfig), "obs_rms", "state_rms"}
 
 Loading reads those two files and nothing else: no pickle, no code; a missing, truncated or
-corrupt file, or another kind of policy's, is a :class:`~swarm_env.policies.ModelFileError`
+corrupt file, or another kind of policy's, is a :class:`~swarm_env.harness.policies.ModelFileError`
 naming the file (``swarm-env run`` exits with code 2). The policy acts with the
 actor's mean (deterministic), on one torch thread, so an episode is the same bit for bit in
 any process (``tests/test_mappo.py`` checks it across processes).
@@ -16,9 +16,9 @@ Policy specs (entry points of the ``swarm_env.policies`` group):
 * ``ippo``, ``mappo``, ``mappo_shielded``, ``residual_vo`` — the shipped methods
   (``baselines/checkpoints/<method>/s<k>``), each trained with three seeds: the bare name is
   seed 0 for ``swarm-env run`` and all three seeds for a leaderboard
-  (:func:`swarm_env.policies.training_runs`), ``NAME:s1`` one seed, ``NAME:PATH`` any run
+  (:func:`swarm_env.harness.policies.training_runs`), ``NAME:s1`` one seed, ``NAME:PATH`` any run
   directory of :mod:`swarm_env_baselines.mappo` (or its ``best/``; a residual run brings its expert along). ``mappo_shielded`` and ``residual_vo`` execute through the safety layer
-  (:class:`swarm_env.policies.ShieldedPolicy`), as they were trained; ``mappo_shielded_bare``
+  (:class:`swarm_env.harness.policies.ShieldedPolicy`), as they were trained; ``mappo_shielded_bare``
   is ``mappo_shielded``'s networks acting alone.
 """
 
@@ -32,7 +32,7 @@ import numpy as np
 
 from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
 from swarm_env.jsonio import write_json
-from swarm_env.policies import OBSERVATIONS, STATE
+from swarm_env.harness.policies import OBSERVATIONS, STATE
 from swarm_env.state import WorldState
 
 FORMAT = "swarm_env.mappo/1"
@@ -55,7 +55,7 @@ class MAPPOPolicy:
         self.name = name
 
     def reset(self, env: Any, seed: int | None) -> None:
-        from swarm_env.policies import PolicyError
+        from swarm_env.harness.policies import PolicyError
 
         base = env.unwrapped
         have = base.observation_space(base.possible_agents[0]).shape[0] + self.extra_inputs
@@ -181,7 +181,7 @@ def load_run_policy(directory: str | Path, env: Any | None = None, name: str | N
 def _policy_of_run(config: dict[str, Any], actor: Any, obs_rms: RunningMeanStd, env: Any | None, label: str) -> MAPPOPolicy:
     expert_spec = config.get("residual")
     if expert_spec:
-        from swarm_env.policies import load_policy
+        from swarm_env.harness.policies import load_policy
 
         if env is None:
             raise ValueError(f"{label}: a residual run needs the env to build its expert {expert_spec!r}")
@@ -193,7 +193,7 @@ def _policy_of_run(config: dict[str, Any], actor: Any, obs_rms: RunningMeanStd, 
 
 
 def _load(env: Any, path: str | Path, name: str) -> MAPPOPolicy:
-    from swarm_env.policies import ModelFileError, PolicyError, UnknownPolicyError
+    from swarm_env.harness.policies import ModelFileError, PolicyError, UnknownPolicyError
 
     try:
         config, actor, obs_rms = read_run(path)
@@ -219,7 +219,7 @@ def shipped_run(method: str, seed: str) -> Path:
 def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str, acts_on: str = OBSERVATIONS
                     ) -> Callable[..., Any]:
     def factory(env: Any, arg: str | None = None) -> Any:
-        from swarm_env.policies import ShieldedPolicy
+        from swarm_env.harness.policies import ShieldedPolicy
 
         # No argument: the first training seed; ``s<k>``: that shipped seed; anything else: a run directory.
         run = shipped_run(checkpoints, arg or SHIPPED_SEEDS[0]) if arg in (None, *SHIPPED_SEEDS) else Path(arg)

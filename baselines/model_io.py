@@ -14,8 +14,8 @@ comes from the safe pair: a policy spec loads it (``PATH`` may be the directory 
 statistics from it, or, for an older directory without it, the tensors from ``model.zip``'s
 ``policy.pth`` (read by torch with ``weights_only=True``: data only). What must unpickle, an older
 directory as a policy, its ``vecnormalize.pkl``, and :func:`load_model` (the whole SB3 model), is
-refused with a :class:`~swarm_env.policies.ModelFileError` unless the caller opts in
-(:func:`swarm_env.policies.pickle_trusted`: ``trust_pickle=True``, ``SWARM_ENV_TRUST_PICKLE=1``,
+refused with a :class:`~swarm_env.harness.policies.ModelFileError` unless the caller opts in
+(:func:`swarm_env.harness.policies.pickle_trusted`: ``trust_pickle=True``, ``SWARM_ENV_TRUST_PICKLE=1``,
 or ``--trust-pickle`` on the command lines). ``python -m swarm_env_baselines.safe_io DIR --trust-pickle``
 converts such a directory once.
 
@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.policies import OBSERVATIONS, ModelFileError, PolicyError
+from swarm_env.harness.policies import OBSERVATIONS, ModelFileError, PolicyError
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -138,7 +138,7 @@ def check_sb3_zip(path: Path, algo: str) -> dict[str, Any]:
 
 def load_vecnormalize(path: Path, *, trust_pickle: bool | None = None) -> "VecNormalize":
     """The pickled ``VecNormalize`` in ``path`` (without its venv: ``normalize_obs`` still works), in
-    evaluation mode. Refused unless pickles are trusted (:func:`~swarm_env.policies.pickle_trusted`);
+    evaluation mode. Refused unless pickles are trusted (:func:`~swarm_env.harness.policies.pickle_trusted`);
     a :class:`ModelFileError` naming the file if it is not a readable VecNormalize pickle."""
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -178,7 +178,7 @@ def load_model(path: str | Path, algo: str = "ppo", *, trust_pickle: bool | None
     VecNormalize statistics saved beside it (or ``None``).
 
     Both unpickle, so both are refused unless pickles are trusted
-    (:func:`~swarm_env.policies.pickle_trusted`: ``trust_pickle`` or ``SWARM_ENV_TRUST_PICKLE``).
+    (:func:`~swarm_env.harness.policies.pickle_trusted`: ``trust_pickle`` or ``SWARM_ENV_TRUST_PICKLE``).
     Raises ``FileNotFoundError`` for a missing model and :class:`ModelFileError` (one line naming
     the file) for a refused, truncated, corrupt or other-algorithm file; a corrupt archive or another
     algorithm is reported before anything is unpickled.

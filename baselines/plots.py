@@ -150,7 +150,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", required=True, help="PNG to write")
     args = parser.parse_args(argv)
-    from swarm_env.leaderboard import parse_seeds, run_leaderboard
+    from swarm_env.harness.leaderboard import parse_seeds, run_leaderboard
 
     try:
         runs = shipped_eval_csvs(args.methods)

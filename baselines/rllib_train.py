@@ -175,7 +175,7 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
 
 def make_rllib_policy(env: Any, arg: str | None = None) -> Any:
     """Entry point ``rllib:DIR``: the actor exported by ``swarm-env train rllib --out DIR``."""
-    from swarm_env.policies import ModelFileError, PolicyError
+    from swarm_env.harness.policies import ModelFileError, PolicyError
 
     if not arg:
         raise PolicyError("policy 'rllib' needs a run directory: rllib:DIR (written by swarm-env train rllib)")
@@ -197,8 +197,8 @@ def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = Tr
           trust_pickle: bool | None = None) -> list[dict[str, Any]]:
     """Train until ``cfg.total_steps`` env steps, then export the actor into ``out`` (see the module
     docstring). Returns the per-iteration rows of ``train.csv``. ``resume`` restores RLlib's checkpoint,
-    which unpickles: refused (a :class:`~swarm_env.policies.ModelFileError`) unless ``trust_pickle``
-    (:func:`swarm_env.policies.pickle_trusted`)."""
+    which unpickles: refused (a :class:`~swarm_env.harness.policies.ModelFileError`) unless ``trust_pickle``
+    (:func:`swarm_env.harness.policies.pickle_trusted`)."""
     if resume:
         from swarm_env_baselines.safe_io import refuse_pickle
 
@@ -286,7 +286,7 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     import yaml
 
-    from swarm_env.policies import ModelFileError
+    from swarm_env.harness.policies import ModelFileError
 
     env_kwargs = {}
     for item in args.env:

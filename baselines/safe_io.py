@@ -15,7 +15,7 @@ to a warm start. Training state (optimizer, replay buffer, schedules) is not par
 
 Every reader here raises ``ValueError`` with one line naming the file and what is wrong
 (:func:`read_tensors`, :func:`read_description`); the policy loaders turn it into a
-:class:`~swarm_env.policies.ModelFileError`.
+:class:`~swarm_env.harness.policies.ModelFileError`.
 """
 
 from __future__ import annotations
@@ -186,10 +186,10 @@ def _loader_of(fmt: Any) -> str | None:
 
 
 def refuse_pickle(path: Path, what: str, trust_pickle: bool | None, convert: bool = True) -> None:
-    """Raise a :class:`~swarm_env.policies.ModelFileError` about ``path`` (which would unpickle ``what``)
-    unless pickles are trusted (:func:`swarm_env.policies.pickle_trusted` of ``trust_pickle``); the
+    """Raise a :class:`~swarm_env.harness.policies.ModelFileError` about ``path`` (which would unpickle ``what``)
+    unless pickles are trusted (:func:`swarm_env.harness.policies.pickle_trusted` of ``trust_pickle``); the
     message says how to opt in and, with ``convert``, how to convert the directory once instead."""
-    from swarm_env.policies import ModelFileError, pickle_trusted
+    from swarm_env.harness.policies import ModelFileError, pickle_trusted
 
     if pickle_trusted(trust_pickle):
         return

@@ -128,7 +128,7 @@ def _warm_start(model: Any, venv: Any, cfg: TrainConfig, trust_pickle: bool | No
 
 def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
     """Run ``cfg`` to completion and return the run directory. ``trust_pickle``: whether ``init_from``
-    may be unpickled (:func:`swarm_env.policies.pickle_trusted`; default: ``SWARM_ENV_TRUST_PICKLE``)."""
+    may be unpickled (:func:`swarm_env.harness.policies.pickle_trusted`; default: ``SWARM_ENV_TRUST_PICKLE``)."""
     import torch
     from stable_baselines3.common.callbacks import CallbackList
     from stable_baselines3.common.vec_env import VecNormalize

@@ -30,7 +30,7 @@ from typing import Any
 
 import swarm_env
 from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
-from swarm_env.evaluation import run_episode
+from swarm_env.harness.evaluation import run_episode
 from swarm_env.jsonio import dumps
 
 

@@ -2,7 +2,7 @@
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/engine_breakdown.py [--worlds 64] [--steps 40] [--repeats 3]
 
-Steps ``swarm_env.vector.SwarmVectorEnv("random", M, **swarm_env.bench.BATCH_WORLD)`` with random
+Steps ``swarm_env.vector.SwarmVectorEnv("random", M, **swarm_env.harness.bench.BATCH_WORLD)`` with random
 actions, timing each stage separately (median over repeats, microseconds per world-step):
 ``physics`` (pymunk substeps with the drive callbacks, the humans and the leader, the slot
 targets: ``World.step``), ``snapshot`` (``World.snapshot``), ``rewards`` (slot distances,
@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from swarm_env.bench import BATCH_WORLD
+from swarm_env.harness.bench import BATCH_WORLD
 from swarm_env.observations import lidar_input
 from swarm_env.rewards import compute_rewards, slot_distance, touching_per_follower
 from swarm_env.vector import SwarmVectorEnv

@@ -14,7 +14,7 @@ import argparse
 import numpy as np
 
 import swarm_env
-from swarm_env.policies import load_policy
+from swarm_env.harness.policies import load_policy
 from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS, contact_counts, reward_terms
 
 

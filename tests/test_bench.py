@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from swarm_env.bench import run_batched_bench, run_followers_bench
-from swarm_env.cli import main
+from swarm_env.harness.bench import run_batched_bench, run_followers_bench
+from swarm_env.harness.cli import main
 from swarm_env.extras import MissingExtraError
 
 

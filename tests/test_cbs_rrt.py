@@ -21,9 +21,9 @@ from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitiv
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
 from swarm_env_agents.cbs_rrt.timed_path import PRIM, TAIL, WAIT, TimedPath
 from swarm_env.env import SwarmEnv
-from swarm_env.evaluation import run_episode
+from swarm_env.harness.evaluation import run_episode
 from swarm_env.geometry import StaticMap
-from swarm_env.policies import load_policy
+from swarm_env.harness.policies import load_policy
 from swarm_env.scenario import CircleObstacle, RectangleObstacle
 from swarm_env.scenario_io import load_scenario, scenario_from_dict
 

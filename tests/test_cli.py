@@ -11,7 +11,7 @@ from pathlib import Path
 import imageio.v2 as imageio
 import pytest
 
-from swarm_env.cli import main
+from swarm_env.harness.cli import main
 
 GOOD = """\
 world: {size: [10, 8], dt: 0.1, substeps: 4, max_time: 5.0}
@@ -63,7 +63,7 @@ def test_validate_reports_every_error_and_accepts_random(tmp_path: Path, capsys:
 def test_run_shows_policy_stats_as_a_table_and_video_progress(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    import swarm_env.cli as cli
+    import swarm_env.harness.cli as cli
 
     argv = ["run", "--scenario", "paper_vo_45", "--policy", "vo", "--max-cycles", "5", "--video", str(tmp_path / "v.mp4")]
     assert main(argv) == 0  # not at a terminal (pytest captures stderr): no progress bar
@@ -72,10 +72,10 @@ def test_run_shows_policy_stats_as_a_table_and_video_progress(
     lines = captured.out.splitlines()
     head = lines.index(next(line for line in lines if line.startswith("policy stat ")))
     assert lines[head].split() == ["policy", "stat", "value"] and set(lines[head + 1].replace(" ", "")) == {"-"}
-    rows = {line.split()[0]: line.split(None, 1)[1] for line in lines[head + 2 : head + 7]}
+    rows = {line.split()[0]: line.split(None, 1)[1] for line in lines[head + 2 : head + 6]}
     assert rows["decision_time_ms"].startswith("median=") and "calls=5" in rows["decision_time_ms"]
-    assert set(rows) == {"decision_time_ms", "infeasible_events", "infeasible_rate", "escape_turns", "min_clearance"}
-    assert max(len(line) for line in lines[head : head + 7]) < 100  # a small table, not one long JSON line
+    assert set(rows) == {"decision_time_ms", "infeasible_events", "infeasible_rate", "escape_turns"}
+    assert max(len(line) for line in lines[head : head + 6]) < 100  # a small table, not one long JSON line
 
     monkeypatch.setattr(cli, "_interactive", lambda: True)  # as at a terminal
     assert main(argv) == 0
@@ -130,7 +130,7 @@ def test_bench_against_mpe2_prints_a_ratio(capsys: pytest.CaptureFixture[str]) -
 
 
 def test_module_entry_point() -> None:
-    out = subprocess.run([sys.executable, "-m", "swarm_env.cli", "validate", "paper_vo_90"], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "swarm_env.harness.cli", "validate", "paper_vo_90"], capture_output=True,
                          text=True)
     assert out.returncode == 0 and "ok: paper_vo_90" in out.stdout
 

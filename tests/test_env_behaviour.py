@@ -14,14 +14,14 @@ import numpy as np
 import pytest
 
 import swarm_env
-from swarm_env.policies import RandomPolicy
+from swarm_env.harness.policies import RandomPolicy
 
 EPISODE_DIGEST = textwrap.dedent(
     """
     import hashlib, sys
     import numpy as np
     import swarm_env
-    from swarm_env.policies import RandomPolicy
+    from swarm_env.harness.policies import RandomPolicy
 
     def digest(name, seed, max_cycles=None):
         env = swarm_env.parallel_env(name, max_cycles=max_cycles)

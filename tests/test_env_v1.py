@@ -260,7 +260,7 @@ def test_generated_scenarios_pass_the_yaml_gate() -> None:
 
 
 def test_the_clearance_reward_screen_changes_no_value() -> None:
-    from swarm_env.policies import load_policy
+    from swarm_env.harness.policies import load_policy
     from swarm_env.rewards import clearance
 
     inside = 0

@@ -14,9 +14,9 @@ from typing import Any
 import imageio.v2 as imageio
 import pytest
 
-import swarm_env.leaderboard as lb
-from swarm_env.cli import main
-from swarm_env.leaderboard import (
+import swarm_env.harness.leaderboard as lb
+from swarm_env.harness.cli import main
+from swarm_env.harness.leaderboard import (
     TIMING_KEYS,
     Leaderboard,
     Row,
@@ -27,7 +27,7 @@ from swarm_env.leaderboard import (
     run_leaderboard,
     safe_name,
 )
-from swarm_env.policies import UnknownPolicyError
+from swarm_env.harness.policies import UnknownPolicyError
 
 SHORT = {"max_cycles": 20}
 SEEDS = {"paper_vo_0": [0, 1, 2], "random": [1000, 1001, 1002]}
@@ -247,8 +247,8 @@ def test_worst_episode_video_is_replayed_from_its_record(tmp_path: Path, monkeyp
 def test_recording_leaves_the_metrics_unchanged() -> None:
     """The leaderboard records every episode it plays; the metrics are those of a plain run_episode."""
     from swarm_env.env import SwarmEnv
-    from swarm_env.evaluation import run_episode
-    from swarm_env.policies import load_policy
+    from swarm_env.harness.evaluation import run_episode
+    from swarm_env.harness.policies import load_policy
 
     board = run_leaderboard(["random"], ["random"], [1000, 1001], env_kwargs={"max_cycles": 20}, progress=False)
     env = SwarmEnv("random", max_cycles=20)
@@ -321,7 +321,7 @@ def test_na_row_in_a_markdown_cell_escapes_pipes() -> None:
 def test_paired_differences_pair_by_seed(tmp_path, capsys) -> None:
     import json as _json
 
-    from swarm_env import paired
+    from swarm_env.harness import paired
 
     def ep(policy, seed, collisions, err):
         return {"policy": policy, "scenario": "random", "seed": seed,
@@ -344,7 +344,7 @@ def test_paired_differences_pair_by_seed(tmp_path, capsys) -> None:
 @pytest.fixture()
 def trio(monkeypatch: pytest.MonkeyPatch) -> str:
     """A fake learned method with three 'training seeds' (pursuit with three time gaps)."""
-    from swarm_env import policies
+    from swarm_env.harness import policies
 
     def factory(env: Any, arg: str | None = None) -> Any:
         return policies.PursuitPolicy(env, {"s0": "0.3", "s1": "0.5", "s2": "0.9"}[arg or "s0"])
@@ -356,7 +356,7 @@ def trio(monkeypatch: pytest.MonkeyPatch) -> str:
 
 def test_a_method_is_played_per_training_seed_and_aggregated_across_seeds(
         trio: str, tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    from swarm_env.policies import training_runs
+    from swarm_env.harness.policies import training_runs
 
     assert training_runs("trio") == ("trio:s0", "trio:s1", "trio:s2")
     assert training_runs("trio:s1") == ("trio:s1",) and training_runs("pursuit") == ("pursuit",)
@@ -388,7 +388,7 @@ def test_a_method_is_played_per_training_seed_and_aggregated_across_seeds(
     assert back.to_markdown() == md
     (worst,) = [w for w in board.worst_episodes() if w.get("method") == "trio"]  # one worst episode per method
 
-    from swarm_env import paired
+    from swarm_env.harness import paired
 
     doc = json.loads((tmp_path / "lb.json").read_text())
     d = paired.paired_differences(doc, "trio", "pursuit", "random")

@@ -15,8 +15,8 @@ pytest.importorskip("safetensors")
 from swarm_env_baselines import mappo, mappo_policy  # noqa: E402
 from swarm_env_baselines.ppo_core import RunningMeanStd, gae  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.evaluation import run_episode  # noqa: E402
-from swarm_env.policies import PolicyError, ShieldedPolicy, load_policy  # noqa: E402
+from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.policies import PolicyError, ShieldedPolicy, load_policy  # noqa: E402
 
 TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 1, "max_cycles": 30}
 TINY_PRETRAIN = {"pretrain_rounds": 2, "pretrain_episodes": 2, "pretrain_epochs": 1}
@@ -64,7 +64,7 @@ def test_dagger_warm_start_fits_the_expert_and_freezes_the_statistics() -> None:
     from swarm_env_baselines.ppo_core import mlp
 
     from swarm_env_baselines.imitation import rollouts
-    from swarm_env.policies import load_policy
+    from swarm_env.harness.policies import load_policy
 
     torch.manual_seed(0)
     env = SwarmEnv("random", **TINY_ENV)
@@ -183,7 +183,7 @@ def test_a_learned_policy_plays_the_same_episode_bit_for_bit_in_other_processes(
     import subprocess
     import sys
 
-    from swarm_env.leaderboard import TIMING_KEYS, run_leaderboard
+    from swarm_env.harness.leaderboard import TIMING_KEYS, run_leaderboard
 
     run = mappo.train(_cfg(tmp_path, total_steps=512, eval_every=0))
     spec = f"mappo:{run}"
@@ -196,12 +196,12 @@ def test_a_learned_policy_plays_the_same_episode_bit_for_bit_in_other_processes(
 
     code = (
         "import json, sys\n"
-        "from swarm_env.leaderboard import run_leaderboard\n"
+        "from swarm_env.harness.leaderboard import run_leaderboard\n"
         f"b = run_leaderboard({[spec, 'pursuit']!r}, ['random'], [1000, 1001], env_kwargs={env_kwargs!r}, "
         "workers=int(sys.argv[1]), progress=False)\n"
         "json.dump(b.to_dict(), sys.stdout)\n"
     )
-    from swarm_env.leaderboard import Leaderboard
+    from swarm_env.harness.leaderboard import Leaderboard
 
     for hashseed, threads, workers in (("1", "1", 1), ("999", "2", 2)):
         env = {**os.environ, "PYTHONHASHSEED": hashseed, "OPENBLAS_NUM_THREADS": threads, "OMP_NUM_THREADS": threads}
@@ -241,7 +241,7 @@ def test_a_finished_clean_run_ships_with_its_records_and_a_readme(tmp_path) -> N
 
 
 def test_what_each_policy_acts_on_is_declared() -> None:
-    from swarm_env.policies import acts_on
+    from swarm_env.harness.policies import acts_on
 
     assert [acts_on(s) for s in ("ippo", "mappo", "mappo_shielded_bare", "ppo", "bc:x")] == ["observations"] * 5
     assert acts_on("mappo_shielded") == "observations + shield" and acts_on("shield:ppo") == "observations + shield"

@@ -10,8 +10,8 @@ import pytest
 
 import swarm_env
 from swarm_env.env import SwarmEnv
-from swarm_env.evaluation import evaluate, run_episode, summarize
-from swarm_env.policies import PredictPolicy, RandomPolicy, UnknownPolicyError, ZeroPolicy, load_policy, registered_policies
+from swarm_env.harness.evaluation import evaluate, run_episode, summarize
+from swarm_env.harness.policies import PredictPolicy, RandomPolicy, UnknownPolicyError, ZeroPolicy, load_policy, registered_policies
 from swarm_env.scenario_io import scenario_from_dict
 from swarm_env.state import WorldState
 
@@ -83,9 +83,9 @@ def test_standing_still_never_settles_after_the_switch() -> None:
 
 def test_registry_lists_builtin_policies_from_entry_points() -> None:
     names = registered_policies()
-    assert names["random"] == "swarm_env.policies:RandomPolicy"
-    assert names["zero"] == "swarm_env.policies:ZeroPolicy"
-    assert names["pursuit"] == "swarm_env.policies:PursuitPolicy"
+    assert names["random"] == "swarm_env.harness.policies:RandomPolicy"
+    assert names["zero"] == "swarm_env.harness.policies:ZeroPolicy"
+    assert names["pursuit"] == "swarm_env.harness.policies:PursuitPolicy"
 
 
 def test_pursuit_policy_tracks_slots_in_open_space() -> None:
@@ -163,7 +163,7 @@ def test_min_clearance_and_separation_equal_a_brute_force_minimum(name: str) -> 
 
 
 def test_parse_policy_kwargs_converts_by_the_defaults_types() -> None:
-    from swarm_env.policies import parse_policy_kwargs
+    from swarm_env.harness.policies import parse_policy_kwargs
 
     class Expert:
         def __init__(self, *, gain: float = 1.0, samples: int = 7, on: bool = True, limit: float | None = None,

@@ -27,10 +27,10 @@ pytest.importorskip("safetensors")
 from swarm_env_baselines import model_io, safe_io  # noqa: E402
 from swarm_env_baselines import train as train_mod  # noqa: E402
 from swarm_env_baselines.mappo_policy import shipped_run  # noqa: E402
-from swarm_env import cli  # noqa: E402
+from swarm_env.harness import cli  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.evaluation import run_episode  # noqa: E402
-from swarm_env.policies import TRUST_PICKLE_ENV, ModelFileError, PolicyError, load_policy, pickle_trusted  # noqa: E402
+from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.policies import TRUST_PICKLE_ENV, ModelFileError, PolicyError, load_policy, pickle_trusted  # noqa: E402
 from tests.test_safe_io import _Payload  # noqa: E402
 from tests.test_train import TINY_ENV, _tiny  # noqa: E402
 
@@ -302,7 +302,7 @@ def test_resuming_an_rllib_run_asks_for_the_opt_in(tmp_path, capsys) -> None:
 @pytest.mark.ray
 def test_the_ray_backend_reports_a_refused_file_in_one_line_and_passes_the_opt_in(run, tmp_path, monkeypatch) -> None:
     pytest.importorskip("ray")
-    from swarm_env.leaderboard import run_leaderboard
+    from swarm_env.harness.leaderboard import run_leaderboard
 
     d = _legacy(run, tmp_path / "old")
     args = ([f"ppo:{d}"], ["random"], {"random": [1000]})

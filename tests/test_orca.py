@@ -7,9 +7,9 @@ import sys
 import pytest
 
 from swarm_env.env import SwarmEnv
-from swarm_env.evaluation import run_episode
+from swarm_env.harness.evaluation import run_episode
 from swarm_env.extras import MissingExtraError
-from swarm_env.policies import acts_on, load_policy
+from swarm_env.harness.policies import acts_on, load_policy
 
 
 def test_orca_follows_the_formation_without_collisions() -> None:

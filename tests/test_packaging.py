@@ -18,9 +18,9 @@ import pytest
 
 import swarm_env
 from swarm_env import extras
-from swarm_env.cli import MODULE_COMMANDS, main
+from swarm_env.harness.cli import MODULE_COMMANDS, main
 from swarm_env.extras import MissingExtraError
-from swarm_env.policies import load_policy, policy_extra
+from swarm_env.harness.policies import load_policy, policy_extra
 
 ROOT = Path(__file__).resolve().parents[1]
 INSTALLED = {"swarm_env": ROOT / "swarm_env", "swarm_env_agents": ROOT / "agents",

@@ -12,7 +12,7 @@ pytestmark = pytest.mark.ray
 ray = pytest.importorskip("ray")
 pytest.importorskip("ray.rllib")
 
-from swarm_env.leaderboard import _behaviour, run_leaderboard  # noqa: E402
+from swarm_env.harness.leaderboard import _behaviour, run_leaderboard  # noqa: E402
 
 
 def _episodes(board) -> list[dict]:
@@ -34,8 +34,8 @@ def test_rllib_ppo_trains_and_its_exported_actor_is_the_modules_mean(tmp_path: P
 
     from swarm_env_baselines.rllib_train import RLlibConfig, build_config, export_policy, load_rllib_policy, train
     from swarm_env.env import SwarmEnv
-    from swarm_env.evaluation import run_episode
-    from swarm_env.policies import load_policy
+    from swarm_env.harness.evaluation import run_episode
+    from swarm_env.harness.policies import load_policy
 
     cfg = RLlibConfig("paper_vo_90", {"max_cycles": 50}, total_steps=300, num_env_runners=1,
                       train_batch_size=200, minibatch_size=100, num_epochs=1, num_cpus=2)
@@ -79,7 +79,7 @@ def test_rllib_ppo_trains_and_its_exported_actor_is_the_modules_mean(tmp_path: P
 
 
 def test_the_command_line_runs_on_ray(tmp_path: Path, capsys) -> None:
-    from swarm_env.cli import main
+    from swarm_env.harness.cli import main
 
     out = tmp_path / "lb"
     assert main(["evaluate", "--policies", "pursuit", "--scenarios", "paper_vo_90", "--seeds", "0", "--backend", "ray",

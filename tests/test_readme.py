@@ -92,8 +92,14 @@ def parse_command(cmd: list[str]) -> None:
     """Check one command without running it (the rules in the module docstring); ``AssertionError`` if it
     would fail to start."""
     if cmd[0] == "swarm-env":
-        from swarm_env.cli import build_parser
+        from swarm_env.harness.cli import MODULE_COMMANDS, build_parser
 
+        for words, (module, _) in MODULE_COMMANDS.items():  # `swarm-env train mappo ...`: that module's parser
+            if tuple(cmd[1 : 1 + len(words)]) == words:
+                mod = importlib.import_module(module)
+                assert hasattr(mod, "build_parser"), f"{shlex.join(cmd)}: {module} has no build_parser to check it"
+                _parse(mod.build_parser(), cmd[1 + len(words):], cmd)
+                return
         _parse(build_parser(), cmd[1:], cmd)
     elif cmd[0] in ("python", "python3") and cmd[1] == "-m" and cmd[2] != "pytest":
         module = importlib.import_module(cmd[2])
@@ -143,7 +149,7 @@ def test_markers_are_known_and_blocks_found() -> None:
 def test_first_command_shows_an_expert_with_a_video() -> None:
     """The first command a reader meets runs an expert (not the no-avoidance baseline) and writes a video."""
     first = next(c for b in blocks() if b.lang == "bash" for c in commands(b.text) if c[0] == "swarm-env")
-    args = __import__("swarm_env.cli", fromlist=["build_parser"]).build_parser().parse_args(first[1:])
+    args = __import__("swarm_env.harness.cli", fromlist=["build_parser"]).build_parser().parse_args(first[1:])
     assert args.command == "run" and args.policy.split(":")[0] in ("vo", "cbs_rrt") and args.video, first
 
 

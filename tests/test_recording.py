@@ -1,4 +1,4 @@
-"""Record and replay (swarm_env.recording): the files, a replay in a fresh process, divergences named at
+"""Record and replay (swarm_env.harness.recording): the files, a replay in a fresh process, divergences named at
 their step, videos of replays, and the run/replay command line."""
 
 from __future__ import annotations
@@ -15,12 +15,12 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 
-from swarm_env.cli import main
+from swarm_env.harness.cli import main
 from swarm_env.env import SwarmEnv
-from swarm_env.evaluation import run_episode
-from swarm_env.leaderboard import _behaviour
-from swarm_env.policies import load_policy
-from swarm_env.recording import (
+from swarm_env.harness.evaluation import run_episode
+from swarm_env.harness.leaderboard import _behaviour
+from swarm_env.harness.policies import load_policy
+from swarm_env.harness.recording import (
     FORMAT_VERSION,
     RecordError,
     ReplayDivergence,
@@ -69,7 +69,7 @@ def test_record_files_and_metrics(tmp_path: Path, capsys: pytest.CaptureFixture[
     assert "wrote" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == ["episode_0", "episode_1"]  # no temporary folders left
     meta = json.loads((out / "episode_1" / "meta.json").read_text())
-    assert (meta["format"], meta["version"], meta["episode"], meta["seed"]) == ("swarm_env.recording", FORMAT_VERSION, 1, 4)
+    assert (meta["format"], meta["version"], meta["episode"], meta["seed"]) == ("swarm_env.harness.recording", FORMAT_VERSION, 1, 4)
     assert (meta["policy"], meta["scenario"], meta["steps"], meta["digest_every"]) == ("random", "random", STEPS, 1)
     rec = load_episode(out / "episode_1")
     # the resolved world: what the generator made for seed 4, read back from scenario.yaml
@@ -88,7 +88,7 @@ def test_record_files_and_metrics(tmp_path: Path, capsys: pytest.CaptureFixture[
 def test_replay_checks_in_a_fresh_process(tmp_path: Path) -> None:
     out = _record(tmp_path)
     env = {**os.environ, "SDL_VIDEODRIVER": "dummy"}
-    proc = subprocess.run([sys.executable, "-m", "swarm_env.cli", "replay", str(out), "--check"],
+    proc = subprocess.run([sys.executable, "-m", "swarm_env.harness.cli", "replay", str(out), "--check"],
                           capture_output=True, text=True, env=env, timeout=300)
     assert proc.returncode == 0, proc.stderr
     for k in (0, 1):

@@ -38,7 +38,7 @@ from swarm_env.scenario import (  # noqa: E402
     WorldSpec,
 )
 from swarm_env.state import Contact, WorldState  # noqa: E402
-from swarm_env.video import VideoWriter, save_frame_png  # noqa: E402
+from swarm_env.harness.video import VideoWriter, save_frame_png  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 W, H = 16.0, 10.0
@@ -246,7 +246,7 @@ def test_pickle_and_deepcopy_after_render(rendered) -> None:
 
 
 def test_import_does_not_import_pygame() -> None:
-    code = "import sys, swarm_env.render, swarm_env.video, swarm_env; assert 'pygame' not in sys.modules, 'pygame imported'"
+    code = "import sys, swarm_env.render, swarm_env.harness.video, swarm_env; assert 'pygame' not in sys.modules, 'pygame imported'"
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     res = subprocess.run([sys.executable, "-c", code], cwd=ROOT, env=env, capture_output=True, text=True, timeout=60)
     assert res.returncode == 0, res.stderr

@@ -8,8 +8,8 @@ from pettingzoo.test import parallel_api_test
 
 import swarm_env
 from swarm_env.env import SwarmEnv
-from swarm_env.evaluation import run_episode
-from swarm_env.policies import PolicyError, load_policy
+from swarm_env.harness.evaluation import run_episode
+from swarm_env.harness.policies import PolicyError, load_policy
 from swarm_env.safety import AvoidanceParams, safe_follower_twists, shield_actions
 from swarm_env.wrappers import SHIELD_INFO_KEYS, SafetyShield
 from tests.test_physics import _scenario

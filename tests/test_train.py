@@ -13,8 +13,8 @@ from swarm_env_baselines import train as train_mod  # noqa: E402
 from swarm_env_baselines.config import TrainConfig, field_help, parse_seeds  # noqa: E402
 from swarm_env_baselines.model_io import SB3Policy, load_model, load_warm_start  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.evaluation import run_episode  # noqa: E402
-from swarm_env.policies import PolicyError, load_policy  # noqa: E402
+from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.policies import PolicyError, load_policy  # noqa: E402
 
 TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 0, "world_size": [10.0, 10.0], "max_cycles": 30}
 
@@ -177,7 +177,7 @@ def test_loading_for_training_keeps_the_thread_count_but_scoring_uses_one(tmp_pa
 def test_a_shielded_run_trains_and_evaluates_through_the_safety_layer(tmp_path):
     import csv
 
-    from swarm_env.policies import ShieldedPolicy
+    from swarm_env.harness.policies import ShieldedPolicy
 
     run = train_mod.train(_tiny(tmp_path, shield=True, checkpoint_every=0))
     assert json.loads((run / "config.json").read_text())["shield"] is True

@@ -17,7 +17,7 @@ import pytest
 
 from swarm_env_agents.vo_expert import VOExpert, make_policy
 from swarm_env.env import SwarmEnv
-from swarm_env.evaluation import run_episode
+from swarm_env.harness.evaluation import run_episode
 from swarm_env.geometry import StaticMap
 from swarm_env.guidance import (
     pure_pursuit,
@@ -27,7 +27,7 @@ from swarm_env.guidance import (
     vo_select,
     vo_select_batch,
 )
-from swarm_env.policies import load_policy
+from swarm_env.harness.policies import load_policy
 from swarm_env.scenario import PolygonObstacle, RectangleObstacle
 from swarm_env.scenario_io import scenario_from_dict
 

@@ -33,7 +33,7 @@ from swarm_env_agents.cbs_rrt.goals import GoalWindow
 from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert, ReplanRecord
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec
 from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
-from swarm_env.evaluation import run_episode
+from swarm_env.harness.evaluation import run_episode
 from swarm_env.jsonio import write_json
 from swarm_env.state import WorldState
 
@@ -246,7 +246,7 @@ def _fmt(x: Any, nd: int = 1) -> str:
 def run_reference(spec: str) -> dict[str, Any]:
     """One episode of another policy on the scenario (``vo``, ``orca``: both deterministic)."""
     from swarm_env.env import SwarmEnv
-    from swarm_env.policies import load_policy
+    from swarm_env.harness.policies import load_policy
 
     env = SwarmEnv(SCENARIO)
     return run_episode(env, load_policy(spec, env), 0)

@@ -69,7 +69,7 @@ from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
 from swarm_env_agents.cbs_rrt.timed_path import TimedPath
 from swarm_env.guidance import pure_pursuit
 from swarm_env.paths import human_states
-from swarm_env.policies import expert_factory
+from swarm_env.harness.policies import expert_factory
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -102,7 +102,7 @@ class ReplanRecord:
 class CBSRRTExpert:
     """Centralized CBS + motion-primitive RRT planner with pure-pursuit tracking (paper 000).
 
-    A :class:`swarm_env.policies.Policy`: ``reset(env, seed)``, ``act(observations, state)
+    A :class:`swarm_env.harness.policies.Policy`: ``reset(env, seed)``, ``act(observations, state)
     -> {agent: action}`` (continuous actions ``(v / max_speed, omega / max_turn_rate)``,
     float32), ``stats()``. Needs the env's continuous action space.
 

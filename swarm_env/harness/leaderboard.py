@@ -1,9 +1,9 @@
 """One leaderboard: policies x scenarios x seeds through the one evaluation path.
 
 :func:`run_leaderboard` plays every policy spec (``vo``, ``cbs_rrt``,
-``random``, ``ppo:PATH``, ... anything :func:`swarm_env.policies.load_policy`
+``random``, ``ppo:PATH``, ... anything :func:`swarm_env.harness.policies.load_policy`
 builds) on every scenario for that scenario's seeds, each episode through
-:func:`swarm_env.evaluation.run_episode`, and returns a :class:`Leaderboard`:
+:func:`swarm_env.harness.evaluation.run_episode`, and returns a :class:`Leaderboard`:
 one :class:`Row` per policy x scenario with the mean and 95 % confidence
 interval of the headline metrics, plus every episode's metrics.
 
@@ -27,19 +27,19 @@ process pool (``spawn``: no state inherited from the parent), which gives the
 same metrics as ``workers=1`` because a job does not depend on where it runs;
 only the timings (``wall_time``, ``policy_time``, ``policy_stats``) differ.
 
-Records. Every episode is recorded as it is played (:mod:`swarm_env.recording`: its actions
+Records. Every episode is recorded as it is played (:mod:`swarm_env.harness.recording`: its actions
 and state digests; the metrics are those of an unrecorded run), and each job keeps the record
 of its worst episode (:func:`badness`) in :attr:`Leaderboard.records`, so that
 :func:`record_worst_videos` renders the worst episodes by replaying their records, without
 running a policy again.
 
-A policy that refuses a scenario (a :class:`~swarm_env.policies.PolicyError`,
+A policy that refuses a scenario (a :class:`~swarm_env.harness.policies.PolicyError`,
 e.g. ``vo`` with ``action_type="discrete"``) gives a row marked ``n/a: reason``. A bad
-model file (:class:`~swarm_env.policies.ModelFileError`: missing, corrupt, of another
+model file (:class:`~swarm_env.harness.policies.ModelFileError`: missing, corrupt, of another
 algorithm, or a pickle without the opt-in) is no misfit: it stops the leaderboard.
 
 Training seeds. A learned method shipped with several training seeds (a factory with
-``training_runs``, see :func:`swarm_env.policies.training_runs`) is named by its bare name,
+``training_runs``, see :func:`swarm_env.harness.policies.training_runs`) is named by its bare name,
 e.g. ``mappo``: each seed (``mappo:s0``, ``mappo:s1``, ...) is played as its own job and
 gets its own *member* row (``Row.method`` names the method), and the method row aggregates
 them: per metric, the mean of the seeds' means with a Student-t 95 % interval across
@@ -67,13 +67,13 @@ from typing import Any
 import numpy as np
 
 from swarm_env.env import SwarmEnv, env_kwargs_for
-from swarm_env.evaluation import mean_ci95_t, summarize
+from swarm_env.harness.evaluation import mean_ci95_t, summarize
 from swarm_env.jsonio import dumps
-from swarm_env.policies import (
+from swarm_env.harness.policies import (
     TRUST_PICKLE_ENV, ModelFileError, PolicyError, UnknownPolicyError, acts_on, load_policy, pickle_trusted,
     registered_policies, training_runs,
 )
-from swarm_env.recording import EpisodeRecord, load_episode, record_episode, replay, save_episode
+from swarm_env.harness.recording import EpisodeRecord, load_episode, record_episode, replay, save_episode
 from swarm_env.scenario_io import RANDOM_NAME
 
 #: Seeds of a fixed scenario when none are given (deterministic up to the policy's own randomness).
@@ -95,7 +95,7 @@ class Metric:
     in_markdown: bool = True
 
 
-#: The leaderboard's columns, in order (keys of :func:`swarm_env.evaluation.summarize`).
+#: The leaderboard's columns, in order (keys of :func:`swarm_env.harness.evaluation.summarize`).
 METRICS: tuple[Metric, ...] = (
     Metric("success_rate", "success", 2),
     Metric("collision_free_rate", "collision-free", 2),
@@ -188,7 +188,7 @@ def resolve_seeds(
 def validate_inputs(policies: Sequence[str], scenarios: Sequence[str], env_kwargs: Mapping[str, Any] | None = None) -> None:
     """Check every policy name and scenario before any episode runs.
 
-    Raises :class:`~swarm_env.policies.UnknownPolicyError` for an unregistered policy name
+    Raises :class:`~swarm_env.harness.policies.UnknownPolicyError` for an unregistered policy name
     (the part before ``:``), :class:`~swarm_env.scenario.ScenarioError` for an unknown or
     invalid scenario, and ``ValueError`` for an empty or repeated list entry or env arguments
     the env rejects. A policy's *argument* and its fit to each env are checked when its job
@@ -443,7 +443,7 @@ def run_leaderboard(
 def aggregate_training_seeds(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """One summary across training seeds: per metric (the keys of :data:`METRICS`), the mean of
     the seeds' means and its Student-t 95 % half-width across seeds
-    (:func:`~swarm_env.evaluation.mean_ci95_t`; ``n`` counts seeds); ``episodes`` is the total
+    (:func:`~swarm_env.harness.evaluation.mean_ci95_t`; ``n`` counts seeds); ``episodes`` is the total
     and ``training_seeds`` the number of seeds."""
     out: dict[str, Any] = {"episodes": sum(int(s["episodes"]) for s in summaries), "training_seeds": len(summaries)}
     for m in METRICS:
@@ -464,7 +464,7 @@ def method_row(method: str, member_rows: Sequence[Row]) -> Row:
 # --------------------------------------------------------------------------- aggregation
 @dataclass
 class Row:
-    """One policy on one scenario: ``summary`` (:func:`swarm_env.evaluation.summarize`) or, if the policy
+    """One policy on one scenario: ``summary`` (:func:`swarm_env.harness.evaluation.summarize`) or, if the policy
     refused the scenario, ``na_reason``.
 
     A learned method's training seeds each have a *member* row (``method`` names the method, e.g.
@@ -517,8 +517,8 @@ class Leaderboard:
 
     ``rows``: one :class:`Row` per policy x scenario (policies outer, scenarios inner).
     ``episodes``: ``{"policy", "scenario", "seed", "metrics"}`` per episode played, where
-    ``metrics`` is :func:`~swarm_env.evaluation.run_episode`'s dict.
-    ``records``: ``(policy, scenario, seed)`` -> the :class:`~swarm_env.recording.EpisodeRecord`
+    ``metrics`` is :func:`~swarm_env.harness.evaluation.run_episode`'s dict.
+    ``records``: ``(policy, scenario, seed)`` -> the :class:`~swarm_env.harness.recording.EpisodeRecord`
     of each job's worst episode (what :func:`record_worst_videos` replays); not in the JSON, so
     empty in a board read back by :meth:`from_json`.
     """
@@ -685,7 +685,7 @@ def record_worst_videos(
     records_dir: str | os.PathLike[str] | None = None,
 ) -> list[VideoRecord]:
     """Render each worst episode (:meth:`Leaderboard.worst_episodes`) to
-    ``<out_dir>/<name>.mp4`` by replaying its record (:func:`swarm_env.recording.replay`: the
+    ``<out_dir>/<name>.mp4`` by replaying its record (:func:`swarm_env.harness.recording.replay`: the
     recorded actions, no policy), where ``<name>`` is ``<policy>__<scenario>__seed<k>`` made
     safe by :func:`safe_name`.
 
@@ -698,7 +698,7 @@ def record_worst_videos(
     """
     from tqdm.auto import tqdm
 
-    from swarm_env.video import VideoWriter
+    from swarm_env.harness.video import VideoWriter
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

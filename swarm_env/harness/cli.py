@@ -25,7 +25,7 @@ from typing import Any
 
 import swarm_env
 from swarm_env.extras import MissingExtraError, extra_for_module, missing_distributions, missing_extra_error
-from swarm_env.policies import TRUST_PICKLE_ENV, PolicyError, UnknownPolicyError
+from swarm_env.harness.policies import TRUST_PICKLE_ENV, PolicyError, UnknownPolicyError
 from swarm_env.scenario import ScenarioError
 
 
@@ -108,7 +108,7 @@ def _print_scenario_error(exc: ScenarioError) -> None:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from swarm_env.policies import policy_extra, registered_policies
+    from swarm_env.harness.policies import policy_extra, registered_policies
     from swarm_env.scenario_io import list_scenarios, load_scenario
 
     print("scenarios:")
@@ -179,7 +179,7 @@ def parse_env_items(items: Iterable[str]) -> dict[str, Any]:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from swarm_env.evaluation import evaluate
+    from swarm_env.harness.evaluation import evaluate
 
     env_kwargs: dict[str, Any] = {"action_type": args.action_type, "max_cycles": args.max_cycles}
     try:
@@ -190,7 +190,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         max_frames = args.episodes * (probe.max_steps + 1)  # an episode renders at most its steps and the reset
         probe.close()
         if args.record:
-            from swarm_env.recording import ensure_new_recording_dir
+            from swarm_env.harness.recording import ensure_new_recording_dir
 
             ensure_new_recording_dir(args.record)  # a RecordError (a ValueError) before any episode
     except ScenarioError:
@@ -206,7 +206,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.video:
         from tqdm.auto import tqdm
 
-        from swarm_env.video import VideoWriter
+        from swarm_env.harness.video import VideoWriter
 
         writer = VideoWriter(args.video, fps=args.fps)
         # A long episode takes tens of seconds to play, render and encode: show progress, frame by frame.
@@ -258,10 +258,10 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
-    """Re-simulate recorded episodes (:mod:`swarm_env.recording`); exit 1 at a divergence with ``--check``."""
-    from swarm_env import recording
+    """Re-simulate recorded episodes (:mod:`swarm_env.harness.recording`); exit 1 at a divergence with ``--check``."""
+    from swarm_env.harness import recording
 
-    from swarm_env.video import VideoWriter
+    from swarm_env.harness.video import VideoWriter
 
     try:
         records = recording.load_recording(args.dir)
@@ -290,7 +290,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from swarm_env import bench
+    from swarm_env.harness import bench
 
     progress = (lambda msg: print(msg, file=sys.stderr)) if not args.quiet else None
     if args.vs == "vmas" or args.num_envs or args.followers:
@@ -312,7 +312,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def _bench_batched(args: argparse.Namespace, progress: Any) -> int:
     """``bench --vs vmas`` / ``--num-envs`` / ``--followers``: agent-steps/s tables (and a plot)."""
-    from swarm_env import bench
+    from swarm_env.harness import bench
 
     if args.vs == "mpe2":
         raise SystemExit("bench: --vs mpe2 compares single envs; drop --num-envs/--followers, or use --vs vmas")
@@ -351,8 +351,8 @@ def _write_json(path: str, doc: Any) -> None:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    """The leaderboard (:mod:`swarm_env.leaderboard`); every input is checked before any episode runs."""
-    from swarm_env.leaderboard import default_seeds, parse_seeds, record_worst_videos, run_leaderboard, validate_inputs
+    """The leaderboard (:mod:`swarm_env.harness.leaderboard`); every input is checked before any episode runs."""
+    from swarm_env.harness.leaderboard import default_seeds, parse_seeds, record_worst_videos, run_leaderboard, validate_inputs
     from swarm_env.scenario_io import list_scenarios
 
     scenarios: list[str] = args.scenarios or list_scenarios()
@@ -417,7 +417,7 @@ TRUST_PICKLE_HELP = ("load pickle-bearing model files (SB3 model.zip without pol
 
 @contextlib.contextmanager
 def _pickle_trust(on: bool) -> Iterator[None]:
-    """Set :data:`~swarm_env.policies.TRUST_PICKLE_ENV` while a command runs (its worker processes
+    """Set :data:`~swarm_env.harness.policies.TRUST_PICKLE_ENV` while a command runs (its worker processes
     inherit it) and restore the previous value after, so an in-process ``main()`` leaves no trace."""
     if not on:
         yield

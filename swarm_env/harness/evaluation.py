@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from swarm_env.env import SwarmEnv
-from swarm_env.policies import Policy, load_policy
+from swarm_env.harness.policies import Policy, load_policy
 
 
 def run_episode(
@@ -32,7 +32,7 @@ def run_episode(
     ``on_frame`` (if given, and the env renders ``rgb_array``) receives every
     frame, the initial one included. ``on_step`` (if given) is called with
     ``None`` after the reset and with the actions dict after every
-    ``env.step`` that applied it (:mod:`swarm_env.recording` records through
+    ``env.step`` that applied it (:mod:`swarm_env.harness.recording` records through
     it); an exception it raises ends the episode and propagates. Returns
     ``env.episode_metrics()`` plus ``seed``, ``policy_time`` (s spent in
     ``policy.act``) and, if the policy has ``stats()``, ``policy_stats``.
@@ -133,14 +133,14 @@ def evaluate(
     ``on_frame`` receives the frames of every episode in order (the env is
     made with ``render_mode="rgb_array"`` when it is given, unless
     ``env_kwargs`` sets a render mode). ``record_dir``: also record episode
-    ``k`` to ``record_dir/episode_<k>/`` (:mod:`swarm_env.recording`; the
+    ``k`` to ``record_dir/episode_<k>/`` (:mod:`swarm_env.harness.recording`; the
     directory must not hold recorded episodes yet); the metrics are the same.
     """
     kwargs = dict(env_kwargs or {})
     if on_frame is not None:
         kwargs.setdefault("render_mode", "rgb_array")
     if record_dir is not None:
-        from swarm_env import recording  # noqa: PLC0415 - it imports this module
+        from swarm_env.harness import recording  # noqa: PLC0415 - it imports this module
 
         recording.ensure_new_recording_dir(record_dir)
     env = SwarmEnv(scenario, **kwargs)

@@ -11,7 +11,7 @@ digest differs (the code or the platform changed), naming that step.
 
 .. code-block:: python
 
-    from swarm_env.recording import check, load_recording, record_episode, replay, save_episode
+    from swarm_env.harness.recording import check, load_recording, record_episode, replay, save_episode
 
     metrics, rec = record_episode(env, policy, seed=3, policy_spec="vo")
     save_episode(rec, "rec")                      # rec/episode_0/...
@@ -25,7 +25,7 @@ From the command line: ``swarm-env run ... --record DIR`` and
 On-disk format (:data:`FORMAT_VERSION` 1). A recording directory holds one
 folder per episode, ``episode_<k>`` (``k`` = the episode's index in its run)::
 
-    DIR/episode_<k>/meta.json      {"format": "swarm_env.recording", "version": 1,
+    DIR/episode_<k>/meta.json      {"format": "swarm_env.harness.recording", "version": 1,
                                     "episode": k, "seed": int | null, "policy": spec,
                                     "scenario": the scenario as given ("random", a name, a path),
                                     "env": {"action_type", "max_steps", "terminate_on_collision"},
@@ -64,14 +64,14 @@ import numpy as np
 import yaml
 
 from swarm_env.env import SwarmEnv
-from swarm_env.evaluation import run_episode
+from swarm_env.harness.evaluation import run_episode
 from swarm_env.jsonio import dumps
-from swarm_env.policies import Policy
+from swarm_env.harness.policies import Policy
 from swarm_env.scenario import Scenario
 from swarm_env.scenario_io import scenario_from_dict, scenario_to_dict
 from swarm_env.state import CONTACT_KINDS, WorldState
 
-FORMAT = "swarm_env.recording"
+FORMAT = "swarm_env.harness.recording"
 #: The version of the on-disk format this module writes and reads.
 FORMAT_VERSION = 1
 #: Default digest interval: every step, so a divergence is named at the exact step.
@@ -206,7 +206,7 @@ def _platform_note(recorded: Mapping[str, str]) -> str:
 
 # --------------------------------------------------------------------------- recording
 class Recorder:
-    """The ``on_step`` hook of :func:`swarm_env.evaluation.run_episode` that records an episode:
+    """The ``on_step`` hook of :func:`swarm_env.harness.evaluation.run_episode` that records an episode:
     every action (rows in ``env.possible_agents`` order) and the digests of the states at steps
     ``0, K, 2K, ...`` and at the last step (``K = digest_every``)."""
 
@@ -259,7 +259,7 @@ def record_episode(
     digest_every: int = DIGEST_EVERY,
     on_frame: Callable[[np.ndarray], None] | None = None,
 ) -> tuple[dict[str, Any], EpisodeRecord]:
-    """Play one episode exactly as :func:`swarm_env.evaluation.run_episode` does (the same metrics)
+    """Play one episode exactly as :func:`swarm_env.harness.evaluation.run_episode` does (the same metrics)
     and record it. ``policy_spec`` and ``scenario_spec`` (default: ``env.scenario_name``) are
     stored for reference; ``episode`` is the episode's index in its run (it names its folder)."""
     recorder = Recorder(env, digest_every)

@@ -2,11 +2,11 @@
 
 .. code-block:: console
 
-    python -m swarm_env.paired docs/leaderboard/leaderboard.json --baseline pursuit --scenario random
+    python -m swarm_env.harness.paired docs/leaderboard/leaderboard.json --baseline pursuit --scenario random
 
 For every other policy it prints, per metric, the mean over the shared ``(scenario, seed)``
 episodes of ``policy - baseline`` with its 95 % confidence half-width
-(:func:`swarm_env.evaluation.mean_ci95`: ``1.96 * s / sqrt(n)`` of the paired differences) and
+(:func:`swarm_env.harness.evaluation.mean_ci95`: ``1.96 * s / sqrt(n)`` of the paired differences) and
 whether that interval excludes zero. Pairing by seed removes the variance between worlds, which
 is most of it: "fewer collisions than pursuit" is claimed only when the paired interval says so.
 """
@@ -19,7 +19,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from swarm_env.evaluation import mean_ci95
+from swarm_env.harness.evaluation import mean_ci95
 
 #: Metric name -> how to read it from one episode's metrics.
 METRICS = {
@@ -61,8 +61,8 @@ def paired_differences(doc: dict[str, Any], policy: str, baseline: str, scenario
 
 
 def build_parser() -> argparse.ArgumentParser:
-    """The command line of ``python -m swarm_env.paired``."""
-    parser = argparse.ArgumentParser(prog="python -m swarm_env.paired", description=__doc__.splitlines()[0])
+    """The command line of ``python -m swarm_env.harness.paired``."""
+    parser = argparse.ArgumentParser(prog="python -m swarm_env.harness.paired", description=__doc__.splitlines()[0])
     parser.add_argument("leaderboard", help="a leaderboard.json written by swarm-env evaluate --out")
     parser.add_argument("--baseline", default="pursuit", help="the policy every other one is compared with")
     parser.add_argument("--scenario", help="only this scenario's episodes (default: all)")
