@@ -119,42 +119,121 @@ def _warm_start(model: Any, venv: Any, cfg: TrainConfig) -> None:
 
 
 def train(cfg: TrainConfig) -> Path:
-    """Run ``cfg`` to completion and return the run directory."""
-    import torch
-    from stable_baselines3.common.callbacks import CallbackList
-    from stable_baselines3.common.vec_env import VecNormalize
+    """Run ``cfg`` to completion in a new run directory and return it.
 
-    from baselines.callbacks import CheckpointCallback, EvalCallback, TqdmCallback
-    from baselines.model_io import save_model
-    from baselines.plots import plot_learning_curve
-    from baselines.vec_env import make_vec_env
-
-    torch.set_num_threads(cfg.torch_threads)
+    On SIGINT or SIGTERM the model finishes its current rollout (and update), is saved as the final
+    model (``ppo:<run dir>`` loads it) and :class:`~baselines.checkpointing.TrainingInterrupted` is
+    raised; :func:`resume` goes on from there. Raises ``FileExistsError`` if the run directory already
+    holds a run.
+    """
     stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
     name = cfg.run_name or f"{cfg.algo}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}"
     run_dir = Path(cfg.runs_dir) / name
     if (run_dir / "config.json").exists():
-        raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name")
+        raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name, "
+                              f"or continue it with --resume {run_dir}")
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
     (run_dir / "versions.json").write_text(json.dumps(package_versions(), indent=2) + "\n")
+    return _learn(cfg, run_dir, None)
 
+
+#: What ``--resume`` may change: the budget and the progress bar.
+RESUME_OVERRIDES = ("total_steps", "progress")
+
+
+def resume(run_dir: str | Path, **overrides: Any) -> Path:
+    """Go on with the run in ``run_dir`` from its latest saved model (:func:`latest_model`) to its ``total_steps``.
+
+    SB3's own ``load`` brings back the networks, the optimizer and the step count (``learn`` goes on
+    with ``reset_num_timesteps=False``), and the run's ``vecnormalize.pkl`` the normalisation
+    statistics. Not restored (SB3 does not save them): the env worlds (reset), the RNG states
+    (re-seeded with ``seed + agent-steps``) and an off-policy replay buffer (refilled), so a resumed
+    run follows a different but equally valid path than an unbroken one. ``model.zip`` and
+    ``vecnormalize.pkl`` are pickle-bearing: resume only your own runs. ``overrides`` may set only
+    :data:`RESUME_OVERRIDES`.
+    """
+    run_dir = Path(run_dir)
+    cfg_path = run_dir / "config.json"
+    if not cfg_path.is_file():
+        raise FileNotFoundError(f"--resume {run_dir}: no run there ({cfg_path} not found)")
+    bad = sorted(set(overrides) - set(RESUME_OVERRIDES))
+    if bad:
+        flags = ", ".join("--" + b.replace("_", "-") for b in bad)
+        raise ValueError(f"--resume continues {cfg_path} as it is: {flags} cannot change "
+                         f"(only --total-steps and --progress can)")
+    cfg = dataclasses.replace(TrainConfig.from_json(cfg_path), **overrides)
+    source = latest_model(run_dir)
+    if overrides:
+        (run_dir / "config.json").write_text(cfg.to_json() + "\n")
+    return _learn(cfg, run_dir, source)
+
+
+def latest_model(run_dir: Path) -> Path:
+    """The directory among ``run_dir`` (the final or interrupted model) and ``run_dir/checkpoints/step_*``
+    whose ``model.zip`` has the most agent-steps (read from the zip's JSON ``data``, nothing unpickled)."""
+    import zipfile
+
+    from baselines.model_io import MODEL_FILE
+
+    def steps(d: Path) -> int:
+        try:
+            with zipfile.ZipFile(d / MODEL_FILE) as z:
+                return int(json.loads(z.read("data"))["num_timesteps"])
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
+            raise ValueError(f"{d / MODEL_FILE}: not a readable SB3 model ({exc})") from None
+
+    candidates = [d for d in (run_dir, *sorted((run_dir / "checkpoints").glob("step_*"))) if (d / MODEL_FILE).is_file()]
+    if not candidates:
+        raise FileNotFoundError(f"--resume {run_dir}: no saved model in it ({MODEL_FILE} or checkpoints/step_*/)")
+    return max(candidates, key=steps)
+
+
+def _learn(cfg: TrainConfig, run_dir: Path, source: Path | None) -> Path:
+    """The training of :func:`train` (``source`` None: a new model) and :func:`resume` (from ``source``)."""
+    import torch
+    from stable_baselines3.common.callbacks import CallbackList
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from baselines.callbacks import CheckpointCallback, EvalCallback, StopCallback, TqdmCallback
+    from baselines.checkpointing import StopRequest, TrainingInterrupted
+    from baselines.model_io import VECNORM_FILE, algorithm_class, save_model
+    from baselines.plots import plot_learning_curve
+    from baselines.vec_env import make_vec_env
+
+    torch.set_num_threads(cfg.torch_threads)
     env_kwargs = _env_kwargs(cfg)
     venv: Any = make_vec_env(cfg.scenario, cfg.n_copies, n_procs=cfg.n_procs, shield=cfg.shield, **env_kwargs)
     vecnorm = None
-    if cfg.norm_obs or cfg.norm_reward:
-        venv = vecnorm = VecNormalize(venv, norm_obs=cfg.norm_obs, norm_reward=cfg.norm_reward, gamma=cfg.gamma)
-    model = _make_model(cfg, venv, run_dir / "logs")
-    if cfg.init_from:
-        _warm_start(model, venv, cfg)
-    if cfg.freeze_obs_stats and vecnorm is not None:
-        from baselines.model_io import FrozenRunningMeanStd
+    if source is None:
+        if cfg.norm_obs or cfg.norm_reward:
+            venv = vecnorm = VecNormalize(venv, norm_obs=cfg.norm_obs, norm_reward=cfg.norm_reward, gamma=cfg.gamma)
+        model = _make_model(cfg, venv, run_dir / "logs")
+        if cfg.init_from:
+            _warm_start(model, venv, cfg)
+        if cfg.freeze_obs_stats and vecnorm is not None:
+            from baselines.model_io import FrozenRunningMeanStd
 
-        frozen = FrozenRunningMeanStd(shape=vecnorm.obs_rms.mean.shape)
-        frozen.mean, frozen.var, frozen.count = vecnorm.obs_rms.mean.copy(), vecnorm.obs_rms.var.copy(), vecnorm.obs_rms.count
-        vecnorm.obs_rms = frozen
+            frozen = FrozenRunningMeanStd(shape=vecnorm.obs_rms.mean.shape)
+            frozen.mean, frozen.var, frozen.count = vecnorm.obs_rms.mean.copy(), vecnorm.obs_rms.var.copy(), vecnorm.obs_rms.count
+            vecnorm.obs_rms = frozen
+    else:
+        if cfg.norm_obs or cfg.norm_reward:  # the statistics as saved (frozen ones stay frozen)
+            venv = vecnorm = VecNormalize.load(str(source / VECNORM_FILE), venv)
+            vecnorm.training = True
+        model = algorithm_class(cfg.algo).load(source / "model.zip", env=venv, device="cpu")
+        model.set_random_seed(cfg.seed + model.num_timesteps)  # torch, numpy and the worlds' next reset
+        model.set_logger(configure(str(run_dir / "logs" / f"resumed_{model.num_timesteps}"), ["csv", "tensorboard"]))
+        if model.num_timesteps >= cfg.total_steps:
+            venv.close()
+            raise ValueError(f"--resume {run_dir}: the run is complete ({model.num_timesteps} agent-steps, "
+                             f"total_steps {cfg.total_steps}); pass a larger --total-steps to train it further")
+        print(f"resuming {run_dir} from {source} ({model.num_timesteps} agent-steps)", file=sys.stderr)
+    start_steps = int(model.num_timesteps)
 
-    callbacks = []
+    stop = StopRequest("finishing the current rollout, then saving")
+    callbacks: list[Any] = [StopCallback(stop)]
     evaluator = None
     if cfg.eval_every:
         evaluator = EvalCallback(
@@ -168,16 +247,23 @@ def train(cfg: TrainConfig) -> Path:
 
     t0 = time.perf_counter()
     try:
-        model.learn(total_timesteps=cfg.total_steps, callback=CallbackList(callbacks))
+        with stop:
+            model.learn(total_timesteps=cfg.total_steps - start_steps, callback=CallbackList(callbacks),
+                        reset_num_timesteps=source is None)
     finally:
         venv.close()
     wall = time.perf_counter() - t0
     save_model(model, run_dir, vecnorm)
-    summary = {"agent_steps": int(model.num_timesteps), "wall_s": round(wall, 1), "steps_per_s": round(model.num_timesteps / wall, 1)}
+    if stop.requested:
+        raise TrainingInterrupted(stop.signum, (
+            f"interrupted at {model.num_timesteps} of {cfg.total_steps} agent-steps; saved {run_dir}/model.zip "
+            f"(and the policy files). Resume with: python -m baselines.train --resume {run_dir}"))
+    steps = model.num_timesteps - start_steps
+    summary = {"agent_steps": int(model.num_timesteps), "wall_s": round(wall, 1), "steps_per_s": round(steps / wall, 1)}
     if evaluator is not None and evaluator.history:
         summary["final_eval"] = evaluator.history[-1]
         summary["best_score"] = evaluator.best_score
-        plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=name)
+        plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
     (run_dir / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     return run_dir
 
@@ -192,12 +278,16 @@ def build_parser() -> argparse.ArgumentParser:
         description="Train an SB3 policy (parameter sharing over all followers) on the swarm env.",
     )
     parser.add_argument("--config", help="start from this config.json (e.g. a previous run's); options override it")
+    parser.add_argument("--resume", metavar="RUN_DIR",
+                        help="go on with this run from its latest saved model (its config.json; only --total-steps "
+                             "and --progress may be given with it)")
     add_dataclass_options(parser, TrainConfig)
     return parser
 
 
 def config_from_args(argv: list[str] | None = None) -> TrainConfig:
     args = vars(build_parser().parse_args(argv))
+    args.pop("resume", None)
     base: dict[str, Any] = {}
     config_path = args.pop("config", None)
     if config_path:
@@ -209,14 +299,20 @@ def config_from_args(argv: list[str] | None = None) -> TrainConfig:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from baselines.checkpointing import TrainingInterrupted
+
+    args = vars(build_parser().parse_args(argv))
     try:
-        cfg = config_from_args(argv)
-    except (ValueError, TypeError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    try:
-        run_dir = train(cfg)
-    except (ValueError, FileExistsError, FileNotFoundError) as exc:
+        if args.get("resume"):
+            if args.get("config"):
+                raise ValueError("--resume continues the run's own config.json: drop --config")
+            run_dir = resume(args["resume"], **{k: v for k, v in args.items() if k not in ("resume", "config")})
+        else:
+            run_dir = train(config_from_args(argv))
+    except TrainingInterrupted as exc:
+        print(exc, file=sys.stderr)
+        return exc.exit_code
+    except (ValueError, TypeError, FileExistsError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(run_dir)
