@@ -7,6 +7,7 @@
     python -m baselines.mappo ... --shield teach --imitation-coef 1.0   # the safety layer as a teacher
     python -m baselines.mappo ... --shield execute                      # trained through the safety layer
     python -m baselines.mappo ... --residual vo --shield execute        # a learned correction of vo
+    python -m baselines.mappo --resume runs/<run>                       # go on after Ctrl-C or a crash
 
 A small PyTorch implementation in the CleanRL spirit, written to read top to bottom. The
 actor maps one follower's observation to a Gaussian over its normalised twist (parameter
@@ -46,8 +47,9 @@ A run directory ``<runs_dir>/<run_name>/`` holds ``config.json``, ``versions.jso
 tensors and JSON: loading runs no code; :mod:`baselines.mappo_policy`), ``best/``,
 ``pretrain.csv`` (DAgger rounds), ``eval.csv`` (validation, streamed), ``train.csv`` (losses,
 action std, contact and intervention rates per update, time spent in rollouts and updates),
-``learning_curve.png`` and ``summary.json``. Load it with ``mappo:<run dir>`` (or
-``mappo:<run dir>/best``) anywhere a policy spec is accepted.
+``learning_curve.png``, ``summary.json`` and ``checkpoint/`` (the latest resumable state: :func:`resume`,
+``python -m baselines.mappo --resume <run dir>``; SIGINT/SIGTERM save it and the policy before exiting).
+Load it with ``mappo:<run dir>`` (or ``mappo:<run dir>/best``) anywhere a policy spec is accepted.
 """
 
 from __future__ import annotations

@@ -3,6 +3,7 @@
 .. code-block:: console
 
     python -m baselines.train --algo ppo --scenario random --total-steps 2e6 --seed 0
+    python -m baselines.train --resume runs/<run>      # go on after Ctrl-C (which saves the model) or a crash
 
 Every :class:`~baselines.config.TrainConfig` field is an option (``--help`` lists
 them with their documentation). A run writes a directory
@@ -10,13 +11,14 @@ them with their documentation). A run writes a directory
 
     config.json        the exact TrainConfig (python -m baselines.train --config it repeats the run)
     versions.json      python, platform, package versions, git commit, command line
-    model.zip          the final model (+ vecnormalize.pkl: its observation/reward statistics)
+    model.zip          the final (or interrupted) model (+ vecnormalize.pkl: its observation/reward
+                       statistics); --resume goes on from it or from the latest checkpoint
     best/              the model with the best validation score (see baselines.callbacks)
     checkpoints/       periodic checkpoints
     eval.csv           validation metrics over training (the learning curve's data)
     learning_curve.png validation formation error and collisions over agent-steps
     logs/              SB3 logger output: progress.csv and TensorBoard event files
-                       (tensorboard --logdir runs/)
+                       (tensorboard --logdir runs/; a resumed run logs into logs/resumed_<agent-steps>/)
 
 Load the result as a policy with ``ppo:<run dir>`` (or ``ppo:<run dir>/best``)
 anywhere a policy spec is accepted, e.g. ``swarm-env evaluate``.

@@ -32,9 +32,9 @@ CLOCKS = ("wall_s", "rollout_s", "update_s")
 
 
 def _cfg(tmp_path, **overrides) -> mappo.MAPPOConfig:
-    base = dict(env_kwargs=dict(TINY_ENV), total_steps=1024, n_copies=2, n_steps=32, n_epochs=2, hidden=(16, 16),
-                eval_every=512, eval_seeds="500-501", runs_dir=str(tmp_path), progress=False, pretrain_rounds=2,
-                pretrain_episodes=2, pretrain_epochs=1, checkpoint_every=3)
+    base = dict(env_kwargs=dict(TINY_ENV), total_steps=640, n_copies=2, n_steps=32, n_epochs=2, hidden=(16, 16),
+                eval_every=256, eval_seeds="500-501", runs_dir=str(tmp_path), progress=False, pretrain_rounds=2,
+                pretrain_episodes=2, pretrain_epochs=1, checkpoint_every=2)
     return mappo.MAPPOConfig(**{**base, **overrides})
 
 
@@ -71,6 +71,7 @@ def _stop_at(monkeypatch, update_index: int, how: str) -> None:
     monkeypatch.setattr(mappo.Trainer, "update", update)
 
 
+@pytest.mark.filterwarnings("error:.*rebuilt env copies differ")
 @pytest.mark.parametrize("overrides, how", [
     # DAgger warm start, teaching shield with an annealed imitation term, validation and best/ selection.
     ({"shield": "teach", "intervention_coef": 1.0, "imitation_coef": 1.0, "imitation_anneal": 0.5}, "sigint"),
@@ -81,7 +82,9 @@ def test_a_stopped_and_resumed_run_ends_bit_for_bit_like_an_uninterrupted_one(tm
                                                                                how) -> None:
     whole = mappo.train(_cfg(tmp_path, run_name="whole", **overrides))
     with monkeypatch.context() as m:
-        _stop_at(m, 4, how)  # after 5 updates of 32 steps: mid-episode (30-step episodes) in every copy
+        # SIGINT in update 3 of 5 (32 steps each; a clean stop after it), or a crash after update 4 (back to the
+        # checkpoint after update 2): mid-episode (30-step episodes) in every copy either way.
+        _stop_at(m, 2 if how == "sigint" else 3, how)
         if how == "sigint":
             with pytest.raises(TrainingInterrupted, match="--resume") as stopped:
                 mappo.train(_cfg(tmp_path, run_name="parts", **overrides))
@@ -91,10 +94,10 @@ def test_a_stopped_and_resumed_run_ends_bit_for_bit_like_an_uninterrupted_one(tm
                 mappo.train(_cfg(tmp_path, run_name="parts", **overrides))
     parts = tmp_path / "parts"
     state = json.loads((parts / "checkpoint" / "state.json").read_text())
-    assert state["updates"] == (5 if how == "sigint" else 3)  # a crash goes back to the last periodic checkpoint
+    assert state["updates"] == (3 if how == "sigint" else 2)  # a crash goes back to the last periodic checkpoint
     assert sorted(p.name for p in (parts / "checkpoint").iterdir()) == ["state.json", "state.safetensors"]
     if how == "crash":
-        assert len(_rows(parts / "train.csv")) == 4  # one row past the checkpoint, dropped on resume
+        assert len(_rows(parts / "train.csv")) == 3 and state["csv_rows"]["train.csv"] == 2  # one to drop
     assert mappo.resume(parts) == parts
     _assert_same_tensors(whole / "policy.safetensors", parts / "policy.safetensors")
     _assert_same_tensors(whole / "checkpoint" / "state.safetensors", parts / "checkpoint" / "state.safetensors")
@@ -103,7 +106,7 @@ def test_a_stopped_and_resumed_run_ends_bit_for_bit_like_an_uninterrupted_one(tm
     if (whole / "best").exists():
         _assert_same_tensors(whole / "best" / "policy.safetensors", parts / "best" / "policy.safetensors")
     summary = json.loads((parts / "summary.json").read_text())
-    assert summary["agent_steps"] == 1024 and summary["best_score"] == json.loads((whole / "summary.json").read_text())["best_score"]
+    assert summary["agent_steps"] == 640 and summary["best_score"] == json.loads((whole / "summary.json").read_text())["best_score"]
 
 
 def test_resume_refuses_other_settings_and_a_finished_run_trains_further(tmp_path) -> None:
@@ -136,6 +139,7 @@ def test_stop_request_turns_signals_into_a_clean_stop_then_an_immediate_one() ->
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handlers are put back
 
 
+@pytest.mark.slow
 def test_ctrl_c_saves_a_loadable_policy_and_exits_130_with_the_resume_command(tmp_path) -> None:
     """The command line under a real SIGINT, sent once the first periodic checkpoint exists."""
     args = [sys.executable, "-m", "baselines.mappo", "--env", "n_followers=2", "--env", "n_obstacles=1", "--env",
@@ -203,3 +207,29 @@ def test_sb3_ctrl_c_saves_the_model_and_resume_goes_on_to_the_budget(tmp_path, m
     # One row per evaluation (the interrupted model's included), none repeated by the resumed run.
     assert steps == sorted(set(steps)) and 388 in steps and steps[-1] == summary["agent_steps"]
     assert summary["best_score"] == min(float(r["score"]) for r in csv.DictReader(open(run / "eval.csv")))
+
+
+@pytest.mark.slow
+def test_validation_in_a_worker_survives_a_crash_and_resume(tmp_path, monkeypatch) -> None:
+    """With eval_workers=1 a checkpoint can fall while a validation is still with the worker: it lists it
+    and keeps its snapshot, and the resumed run scores it again; eval.csv and best/ come out as unbroken."""
+    import concurrent.futures
+
+    overrides = dict(pretrain="none", eval_every=256, eval_workers=1, checkpoint_every=1)
+    whole = mappo.train(_cfg(tmp_path, run_name="whole", **overrides))
+    with monkeypatch.context() as m:
+        # Results are collected only when the trainer waits for them: every checkpoint finds evaluations pending.
+        m.setattr(concurrent.futures.Future, "done", lambda self: False)
+        _stop_at(m, 3, "crash")
+        with pytest.raises(RuntimeError, match="simulated crash"):
+            mappo.train(_cfg(tmp_path, run_name="parts", **overrides))
+    parts = tmp_path / "parts"
+    state = json.loads((parts / "checkpoint" / "state.json").read_text())
+    assert [p[0] for p in state["pending_evals"]] == [0, 256] and state["history"] == []
+    for steps, _ in state["pending_evals"]:
+        assert (parts / "evals" / str(steps) / "policy.json").is_file()
+    mappo.resume(parts)
+    assert _rows(whole / "eval.csv") == _rows(parts / "eval.csv") and len(_rows(whole / "eval.csv")) == 4
+    _assert_same_tensors(whole / "best" / "policy.safetensors", parts / "best" / "policy.safetensors")
+    _assert_same_tensors(whole / "policy.safetensors", parts / "policy.safetensors")
+    assert not (parts / "evals").exists()
