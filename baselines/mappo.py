@@ -526,8 +526,9 @@ class Trainer:
 
     # ---------------------------------------------------------------- checkpoints
     def checkpoint_state(self, optim: Any) -> tuple[dict[str, Any], dict[str, Any]]:
-        """Everything training needs to go on from here, as ``(tensors, JSON)`` (see :func:`save_checkpoint`):
-        the networks, the optimizer, the statistics, the torch generators, and each copy's episode so far."""
+        """Everything the trainer needs to go on from here, as ``(tensors, JSON values)`` for
+        :func:`baselines.checkpointing.write_checkpoint` (the loop adds its counters): the networks, the
+        optimizer, the statistics, the torch generators, and how each copy's episode began and went so far."""
         import torch
 
         from baselines.checkpointing import optimizer_to_files

@@ -314,6 +314,9 @@ def main(argv: list[str] | None = None) -> int:
     except TrainingInterrupted as exc:
         print(exc, file=sys.stderr)
         return exc.exit_code
+    except KeyboardInterrupt:
+        print("stopped at once: nothing saved since the last checkpoint", file=sys.stderr)
+        return 130
     except (ValueError, TypeError, FileExistsError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

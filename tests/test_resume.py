@@ -106,7 +106,8 @@ def test_a_stopped_and_resumed_run_ends_bit_for_bit_like_an_uninterrupted_one(tm
     if (whole / "best").exists():
         _assert_same_tensors(whole / "best" / "policy.safetensors", parts / "best" / "policy.safetensors")
     summary = json.loads((parts / "summary.json").read_text())
-    assert summary["agent_steps"] == 640 and summary["best_score"] == json.loads((whole / "summary.json").read_text())["best_score"]
+    whole_summary = json.loads((whole / "summary.json").read_text())
+    assert summary["agent_steps"] == 640 and summary["best_score"] == whole_summary["best_score"]
 
 
 def test_resume_refuses_other_settings_and_a_finished_run_trains_further(tmp_path) -> None:
