@@ -155,7 +155,8 @@ class MAPPOConfig:
     eval_workers: int = 0
     #: Torch threads (1 is fastest for these small networks).
     torch_threads: int = 1
-    #: Save a resumable checkpoint (checkpoint/) every this many PPO updates (0: only on SIGINT/SIGTERM and at the end).
+    #: Save a resumable checkpoint (checkpoint/) every this many PPO updates (0: only after the warm start, on
+    #: SIGINT/SIGTERM and at the end).
     checkpoint_every: int = 10
     #: Parent directory of run directories.
     runs_dir: str = "runs"

@@ -178,17 +178,21 @@ def latest_model(run_dir: Path) -> Path:
 
     from baselines.model_io import MODEL_FILE
 
-    def steps(d: Path) -> int:
+    def steps(d: Path) -> int | None:
         try:
             with zipfile.ZipFile(d / MODEL_FILE) as z:
                 return int(json.loads(z.read("data"))["num_timesteps"])
         except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
-            raise ValueError(f"{d / MODEL_FILE}: not a readable SB3 model ({exc})") from None
+            # SB3 writes model.zip in place: one cut short by a hard stop is passed over for an older one.
+            print(f"warning: {d / MODEL_FILE} is not a readable SB3 model ({exc}); skipped", file=sys.stderr)
+            return None
 
-    candidates = [d for d in (run_dir, *sorted((run_dir / "checkpoints").glob("step_*"))) if (d / MODEL_FILE).is_file()]
-    if not candidates:
-        raise FileNotFoundError(f"--resume {run_dir}: no saved model in it ({MODEL_FILE} or checkpoints/step_*/)")
-    return max(candidates, key=steps)
+    dirs = [d for d in (run_dir, *sorted((run_dir / "checkpoints").glob("step_*"))) if (d / MODEL_FILE).is_file()]
+    found = [(n, d) for d in dirs if (n := steps(d)) is not None]
+    if not found:
+        raise FileNotFoundError(f"--resume {run_dir}: no readable saved model in it ({MODEL_FILE} or "
+                                f"checkpoints/step_*/{MODEL_FILE})")
+    return max(found, key=lambda item: item[0])[1]
 
 
 def _learn(cfg: TrainConfig, run_dir: Path, source: Path | None) -> Path:

@@ -196,6 +196,10 @@ def test_sb3_ctrl_c_saves_the_model_and_resume_goes_on_to_the_budget(tmp_path, m
     run = tmp_path / "sb3"
     # The rollout under way and its update were completed; the next rollout stopped at its first step.
     assert train_mod.latest_model(run) == run
+    saved = (run / "model.zip").read_bytes()
+    (run / "model.zip").write_bytes(saved[: len(saved) // 2])  # cut short by a hard stop: the checkpoint is next
+    assert train_mod.latest_model(run) == run / "checkpoints" / "step_256"
+    (run / "model.zip").write_bytes(saved)
     world = SwarmEnv("random", **cfg.env_kwargs)
     assert run_episode(world, load_policy(f"ppo:{run}", world), seed=1000)["steps"] == 30
     with pytest.raises(FileExistsError, match=f"--resume {run}"):
