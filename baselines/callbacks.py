@@ -1,4 +1,5 @@
-"""SB3 callbacks of a training run: progress bar, periodic evaluation on validation seeds, checkpoints.
+"""SB3 callbacks of a training run: progress bar, periodic evaluation on validation seeds, checkpoints,
+a clean stop on SIGINT/SIGTERM. Each picks up where a resumed run left off (``model.num_timesteps``).
 
 The evaluation callback scores the current model through the same path as the
 leaderboard (:func:`swarm_env.harness.evaluation.run_episode` with
@@ -72,10 +73,12 @@ class TqdmCallback(BaseCallback):
     def _on_training_start(self) -> None:
         from tqdm.auto import tqdm
 
-        # learn() has set _total_timesteps (num_timesteps added when it continues a run).
-        budget = getattr(self.model, "_total_timesteps", self.total) - self.model.num_timesteps
-        total = steps_to_take(self.model, budget)
-        self._bar = tqdm(total=total, unit="step", unit_scale=True, desc="train", dynamic_ncols=True)
+        # learn() has set _total_timesteps (num_timesteps added when it continues a run, which the bar
+        # starts from).
+        done = self.model.num_timesteps
+        budget = getattr(self.model, "_total_timesteps", self.total) - done
+        self._bar = tqdm(total=done + steps_to_take(self.model, budget), initial=done, unit="step", unit_scale=True,
+                         desc="train", dynamic_ncols=True)
 
     def _on_step(self) -> bool:
         n = self.training_env.num_envs
@@ -140,6 +143,20 @@ class EvalCallback(BaseCallback):
         if not self._csv.exists():
             with open(self._csv, "w", newline="") as fh:
                 csv.writer(fh).writerow(EVAL_COLUMNS)
+        elif self.num_timesteps:  # a resumed run: its evaluations up to here count, later ones are dropped
+            self._resume_history()
+
+    def _resume_history(self) -> None:
+        from swarm_env_baselines.checkpointing import truncate_csv
+
+        with open(self._csv, newline="") as fh:
+            rows = [r for r in csv.DictReader(fh) if int(r["agent_steps"]) <= self.num_timesteps]
+        truncate_csv(self._csv, len(rows))
+        self.history = [{k: int(v) if k == "agent_steps" else float(v) for k, v in r.items()} for r in rows]
+        if self.history:
+            self.best_score = min(r["score"] for r in self.history)
+            self._next = self.history[-1]["agent_steps"] + self.every
+            self._t0 -= self.history[-1]["wall_s"]
 
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next:
@@ -195,8 +212,27 @@ class CheckpointCallback(BaseCallback):
         self.vecnorm = vecnorm
         self._next = every
 
+    def _on_training_start(self) -> None:
+        self._next = (self.num_timesteps // self.every + 1) * self.every  # a resumed run: the next multiple
+
     def _on_step(self) -> bool:
         if self.num_timesteps >= self._next:
             self._next += self.every
             save_model(self.model, self.run_dir / "checkpoints" / f"step_{self.num_timesteps}", self.vecnorm)
         return True
+
+
+class StopCallback(BaseCallback):
+    """Ends ``learn`` cleanly once ``stop`` (a :class:`baselines.checkpointing.StopRequest`) has caught a
+    signal: at the first step of the next rollout, so the current rollout and its update complete."""
+
+    def __init__(self, stop: Any) -> None:
+        super().__init__()
+        self.stop = stop
+        self._stopping = False
+
+    def _on_rollout_start(self) -> None:
+        self._stopping = self.stop.requested
+
+    def _on_step(self) -> bool:
+        return not self._stopping

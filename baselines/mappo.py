@@ -7,6 +7,7 @@
     swarm-env train mappo ... --shield teach --imitation-coef 1.0   # the safety layer as a teacher
     swarm-env train mappo ... --shield execute                      # trained through the safety layer
     swarm-env train mappo ... --residual vo --shield execute        # a learned correction of vo
+    swarm-env train mappo --resume runs/<run>                       # go on after Ctrl-C or a crash
 
 A small PyTorch implementation in the CleanRL spirit, written to read top to bottom. The
 actor maps one follower's observation to a Gaussian over its normalised twist (parameter
@@ -46,8 +47,9 @@ A run directory ``<runs_dir>/<run_name>/`` holds ``config.json``, ``versions.jso
 tensors and JSON: loading runs no code; :mod:`swarm_env_baselines.mappo_policy`), ``best/``,
 ``pretrain.csv`` (DAgger rounds), ``eval.csv`` (validation, streamed), ``train.csv`` (losses,
 action std, contact and intervention rates per update, time spent in rollouts and updates),
-``learning_curve.png`` and ``summary.json``. Load it with ``mappo:<run dir>`` (or
-``mappo:<run dir>/best``) anywhere a policy spec is accepted.
+``learning_curve.png``, ``summary.json`` and ``checkpoint/`` (the latest resumable state: :func:`resume`,
+``swarm-env train mappo --resume <run dir>``; SIGINT/SIGTERM save it and the policy before exiting).
+Load it with ``mappo:<run dir>`` (or ``mappo:<run dir>/best``) anywhere a policy spec is accepted.
 """
 
 from __future__ import annotations
@@ -154,6 +156,9 @@ class MAPPOConfig:
     eval_workers: int = 0
     #: Torch threads (1 is fastest for these small networks).
     torch_threads: int = 1
+    #: Save a resumable checkpoint (checkpoint/) every this many PPO updates (0: only after the warm start, on
+    #: SIGINT/SIGTERM and at the end).
+    checkpoint_every: int = 10
     #: Parent directory of run directories.
     runs_dir: str = "runs"
     #: Run directory name (default: mappo|ippo_<scenario>_s<seed>_<timestamp>).
@@ -173,7 +178,7 @@ class MAPPOConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
         for name in ("pretrain_rounds", "pretrain_episodes", "pretrain_epochs", "critic_warmup", "eval_every",
-                     "eval_workers"):
+                     "eval_workers", "checkpoint_every"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"{name} must be an int >= 0, got {value!r}")
@@ -351,16 +356,36 @@ class Trainer:
         return self.envs[k].state() if self.state_dim else np.zeros(1, np.float32)
 
     def start(self) -> None:
+        """Start the first episode of every copy (world ``k`` from seed ``100 * seed + k``)."""
+        self._allocate()
+        for k, e in enumerate(self.envs):
+            self._begin_episode(k, {"seed": 100 * self.cfg.seed + k, "rng": None})
+
+    def _allocate(self) -> None:
         m, n = self.m, self.n
         self.base_actions = np.zeros((m, n, 2), np.float32)
         self.inputs = np.zeros((m, n, self.obs_dim), np.float32)
         self.states = np.zeros((m, max(self.state_dim, 1)), np.float32)
         self.returns = np.zeros((m, n))
-        for k, e in enumerate(self.envs):
-            obs, _ = e.reset(seed=100 * self.cfg.seed + k)
-            for ex in self.experts[k:k + 1]:
-                ex.reset(e.unwrapped, None)
-            self.inputs[k], self.states[k] = self._inputs(k, obs), self._state(k)
+        # What a checkpoint needs to rebuild each copy's world as it is now (see :meth:`restore`): how its
+        # episode began, and every action the world has executed since.
+        self.episode_starts: list[dict[str, Any]] = [{} for _ in range(m)]
+        self.episode_actions: list[list[np.ndarray]] = [[] for _ in range(m)]
+
+    def _begin_episode(self, k: int, start: dict[str, Any]) -> dict[str, np.ndarray]:
+        """Reset copy ``k`` as ``start`` says (``{"seed": int}`` a seeded reset; ``{"rng": state}`` the env's
+        generator at that state, then an unseeded reset: the same world as when it was recorded) and its expert."""
+        env = self.envs[k]
+        if start.get("seed") is not None:
+            obs, _ = env.reset(seed=start["seed"])
+        else:
+            _set_world_rng(env, start["rng"])
+            obs, _ = env.reset()
+        for ex in self.experts[k:k + 1]:
+            ex.reset(env.unwrapped, None)
+        self.episode_starts[k], self.episode_actions[k] = start, []
+        self.inputs[k], self.states[k] = self._inputs(k, obs), self._state(k)
+        return obs
 
     def critic_input(self, inputs: np.ndarray, states: np.ndarray) -> Any:
         import torch
@@ -408,6 +433,7 @@ class Trainer:
             res = shield_actions(env.unwrapped.world_state(), action, self.shield_params)
             batch.safe[t, cols], batch.intervened[t, cols], correction = res.actions, res.intervened, res.correction
         obs, rewards, terms, truncs, infos = env.step({a: action[i] for i, a in enumerate(agents)})
+        self.episode_actions[k].append(np.array(action))
         rew = np.array([rewards[a] for a in agents])
         if cfg.shield == "execute":
             correction = np.array([infos[a]["shield_correction"] for a in agents])
@@ -428,12 +454,11 @@ class Trainer:
                     scaled = scaled + cfg.gamma * self.critic(
                         self.critic_input(last_in[None], self._state(k)[None])).squeeze(-1).numpy()
             self.returns[k] = 0.0
-            obs, _ = env.reset()
-            for ex in self.experts[k:k + 1]:
-                ex.reset(env.unwrapped, None)
+            self._begin_episode(k, {"seed": None, "rng": _world_rng(env)})  # an unseeded reset: the stream goes on
+        else:
+            self.inputs[k], self.states[k] = self._inputs(k, obs), self._state(k)
         batch.rewards[t, cols] = scaled
         batch.dones[t, cols] = float(done)
-        self.inputs[k], self.states[k] = self._inputs(k, obs), self._state(k)
 
     # ---------------------------------------------------------------- update
     def update(self, batch: Batch, optim: Any, update_index: int, n_updates: int) -> dict[str, float]:
@@ -501,9 +526,96 @@ class Trainer:
     def save(self, directory: Path) -> Path:
         return save_run_policy(directory, self.actor, self.log_std, self.critic, self.obs_rms, self.state_rms, self.cfg)
 
+    # ---------------------------------------------------------------- checkpoints
+    def checkpoint_state(self, optim: Any) -> tuple[dict[str, Any], dict[str, Any]]:
+        """Everything the trainer needs to go on from here, as ``(tensors, JSON values)`` for
+        :func:`baselines.checkpointing.write_checkpoint` (the loop adds its counters): the networks, the
+        optimizer, the statistics, the torch generators, and how each copy's episode began and went so far."""
+        import torch
+
+        from swarm_env_baselines.checkpointing import optimizer_to_files
+
+        tensors: dict[str, Any] = {f"actor.{k}": v for k, v in self.actor.state_dict().items()}
+        tensors.update({f"critic.{k}": v for k, v in self.critic.state_dict().items()})
+        tensors["log_std"] = self.log_std.detach()
+        optim_tensors, optim_meta = optimizer_to_files(optim)
+        tensors.update(optim_tensors)
+        tensors["rng.sampling"] = self.gen.get_state()  # actions and minibatch order
+        tensors["rng.torch"] = torch.get_rng_state()
+        # Kept to check the rebuilt worlds against (restore), and because the returns are not rebuilt.
+        tensors["rollout.inputs"] = torch.from_numpy(self.inputs.copy())
+        tensors["rollout.states"] = torch.from_numpy(self.states.copy())
+        tensors["rollout.returns"] = torch.from_numpy(self.returns.copy())
+        for k, actions in enumerate(self.episode_actions):
+            if actions:
+                tensors[f"episode.{k}.actions"] = torch.from_numpy(np.stack(actions))
+        stats = {name: {**rms.to_json(), "frozen": rms.frozen}
+                 for name, rms in (("obs_rms", self.obs_rms), ("state_rms", self.state_rms), ("ret_rms", self.ret_rms))}
+        return tensors, {"optimizer": optim_meta, "statistics": stats, "episode_starts": self.episode_starts}
+
+    def restore(self, tensors: dict[str, Any], meta: dict[str, Any], optim: Any, source: Path) -> None:
+        """Load a :meth:`checkpoint_state` (read from ``source``, named in errors) into this fresh trainer.
+
+        The env copies cannot be saved mid-episode (their physics lives in pymunk), so each is rebuilt:
+        its episode is reset as it began (the seed, or the world generator's state) and every action it
+        executed since is played again. The env is deterministic, so the worlds, observations and
+        experts come back as they were; the rebuilt inputs are checked against the saved ones.
+        """
+        import torch
+
+        from swarm_env_baselines.checkpointing import optimizer_from_files
+
+        try:
+            self.actor.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
+            self.critic.load_state_dict({k[7:]: v for k, v in tensors.items() if k.startswith("critic.")}, strict=True)
+            with torch.no_grad():
+                self.log_std.copy_(tensors["log_std"])
+            self.gen.set_state(tensors["rng.sampling"])
+            torch.set_rng_state(tensors["rng.torch"])
+            stats = meta["statistics"]
+            for name in ("obs_rms", "state_rms", "ret_rms"):
+                rms = RunningMeanStd.from_json(stats[name])
+                rms.frozen = bool(stats[name]["frozen"])
+                setattr(self, name, rms)
+            starts = meta["episode_starts"]
+            saved_inputs, saved_states = tensors["rollout.inputs"].numpy(), tensors["rollout.states"].numpy()
+            returns = tensors["rollout.returns"].numpy()
+        except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+            raise ValueError(f"{source}: not a checkpoint of this run's networks ({exc})") from None
+        optimizer_from_files(optim, tensors, meta["optimizer"], source)
+        self._allocate()
+        if len(starts) != self.m or returns.shape != self.returns.shape:
+            raise ValueError(f"{source}: the checkpoint has {len(starts)} env copies, this run {self.m}")
+        self.returns[:] = returns
+        agents = self.agents
+        for k, start in enumerate(starts):
+            obs = self._begin_episode(k, start)
+            actions = tensors.get(f"episode.{k}.actions")
+            for action in ([] if actions is None else actions.numpy()):
+                obs, *_ = self.envs[k].step({a: action[i] for i, a in enumerate(agents)})
+                self.episode_actions[k].append(np.array(action))
+                self.inputs[k], self.states[k] = self._inputs(k, obs), self._state(k)
+        if not (np.array_equal(self.inputs, saved_inputs) and np.array_equal(self.states, saved_states)):
+            import warnings
+
+            warnings.warn(f"{source}: the rebuilt env copies differ from the checkpoint's (another swarm_env or "
+                          "scenario?); training goes on from the rebuilt worlds", stacklevel=2)
+
     def close(self) -> None:
         for e in self.envs:
             e.close()
+
+
+def _world_rng(env: Any) -> dict[str, Any]:
+    """The state of ``env``'s world generator (it draws each unseeded episode's world), as JSON values."""
+    return env.unwrapped._rng.bit_generator.state  # noqa: SLF001 - the env keeps no public handle on it
+
+
+def _set_world_rng(env: Any, state: dict[str, Any]) -> None:
+    """Put ``env``'s world generator in ``state`` (from :func:`_world_rng`)."""
+    bit_generator = getattr(np.random, state["bit_generator"])()
+    bit_generator.state = state
+    env.unwrapped._rng = np.random.Generator(bit_generator)  # noqa: SLF001
 
 
 def _write_row(path: Path, columns: tuple[str, ...], row: dict[str, Any]) -> None:
@@ -515,42 +627,144 @@ def _fmt(x: Any) -> Any:
     return f"{x:.6g}" if isinstance(x, float) else x
 
 
-def train(cfg: MAPPOConfig) -> Path:
-    """Run ``cfg`` to completion and return the run directory."""
-    import torch
-    from tqdm import tqdm
+#: The run directory's resumable checkpoint (the latest only; :meth:`Trainer.checkpoint_state`).
+CHECKPOINT_DIR = "checkpoint"
+CHECKPOINT_FORMAT = "swarm_env.mappo-checkpoint/1"
+#: What ``--resume`` may change: the budget, and settings that leave the results as they are.
+RESUME_OVERRIDES = ("total_steps", "eval_workers", "progress")
 
-    from swarm_env_baselines.config import parse_seeds
+
+def train(cfg: MAPPOConfig) -> Path:
+    """Run ``cfg`` to completion in a new run directory and return it.
+
+    Saves a resumable checkpoint under ``checkpoint/`` every ``cfg.checkpoint_every`` updates, after
+    the warm start, and at the end. On SIGINT or SIGTERM it finishes the current update, saves the
+    checkpoint and the policy files (``mappo:<run dir>`` loads them), and raises
+    :class:`~swarm_env_baselines.checkpointing.TrainingInterrupted`; :func:`resume` goes on from there.
+    Raises ``FileExistsError`` if the run directory already holds a run.
+    """
     from swarm_env_baselines.train import package_versions
 
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     run_dir = Path(cfg.runs_dir) / (cfg.run_name or f"{cfg.kind}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}")
     if (run_dir / "config.json").exists():
-        raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name")
-    eval_seeds = parse_seeds(cfg.eval_seeds)
+        raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name, "
+                              f"or continue it with --resume {run_dir}")
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
     write_json(run_dir / "versions.json", package_versions())
     for name, columns in (("eval.csv", EVAL_COLUMNS), ("train.csv", TRAIN_COLUMNS)):
         with open(run_dir / name, "w", newline="") as fh:
             csv.writer(fh).writerow(columns)
+    return _run(cfg, run_dir, None)
 
-    t0 = time.perf_counter()
+
+def resume(run_dir: str | Path, **overrides: Any) -> Path:
+    """Go on with the run in ``run_dir`` from its latest checkpoint, to its ``total_steps``; return the run directory.
+
+    Restores the networks, the optimizer, the statistics, the update and step counters (so the
+    imitation and warm-up schedules), the torch generators and the env copies (see
+    :meth:`Trainer.restore`): with the same ``total_steps``, the run ends with the same networks, bit
+    for bit, as if it had never stopped. ``overrides`` may set only :data:`RESUME_OVERRIDES` (a
+    larger ``total_steps`` trains a finished run further; it is written to ``config.json``).
+    Raises ``FileNotFoundError`` / ``ValueError`` naming the file for a missing or bad checkpoint.
+    """
+    from swarm_env_baselines.checkpointing import read_checkpoint
+
+    run_dir = Path(run_dir)
+    cfg_path = run_dir / "config.json"
+    if not cfg_path.is_file():
+        raise FileNotFoundError(f"--resume {run_dir}: no run there ({cfg_path} not found)")
+    bad = sorted(set(overrides) - set(RESUME_OVERRIDES))
+    if bad:
+        flags = ", ".join("--" + b.replace("_", "-") for b in bad)
+        allowed = ", ".join("--" + b.replace("_", "-") for b in RESUME_OVERRIDES)
+        raise ValueError(f"--resume continues {cfg_path} as it is: {flags} cannot change (only {allowed} can)")
+    try:
+        saved = json.loads(cfg_path.read_text())
+        cfg = MAPPOConfig(**{**saved, **overrides})
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{cfg_path}: not a baselines.mappo config ({exc})") from None
+    checkpoint = run_dir / CHECKPOINT_DIR
+    if not (checkpoint / "state.json").is_file():
+        raise FileNotFoundError(f"--resume {run_dir}: no checkpoint in it (the run stopped before its first one, "
+                                f"during the warm start): start a new run")
+    state = read_checkpoint(checkpoint, CHECKPOINT_FORMAT)
+    if overrides:
+        from swarm_env_baselines.safe_io import _atomic
+
+        with _atomic(cfg_path) as tmp:
+            tmp.write_text(cfg.to_json() + "\n")
+    return _run(cfg, run_dir, state)
+
+
+def _run(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None) -> Path:
+    """The training loop of :func:`train` (``checkpoint`` None: from the start) and :func:`resume`."""
+    from swarm_env_baselines.checkpointing import StopRequest
+
+    with StopRequest() as stop:
+        return _train_loop(cfg, run_dir, checkpoint, stop)
+
+
+def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None,
+                stop: Any) -> Path:
+    import torch
+    from tqdm import tqdm
+
+    from swarm_env_baselines.checkpointing import TrainingInterrupted, csv_rows, truncate_csv, write_checkpoint
+    from swarm_env_baselines.config import parse_seeds
+
+    eval_seeds = parse_seeds(cfg.eval_seeds)
     trainer = Trainer(cfg, run_dir)
-    if cfg.pretrain != "none":
-        trainer.pretrain()
-        with open(run_dir / "pretrain.csv", "w", newline="") as fh:
-            w = csv.DictWriter(fh, fieldnames=list(trainer.pretrain_log[0]))
-            w.writeheader()
-            w.writerows(trainer.pretrain_log)
-    pretrain_s = time.perf_counter() - t0
     params = [*trainer.actor.parameters(), trainer.log_std, *trainer.critic.parameters()]
     optim = torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
     batch_size = cfg.n_steps * trainer.m * trainer.n
     n_updates = max(1, cfg.total_steps // batch_size)
     best = float("inf")
     history: list[dict[str, Any]] = []
-    steps_done = 0
+    steps_done = updates_done = 0
+    last_eval: int | None = None
+    next_eval = cfg.eval_every or None
+    # Evaluations handed to a worker and not yet recorded: (agent-steps, wall_s, snapshot dir, future).
+    pending: list[tuple[int, float, Path, Any]] = []
+    resubmit: list[tuple[int, float]] = []
+    if checkpoint is None:
+        t0 = time.perf_counter()
+        if cfg.pretrain != "none":
+            # DAgger cannot stop half-way and save: a signal ends the run at once.
+            with stop.immediate(f"interrupted during the warm start: nothing to resume yet; start again with another "
+                                f"--run-name (or delete {run_dir})"):
+                trainer.pretrain()
+            with open(run_dir / "pretrain.csv", "w", newline="") as fh:
+                w = csv.DictWriter(fh, fieldnames=list(trainer.pretrain_log[0]))
+                w.writeheader()
+                w.writerows(trainer.pretrain_log)
+        pretrain_s = time.perf_counter() - t0
+        trainer.start()
+    else:
+        try:  # the envs are open: close them on a refusal
+            tensors, meta = checkpoint
+            source = run_dir / CHECKPOINT_DIR
+            try:
+                steps_done, updates_done = int(meta["agent_steps"]), int(meta["updates"])
+                best = float("inf") if meta["best"] is None else float(meta["best"])
+                history, last_eval, next_eval = list(meta["history"]), meta["last_eval"], meta["next_eval"]
+                pretrain_s, t0 = float(meta["pretrain_s"]), time.perf_counter() - float(meta["wall_s"])
+                resubmit = [(int(s), float(w)) for s, w in meta["pending_evals"]]
+                rows = {name: int(meta["csv_rows"][name]) for name in ("train.csv", "eval.csv")}
+            except (KeyError, TypeError, ValueError) as exc:
+                raise ValueError(f"{source / 'state.json'}: {exc}") from None
+            if updates_done >= n_updates and not resubmit:
+                raise ValueError(f"--resume {run_dir}: the run is complete ({steps_done} agent-steps, total_steps "
+                                 f"{cfg.total_steps}); pass a larger --total-steps to train it further")
+            for name, count in rows.items():  # drop what was logged after the checkpoint
+                truncate_csv(run_dir / name, count)
+            print(f"resuming {run_dir} at update {updates_done} of {n_updates} ({steps_done} agent-steps)",
+                  file=sys.stderr)
+            trainer.restore(tensors, meta, optim, source)
+        except BaseException:
+            trainer.close()
+            raise
     # Validation in background processes (cfg.eval_workers): each evaluation point saves a snapshot under
     # evals/, a worker scores it, and results are recorded in order as they arrive.
     pool = None
@@ -558,8 +772,9 @@ def train(cfg: MAPPOConfig) -> Path:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
-        pool = ProcessPoolExecutor(cfg.eval_workers, mp_context=mp.get_context("spawn"))
-    pending: list[tuple[int, float, Path, Any]] = []
+        from swarm_env_baselines.checkpointing import ignore_interrupts
+
+        pool = ProcessPoolExecutor(cfg.eval_workers, mp_context=mp.get_context("spawn"), initializer=ignore_interrupts)
 
     def record(steps: int, wall_s: float, s: dict[str, Any], keep: Callable[[], Any]) -> None:
         nonlocal best
@@ -578,7 +793,12 @@ def train(cfg: MAPPOConfig) -> Path:
             steps, wall_s, snapshot, future = pending.pop(0)
             record(steps, wall_s, future.result(), lambda: _replace_dir(snapshot, run_dir / "best"))
 
-    last_eval: int | None = None
+    def submit(steps: int, wall_s: float, snapshot: Path) -> None:
+        if pool is None:  # a resumed run's pending evaluation, now without workers
+            record(steps, wall_s, evaluate_saved(str(snapshot), cfg.to_json(), eval_seeds),
+                   lambda: _replace_dir(snapshot, run_dir / "best"))
+            return
+        pending.append((steps, wall_s, snapshot, pool.submit(evaluate_saved, str(snapshot), cfg.to_json(), eval_seeds)))
 
     def evaluate_and_keep() -> None:
         nonlocal last_eval
@@ -588,23 +808,39 @@ def train(cfg: MAPPOConfig) -> Path:
             summary = evaluate(trainer.policy(), cfg, eval_seeds)
             record(steps_done, wall_s, summary, lambda: trainer.save(run_dir / "best"))
             return
-        snapshot = trainer.save(run_dir / "evals" / str(steps_done))
-        pending.append((steps_done, wall_s, snapshot,
-                        pool.submit(evaluate_saved, str(snapshot), cfg.to_json(), eval_seeds)))
+        submit(steps_done, wall_s, trainer.save(run_dir / "evals" / str(steps_done)))
         collect_results(wait=False)
 
-    trainer.start()
-    if cfg.eval_every:
-        evaluate_and_keep()  # the starting point (after the warm start)
-    next_eval = cfg.eval_every or None
-    bar = tqdm(total=n_updates * batch_size, unit="step", disable=not cfg.progress, desc=cfg.kind)
+    def save_checkpoint() -> None:
+        # Evaluations still with a worker are listed, their snapshots kept: a resume scores them again.
+        tensors, meta = trainer.checkpoint_state(optim)
+        meta = {"format": CHECKPOINT_FORMAT, "updates": updates_done, "agent_steps": steps_done,
+                "best": best if np.isfinite(best) else None,
+                "history": history, "last_eval": last_eval, "next_eval": next_eval, "pretrain_s": pretrain_s,
+                "wall_s": time.perf_counter() - t0, "pending_evals": [[p[0], p[1]] for p in pending],
+                "csv_rows": {name: csv_rows(run_dir / name) for name in ("train.csv", "eval.csv")}, **meta}
+        write_checkpoint(run_dir / CHECKPOINT_DIR, tensors, meta)
+
+    finished = False
+    bar = tqdm(total=n_updates * batch_size, initial=steps_done, unit="step", disable=not cfg.progress, desc=cfg.kind)
     try:
-        for u in range(n_updates):
+        for steps, wall_s in resubmit:
+            snapshot = run_dir / "evals" / str(steps)
+            if (snapshot / "policy.json").is_file():
+                submit(steps, wall_s, snapshot)
+            else:
+                print(f"warning: {snapshot} is gone: the evaluation at {steps} agent-steps is skipped", file=sys.stderr)
+        if checkpoint is None:
+            if cfg.eval_every:
+                evaluate_and_keep()  # the starting point (after the warm start)
+            save_checkpoint()
+        for u in range(updates_done, n_updates):
             t_roll = time.perf_counter()
             batch = trainer.collect()
             t_upd = time.perf_counter()
             stats = trainer.update(batch, optim, u, n_updates)
             steps_done += batch_size
+            updates_done = u + 1
             bar.update(batch_size)
             row = {"agent_steps": steps_done, "wall_s": round(time.perf_counter() - t0, 1),
                    "rollout_s": round(t_upd - t_roll, 3), "update_s": round(time.perf_counter() - t_upd, 3),
@@ -615,14 +851,27 @@ def train(cfg: MAPPOConfig) -> Path:
                 next_eval += cfg.eval_every
                 evaluate_and_keep()
             collect_results(wait=False)
+            if stop.requested:
+                collect_results(wait=True)
+                save_checkpoint()
+                trainer.save(run_dir)
+                finished = True  # a clean stop: nothing pending, evals/ may go
+                raise TrainingInterrupted(stop.signum, (
+                    f"interrupted at {steps_done} of {n_updates * batch_size} agent-steps; saved {run_dir}/policy.* "
+                    f"and {run_dir / CHECKPOINT_DIR}/. Resume with: swarm-env train mappo --resume {run_dir}"))
+            if cfg.checkpoint_every and updates_done % cfg.checkpoint_every == 0 and updates_done < n_updates:
+                save_checkpoint()
         if last_eval != steps_done:  # the final policy is always scored
             evaluate_and_keep()
         collect_results(wait=True)
+        save_checkpoint()  # a finished run can be trained further (--resume with a larger --total-steps)
+        finished = True
     finally:
         bar.close()
         trainer.close()
         if pool is not None:
             pool.shutdown(cancel_futures=True)
+        if finished:
             import shutil
 
             shutil.rmtree(run_dir / "evals", ignore_errors=True)
@@ -642,19 +891,32 @@ def build_parser() -> argparse.ArgumentParser:
     from swarm_env_baselines.config import add_dataclass_options
 
     parser = argparse.ArgumentParser(prog="swarm-env train mappo", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--resume", metavar="RUN_DIR", default=argparse.SUPPRESS,
+                        help="go on with this run from its latest checkpoint (its config.json; only --total-steps, "
+                             "--eval-workers and --progress may be given with it)")
     add_dataclass_options(parser, MAPPOConfig)
     return parser
 
 
 def main(argv: list[str] | None = None) -> int:
+    from swarm_env_baselines.checkpointing import TrainingInterrupted
+
     args = vars(build_parser().parse_args(argv))
     for name in ("env_kwargs", "train_env_kwargs"):
         if name in args:
             args[name] = dict(args[name])
     try:
-        cfg = MAPPOConfig(**args)
-        run = train(cfg)
-    except (TypeError, ValueError, FileExistsError) as exc:
+        if "resume" in args:
+            run = resume(args.pop("resume"), **args)
+        else:
+            run = train(MAPPOConfig(**args))
+    except TrainingInterrupted as exc:
+        print(exc, file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("stopped at once: nothing saved since the last checkpoint", file=sys.stderr)
+        return 130
+    except (TypeError, ValueError, FileExistsError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(run)

@@ -3,6 +3,7 @@
 .. code-block:: console
 
     swarm-env train sb3 --algo ppo --scenario random --total-steps 2e6 --seed 0
+    swarm-env train sb3 --resume runs/<run> --trust-pickle   # go on after Ctrl-C (which saves the model) or a crash
 
 Every :class:`~swarm_env_baselines.config.TrainConfig` field is an option (``--help`` lists
 them with their documentation). A run writes a directory
@@ -12,18 +13,19 @@ them with their documentation). A run writes a directory
     versions.json      python, platform, package versions, git commit, command line
     policy.safetensors the final policy network and, in policy.json, its observation/return
     policy.json        statistics: what ppo:<run dir> and --init-from read (no pickle involved)
-    model.zip          the final SB3 model (+ vecnormalize.pkl), for SB3's own tools (pickles)
+    model.zip          the final (or interrupted) SB3 model (+ vecnormalize.pkl), for SB3's own tools and
+                       --resume (pickles)
     best/              the model with the best validation score (see swarm_env_baselines.callbacks)
     checkpoints/       periodic checkpoints
     eval.csv           validation metrics over training (the learning curve's data)
     learning_curve.png validation formation error and collisions over agent-steps
     logs/              SB3 logger output: progress.csv and TensorBoard event files
-                       (tensorboard --logdir runs/)
+                       (tensorboard --logdir runs/; a resumed run logs into logs/resumed_<agent-steps>/)
 
 Load the result as a policy with ``ppo:<run dir>`` (or ``ppo:<run dir>/best``)
 anywhere a policy spec is accepted, e.g. ``swarm-env evaluate``. ``--init-from`` reads a run's
 safe files; a directory that has only the pickles (``vecnormalize.pkl``) needs ``--trust-pickle``
-(see :mod:`baselines.model_io`).
+(see :mod:`swarm_env_baselines.model_io`).
 """
 
 from __future__ import annotations
@@ -127,43 +129,133 @@ def _warm_start(model: Any, venv: Any, cfg: TrainConfig, trust_pickle: bool | No
 
 
 def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
-    """Run ``cfg`` to completion and return the run directory. ``trust_pickle``: whether ``init_from``
-    may be unpickled (:func:`swarm_env.harness.policies.pickle_trusted`; default: ``SWARM_ENV_TRUST_PICKLE``)."""
-    import torch
-    from stable_baselines3.common.callbacks import CallbackList
-    from stable_baselines3.common.vec_env import VecNormalize
+    """Run ``cfg`` to completion in a new run directory and return it. ``trust_pickle``: whether
+    ``init_from`` may be unpickled (:func:`swarm_env.harness.policies.pickle_trusted`; default:
+    ``SWARM_ENV_TRUST_PICKLE``).
 
-    from swarm_env_baselines.callbacks import CheckpointCallback, EvalCallback, TqdmCallback
-    from swarm_env_baselines.model_io import save_model
-    from swarm_env_baselines.plots import plot_learning_curve
-    from swarm_env_baselines.vec_env import make_vec_env
-
-    torch.set_num_threads(cfg.torch_threads)
+    On SIGINT or SIGTERM the model finishes its current rollout (and update), is saved as the final
+    model (``ppo:<run dir>`` loads it) and :class:`~swarm_env_baselines.checkpointing.TrainingInterrupted` is
+    raised; :func:`resume` goes on from there. Raises ``FileExistsError`` if the run directory already
+    holds a run.
+    """
     stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
     name = cfg.run_name or f"{cfg.algo}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}"
     run_dir = Path(cfg.runs_dir) / name
     if (run_dir / "config.json").exists():
-        raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name")
+        raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name, "
+                              f"or continue it with --resume {run_dir}")
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
     write_json(run_dir / "versions.json", package_versions())
+    return _learn(cfg, run_dir, None, trust_pickle)
 
+
+#: What ``--resume`` may change: the budget and the progress bar.
+RESUME_OVERRIDES = ("total_steps", "progress")
+
+
+def resume(run_dir: str | Path, *, trust_pickle: bool | None = None, **overrides: Any) -> Path:
+    """Go on with the run in ``run_dir`` from its latest saved model (:func:`latest_model`) to its ``total_steps``.
+
+    SB3's own ``load`` brings back the networks, the optimizer and the step count (``learn`` goes on
+    with ``reset_num_timesteps=False``), and the run's ``vecnormalize.pkl`` the normalisation
+    statistics. Not restored (SB3 does not save them): the env worlds (reset), the RNG states
+    (re-seeded with ``seed + agent-steps``) and an off-policy replay buffer (refilled), so a resumed
+    run follows a different but equally valid path than an unbroken one. ``model.zip`` and
+    ``vecnormalize.pkl`` are pickle-bearing, so resuming needs ``trust_pickle`` (or
+    ``SWARM_ENV_TRUST_PICKLE=1``, :func:`swarm_env.harness.policies.pickle_trusted`): resume only your own
+    runs. ``overrides`` may set only :data:`RESUME_OVERRIDES`.
+    """
+    run_dir = Path(run_dir)
+    cfg_path = run_dir / "config.json"
+    if not cfg_path.is_file():
+        raise FileNotFoundError(f"--resume {run_dir}: no run there ({cfg_path} not found)")
+    bad = sorted(set(overrides) - set(RESUME_OVERRIDES))
+    if bad:
+        flags = ", ".join("--" + b.replace("_", "-") for b in bad)
+        raise ValueError(f"--resume continues {cfg_path} as it is: {flags} cannot change "
+                         f"(only --total-steps and --progress can)")
+    cfg = dataclasses.replace(TrainConfig.from_json(cfg_path), **overrides)
+    from swarm_env_baselines.safe_io import refuse_pickle
+
+    source = latest_model(run_dir)
+    refuse_pickle(source / "model.zip", "an SB3 model to resume it (and vecnormalize.pkl beside it)", trust_pickle,
+                  convert=False)
+    if overrides:
+        (run_dir / "config.json").write_text(cfg.to_json() + "\n")
+    return _learn(cfg, run_dir, source, True)
+
+
+def latest_model(run_dir: Path) -> Path:
+    """The directory among ``run_dir`` (the final or interrupted model) and ``run_dir/checkpoints/step_*``
+    whose ``model.zip`` has the most agent-steps (read from the zip's JSON ``data``, nothing unpickled)."""
+    import zipfile
+
+    from swarm_env_baselines.model_io import MODEL_FILE
+
+    def steps(d: Path) -> int | None:
+        try:
+            with zipfile.ZipFile(d / MODEL_FILE) as z:
+                return int(json.loads(z.read("data"))["num_timesteps"])
+        except (OSError, KeyError, ValueError, zipfile.BadZipFile) as exc:
+            # SB3 writes model.zip in place: one cut short by a hard stop is passed over for an older one.
+            print(f"warning: {d / MODEL_FILE} is not a readable SB3 model ({exc}); skipped", file=sys.stderr)
+            return None
+
+    dirs = [d for d in (run_dir, *sorted((run_dir / "checkpoints").glob("step_*"))) if (d / MODEL_FILE).is_file()]
+    found = [(n, d) for d in dirs if (n := steps(d)) is not None]
+    if not found:
+        raise FileNotFoundError(f"--resume {run_dir}: no readable saved model in it ({MODEL_FILE} or "
+                                f"checkpoints/step_*/{MODEL_FILE})")
+    return max(found, key=lambda item: item[0])[1]
+
+
+def _learn(cfg: TrainConfig, run_dir: Path, source: Path | None, trust_pickle: bool | None) -> Path:
+    """The training of :func:`train` (``source`` None: a new model; ``trust_pickle`` for ``init_from``)
+    and :func:`resume` (from ``source``, whose pickles the caller agreed to load)."""
+    import torch
+    from stable_baselines3.common.callbacks import CallbackList
+    from stable_baselines3.common.logger import configure
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    from swarm_env_baselines.callbacks import CheckpointCallback, EvalCallback, StopCallback, TqdmCallback
+    from swarm_env_baselines.checkpointing import StopRequest, TrainingInterrupted
+    from swarm_env_baselines.model_io import VECNORM_FILE, algorithm_class, save_model
+    from swarm_env_baselines.plots import plot_learning_curve
+    from swarm_env_baselines.vec_env import make_vec_env
+
+    torch.set_num_threads(cfg.torch_threads)
     env_kwargs = _env_kwargs(cfg)
     venv: Any = make_vec_env(cfg.scenario, cfg.n_copies, n_procs=cfg.n_procs, shield=cfg.shield, **env_kwargs)
     vecnorm = None
-    if cfg.norm_obs or cfg.norm_reward:
-        venv = vecnorm = VecNormalize(venv, norm_obs=cfg.norm_obs, norm_reward=cfg.norm_reward, gamma=cfg.gamma)
-    model = _make_model(cfg, venv, run_dir / "logs")
-    if cfg.init_from:
-        _warm_start(model, venv, cfg, trust_pickle)
-    if cfg.freeze_obs_stats and vecnorm is not None:
-        from swarm_env_baselines.model_io import FrozenRunningMeanStd
+    if source is None:
+        if cfg.norm_obs or cfg.norm_reward:
+            venv = vecnorm = VecNormalize(venv, norm_obs=cfg.norm_obs, norm_reward=cfg.norm_reward, gamma=cfg.gamma)
+        model = _make_model(cfg, venv, run_dir / "logs")
+        if cfg.init_from:
+            _warm_start(model, venv, cfg, trust_pickle)
+        if cfg.freeze_obs_stats and vecnorm is not None:
+            from swarm_env_baselines.model_io import FrozenRunningMeanStd
 
-        frozen = FrozenRunningMeanStd(shape=vecnorm.obs_rms.mean.shape)
-        frozen.mean, frozen.var, frozen.count = vecnorm.obs_rms.mean.copy(), vecnorm.obs_rms.var.copy(), vecnorm.obs_rms.count
-        vecnorm.obs_rms = frozen
+            frozen = FrozenRunningMeanStd(shape=vecnorm.obs_rms.mean.shape)
+            frozen.mean, frozen.var, frozen.count = vecnorm.obs_rms.mean.copy(), vecnorm.obs_rms.var.copy(), vecnorm.obs_rms.count
+            vecnorm.obs_rms = frozen
+    else:
+        if cfg.norm_obs or cfg.norm_reward:  # the statistics as saved (frozen ones stay frozen)
+            venv = vecnorm = VecNormalize.load(str(source / VECNORM_FILE), venv)
+            vecnorm.training = True
+        model = algorithm_class(cfg.algo).load(source / "model.zip", env=venv, device="cpu")
+        model.set_random_seed(cfg.seed + model.num_timesteps)  # torch, numpy and the worlds' next reset
+        model.set_logger(configure(str(run_dir / "logs" / f"resumed_{model.num_timesteps}"), ["csv", "tensorboard"]))
+        if model.num_timesteps >= cfg.total_steps:
+            venv.close()
+            raise ValueError(f"--resume {run_dir}: the run is complete ({model.num_timesteps} agent-steps, "
+                             f"total_steps {cfg.total_steps}); pass a larger --total-steps to train it further")
+        print(f"resuming {run_dir} from {source} ({model.num_timesteps} agent-steps)", file=sys.stderr)
+    start_steps = int(model.num_timesteps)
 
-    callbacks = []
+    stop = StopRequest("finishing the current rollout, then saving")
+    callbacks: list[Any] = [StopCallback(stop)]
     evaluator = None
     if cfg.eval_every:
         evaluator = EvalCallback(
@@ -177,16 +269,23 @@ def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
 
     t0 = time.perf_counter()
     try:
-        model.learn(total_timesteps=cfg.total_steps, callback=CallbackList(callbacks))
+        with stop:
+            model.learn(total_timesteps=cfg.total_steps - start_steps, callback=CallbackList(callbacks),
+                        reset_num_timesteps=source is None)
     finally:
         venv.close()
     wall = time.perf_counter() - t0
     save_model(model, run_dir, vecnorm)
-    summary = {"agent_steps": int(model.num_timesteps), "wall_s": round(wall, 1), "steps_per_s": round(model.num_timesteps / wall, 1)}
+    if stop.requested:
+        raise TrainingInterrupted(stop.signum, (
+            f"interrupted at {model.num_timesteps} of {cfg.total_steps} agent-steps; saved {run_dir}/model.zip "
+            f"(and the policy files). Resume with: swarm-env train sb3 --resume {run_dir} --trust-pickle"))
+    steps = model.num_timesteps - start_steps
+    summary = {"agent_steps": int(model.num_timesteps), "wall_s": round(wall, 1), "steps_per_s": round(steps / wall, 1)}
     if evaluator is not None and evaluator.history:
         summary["final_eval"] = evaluator.history[-1]
         summary["best_score"] = evaluator.best_score
-        plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=name)
+        plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
     write_json(run_dir / "summary.json", summary)
     return run_dir
 
@@ -204,6 +303,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--trust-pickle", action="store_true",
                         help="let --init-from unpickle a directory that has only model.zip + vecnormalize.pkl "
                              "(unpickling runs any code in the file: only for files you trust)")
+    parser.add_argument("--resume", metavar="RUN_DIR",
+                        help="go on with this run from its latest saved model (its config.json; only --total-steps "
+                             "and --progress may be given with it)")
     add_dataclass_options(parser, TrainConfig)
     return parser
 
@@ -211,6 +313,7 @@ def build_parser() -> argparse.ArgumentParser:
 def config_from_args(argv: list[str] | None = None) -> TrainConfig:
     args = vars(build_parser().parse_args(argv))
     args.pop("trust_pickle", None)  # how to load files, not part of the run's configuration
+    args.pop("resume", None)
     base: dict[str, Any] = {}
     config_path = args.pop("config", None)
     if config_path:
@@ -222,15 +325,25 @@ def config_from_args(argv: list[str] | None = None) -> TrainConfig:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from swarm_env_baselines.checkpointing import TrainingInterrupted
+
+    args = vars(build_parser().parse_args(argv))
     try:
-        cfg = config_from_args(argv)
-    except (ValueError, TypeError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    trust = build_parser().parse_args(argv).trust_pickle or None  # parsed above already: cannot fail here
-    try:
-        run_dir = train(cfg, trust_pickle=trust)
-    except (ValueError, FileExistsError, FileNotFoundError) as exc:
+        trust = args.pop("trust_pickle", False) or None
+        if args.get("resume"):
+            if args.get("config"):
+                raise ValueError("--resume continues the run's own config.json: drop --config")
+            run_dir = resume(args["resume"], trust_pickle=trust,
+                             **{k: v for k, v in args.items() if k not in ("resume", "config")})
+        else:
+            run_dir = train(config_from_args(argv), trust_pickle=trust)
+    except TrainingInterrupted as exc:
+        print(exc, file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("stopped at once: nothing saved since the last checkpoint", file=sys.stderr)
+        return 130
+    except (ValueError, TypeError, FileExistsError, FileNotFoundError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     print(run_dir)

@@ -1,0 +1,206 @@
+"""Interrupting and resuming training: signals, resumable checkpoints in safe files, CSV logs.
+
+Shared by both trainers (:mod:`swarm_env_baselines.mappo` and :mod:`swarm_env_baselines.train`):
+
+* :class:`StopRequest` turns the first SIGINT (Ctrl-C) or SIGTERM into a request that the
+  training loop honours at its next clean point (the end of an update, or of an SB3 step); a
+  second signal stops at once (``KeyboardInterrupt``). The loop then saves its state and raises
+  :class:`TrainingInterrupted`, whose ``exit_code`` is 130 for SIGINT and 143 for SIGTERM (128 +
+  the signal number, the shell convention) and whose message says how to resume.
+* :func:`write_checkpoint` / :func:`read_checkpoint`: a checkpoint directory holding
+  ``state.safetensors`` (every tensor, including RNG states as uint8 tensors) and ``state.json``
+  (everything else), swapped in whole so that a reader (or a resume after a crash) finds the old
+  or the new checkpoint complete, never a mix. No pickle: loading runs no code.
+* :func:`optimizer_to_files` / :func:`optimizer_from_files`: a torch optimizer's state in those
+  two forms (Adam's moments and step counts as tensors, its hyperparameters as JSON).
+* :func:`truncate_csv`: drop the rows a run logged after the checkpoint it resumes from.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import signal
+import sys
+import threading
+from pathlib import Path
+from typing import Any
+
+STATE_TENSORS = "state.safetensors"
+STATE_JSON = "state.json"
+
+__all__ = ["STATE_JSON", "STATE_TENSORS", "StopRequest", "TrainingInterrupted", "csv_rows", "ignore_interrupts",
+           "optimizer_from_files", "optimizer_to_files", "read_checkpoint", "truncate_csv", "write_checkpoint"]
+
+
+class TrainingInterrupted(Exception):
+    """Training stopped on a signal after saving its state; ``str()`` says how to resume."""
+
+    def __init__(self, signum: int, message: str) -> None:
+        super().__init__(message)
+        self.signum = signum
+        #: The process exit status a command line should return: 128 + the signal number.
+        self.exit_code = 128 + int(signum)
+
+
+class StopRequest:
+    """SIGINT/SIGTERM handlers for the duration of a ``with`` block.
+
+    Outside :meth:`immediate` sections, the first signal only sets :attr:`signum` (the loop polls
+    :attr:`requested` and stops cleanly); a second signal raises ``KeyboardInterrupt`` at once (stop
+    without saving). Inside ``with stop.immediate(message):`` (work that cannot be saved half-way,
+    e.g. a warm start) a signal raises :class:`TrainingInterrupted` with ``message`` at once. Handlers
+    can only be installed in the main thread; elsewhere the object never requests a stop.
+    """
+
+    SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+    def __init__(self, announce: str = "finishing the current update, then saving") -> None:
+        self.signum: int | None = None
+        self.announce = announce
+        self._immediate: str | None = None
+        self._previous: dict[int, Any] = {}
+
+    @property
+    def requested(self) -> bool:
+        return self.signum is not None
+
+    def __enter__(self) -> "StopRequest":
+        if threading.current_thread() is threading.main_thread():
+            for s in self.SIGNALS:
+                self._previous[s] = signal.signal(s, self._handle)
+        return self
+
+    def __exit__(self, *_: Any) -> None:
+        for s, handler in self._previous.items():
+            signal.signal(s, handler)
+        self._previous.clear()
+
+    def _handle(self, signum: int, _frame: Any) -> None:
+        if self._immediate is not None:
+            self.signum = signum
+            raise TrainingInterrupted(signum, self._immediate)
+        if self.signum is not None:
+            raise KeyboardInterrupt
+        self.signum = signum
+        name = signal.Signals(signum).name
+        print(f"\n{name}: {self.announce} (send it again to stop at once, without saving)", file=sys.stderr,
+              flush=True)
+
+    class _Immediate:
+        def __init__(self, owner: "StopRequest", message: str) -> None:
+            self.owner, self.message = owner, message
+
+        def __enter__(self) -> None:
+            if self.owner.signum is not None:  # a signal came just before: honour it now
+                raise TrainingInterrupted(self.owner.signum, self.message)
+            self.owner._immediate = self.message
+
+        def __exit__(self, *_: Any) -> None:
+            self.owner._immediate = None
+
+    def immediate(self, message: str) -> "StopRequest._Immediate":
+        """A section in which a signal raises :class:`TrainingInterrupted` with ``message`` at once."""
+        return StopRequest._Immediate(self, message)
+
+
+def ignore_interrupts() -> None:
+    """Process-pool initializer: a worker ignores SIGINT (Ctrl-C reaches the whole process group;
+    the parent decides when to stop and shuts its workers down itself)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+# --------------------------------------------------------------------------- checkpoint files
+
+
+def write_checkpoint(directory: Path, tensors: dict[str, Any], meta: dict[str, Any]) -> Path:
+    """Write ``tensors`` (name -> torch tensor) to ``directory/state.safetensors`` and ``meta`` (JSON
+    values) to ``directory/state.json``, replacing a previous checkpoint there as a whole."""
+    from safetensors.torch import save_file
+
+    from swarm_env_baselines.safe_io import swap_in_dir
+
+    tmp = directory.with_name(f".{directory.name}.tmp")
+    shutil.rmtree(tmp, ignore_errors=True)
+    tmp.mkdir(parents=True)
+    save_file({k: v.detach().cpu().contiguous() for k, v in tensors.items()}, str(tmp / STATE_TENSORS))
+    (tmp / STATE_JSON).write_text(json.dumps(meta, indent=1) + "\n")
+    return swap_in_dir(tmp, directory)
+
+
+def read_checkpoint(directory: Path, fmt: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """``(tensors, meta)`` of a checkpoint written by :func:`write_checkpoint` whose ``meta["format"]``
+    is ``fmt``. Raises ``FileNotFoundError`` or ``ValueError`` naming the file."""
+    from safetensors.torch import load_file
+
+    from swarm_env_baselines.safe_io import read_description
+
+    meta_path, tensor_path = directory / STATE_JSON, directory / STATE_TENSORS
+    if not meta_path.is_file() or not tensor_path.is_file():
+        raise FileNotFoundError(f"{directory}: no checkpoint ({STATE_JSON} and {STATE_TENSORS} expected)")
+    meta = read_description(meta_path, fmt)
+    try:
+        tensors = load_file(str(tensor_path), device="cpu")
+    except Exception as exc:  # noqa: BLE001 - safetensors raises several types; all mean "bad file"
+        raise ValueError(f"{tensor_path}: not a readable safetensors file ({exc})") from None
+    return tensors, meta
+
+
+def optimizer_to_files(optim: Any, prefix: str = "optim") -> tuple[dict[str, Any], dict[str, Any]]:
+    """A torch optimizer's ``state_dict`` split into tensors (``<prefix>.<param>.<key>``) and JSON
+    (the param groups and any non-tensor per-parameter state)."""
+    import torch
+
+    sd = optim.state_dict()
+    tensors: dict[str, Any] = {}
+    plain: dict[str, dict[str, Any]] = {}
+    for index, entry in sd["state"].items():
+        for key, value in entry.items():
+            if isinstance(value, torch.Tensor):
+                tensors[f"{prefix}.{index}.{key}"] = value
+            else:
+                plain.setdefault(str(index), {})[key] = value
+    return tensors, {"param_groups": sd["param_groups"], "plain_state": plain}
+
+
+def optimizer_from_files(optim: Any, tensors: dict[str, Any], meta: dict[str, Any], source: Path,
+                         prefix: str = "optim") -> None:
+    """Load into ``optim`` what :func:`optimizer_to_files` wrote (``source`` names the checkpoint in errors).
+
+    JSON turns tuples into lists; each hyperparameter is given back the type the fresh optimizer
+    has for it (Adam's ``betas`` is a tuple)."""
+    template = optim.state_dict()["param_groups"]
+    try:
+        groups = []
+        for fresh, saved in zip(template, meta["param_groups"], strict=True):
+            groups.append({k: tuple(v) if isinstance(fresh.get(k), tuple) else v for k, v in saved.items()})
+        state: dict[int, dict[str, Any]] = {}
+        for name, value in tensors.items():
+            if name.startswith(prefix + "."):
+                index, key = name[len(prefix) + 1:].split(".", 1)
+                state.setdefault(int(index), {})[key] = value
+        for index, entry in meta["plain_state"].items():
+            state.setdefault(int(index), {}).update(entry)
+        optim.load_state_dict({"state": state, "param_groups": groups})
+    except (KeyError, TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(f"{source}: the optimizer state does not fit this run's networks ({exc})") from None
+
+
+# --------------------------------------------------------------------------- CSV logs
+
+
+def csv_rows(path: Path) -> int:
+    """Data rows (after the header) in a CSV file; 0 if it does not exist."""
+    if not path.is_file():
+        return 0
+    with open(path, newline="") as fh:
+        return max(0, sum(1 for _ in csv.reader(fh)) - 1)
+
+
+def truncate_csv(path: Path, rows: int) -> None:
+    """Keep the header and the first ``rows`` data rows of ``path`` (what a checkpoint had logged)."""
+    with open(path, newline="") as fh:
+        kept = [r for _, r in zip(range(rows + 1), csv.reader(fh))]
+    with open(path, "w", newline="") as fh:
+        csv.writer(fh).writerows(kept)
