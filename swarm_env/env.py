@@ -197,7 +197,7 @@ class SwarmEnv(ParallelEnv):
     * v0: initial release.
     """
 
-    metadata = {
+    metadata: dict[str, Any] = {
         "name": "swarm_env_v1",
         "render_modes": ["human", "rgb_array"],
         "render_fps": 10,
@@ -317,8 +317,10 @@ class SwarmEnv(ParallelEnv):
         """The scenario of the current episode (the template before the first reset)."""
         if self._world is not None:
             return self._world.scenario
-        assert self._fixed is not None or self._random is not None
-        return self._fixed if self._fixed is not None else random_scenario(np.random.default_rng(0), self._random)
+        if self._fixed is not None:
+            return self._fixed
+        assert self._random is not None
+        return random_scenario(np.random.default_rng(0), self._random)
 
     def reset(self, seed: int | None = None, options: dict | None = None) -> tuple[dict, dict]:
         self._start(seed)

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Any, Sequence
 
 import numpy as np
 
@@ -246,7 +246,7 @@ class StaticMap:
         def col(a: np.ndarray) -> np.ndarray:
             return _frozen(a.T.reshape(-1, 1))
 
-        flat = {
+        flat: dict[str, Any] = {
             "ax": col(verts[..., 0]), "ay": col(verts[..., 1]),
             "ex": col(edges[..., 0]), "ey": col(edges[..., 1]),
             "inv_ee": col(inv_ee),
@@ -831,7 +831,7 @@ class StaticMap:
         corners = _corner_candidates(circ_a, circ_o, seg_a, seg_o)
         if len(corners):
             corners = corners[self.distance(corners) >= c]
-        prim = {"circles": circ_a, "segments": seg_a, "corners": _frozen(corners.reshape(-1, 2))}
+        prim: dict[str, Any] = {"circles": circ_a, "segments": seg_a, "corners": _frozen(corners.reshape(-1, 2))}
         # Per owner of _project_fast (circle obstacles, polygons, then the walls): its
         # primitives as Python floats, keyed by their index among _feet's feet, and the end
         # points of its segments.

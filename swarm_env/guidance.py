@@ -241,7 +241,7 @@ def sample_twists(v_max: float, omega_max: float, n_v: int = 7, n_w: int = 11, v
     return _twist_grid(float(v_max), float(omega_max), int(n_v), int(n_w), float(v_min))
 
 
-def twist_velocities(theta: float, twists: np.ndarray, tau: float) -> np.ndarray:
+def twist_velocities(theta: float | np.ndarray, twists: np.ndarray, tau: float) -> np.ndarray:
     """World-frame mean velocity ``(C, 2)`` of each twist ``(C, 2)`` held for ``tau`` s
     from heading ``theta``: the chord of the unicycle arc divided by ``tau``,
     ``v * sinc(omega tau / 2) * (cos, sin)(theta + omega tau / 2)`` (exact; the

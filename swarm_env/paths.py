@@ -50,6 +50,14 @@ class PolylinePath:
     """
 
     __slots__ = ("_points", "_cum", "_cum_list", "_seg", "_seglen", "_unit", "_headings", "_length")
+    _points: np.ndarray
+    _cum: np.ndarray
+    _cum_list: list[float]
+    _seg: np.ndarray
+    _seglen: np.ndarray
+    _unit: np.ndarray
+    _headings: np.ndarray
+    _length: float
 
     def __init__(self, points: Sequence[tuple[float, float]] | np.ndarray) -> None:
         pts = np.array(points, dtype=np.float64)

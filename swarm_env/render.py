@@ -280,7 +280,7 @@ class Renderer:
         if tuple(float(v) for v in state.scenario.world.size) != self.world_size:
             self._layout(state.scenario)
         w, h = self.size
-        if self._canvas is None or self._canvas_px.shape != (h, w, 3):
+        if self._canvas is None or self._canvas_px is None or self._canvas_px.shape != (h, w, 3):
             # The canvas surface draws straight into a numpy array we own (24-bit RGB, rows
             # contiguous): clearing it is one memcpy from the static layer and returning it is
             # one more, where pygame.image.tobytes plus a copy cost ~10x as much.
@@ -292,6 +292,7 @@ class Renderer:
             layer = self._draw_static(pg, state)
             self._static_px = np.frombuffer(pg.image.tobytes(layer, "RGB"), dtype=np.uint8).reshape(h, w, 3)
             self._static_key = key
+        assert self._static_px is not None and self._canvas_px is not None
 
         np.copyto(self._canvas_px, self._static_px)
         canvas = self._canvas

@@ -31,10 +31,10 @@ import numpy as np
 _INF = math.inf
 _TWO_PI = 2.0 * math.pi
 # error_model="numpy": a division by zero gives inf/nan as in numpy instead of raising.
-_JIT = {"cache": True, "nogil": True, "error_model": "numpy"}
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 
-@numba.njit(**_JIT)
+@_jit
 def _ray_disc(px: float, py: float, R2: float, wx: float, wy: float, limit: float, still_ok: bool) -> float:
     """``guidance._ray_disc_ttc`` for one pair (its docstring has the rules)."""
     wp = wx * px + wy * py
@@ -55,7 +55,7 @@ def _ray_disc(px: float, py: float, R2: float, wx: float, wy: float, limit: floa
     return t
 
 
-@numba.njit(**_JIT)
+@_jit
 def _disc_row(i, times, xs, ys, discs, still_ok, probe):
     """Contact time of robot ``i``'s trajectory ``(xs, ys)`` (displacements at ``times``) with its
     kept discs (``guidance._rows_disc_ttc`` and the horizon cut of ``_VOBatch.contact_times``).
@@ -96,7 +96,7 @@ def _disc_row(i, times, xs, ys, discs, still_ok, probe):
     return best
 
 
-@numba.njit(**_JIT)
+@_jit
 def _static_row(i, times, xs, ys, static, circles):
     """Contact time of robot ``i``'s trajectory with the static map (``guidance._rows_static_ttc``:
     walls, then, with ``circles``, the static circles, then the exact polygon test behind its
@@ -182,7 +182,7 @@ def _static_row(i, times, xs, ys, static, circles):
     return out
 
 
-@numba.njit(**_JIT)
+@_jit
 def _keep_discs(world):
     """Each robot's discs that some of its candidates can meet (``_VOBatch.prepare``): the moving discs,
     then the static circles, kept in that order and padded to the longest list (``valid`` False)."""
@@ -244,7 +244,7 @@ def _keep_discs(world):
     return rel, Rk, dvk, hk, valid, recip, own_vel, moving_k
 
 
-@numba.njit(**_JIT)
+@_jit
 def _static_context(world):
     """``guidance._static_context`` (circles included): the walls, circles and polygons in reach of
     some robot, the polygons each robot is free of (``free`` ``(N, P)``, ``fcols``), and the robots
@@ -324,7 +324,7 @@ def _static_context(world):
             over_nrm[:n_over], free, fcols)
 
 
-@numba.njit(**_JIT)
+@_jit
 def _contact(i, times, xs, ys, discs, static, has_static, still_ok):
     """``_VOBatch.contact_times`` of one trajectory of robot ``i``."""
     ttc = _INF
@@ -337,7 +337,7 @@ def _contact(i, times, xs, ys, discs, static, has_static, still_ok):
     return ttc
 
 
-@numba.njit(**_JIT)
+@_jit
 def preferred_contacts(world, times, pref_pts, still_ok):
     """Pass 1 of the fast path: each robot's contact time on its preferred twist ``(N,)``.
     ``world``: the robots, discs and map as ``_VOBatch._kernel_world`` packs them."""
@@ -351,12 +351,12 @@ def preferred_contacts(world, times, pref_pts, still_ok):
     return out
 
 
-@numba.njit(**_JIT)
+@_jit
 def _evaluate(i, c, ttc, times, pts, discs, static, has_static, still_ok):
     ttc[i, c] = _contact(i, times, pts[i, c, :, 0], pts[i, c, :, 1], discs, static, has_static, still_ok)
 
 
-@numba.njit(**_JIT)
+@_jit
 def _probe(i, c, discs, static, has_static, still_ok, probe):
     """Escape probe of robot ``i`` turning in place to candidate ``c``'s heading (``escape_turns``)."""
     twists, theta, v_max, tau, horizon = probe
@@ -380,7 +380,7 @@ def _probe(i, c, discs, static, has_static, still_ok, probe):
     return ttc
 
 
-@numba.njit(**_JIT)
+@_jit
 def _candidates(grid, pv, pw, theta, search):
     """``_VOBatch._candidates``: each robot's candidates (its preferred twist first, then ``grid``),
     their penalties and their stable penalty order, and the columns of the standing twist ``(0, 0)``."""
@@ -426,7 +426,7 @@ def _candidates(grid, pv, pw, theta, search):
     return twists, penalty, order, still
 
 
-@numba.njit(**_JIT)
+@_jit
 def _arc_points(pref_pts, body, cos_t, sin_t):
     """``_VOBatch.all_points`` for the arc model: the preferred twist's trajectory, then the grid's
     body-frame trajectories rotated by each robot's heading."""
@@ -444,7 +444,7 @@ def _arc_points(pref_pts, body, cos_t, sin_t):
     return pts
 
 
-@numba.njit(**_JIT)
+@_jit
 def select(world, times, pref_pts, trajectories, ttc0, grid, pv, pw, theta, search, fast, escape, first_stage,
            still_ok, probe):
     """The selection rule of ``_VOBatch.select`` after pass 1.

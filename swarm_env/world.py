@@ -98,10 +98,11 @@ def max_overlap(scenario: Scenario) -> dict[str, float]:
 # Body property accessors, called directly: pymunk's Body routes every attribute assignment
 # through a Python-level __setattr__, which made up a third of the physics step's cost (the
 # callback below runs for every robot in every substep).
-_BODY_ANGLE = pymunk.Body.angle.fget
-_SET_BODY_VELOCITY = pymunk.Body.velocity.fset
-_SET_BODY_ANGULAR_VELOCITY = pymunk.Body.angular_velocity.fset
-_SET_BODY_POSITION = pymunk.Body.position.fset
+_BODY: Any = pymunk.Body  # (typed loosely: pymunk's stubs declare these properties as overloads)
+_BODY_ANGLE = _BODY.angle.fget
+_SET_BODY_VELOCITY = _BODY.velocity.fset
+_SET_BODY_ANGULAR_VELOCITY = _BODY.angular_velocity.fset
+_SET_BODY_POSITION = _BODY.position.fset
 
 
 def _advance_twist(drive: list, dt: float) -> tuple[float, float]:
