@@ -114,6 +114,20 @@ def ignore_interrupts() -> None:
 # --------------------------------------------------------------------------- checkpoint files
 
 
+def resume_config(run_dir: str | Path, overrides: dict[str, Any], allowed: tuple[str, ...]) -> Path:
+    """The ``config.json`` of the run ``--resume`` continues: ``FileNotFoundError`` if ``run_dir`` holds no run,
+    ``ValueError`` if ``overrides`` set anything but the ``allowed`` fields (the rest of a run is what it was)."""
+    cfg_path = Path(run_dir) / "config.json"
+    if not cfg_path.is_file():
+        raise FileNotFoundError(f"--resume {run_dir}: no run there ({cfg_path} not found)")
+    bad = sorted(set(overrides) - set(allowed))
+    if bad:
+        flags = ", ".join("--" + b.replace("_", "-") for b in bad)
+        can = ", ".join("--" + b.replace("_", "-") for b in allowed)
+        raise ValueError(f"--resume continues {cfg_path} as it is: {flags} cannot change (only {can} can)")
+    return cfg_path
+
+
 def write_checkpoint(directory: Path, tensors: dict[str, Any], meta: dict[str, Any]) -> Path:
     """Write ``tensors`` (name -> torch tensor) to ``directory/state.safetensors`` and ``meta`` (JSON
     values) to ``directory/state.json``, replacing a previous checkpoint there as a whole."""

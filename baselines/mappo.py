@@ -669,17 +669,10 @@ def resume(run_dir: str | Path, **overrides: Any) -> Path:
     larger ``total_steps`` trains a finished run further; it is written to ``config.json``).
     Raises ``FileNotFoundError`` / ``ValueError`` naming the file for a missing or bad checkpoint.
     """
-    from swarm_env_baselines.checkpointing import read_checkpoint
+    from swarm_env_baselines.checkpointing import read_checkpoint, resume_config
 
     run_dir = Path(run_dir)
-    cfg_path = run_dir / "config.json"
-    if not cfg_path.is_file():
-        raise FileNotFoundError(f"--resume {run_dir}: no run there ({cfg_path} not found)")
-    bad = sorted(set(overrides) - set(RESUME_OVERRIDES))
-    if bad:
-        flags = ", ".join("--" + b.replace("_", "-") for b in bad)
-        allowed = ", ".join("--" + b.replace("_", "-") for b in RESUME_OVERRIDES)
-        raise ValueError(f"--resume continues {cfg_path} as it is: {flags} cannot change (only {allowed} can)")
+    cfg_path = resume_config(run_dir, overrides, RESUME_OVERRIDES)
     try:
         saved = json.loads(cfg_path.read_text())
         cfg = MAPPOConfig(**{**saved, **overrides})

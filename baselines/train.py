@@ -166,15 +166,10 @@ def resume(run_dir: str | Path, *, trust_pickle: bool | None = None, **overrides
     ``SWARM_ENV_TRUST_PICKLE=1``, :func:`swarm_env.harness.policies.pickle_trusted`): resume only your own
     runs. ``overrides`` may set only :data:`RESUME_OVERRIDES`.
     """
+    from swarm_env_baselines.checkpointing import resume_config
+
     run_dir = Path(run_dir)
-    cfg_path = run_dir / "config.json"
-    if not cfg_path.is_file():
-        raise FileNotFoundError(f"--resume {run_dir}: no run there ({cfg_path} not found)")
-    bad = sorted(set(overrides) - set(RESUME_OVERRIDES))
-    if bad:
-        flags = ", ".join("--" + b.replace("_", "-") for b in bad)
-        raise ValueError(f"--resume continues {cfg_path} as it is: {flags} cannot change "
-                         f"(only --total-steps and --progress can)")
+    cfg_path = resume_config(run_dir, overrides, RESUME_OVERRIDES)
     cfg = dataclasses.replace(TrainConfig.from_json(cfg_path), **overrides)
     from swarm_env_baselines.safe_io import refuse_pickle
 
