@@ -73,7 +73,7 @@ class ORCAPolicy:
         self._times: list[float] = []
 
     # ------------------------------------------------------------------ Policy protocol
-    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+    def reset(self, env: SwarmEnv, seed: int | None) -> None:
         """Start an episode (the RVO2 world is built at the first ``act``). ``seed`` is unused."""
         if getattr(env, "action_type", "continuous") != "continuous":
             raise ValueError("orca drives the continuous action space only (it commands speeds and turn rates); "

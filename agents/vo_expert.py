@@ -56,8 +56,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarm_env.guidance import pure_pursuit, slot_velocities
-from swarm_env.safety import AvoidanceParams, safe_follower_twists
 from swarm_env.harness.policies import expert_factory
+from swarm_env.safety import AvoidanceParams, safe_follower_twists
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -146,7 +146,7 @@ class VOExpert:
         raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     # ------------------------------------------------------------------ Policy protocol
-    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+    def reset(self, env: SwarmEnv, seed: int | None) -> None:
         """Start an episode (clears the telemetry). ``seed`` is unused: the expert is deterministic."""
         if getattr(env, "action_type", "continuous") != "continuous":
             raise ValueError(

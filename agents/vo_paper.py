@@ -32,12 +32,12 @@ os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 
 import numpy as np  # noqa: E402
 
-from swarm_env_agents.vo_expert import VOExpert  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.harness.evaluation import mean_ci95, run_episode  # noqa: E402
-from swarm_env.jsonio import write_json  # noqa: E402
 from swarm_env.harness.policies import load_policy  # noqa: E402
+from swarm_env.jsonio import write_json  # noqa: E402
 from swarm_env.state import WorldState  # noqa: E402
+from swarm_env_agents.vo_expert import VOExpert  # noqa: E402
 
 PAPER_SCENARIOS = ("paper_vo_0", "paper_vo_45", "paper_vo_90")
 

@@ -73,7 +73,6 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
-from swarm_env.jsonio import write_json
 import math
 import sys
 import time
@@ -84,6 +83,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm_env.jsonio import write_json
 from swarm_env_baselines.config import NET_ARCH, add_dataclass_options, parse_seeds, policy_kwargs
 from swarm_env_baselines.demos import Demos, generate_demos, load_demos
 
@@ -215,7 +215,7 @@ def running_returns(rewards: np.ndarray, dones: np.ndarray, gamma: float) -> np.
     return out
 
 
-def fit_normalization(vecnorm: "VecNormalize", demos: Demos, gamma: float) -> None:
+def fit_normalization(vecnorm: VecNormalize, demos: Demos, gamma: float) -> None:
     """Set ``vecnorm.obs_rms`` and ``ret_rms`` from demonstrations (see the module docstring, step 4)."""
     obs = demos.obs.astype(np.float64)
     var = obs.var(axis=0)
@@ -233,15 +233,15 @@ def fit_normalization(vecnorm: "VecNormalize", demos: Demos, gamma: float) -> No
 class _Tensors:
     """A demonstration set ready for the network: normalised observations, actions, value targets."""
 
-    obs: "torch.Tensor"
-    actions: "torch.Tensor"
-    targets: "torch.Tensor"
+    obs: torch.Tensor
+    actions: torch.Tensor
+    targets: torch.Tensor
 
     def __len__(self) -> int:
         return int(self.obs.shape[0])
 
 
-def _tensors(demos: Demos, vecnorm: "VecNormalize", gamma: float) -> _Tensors:
+def _tensors(demos: Demos, vecnorm: VecNormalize, gamma: float) -> _Tensors:
     import torch
 
     obs = vecnorm.normalize_obs(demos.obs)
@@ -257,7 +257,7 @@ def _tensors(demos: Demos, vecnorm: "VecNormalize", gamma: float) -> _Tensors:
 # --------------------------------------------------------------------------- model
 
 
-def make_bc_model(scenario: str, env_kwargs: dict[str, Any], net_arch: Sequence[int], seed: int, gamma: float = 0.99) -> tuple["PPO", "VecNormalize"]:
+def make_bc_model(scenario: str, env_kwargs: dict[str, Any], net_arch: Sequence[int], seed: int, gamma: float = 0.99) -> tuple[PPO, VecNormalize]:
     """The PPO model (CPU) and the VecNormalize wrapper that ``swarm_env_baselines.train`` would build for this env."""
     from stable_baselines3 import PPO
     from stable_baselines3.common.vec_env import VecNormalize
@@ -273,7 +273,7 @@ def make_bc_model(scenario: str, env_kwargs: dict[str, Any], net_arch: Sequence[
 class BCTrainer:
     """Adam on ``model.policy``: NLL of expert actions + ``value_coef`` x value MSE (see the module docstring)."""
 
-    def __init__(self, model: "PPO", *, learning_rate: float, batch_size: int, value_coef: float, min_std: float, seed: int) -> None:
+    def __init__(self, model: PPO, *, learning_rate: float, batch_size: int, value_coef: float, min_std: float, seed: int) -> None:
         import torch
 
         self.model = model
@@ -351,8 +351,8 @@ class BCTrainer:
 
 
 def dagger_rollouts(
-    model: "PPO",
-    vecnorm: "VecNormalize",
+    model: PPO,
+    vecnorm: VecNormalize,
     expert: str,
     scenario: str,
     seeds: Sequence[int],
@@ -369,10 +369,10 @@ def dagger_rollouts(
     """
     from tqdm.auto import tqdm
 
-    from swarm_env_baselines.demos import _stack, append_step, episode_arrays
-    from swarm_env_baselines.model_io import SB3Policy
     from swarm_env.env import SwarmEnv
     from swarm_env.harness.policies import load_policy
+    from swarm_env_baselines.demos import _stack, append_step, episode_arrays
+    from swarm_env_baselines.model_io import SB3Policy
 
     rng = rng if rng is not None else np.random.default_rng(0)
     env = SwarmEnv(scenario, **dict(env_kwargs or {}))
@@ -410,14 +410,14 @@ def dagger_rollouts(
 
 
 def evaluate_model(
-    model: "PPO", vecnorm: "VecNormalize | None", scenario: str, seeds: Sequence[int], *, env_kwargs: dict[str, Any] | None = None, progress: bool = False
+    model: PPO, vecnorm: VecNormalize | None, scenario: str, seeds: Sequence[int], *, env_kwargs: dict[str, Any] | None = None, progress: bool = False
 ) -> dict[str, Any]:
     """:func:`swarm_env.harness.evaluation.summarize` of the deterministic policy on ``seeds`` (one evaluation path)."""
     from tqdm.auto import tqdm
 
-    from swarm_env_baselines.model_io import SB3Policy
     from swarm_env.env import SwarmEnv
     from swarm_env.harness.evaluation import run_episode, summarize
+    from swarm_env_baselines.model_io import SB3Policy
 
     env = SwarmEnv(scenario, **dict(env_kwargs or {}))
     try:

@@ -20,10 +20,10 @@ import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecNormalize
 
-from swarm_env_baselines.model_io import SB3Policy, save_model
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.evaluation import run_episode, summarize
 from swarm_env.harness.policies import ShieldedPolicy
+from swarm_env_baselines.model_io import SB3Policy, save_model
 
 #: Model selection score = formation error (m) + this many metres per collision (lower is better).
 COLLISION_COST_M = 0.1

@@ -66,7 +66,7 @@ class StopRequest:
     def requested(self) -> bool:
         return self.signum is not None
 
-    def __enter__(self) -> "StopRequest":
+    def __enter__(self) -> StopRequest:
         if threading.current_thread() is threading.main_thread():
             for s in self.SIGNALS:
                 self._previous[s] = signal.signal(s, self._handle)
@@ -89,7 +89,7 @@ class StopRequest:
               flush=True)
 
     class _Immediate:
-        def __init__(self, owner: "StopRequest", message: str) -> None:
+        def __init__(self, owner: StopRequest, message: str) -> None:
             self.owner, self.message = owner, message
 
         def __enter__(self) -> None:
@@ -100,7 +100,7 @@ class StopRequest:
         def __exit__(self, *_: Any) -> None:
             self.owner._immediate = None
 
-    def immediate(self, message: str) -> "StopRequest._Immediate":
+    def immediate(self, message: str) -> StopRequest._Immediate:
         """A section in which a signal raises :class:`TrainingInterrupted` with ``message`` at once."""
         return StopRequest._Immediate(self, message)
 

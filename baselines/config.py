@@ -18,14 +18,15 @@ Data split used by the shipped baselines (``scenario="random"``):
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from swarm_env.jsonio import dumps
 from swarm_env.harness.leaderboard import parse_seeds
+from swarm_env.jsonio import dumps
 
 __all__ = ["NET_ARCH", "TrainConfig", "field_help", "parse_seeds", "policy_kwargs"]
 
@@ -131,7 +132,7 @@ class TrainConfig:
         return dumps(dataclasses.asdict(self), sort_keys=True)
 
     @classmethod
-    def from_json(cls, path: str | Path) -> "TrainConfig":
+    def from_json(cls, path: str | Path) -> TrainConfig:
         data = json.loads(Path(path).read_text())
         known = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - known)
@@ -172,7 +173,7 @@ def int_arg(text: str) -> int:
     return int(value)
 
 
-def add_dataclass_options(parser: "argparse.ArgumentParser", cls: type, *, required: tuple[str, ...] = ()) -> None:
+def add_dataclass_options(parser: argparse.ArgumentParser, cls: type, *, required: tuple[str, ...] = ()) -> None:
     """One option per field of the dataclass ``cls`` (``total_steps`` -> ``--total-steps``).
 
     Help text = the field's ``#:`` comment plus its default; options left out

@@ -51,7 +51,6 @@ from __future__ import annotations
 import argparse
 import hashlib
 import json
-from swarm_env.jsonio import write_json
 import multiprocessing as mp
 import os
 import re
@@ -64,6 +63,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from swarm_env.jsonio import write_json
 
 #: Version of the on-disk layout; part of the cache key.
 FORMAT_VERSION = 1
@@ -94,13 +95,13 @@ class Demos:
     def n_episodes(self) -> int:
         return int(len(self.episode_seeds))
 
-    def select_episodes(self, episode_ids: Iterable[int]) -> "Demos":
+    def select_episodes(self, episode_ids: Iterable[int]) -> Demos:
         """The rows of the given episode ids (order of rows kept; ids and seeds unchanged)."""
         mask = np.isin(self.episode, np.fromiter(episode_ids, dtype=np.int64))
         return Demos(**{name: getattr(self, name)[mask] for name in ARRAYS}, episode_seeds=self.episode_seeds, meta={})
 
     @staticmethod
-    def concatenate(parts: Sequence["Demos"]) -> "Demos":
+    def concatenate(parts: Sequence[Demos]) -> Demos:
         """Join sets; episode ids of later parts are shifted past the earlier parts' ids."""
         if not parts:
             raise ValueError("Demos.concatenate needs at least one part")
@@ -382,9 +383,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env_baselines.config import parse_seeds
     from swarm_env.harness.cli import parse_env_items
     from swarm_env.harness.policies import PolicyError, UnknownPolicyError
+    from swarm_env_baselines.config import parse_seeds
 
     args = build_parser().parse_args(argv)
     try:

@@ -58,15 +58,16 @@ import argparse
 import csv
 import dataclasses
 import json
-from swarm_env.jsonio import dumps, write_json
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
+from swarm_env.jsonio import dumps, write_json
 from swarm_env_baselines.mappo_policy import MAPPOPolicy, ResidualPolicy, residual_action, save_run_policy
 from swarm_env_baselines.ppo_core import RunningMeanStd, gae, mlp, ppo_policy_loss
 
@@ -239,8 +240,8 @@ def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str,
     float32 weights and statistics as the live actor, so the same result bit for bit)."""
     import torch
 
-    from swarm_env_baselines.mappo_policy import load_run_policy
     from swarm_env.env import SwarmEnv
+    from swarm_env_baselines.mappo_policy import load_run_policy
 
     torch.set_num_threads(1)
     cfg = MAPPOConfig(**json.loads(cfg_json))
@@ -281,7 +282,7 @@ class Batch:
     contacts: int = 0
 
     @classmethod
-    def empty(cls, t: int, b: int, d: int) -> "Batch":
+    def empty(cls, t: int, b: int, d: int) -> Batch:
         return cls(np.zeros((t, b, d), np.float32), [], np.zeros((t, b, 2), np.float32), np.zeros((t, b), np.float32),
                    np.zeros((t, b)), np.zeros((t, b)), np.zeros((t, b)), np.zeros((t, b, 2), np.float32),
                    np.zeros((t, b), np.float32))
@@ -358,7 +359,7 @@ class Trainer:
     def start(self) -> None:
         """Start the first episode of every copy (world ``k`` from seed ``100 * seed + k``)."""
         self._allocate()
-        for k, e in enumerate(self.envs):
+        for k in range(len(self.envs)):
             self._begin_episode(k, {"seed": 100 * self.cfg.seed + k, "rng": None})
 
     def _allocate(self) -> None:
@@ -784,7 +785,7 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
     def collect_results(wait: bool) -> None:
         while pending and (wait or pending[0][3].done()):
             steps, wall_s, snapshot, future = pending.pop(0)
-            record(steps, wall_s, future.result(), lambda: _replace_dir(snapshot, run_dir / "best"))
+            record(steps, wall_s, future.result(), lambda snapshot=snapshot: _replace_dir(snapshot, run_dir / "best"))
 
     def submit(steps: int, wall_s: float, snapshot: Path) -> None:
         if pool is None:  # a resumed run's pending evaluation, now without workers

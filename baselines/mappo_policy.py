@@ -25,15 +25,16 @@ Policy specs (entry points of the ``swarm_env.policies`` group):
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
-from swarm_env.jsonio import write_json
 from swarm_env.harness.policies import OBSERVATIONS, STATE
+from swarm_env.jsonio import write_json
 from swarm_env.state import WorldState
+from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
 
 FORMAT = "swarm_env.mappo/1"
 WEIGHTS_FILE = "policy.safetensors"

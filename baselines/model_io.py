@@ -76,7 +76,7 @@ class FrozenRunningMeanStd(_running_mean_std_base()):  # type: ignore[misc]
         pass
 
 
-def algorithm_class(name: str) -> type["BaseAlgorithm"]:
+def algorithm_class(name: str) -> type[BaseAlgorithm]:
     """The SB3 algorithm class for ``name`` (``ppo``, ``sac``, ``a2c``, ``td3``, ``ddpg``; ``bc`` = PPO)."""
     import stable_baselines3 as sb3
 
@@ -136,7 +136,7 @@ def check_sb3_zip(path: Path, algo: str) -> dict[str, Any]:
     return data
 
 
-def load_vecnormalize(path: Path, *, trust_pickle: bool | None = None) -> "VecNormalize":
+def load_vecnormalize(path: Path, *, trust_pickle: bool | None = None) -> VecNormalize:
     """The pickled ``VecNormalize`` in ``path`` (without its venv: ``normalize_obs`` still works), in
     evaluation mode. Refused unless pickles are trusted (:func:`~swarm_env.harness.policies.pickle_trusted`);
     a :class:`ModelFileError` naming the file if it is not a readable VecNormalize pickle."""
@@ -157,7 +157,7 @@ def load_vecnormalize(path: Path, *, trust_pickle: bool | None = None) -> "VecNo
     return vecnorm
 
 
-def save_model(model: "BaseAlgorithm", directory: str | Path, vecnorm: "VecNormalize | None" = None) -> Path:
+def save_model(model: BaseAlgorithm, directory: str | Path, vecnorm: VecNormalize | None = None) -> Path:
     """Write the policy and its statistics as tensors + JSON (:func:`swarm_env_baselines.safe_io.save_policy`), and
     ``model.zip`` (and ``vecnormalize.pkl`` if given) for SB3's tools and resuming, into ``directory``;
     returns the directory."""
@@ -173,7 +173,7 @@ def save_model(model: "BaseAlgorithm", directory: str | Path, vecnorm: "VecNorma
 
 
 def load_model(path: str | Path, algo: str = "ppo", *, trust_pickle: bool | None = None
-               ) -> tuple["BaseAlgorithm", "VecNormalize | None"]:
+               ) -> tuple[BaseAlgorithm, VecNormalize | None]:
     """The whole SB3 model in ``path`` (a ``.zip`` or a directory with ``model.zip``; on CPU) and the
     VecNormalize statistics saved beside it (or ``None``).
 
@@ -212,10 +212,16 @@ def load_warm_start(path: str | Path, algo: str, *, trust_pickle: bool | None = 
     there is a ``vecnormalize.pkl``, its statistics (a pickle: refused unless trusted). Raises
     ``FileNotFoundError`` or :class:`ModelFileError` naming the file.
     """
-    from swarm_env_baselines.safe_io import FORMAT as SAFE_FORMAT
     from swarm_env_baselines.safe_io import (
-        CONFIG_FILE, WEIGHTS_FILE, has_safe_policy, one_line, read_description, read_tensors, saved_statistics,
+        CONFIG_FILE,
+        WEIGHTS_FILE,
+        has_safe_policy,
+        one_line,
+        read_description,
+        read_tensors,
+        saved_statistics,
     )
+    from swarm_env_baselines.safe_io import FORMAT as SAFE_FORMAT
 
     p = Path(path).expanduser()
     d = p if p.is_dir() else p.parent
@@ -255,13 +261,13 @@ class SB3Policy:
         name: for error messages.
     """
 
-    def __init__(self, model: Any, vecnorm: "VecNormalize | None" = None, *, deterministic: bool = True, name: str = "model") -> None:
+    def __init__(self, model: Any, vecnorm: VecNormalize | None = None, *, deterministic: bool = True, name: str = "model") -> None:
         self.model = model
         self.vecnorm = vecnorm
         self.deterministic = deterministic
         self.name = name
 
-    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+    def reset(self, env: SwarmEnv, seed: int | None) -> None:
         agent = env.possible_agents[0]
         want_obs, have_obs = self.model.observation_space.shape, env.observation_space(agent).shape
         if want_obs != have_obs:
@@ -284,7 +290,7 @@ class SB3Policy:
         return {a: actions[i] for i, a in enumerate(agents)}
 
 
-def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
+def _make(algo: str, env: SwarmEnv, arg: str | None) -> SB3Policy:
     if not arg:
         if algo in ("ppo", "bc"):
             raise PolicyError(f"policy {algo!r}: " + RETIRED.format(algo=algo))
@@ -326,17 +332,17 @@ def _make(algo: str, env: "SwarmEnv", arg: str | None) -> SB3Policy:
     return policy
 
 
-def make_ppo_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
+def make_ppo_policy(env: SwarmEnv, arg: str | None = None) -> SB3Policy:
     """Entry point ``ppo:PATH``: a PPO model saved by ``swarm-env train sb3``."""
     return _make("ppo", env, arg)
 
 
-def make_bc_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
+def make_bc_policy(env: SwarmEnv, arg: str | None = None) -> SB3Policy:
     """Entry point ``bc:PATH``: a behaviour-cloned policy saved by ``swarm-env bc``."""
     return _make("bc", env, arg)
 
 
-def make_sac_policy(env: "SwarmEnv", arg: str | None = None) -> SB3Policy:
+def make_sac_policy(env: SwarmEnv, arg: str | None = None) -> SB3Policy:
     """Entry point ``sac:PATH``: a SAC model."""
     return _make("sac", env, arg)
 

@@ -46,7 +46,7 @@ class RunningMeanStd:
                 "clip": self.clip}
 
     @classmethod
-    def from_json(cls, d: dict[str, Any]) -> "RunningMeanStd":
+    def from_json(cls, d: dict[str, Any]) -> RunningMeanStd:
         mean = np.asarray(d["mean"], dtype=np.float64)
         var = np.asarray(d["var"], dtype=np.float64)
         if mean.shape != var.shape or not (np.isfinite(mean).all() and np.isfinite(var).all() and (var >= 0).all()):
@@ -55,7 +55,7 @@ class RunningMeanStd:
         rms.mean, rms.var, rms.count = mean, var, float(d["count"])
         return rms
 
-    def copy(self) -> "RunningMeanStd":
+    def copy(self) -> RunningMeanStd:
         return RunningMeanStd.from_json(self.to_json())
 
 

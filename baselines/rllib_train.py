@@ -33,12 +33,13 @@ import csv
 import dataclasses
 import io
 import sys
-from swarm_env.jsonio import write_json
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from swarm_env.jsonio import write_json
 
 FORMAT = "swarm_env.rllib/1"
 WEIGHTS_FILE = "policy.safetensors"

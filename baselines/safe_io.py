@@ -21,7 +21,6 @@ Every reader here raises ``ValueError`` with one line naming the file and what i
 from __future__ import annotations
 
 import json
-from swarm_env.jsonio import write_json
 import math
 import os
 import tempfile
@@ -30,6 +29,8 @@ from typing import TYPE_CHECKING, Any
 
 import gymnasium
 import numpy as np
+
+from swarm_env.jsonio import write_json
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -63,7 +64,7 @@ def has_safe_policy(directory: str | Path) -> bool:
     return (d / WEIGHTS_FILE).is_file() and (d / CONFIG_FILE).is_file()
 
 
-def save_policy(model: "BaseAlgorithm", directory: str | Path, algo: str, vecnorm: "VecNormalize | None" = None) -> Path:
+def save_policy(model: BaseAlgorithm, directory: str | Path, algo: str, vecnorm: VecNormalize | None = None) -> Path:
     """Write ``policy.safetensors`` and ``policy.json`` for ``model`` (trained with ``algo``) into ``directory``.
 
     Both files are written to a temporary name in ``directory`` and renamed, so a reader never
@@ -274,7 +275,7 @@ def _jsonable(value: Any) -> Any:
     raise ValueError(f"policy_kwargs value {value!r} ({type(value).__name__}) has no JSON form")
 
 
-def _normalization_to_json(vecnorm: "VecNormalize | None") -> dict[str, Any] | None:
+def _normalization_to_json(vecnorm: VecNormalize | None) -> dict[str, Any] | None:
     # Everything a warm start takes from VecNormalize (observation and return statistics), so that it
     # never needs vecnormalize.pkl; "norm_obs": false keeps the statistics but the policy reads raw inputs.
     if vecnorm is None:

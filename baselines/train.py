@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-from swarm_env.jsonio import dumps, write_json
 import platform
 import subprocess
 import sys
@@ -43,6 +42,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+from swarm_env.jsonio import dumps, write_json
 from swarm_env_baselines.config import TrainConfig, add_dataclass_options, parse_seeds, policy_kwargs
 
 PACKAGES = ("swarm-env", "numpy", "torch", "stable-baselines3", "gymnasium", "pettingzoo", "pymunk", "tensorboard")

@@ -29,9 +29,9 @@ import time
 from typing import Any
 
 import swarm_env
-from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
 from swarm_env.harness.evaluation import run_episode
 from swarm_env.jsonio import dumps
+from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
 
 
 def episode(env: Any, seed: int, **kwargs: Any) -> dict[str, Any]:

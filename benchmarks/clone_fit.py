@@ -25,10 +25,10 @@ def main() -> None:
 
     import torch
 
-    from swarm_env_baselines.imitation import DaggerSettings, fit, rollouts
-    from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
     from swarm_env.env import SwarmEnv
     from swarm_env.harness.policies import load_policy
+    from swarm_env_baselines.imitation import DaggerSettings, fit, rollouts
+    from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
 
     torch.set_num_threads(1)
     torch.manual_seed(0)

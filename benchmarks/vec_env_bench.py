@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
-from swarm_env_baselines.vec_env import make_vec_env
 from swarm_env.env import SwarmEnv
+from swarm_env_baselines.vec_env import make_vec_env
 
 
 def bench_env(scenario: str, copies: int, steps: int, seed: int) -> float:

@@ -25,10 +25,10 @@ import time
 
 import numpy as np
 
-from swarm_env_agents.vo_expert import VOExpert
 from swarm_env import guidance
 from swarm_env.env import SwarmEnv
 from swarm_env.safety import safe_follower_twists
+from swarm_env_agents.vo_expert import VOExpert
 
 SCENARIOS = ("paper_cbs_switch", "paper_vo_0")
 

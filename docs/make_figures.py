@@ -20,8 +20,8 @@ import numpy as np  # noqa: E402
 
 import swarm_env  # noqa: E402
 from swarm_env.harness.policies import load_policy  # noqa: E402
-from swarm_env.render import Renderer  # noqa: E402
 from swarm_env.harness.video import save_frame_png  # noqa: E402
+from swarm_env.render import Renderer  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "images"
 #: scenario -> simulated time (s) of the frame

@@ -21,7 +21,6 @@ from typing import Any
 from pettingzoo.utils.conversions import parallel_to_aec
 
 from swarm_env import _moved
-
 from swarm_env.env import PRIMITIVE_ANGLES_DEG, SwarmEnv
 from swarm_env.observations import OBS_LEADER, OBS_OWN_TWIST, OBS_SLOT, OBS_SWITCH, observation_layout
 from swarm_env.scenario import Scenario, ScenarioError

@@ -387,7 +387,7 @@ class SwarmEnv(ParallelEnv):
             self.render()
         return observations, rewards, terminations, truncations, infos
 
-    def _advance(self, norm: np.ndarray) -> "StepOutcome":
+    def _advance(self, norm: np.ndarray) -> StepOutcome:
         """One step of everything but the observations and the metrics: the physics with the
         ``(N, 2)`` normalised actions ``norm``, the rewards and the episode end. :meth:`step` and
         the batched engine (:mod:`swarm_env.vector`) both call it, then :meth:`_account`."""
@@ -407,7 +407,7 @@ class SwarmEnv(ParallelEnv):
         truncated = bool(not terminated and state.step >= self.max_steps)
         return StepOutcome(state, reward, terms, dist, touching, collided, terminated, truncated)
 
-    def _account(self, out: "StepOutcome", wall_time: float) -> None:
+    def _account(self, out: StepOutcome, wall_time: float) -> None:
         """Metrics, episode bookkeeping and the renderer's record of the step :meth:`_advance` made."""
         self._metrics.update(out.state, wall_time, out.dist)
         self._metrics.terminated = out.terminated

@@ -13,8 +13,8 @@ projection). Paper 003 (Sec. II-C, Eqs. 5-6): the V formation.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from functools import lru_cache
-from typing import Sequence
 
 import numpy as np
 

@@ -23,8 +23,9 @@ Conventions shared by all functions:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -291,7 +292,7 @@ class StaticMap:
         self.__dict__.update(state)
 
     @classmethod
-    def from_obstacles(cls, size: tuple[float, float], obstacles: Sequence[Obstacle]) -> "StaticMap":
+    def from_obstacles(cls, size: tuple[float, float], obstacles: Sequence[Obstacle]) -> StaticMap:
         """Build the map of world ``size = (W, H)`` from ``scenario.obstacles``.
 
         Circles go to ``circles``; rectangles (corners via :func:`rotate_rectangle`) and

@@ -869,7 +869,7 @@ class VOParams:
         """The parameters' names (the dataclass fields)."""
         return tuple(f.name for f in fields(cls))
 
-    def with_overrides(self, overrides: dict) -> "VOParams":
+    def with_overrides(self, overrides: dict) -> VOParams:
         """A copy with ``overrides`` (parameter names) replaced; ``self`` when there are none."""
         if not overrides:
             return self
@@ -1120,7 +1120,7 @@ class _VOBatch:
             self.pref_pts = np.zeros((n, 2, 2))
             self.pref_pts[:, 1] = twist_velocities(theta, np.column_stack([pv, pw]), tau) * horizon
         # No trajectory gets farther than its path length, |v| horizon (cheap, rotation-free bound).
-        ext = self.ext = max(abs(v_min), abs(v_max)) * horizon
+        self.ext = max(abs(v_min), abs(v_max)) * horizon
         vel = None if velocity is None else np.asarray(velocity, dtype=np.float64).reshape(n, 2)
 
         self.vel = vel

@@ -23,8 +23,8 @@ Semantics (per ray, distance from the origin along the unit direction, clipped t
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numba
 import numpy as np
@@ -53,7 +53,7 @@ class PackedMaps:
     poly_bound: np.ndarray
 
     @classmethod
-    def of(cls, maps: Sequence[StaticMap]) -> "PackedMaps":
+    def of(cls, maps: Sequence[StaticMap]) -> PackedMaps:
         """Pack ``maps`` (one per world, in world order; a map may repeat)."""
         mmax = max(m.poly_normals.shape[1] for m in maps)
 

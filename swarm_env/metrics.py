@@ -38,7 +38,6 @@ import numpy as np
 from swarm_env.rewards import slot_distance
 from swarm_env.state import CONTACT_KINDS, LEADER_ID, WorldState
 
-
 # Slack (m) per step of the carried clearance bounds: covers rounding, far below any clearance that matters.
 _LIPSCHITZ_SLACK = 1e-9
 

@@ -74,7 +74,7 @@ STATE_GRID = 16
 _GRID_SAMPLES = 4  # samples per cell side when measuring a cell's occupied fraction
 
 
-def state_layout(capacity: "Capacity") -> dict[str, slice]:
+def state_layout(capacity: Capacity) -> dict[str, slice]:
     """Named slices of the global state vector (``env.state()``; ``env.state_layout``).
 
     ======================  =======  ==========================================================
@@ -145,7 +145,7 @@ class ObservationBuilder:
         k = sensors.lidar_rays
         self._ray_angles = 2.0 * np.pi * np.arange(k) / k
         self._columns: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
-        self._packed_map: "tuple[StaticMap, PackedMaps] | None" = None
+        self._packed_map: tuple[StaticMap, PackedMaps] | None = None
         self._single_index: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # team size -> (world, own disc) of scan()
         self.state_layout = state_layout(capacity)
         self.state_size = self.state_layout["occupancy"].stop
@@ -285,7 +285,7 @@ class ObservationBuilder:
         np.subtract(other_vel[order], vel[:, None, :], out=vec[:, k:k + kk])
         return valid
 
-    def lidar(self, states: Sequence[WorldState], maps: "PackedMaps | None" = None) -> np.ndarray:
+    def lidar(self, states: Sequence[WorldState], maps: PackedMaps | None = None) -> np.ndarray:
         """The lidar of every follower of ``states`` (one world each), stacked: ``(sum N, rays)``
         distances (m), in one call of the compiled kernel. ``maps``: ``PackedMaps.of`` the
         states' static maps, if the caller keeps it (otherwise packed here)."""
@@ -293,7 +293,7 @@ class ObservationBuilder:
             maps = self._packed(states[0].static) if len(states) == 1 else _packed_maps([s.static for s in states])
         return self.scan([lidar_input(s) for s in states], maps)
 
-    def scan(self, inputs: Sequence[tuple[np.ndarray, np.ndarray]], maps: "PackedMaps") -> np.ndarray:
+    def scan(self, inputs: Sequence[tuple[np.ndarray, np.ndarray]], maps: PackedMaps) -> np.ndarray:
         """``(sum N, rays)`` lidar distances (m) of worlds given as :func:`lidar_input` pairs
         ``(follower poses (N, 3), moving discs (D, 3))``, world ``w`` in the map ``w`` of ``maps``."""
         from swarm_env.lidar import pack_discs, scan
@@ -313,7 +313,7 @@ class ObservationBuilder:
         disc_start, discs = pack_discs([d for _, d in inputs])
         return scan(poses, world, own, self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
 
-    def _packed(self, static: StaticMap) -> "PackedMaps":
+    def _packed(self, static: StaticMap) -> PackedMaps:
         """``PackedMaps.of([static])``, kept while the map stays the same."""
         if self._packed_map is None or self._packed_map[0] is not static:
             self._packed_map = (static, _packed_maps([static]))
@@ -366,7 +366,7 @@ class ObservationBuilder:
         return grid
 
 
-def _packed_maps(maps: Sequence[StaticMap]) -> "PackedMaps":
+def _packed_maps(maps: Sequence[StaticMap]) -> PackedMaps:
     from swarm_env.lidar import PackedMaps
 
     return PackedMaps.of(maps)

@@ -13,7 +13,7 @@ files).
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal, Union
+from typing import Literal
 
 Point = tuple[float, float]
 Pose = tuple[float, float, float]
@@ -53,7 +53,7 @@ class ScenarioError(ValueError):
         super().__init__(f"{source}: {key}: expected {expected}{got_txt}")
 
     @classmethod
-    def several(cls, errors: "list[ScenarioError] | tuple[ScenarioError, ...]") -> "ScenarioError":
+    def several(cls, errors: list[ScenarioError] | tuple[ScenarioError, ...]) -> ScenarioError:
         """One error carrying all of ``errors`` (non-empty; nested ones are flattened):
         the error itself when there is only one."""
         flat = tuple(e for err in errors for e in err.errors)
@@ -170,7 +170,7 @@ class PolygonObstacle:
     type: Literal["polygon"] = "polygon"
 
 
-Obstacle = Union[CircleObstacle, RectangleObstacle, PolygonObstacle]
+Obstacle = CircleObstacle | RectangleObstacle | PolygonObstacle
 
 
 @dataclass(frozen=True)
@@ -249,7 +249,7 @@ class RewardSpec:
     approach_margin: float = 0.5
 
     @classmethod
-    def v0(cls) -> "RewardSpec":
+    def v0(cls) -> RewardSpec:
         """The swarm_env_v0 reward: ``-formation distance - 10 * new contacts``, nothing else."""
         return cls(formation=1.0, collision=10.0, contact=0.0, clearance=0.0, clearance_margin=0.2)
 

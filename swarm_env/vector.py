@@ -143,7 +143,7 @@ class _WorldBlock:
         t0 = time.perf_counter()
         for w, e, act in zip(self.worlds, self.envs, norm):
             if self.shielded:
-                res = w.protect(act)  # type: ignore[union-attr]
+                res = w.protect(act)
                 act = res.actions.astype(np.float64)  # what SafetyShield.step hands the env, as float64
                 shield_cols.append([res.intervened, res.correction, res.feasible])
             outcomes.append(e._advance(act))
@@ -171,7 +171,7 @@ class _WorldBlock:
         """Reset world ``b`` as its ``reset(seed)`` would, without building observations there."""
         self.envs[b]._start(seed)
         if self.shielded:
-            self.worlds[b].start_episode()  # type: ignore[union-attr]
+            self.worlds[b].start_episode()
 
     def _changed_maps(self) -> dict[int, StaticMap]:
         out = {}
@@ -295,7 +295,7 @@ class SwarmVectorEnv:
         self._init_from([EnvFactory(scenario, dict(kwargs), shield)] * int(num_envs), n_procs)
 
     @classmethod
-    def from_factories(cls, factories: Sequence[Callable[[], World]], n_procs: int = 1) -> "SwarmVectorEnv":
+    def from_factories(cls, factories: Sequence[Callable[[], World]], n_procs: int = 1) -> SwarmVectorEnv:
         """Batch the worlds ``factories`` build (each returns a ``SwarmEnv``, or a ``SafetyShield``
         of one; picklable with cloudpickle when ``n_procs > 1``). They must have the same team,
         spaces and sensors."""

@@ -291,7 +291,7 @@ def _static_context(world):
         if not cand:
             continue
         for i in range(n):
-            hmax, e_max, d2min, e_min = -_INF, 0, _INF, 0
+            hmax, e_max, d2min = -_INF, 0, _INF
             fx_min, fy_min = 0.0, 0.0
             for e in range(n_edges):
                 qx = P[i, 0] - A[p, e, 0]
@@ -304,7 +304,7 @@ def _static_context(world):
                 if e == 0 or perp > hmax:
                     hmax, e_max = perp, e
                 if e == 0 or d2 < d2min:
-                    d2min, e_min, fx_min, fy_min = d2, e, fx, fy
+                    d2min, fx_min, fy_min = d2, fx, fy
             inside = hmax <= 0.0
             sd = hmax if inside else math.sqrt(d2min)
             reach = rad[i] + (ext + 1e-9)

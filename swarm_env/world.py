@@ -402,7 +402,7 @@ class World:
         shape.collision_type = collision_type
         shape.friction = 0.0  # robots slide along walls instead of being spun by them
         shape.elasticity = 0.0
-        shape.swarm_id = index  # type: ignore[attr-defined]
+        shape.swarm_id = index
 
     def _add_walls(self) -> None:
         w, h = self.scenario.world.size

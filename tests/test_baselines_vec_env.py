@@ -10,9 +10,9 @@ pytest.importorskip("stable_baselines3")
 import gymnasium  # noqa: E402
 from stable_baselines3 import PPO  # noqa: E402
 
+from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env_baselines.config import policy_kwargs  # noqa: E402
 from swarm_env_baselines.vec_env import EnvFactory, SwarmVecEnv, make_vec_env  # noqa: E402
-from swarm_env.env import SwarmEnv  # noqa: E402
 
 SMALL = {"n_followers": 3, "n_obstacles": (1, 3), "n_humans": (0, 1), "world_size": (12.0, 12.0)}
 
@@ -71,7 +71,7 @@ def test_termination_is_not_reported_as_truncation():
     env.reset(seed=2)
     ahead = np.tile([1.0, 0.0], (venv.num_envs, 1)).astype(np.float32)  # full speed ahead: something is hit
     returns = np.zeros(venv.num_envs)
-    for t in range(400):
+    for t in range(400):  # noqa: B007 - t is read after the loop
         obs, rewards, dones, infos = venv.step(ahead)
         last, rew, term, trunc, _ = env.step({a: ahead[i] for i, a in enumerate(env.possible_agents)})
         returns += rewards.astype(np.float64)

@@ -7,9 +7,9 @@ import json
 
 import pytest
 
+from swarm_env.extras import MissingExtraError
 from swarm_env.harness.bench import run_batched_bench, run_followers_bench
 from swarm_env.harness.cli import main
-from swarm_env.extras import MissingExtraError
 
 
 def test_batched_bench_reports_each_size_for_the_engine() -> None:

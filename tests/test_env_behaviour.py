@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import copy
-import hashlib
 import os
 import pickle
 import subprocess
@@ -14,7 +13,6 @@ import numpy as np
 import pytest
 
 import swarm_env
-from swarm_env.harness.policies import RandomPolicy
 
 EPISODE_DIGEST = textwrap.dedent(
     """

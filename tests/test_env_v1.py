@@ -12,7 +12,7 @@ from swarm_env.geometry import StaticMap
 from swarm_env.random_scenario import KNOB_LIMITS, RandomScenarioConfig, random_scenario, slot_speed_violations
 from swarm_env.rewards import INFO_CONTACT_KEYS, INFO_REWARD_KEYS, REWARD_TERMS, contact_counts, reward_terms
 from swarm_env.scenario import RewardSpec, ScenarioError
-from tests.test_physics import _drive, _scenario
+from tests.test_physics import _scenario
 
 ALL = swarm_env.list_scenarios()
 
@@ -59,7 +59,7 @@ def test_reset_infos_have_the_step_infos_keys(name: str) -> None:
     env = swarm_env.parallel_env(name, max_cycles=4)
     _, reset_infos = env.reset(seed=1)
     expected = [*INFO_REWARD_KEYS, "slot_distance", *INFO_CONTACT_KEYS, "collision_terminated"]
-    for a, info in reset_infos.items():
+    for info in reset_infos.values():
         assert list(info) == expected
         assert set(reward_terms(info).values()) == {0.0} and set(contact_counts(info).values()) == {0}
         assert info["collision_terminated"] is False and info["slot_distance"] >= 0.0

@@ -15,7 +15,6 @@ from swarm_env.guidance import (
     sample_twists,
     static_time_to_collision,
     trajectory_disc_ttc,
-    trajectory_static_ttc,
     twist_trajectories,
     twist_velocities,
     vo_discs_inside,

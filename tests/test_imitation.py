@@ -11,12 +11,19 @@ import pytest
 pytest.importorskip("stable_baselines3")
 
 import swarm_env_baselines.demos as demos_mod
-from swarm_env_baselines.bc import BCConfig, dagger_rollouts, discounted_returns, running_returns, split_episodes, train_bc
-from swarm_env_baselines.demos import ARRAYS, generate_demos, load_demos
-from swarm_env_baselines.model_io import load_model
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.evaluation import run_episode
 from swarm_env.harness.policies import load_policy
+from swarm_env_baselines.bc import (
+    BCConfig,
+    dagger_rollouts,
+    discounted_returns,
+    running_returns,
+    split_episodes,
+    train_bc,
+)
+from swarm_env_baselines.demos import ARRAYS, generate_demos, load_demos
+from swarm_env_baselines.model_io import load_model
 
 TINY = {"n_followers": 2, "max_cycles": 30}
 SEEDS = list(range(16))

@@ -12,11 +12,11 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
-from swarm_env_baselines import mappo, mappo_policy  # noqa: E402
-from swarm_env_baselines.ppo_core import RunningMeanStd, gae  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.harness.evaluation import run_episode  # noqa: E402
 from swarm_env.harness.policies import PolicyError, ShieldedPolicy, load_policy  # noqa: E402
+from swarm_env_baselines import mappo, mappo_policy  # noqa: E402
+from swarm_env_baselines.ppo_core import RunningMeanStd, gae  # noqa: E402
 
 TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 1, "max_cycles": 30}
 TINY_PRETRAIN = {"pretrain_rounds": 2, "pretrain_episodes": 2, "pretrain_epochs": 1}
@@ -60,11 +60,9 @@ def test_running_statistics_match_numpy_and_freeze() -> None:
 def test_dagger_warm_start_fits_the_expert_and_freezes_the_statistics() -> None:
     import torch
 
-    from swarm_env_baselines.imitation import DaggerSettings, dagger
-    from swarm_env_baselines.ppo_core import mlp
-
-    from swarm_env_baselines.imitation import rollouts
     from swarm_env.harness.policies import load_policy
+    from swarm_env_baselines.imitation import DaggerSettings, dagger, rollouts
+    from swarm_env_baselines.ppo_core import mlp
 
     torch.manual_seed(0)
     env = SwarmEnv("random", **TINY_ENV)

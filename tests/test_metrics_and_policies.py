@@ -11,7 +11,14 @@ import pytest
 import swarm_env
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.evaluation import evaluate, run_episode, summarize
-from swarm_env.harness.policies import PredictPolicy, RandomPolicy, UnknownPolicyError, ZeroPolicy, load_policy, registered_policies
+from swarm_env.harness.policies import (
+    PredictPolicy,
+    RandomPolicy,
+    UnknownPolicyError,
+    ZeroPolicy,
+    load_policy,
+    registered_policies,
+)
 from swarm_env.scenario_io import scenario_from_dict
 from swarm_env.state import WorldState
 
@@ -122,7 +129,10 @@ def test_evaluate_aggregates_episodes_with_confidence_intervals() -> None:
     s = report["summary"]
     assert s["episodes"] == 3 and s["formation_error"]["n"] == 3 and s["formation_error"]["ci95"] >= 0
     again = evaluate("paper_vo_0", "random", episodes=3, seed=5, env_kwargs={"max_cycles": 40})
-    strip = lambda r: [{k: v for k, v in e.items() if k not in ("wall_time", "policy_time")} for e in r["episodes"]]
+
+    def strip(r):
+        return [{k: v for k, v in e.items() if k not in ("wall_time", "policy_time")} for e in r["episodes"]]
+
     assert strip(report) == strip(again)  # seeded policy + env: identical episodes
 
 

@@ -24,13 +24,13 @@ import pytest
 pytest.importorskip("stable_baselines3")
 pytest.importorskip("safetensors")
 
+from swarm_env.env import SwarmEnv  # noqa: E402
+from swarm_env.harness import cli  # noqa: E402
+from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.policies import TRUST_PICKLE_ENV, ModelFileError, PolicyError, load_policy, pickle_trusted  # noqa: E402
 from swarm_env_baselines import model_io, safe_io  # noqa: E402
 from swarm_env_baselines import train as train_mod  # noqa: E402
 from swarm_env_baselines.mappo_policy import shipped_run  # noqa: E402
-from swarm_env.harness import cli  # noqa: E402
-from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.harness.evaluation import run_episode  # noqa: E402
-from swarm_env.harness.policies import TRUST_PICKLE_ENV, ModelFileError, PolicyError, load_policy, pickle_trusted  # noqa: E402
 from tests.test_safe_io import _Payload  # noqa: E402
 from tests.test_train import TINY_ENV, _tiny  # noqa: E402
 

@@ -18,8 +18,8 @@ import pytest
 
 import swarm_env
 from swarm_env import extras
-from swarm_env.harness.cli import MODULE_COMMANDS, main
 from swarm_env.extras import MissingExtraError
+from swarm_env.harness.cli import MODULE_COMMANDS, main
 from swarm_env.harness.policies import load_policy, policy_extra
 
 ROOT = Path(__file__).resolve().parents[1]

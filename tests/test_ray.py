@@ -32,10 +32,10 @@ def test_ray_backend_gives_the_local_results() -> None:
 def test_rllib_ppo_trains_and_its_exported_actor_is_the_modules_mean(tmp_path: Path) -> None:
     import torch
 
-    from swarm_env_baselines.rllib_train import RLlibConfig, build_config, export_policy, load_rllib_policy, train
     from swarm_env.env import SwarmEnv
     from swarm_env.harness.evaluation import run_episode
     from swarm_env.harness.policies import load_policy
+    from swarm_env_baselines.rllib_train import RLlibConfig, build_config, export_policy, load_rllib_policy, train
 
     cfg = RLlibConfig("paper_vo_90", {"max_cycles": 50}, total_steps=300, num_env_runners=1,
                       train_batch_size=200, minibatch_size=100, num_epochs=1, num_cpus=2)

@@ -15,8 +15,8 @@ import imageio.v2 as imageio
 import numpy as np
 import pytest
 
-from swarm_env.harness.cli import main
 from swarm_env.env import SwarmEnv
+from swarm_env.harness.cli import main
 from swarm_env.harness.evaluation import run_episode
 from swarm_env.harness.leaderboard import _behaviour
 from swarm_env.harness.policies import load_policy

@@ -15,6 +15,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
 from swarm_env.geometry import StaticMap  # noqa: E402
+from swarm_env.harness.video import VideoWriter, save_frame_png  # noqa: E402
 from swarm_env.render import (  # noqa: E402
     BACKGROUND,
     CONTACT,
@@ -38,7 +39,6 @@ from swarm_env.scenario import (  # noqa: E402
     WorldSpec,
 )
 from swarm_env.state import Contact, WorldState  # noqa: E402
-from swarm_env.harness.video import VideoWriter, save_frame_png  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 W, H = 16.0, 10.0

@@ -21,11 +21,11 @@ from swarm_env.harness.policies import ModelFileError
 pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
-from swarm_env_baselines import mappo  # noqa: E402
-from swarm_env_baselines.checkpointing import StopRequest, TrainingInterrupted  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.harness.evaluation import run_episode  # noqa: E402
 from swarm_env.harness.policies import load_policy  # noqa: E402
+from swarm_env_baselines import mappo  # noqa: E402
+from swarm_env_baselines.checkpointing import StopRequest, TrainingInterrupted  # noqa: E402
 
 TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 1, "max_cycles": 30}
 ROOT = Path(__file__).resolve().parent.parent

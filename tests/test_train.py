@@ -9,12 +9,12 @@ import pytest
 
 pytest.importorskip("stable_baselines3")
 
-from swarm_env_baselines import train as train_mod  # noqa: E402
-from swarm_env_baselines.config import TrainConfig, field_help, parse_seeds  # noqa: E402
-from swarm_env_baselines.model_io import SB3Policy, load_model, load_warm_start  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.harness.evaluation import run_episode  # noqa: E402
 from swarm_env.harness.policies import PolicyError, load_policy  # noqa: E402
+from swarm_env_baselines import train as train_mod  # noqa: E402
+from swarm_env_baselines.config import TrainConfig, field_help, parse_seeds  # noqa: E402
+from swarm_env_baselines.model_io import SB3Policy, load_model, load_warm_start  # noqa: E402
 
 TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 0, "world_size": [10.0, 10.0], "max_cycles": 30}
 

@@ -15,9 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from swarm_env_agents.vo_expert import VOExpert, make_policy
 from swarm_env.env import SwarmEnv
-from swarm_env.harness.evaluation import run_episode
 from swarm_env.geometry import StaticMap
 from swarm_env.guidance import (
     pure_pursuit,
@@ -27,9 +25,11 @@ from swarm_env.guidance import (
     vo_select,
     vo_select_batch,
 )
+from swarm_env.harness.evaluation import run_episode
 from swarm_env.harness.policies import load_policy
 from swarm_env.scenario import PolygonObstacle, RectangleObstacle
 from swarm_env.scenario_io import scenario_from_dict
+from swarm_env_agents.vo_expert import VOExpert, make_policy
 
 
 # ------------------------------------------------------------------ the VO cone
@@ -115,7 +115,7 @@ def test_batch_matches_single_robot_calls(gap_map, fast, grid):
     rng = np.random.default_rng(7)
     checked_grid = 0
     kw = {"n_v": grid[0], "n_w": grid[1], "fast": fast}
-    for trial in range(12):
+    for _ in range(12):
         n = int(rng.integers(2, 9))
         poses, discs, vel, pref, mask, recip = _random_world(rng, n, int(rng.integers(0, 4)))
         batch = vo_select_batch(poses, 0.25, pref, discs, vel, gap_map, 0.65, 1.0, disc_mask=mask,
@@ -292,7 +292,7 @@ def test_registry_and_policy_stats():
     assert stats["decision_time_ms"]["calls"] == m["steps"] == 40
     assert 0.0 < stats["decision_time_ms"]["median"] <= stats["decision_time_ms"]["p95"] <= stats["decision_time_ms"]["max"]
     assert stats["infeasible_events"] >= 0 and stats["escape_turns"] >= 0
-    for a, action in policy.act({a: None for a in env.possible_agents}, env.world_state()).items():
+    for action in policy.act({a: None for a in env.possible_agents}, env.world_state()).values():
         assert action.dtype == np.float32 and action.shape == (2,) and np.all(np.abs(action) <= 1.0)
 
 

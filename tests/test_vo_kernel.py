@@ -12,13 +12,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarm_env_agents.vo_expert import VOExpert
 from swarm_env import guidance
 from swarm_env.env import SwarmEnv
 from swarm_env.geometry import StaticMap
 from swarm_env.guidance import VOBatchResult, VOParams, vo_select, vo_select_batch
 from swarm_env.safety import safe_follower_twists
 from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
+from swarm_env_agents.vo_expert import VOExpert
 
 FIELDS = ("twist", "feasible", "n_safe", "min_time_to_collision", "escaped", "fast", "preferred_safe")
 

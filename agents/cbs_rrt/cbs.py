@@ -43,8 +43,9 @@ from __future__ import annotations
 import heapq
 import itertools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Generic, Protocol, Sequence, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 __all__ = ["LowLevelPlanner", "ConflictModel", "CBSResult", "CBS"]
 

@@ -20,8 +20,8 @@ ends). Only pairs whose bound drops below ``D`` somewhere get the exact check.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 

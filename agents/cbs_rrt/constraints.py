@@ -18,8 +18,8 @@ few numpy operations (the RRT tests every candidate primitive this way).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
 
 import numpy as np
 
@@ -42,7 +42,7 @@ class Constraint:
     xy: np.ndarray
     radius: float
     other: int = -1
-    weaker: "Constraint | None" = None
+    weaker: Constraint | None = None
 
     def __post_init__(self) -> None:
         t = np.ascontiguousarray(self.t, dtype=np.float64).reshape(-1)
@@ -59,7 +59,7 @@ class Constraint:
     @classmethod
     def avoid_path(
         cls, agent: int, path: TimedPath, t_start: float, t_end: float, radius: float, other: int = -1
-    ) -> "Constraint":
+    ) -> Constraint:
         """The disc of ``radius`` that follows ``path`` over ``[t_start, t_end]`` (exactly: all of
         the path's breakpoints inside the window are kept)."""
         if not t_end > t_start:
@@ -71,7 +71,7 @@ class Constraint:
     @classmethod
     def at_point(
         cls, agent: int, xy: np.ndarray, t_start: float, t_end: float, radius: float, other: int = -1
-    ) -> "Constraint":
+    ) -> Constraint:
         """A disc that does not move: ``agent`` must keep ``radius`` from ``xy`` during
         ``[t_start, t_end]`` (paper 000's ``[x, y, t]`` constraint, held over an interval)."""
         if not t_end > t_start:

@@ -58,7 +58,7 @@ class DistanceField:
         object.__setattr__(self, "_ymax", (self.ny - 1) * (1.0 - 1e-12))
 
     @classmethod
-    def build(cls, static: StaticMap, resolution: float = 0.05) -> "DistanceField":
+    def build(cls, static: StaticMap, resolution: float = 0.05) -> DistanceField:
         """Sample ``static.distance`` (walls included) on a grid of spacing ``resolution``."""
         if not (math.isfinite(resolution) and resolution > 0):
             raise ValueError(f"resolution must be > 0, got {resolution!r}")
@@ -108,7 +108,7 @@ class DistanceField:
         return self.clearance(points) - self.error_bound
 
 
-_CACHE: "weakref.WeakKeyDictionary[StaticMap, dict[float, DistanceField]]" = weakref.WeakKeyDictionary()
+_CACHE: weakref.WeakKeyDictionary[StaticMap, dict[float, DistanceField]] = weakref.WeakKeyDictionary()
 
 
 def distance_field(static: StaticMap, resolution: float = 0.05) -> DistanceField:

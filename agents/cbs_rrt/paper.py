@@ -27,15 +27,15 @@ from typing import Any
 import numpy as np
 
 import swarm_env
+from swarm_env.harness.evaluation import run_episode
+from swarm_env.jsonio import write_json
+from swarm_env.state import WorldState
 from swarm_env_agents.cbs_rrt.cbs import CBS
 from swarm_env_agents.cbs_rrt.conflicts import find_conflicts
 from swarm_env_agents.cbs_rrt.goals import GoalWindow
 from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert, ReplanRecord
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec
 from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
-from swarm_env.harness.evaluation import run_episode
-from swarm_env.jsonio import write_json
-from swarm_env.state import WorldState
 
 SCENARIO = "paper_cbs_switch"
 SWITCH = 80.0

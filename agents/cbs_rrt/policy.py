@@ -54,11 +54,16 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Sequence
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm_env.guidance import pure_pursuit
+from swarm_env.harness.policies import expert_factory
+from swarm_env.paths import human_states
+from swarm_env.state import WorldState
 from swarm_env_agents.cbs_rrt.cbs import CBS, CBSResult
 from swarm_env_agents.cbs_rrt.constraints import Constraint
 from swarm_env_agents.cbs_rrt.distance_field import distance_field
@@ -67,10 +72,6 @@ from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitiv
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
 from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
 from swarm_env_agents.cbs_rrt.timed_path import TimedPath
-from swarm_env.guidance import pure_pursuit
-from swarm_env.paths import human_states
-from swarm_env.harness.policies import expert_factory
-from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
     from swarm_env.env import SwarmEnv
@@ -299,7 +300,7 @@ class CBSRRTExpert:
         self._shield_stops = 0
         self._shield_others: tuple[np.ndarray, ...] | None = None
 
-    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+    def reset(self, env: SwarmEnv, seed: int | None) -> None:
         if env.action_type != "continuous":
             raise ValueError("policy 'cbs_rrt' drives the continuous action space only (action_type='continuous')")
         self._rng = np.random.default_rng(seed)

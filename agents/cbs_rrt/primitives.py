@@ -27,8 +27,8 @@ default set has no spins; the expert adds +-45 and +-90 degrees.
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Sequence
 
 import numpy as np
 
@@ -157,7 +157,7 @@ class MotionPrimitives:
         step: float | None = None,
         samples: int = 6,
         spin_deg: Sequence[float] = (),
-    ) -> "MotionPrimitives":
+    ) -> MotionPrimitives:
         """Primitives sized for a robot: ``speed = speed_fraction * max_speed`` and
         ``spin_rate = speed_fraction * max_turn_rate`` (the rest is the tracking
         controller's slack) and, by default, ``step = max_speed * max|angle| /

@@ -84,7 +84,7 @@ class TimedPath:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def stationary(cls, pose: np.ndarray, t0: float) -> "TimedPath":
+    def stationary(cls, pose: np.ndarray, t0: float) -> TimedPath:
         """A robot that stays at ``pose`` from ``t0`` on."""
         return cls(np.array([t0]), np.asarray(pose, dtype=np.float64).reshape(1, 3), [START], [0], [-1], math.nan, False)
 

@@ -260,7 +260,6 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_replay(args: argparse.Namespace) -> int:
     """Re-simulate recorded episodes (:mod:`swarm_env.harness.recording`); exit 1 at a divergence with ``--check``."""
     from swarm_env.harness import recording
-
     from swarm_env.harness.video import VideoWriter
 
     try:
@@ -352,7 +351,13 @@ def _write_json(path: str, doc: Any) -> None:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """The leaderboard (:mod:`swarm_env.harness.leaderboard`); every input is checked before any episode runs."""
-    from swarm_env.harness.leaderboard import default_seeds, parse_seeds, record_worst_videos, run_leaderboard, validate_inputs
+    from swarm_env.harness.leaderboard import (
+        default_seeds,
+        parse_seeds,
+        record_worst_videos,
+        run_leaderboard,
+        validate_inputs,
+    )
     from swarm_env.scenario_io import list_scenarios
 
     scenarios: list[str] = args.scenarios or list_scenarios()
@@ -396,7 +401,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     for policy in board.policies:  # likely a bad argument (e.g. a missing model file) rather than a misfit
         reasons = {r.na_reason for r in board.rows if r.policy == policy}
         if None not in reasons:
-            print(f"warning: policy {policy!r} ran on no scenario: {'; '.join(sorted(reasons))}", file=sys.stderr)
+            print(f"warning: policy {policy!r} ran on no scenario: {'; '.join(sorted(str(r) for r in reasons))}", file=sys.stderr)
     if args.out:
         out = Path(args.out)
         out.mkdir(parents=True, exist_ok=True)

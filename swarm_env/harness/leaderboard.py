@@ -68,12 +68,19 @@ import numpy as np
 
 from swarm_env.env import SwarmEnv, env_kwargs_for
 from swarm_env.harness.evaluation import mean_ci95_t, summarize
-from swarm_env.jsonio import dumps
 from swarm_env.harness.policies import (
-    TRUST_PICKLE_ENV, ModelFileError, PolicyError, UnknownPolicyError, acts_on, load_policy, pickle_trusted,
-    registered_policies, training_runs,
+    TRUST_PICKLE_ENV,
+    ModelFileError,
+    PolicyError,
+    UnknownPolicyError,
+    acts_on,
+    load_policy,
+    pickle_trusted,
+    registered_policies,
+    training_runs,
 )
 from swarm_env.harness.recording import EpisodeRecord, load_episode, record_episode, replay, save_episode
+from swarm_env.jsonio import dumps
 from swarm_env.scenario_io import RANDOM_NAME
 
 #: Seeds of a fixed scenario when none are given (deterministic up to the policy's own randomness).
@@ -457,7 +464,8 @@ def method_row(method: str, member_rows: Sequence[Row]) -> Row:
     refused = [r for r in member_rows if r.summary is None]
     if refused:
         return Row(method, first.scenario, first.seeds, None, refused[0].na_reason, members=[r.policy for r in member_rows])
-    return Row(method, first.scenario, first.seeds, aggregate_training_seeds([r.summary for r in member_rows]),
+    return Row(method, first.scenario, first.seeds,
+               aggregate_training_seeds([r.summary for r in member_rows if r.summary is not None]),
                members=[r.policy for r in member_rows])
 
 
@@ -484,7 +492,7 @@ class Row:
         return "ok" if self.na_reason is None else f"n/a: {self.na_reason}"
 
     def to_dict(self) -> dict[str, Any]:
-        out = {"policy": self.policy, "scenario": self.scenario, "seeds": self.seeds, "status": self.status,
+        out: dict[str, Any] = {"policy": self.policy, "scenario": self.scenario, "seeds": self.seeds, "status": self.status,
                "na_reason": self.na_reason, "summary": self.summary}
         if self.method is not None:
             out["method"] = self.method

@@ -33,8 +33,9 @@ from __future__ import annotations
 
 import inspect
 import os
+from collections.abc import Callable
 from importlib.metadata import entry_points
-from typing import TYPE_CHECKING, Any, Callable, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -83,7 +84,7 @@ def pickle_trusted(trust: bool | None = None) -> bool:
 
 @runtime_checkable
 class Policy(Protocol):
-    def reset(self, env: "SwarmEnv", seed: int | None) -> None: ...
+    def reset(self, env: SwarmEnv, seed: int | None) -> None: ...
 
     def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]: ...
 
@@ -98,12 +99,12 @@ class RandomPolicy:
 
     acts_on = NOTHING
 
-    def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
+    def __init__(self, env: SwarmEnv, arg: str | None = None) -> None:
         if arg:
             raise ValueError(f"policy 'random' takes no argument, got {arg!r}")
         self._spaces: dict[str, Any] = {}
 
-    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+    def reset(self, env: SwarmEnv, seed: int | None) -> None:
         self._spaces = {a: env.action_space(a) for a in env.possible_agents}
         seq = np.random.SeedSequence(seed)
         for a, s in zip(env.possible_agents, seq.generate_state(len(env.possible_agents))):
@@ -118,12 +119,12 @@ class ZeroPolicy:
 
     acts_on = NOTHING
 
-    def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
+    def __init__(self, env: SwarmEnv, arg: str | None = None) -> None:
         if arg:
             raise ValueError(f"policy 'zero' takes no argument, got {arg!r}")
         self._discrete = env.action_type == "discrete"
 
-    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+    def reset(self, env: SwarmEnv, seed: int | None) -> None:
         self._discrete = env.action_type == "discrete"
 
     def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
@@ -142,7 +143,7 @@ class PursuitPolicy:
 
     acts_on = STATE
 
-    def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
+    def __init__(self, env: SwarmEnv, arg: str | None = None) -> None:
         try:
             self.time_gap = 0.5 if arg is None else float(arg)
         except ValueError:
@@ -151,7 +152,7 @@ class PursuitPolicy:
             raise ValueError(f"policy 'pursuit' needs a positive time gap, got {arg!r}")
         self.reset(env, None)  # refuse a discrete env now, before any episode
 
-    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+    def reset(self, env: SwarmEnv, seed: int | None) -> None:
         if env.action_type == "discrete":
             raise PolicyError("policy 'pursuit' drives the continuous action space only")
 
@@ -172,7 +173,7 @@ class PredictPolicy:
         self.model = model
         self.deterministic = deterministic
 
-    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+    def reset(self, env: SwarmEnv, seed: int | None) -> None:
         pass
 
     def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
@@ -190,7 +191,7 @@ def expert_factory(name: str, cls: type) -> Callable[..., Any]:
     discrete-action env, calls its ``reset`` at once so that its refusal (a ``ValueError``) comes
     now rather than at the first episode. It acts on the privileged state (``acts_on``)."""
 
-    def factory(env: "SwarmEnv", arg: str | None = None) -> Any:
+    def factory(env: SwarmEnv, arg: str | None = None) -> Any:
         policy = cls(**parse_policy_kwargs(name, arg, cls))
         if env.action_type != "continuous":
             policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
@@ -215,7 +216,7 @@ def parse_policy_kwargs(name: str, arg: str | None, cls: type) -> dict[str, Any]
     declared = getattr(cls, "policy_parameters", None)
     params = dict(declared()) if callable(declared) else {
         p.name: p.default
-        for p in inspect.signature(cls.__init__).parameters.values()
+        for p in inspect.signature(cls).parameters.values()
         if p.kind is inspect.Parameter.KEYWORD_ONLY
     }
     kwargs: dict[str, Any] = {}
@@ -257,7 +258,7 @@ class ShieldedPolicy:
     (they land in the leaderboard's ``policy_stats``).
     """
 
-    def __init__(self, env: "SwarmEnv", arg: str | None = None) -> None:
+    def __init__(self, env: SwarmEnv, arg: str | None = None) -> None:
         from swarm_env.safety import AvoidanceParams
 
         if not arg:
@@ -269,7 +270,7 @@ class ShieldedPolicy:
         self._reset_stats()
 
     @classmethod
-    def around(cls, inner: Any) -> "ShieldedPolicy":
+    def around(cls, inner: Any) -> ShieldedPolicy:
         """The shield around a policy object (e.g. a model being trained) instead of a spec."""
         from swarm_env.safety import AvoidanceParams
 
@@ -285,7 +286,7 @@ class ShieldedPolicy:
         self._correction = 0.0
         self._infeasible = 0
 
-    def reset(self, env: "SwarmEnv", seed: int | None) -> None:
+    def reset(self, env: SwarmEnv, seed: int | None) -> None:
         self.inner.reset(env, seed)
         self._reset_stats()
 
@@ -418,7 +419,7 @@ def acts_on(spec: str) -> str:
     return str(getattr(factory, "acts_on", "?"))
 
 
-def load_policy(spec: str | Any, env: "SwarmEnv") -> Policy:
+def load_policy(spec: str | Any, env: SwarmEnv) -> Policy:
     """Build a policy from ``"name"`` / ``"name:arg"`` or wrap a model object.
 
     Raises :class:`UnknownPolicyError` (a ``KeyError``) naming the known policies when ``name`` is

@@ -65,8 +65,8 @@ import yaml
 
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.evaluation import run_episode
-from swarm_env.jsonio import dumps
 from swarm_env.harness.policies import Policy
+from swarm_env.jsonio import dumps
 from swarm_env.scenario import Scenario
 from swarm_env.scenario_io import scenario_from_dict, scenario_to_dict
 from swarm_env.state import CONTACT_KINDS, WorldState
