@@ -295,6 +295,9 @@ def test_policy_runs_a_small_switch_without_collisions() -> None:
     stats = result["policy_stats"]
     assert stats["replans"] >= 2 and stats["replan_reasons"]["switch"] == 1
     assert stats["planning_time_ms"]["p95"] is not None and stats["rrt_iterations"] > 0
+    cpu = stats["planning_cpu_ms"]  # CPU time of the same replans (issue 12's timing targets)
+    assert set(cpu) == set(stats["planning_time_ms"]) and 0.0 < cpu["median"] <= cpu["p95"] <= cpu["max"]
+    assert cpu["total_s"] >= cpu["max"] / 1e3
     assert stats["tracking_gap_m"]["max"] < 0.3
     # Same seed, same plans: the episode replays exactly.
     again = run_episode(env, CBSRRTExpert(), seed=0)
