@@ -7,14 +7,15 @@
 Part 1 plays ``paper_cbs_switch`` (8 followers, 10 obstacles, V -> grid at t = 80 s)
 for several seeds and prints, per seed and as medians over seeds: the total planning
 time of the whole episode (wall seconds spent in replanning), per-replan time (median,
-p95, max), the number of replans, the real-time factor (simulated seconds per wall
+p95, max), the same in CPU time of the process (``CPU s``, ``CPU p95``: what a shared
+machine inflates least; issue 12's targets are CPU figures), the number of replans, the real-time factor (simulated seconds per wall
 second: of the whole episode, env stepping included, and of the planner alone),
 collisions and the settle time after the switch. The paper's planner needed 300-360 s
 per scenario.
 
-Part 2 measures how per-replan time grows with the swarm: the ``random`` generator with
-4, 8, 16 and 32 followers (no humans, a world that grows with the swarm), a few seeds
-each.
+Part 2 measures how per-replan time (wall, and CPU: ``CPU med``, ``CPU p95``) grows with
+the swarm: the ``random`` generator with 4, 8, 16 and 32 followers (no humans, a world
+that grows with the swarm), a few seeds each.
 
 Budgets are iteration counts, so the plans do not depend on the machine; only the
 timings do. The machine may be shared: every figure is a median over seeds (and over
@@ -42,6 +43,7 @@ def episode(env: Any, seed: int, **kwargs: Any) -> dict[str, Any]:
     wall = time.perf_counter() - t0
     stats = result["policy_stats"]
     ms = stats["planning_time_ms"]
+    cpu = stats["planning_cpu_ms"]
     planning = float(ms["total_s"])
     sim = float(result["sim_time"])
     return {
@@ -53,6 +55,10 @@ def episode(env: Any, seed: int, **kwargs: Any) -> dict[str, Any]:
         "replan_ms_median": ms["median"],
         "replan_ms_p95": ms["p95"],
         "replan_ms_max": ms["max"],
+        "planning_cpu_s": float(cpu["total_s"]),
+        "replan_cpu_ms_median": cpu["median"],
+        "replan_cpu_ms_p95": cpu["p95"],
+        "replan_cpu_ms_max": cpu["max"],
         "rtf_episode": sim / wall,
         "rtf_planning": sim / max(planning, 1e-9),
         "collisions": result["collisions"]["total"],
@@ -79,7 +85,7 @@ def paper(seeds: list[int]) -> list[dict[str, Any]]:
     print("paper_cbs_switch: 8 followers, 10 obstacles, V -> 3-column grid at t = 80 s, 240 s")
     header = (
         f"{'seed':>4} {'plan total s':>12} {'replans':>7} {'med ms':>7} {'p95 ms':>7} {'max ms':>7} "
-        f"{'RTF ep':>7} {'RTF plan':>8} {'coll':>4} {'settle s':>8}"
+        f"{'RTF ep':>7} {'RTF plan':>8} {'coll':>4} {'settle s':>8} {'CPU s':>6} {'CPU p95':>7}"
     )
     print(header)
     for seed in seeds:
@@ -89,7 +95,8 @@ def paper(seeds: list[int]) -> list[dict[str, Any]]:
         print(
             f"{seed:>4} {r['planning_total_s']:>12.2f} {r['replans']:>7} {r['replan_ms_median']:>7.0f} "
             f"{r['replan_ms_p95']:>7.0f} {r['replan_ms_max']:>7.0f} {r['rtf_episode']:>7.1f} "
-            f"{r['rtf_planning']:>8.1f} {r['collisions']:>4} {settle if settle is not None else 'never':>8}"
+            f"{r['rtf_planning']:>8.1f} {r['collisions']:>4} {settle if settle is not None else 'never':>8} "
+            f"{r['planning_cpu_s']:>6.2f} {r['replan_cpu_ms_p95']:>7.0f}"
         )
     settles = [r["settle_times"][0] for r in rows if r["settle_times"] and r["settle_times"][0] is not None]
     print(
@@ -99,7 +106,9 @@ def paper(seeds: list[int]) -> list[dict[str, Any]]:
         f"real-time factor {_median(rows, 'rtf_episode'):.0f}x (episode), {_median(rows, 'rtf_planning'):.0f}x "
         f"(planner); collisions {sum(r['collisions'] for r in rows)} in total; settle after the switch "
         f"{statistics.median(settles) if settles else float('nan'):.1f} s median "
-        f"({len(settles)}/{len(rows)} settled; paper: 87 s)"
+        f"({len(settles)}/{len(rows)} settled; paper: 87 s); CPU time: planning "
+        f"{_median(rows, 'planning_cpu_s'):.2f} s per episode, per replan median "
+        f"{_median(rows, 'replan_cpu_ms_median'):.0f} ms, p95 {_median(rows, 'replan_cpu_ms_p95'):.0f} ms"
     )
     return rows
 
@@ -109,7 +118,10 @@ SCALING = {4: (16.0, 16.0), 8: (20.0, 20.0), 16: (28.0, 28.0), 32: (40.0, 40.0)}
 
 def scaling(seeds: list[int], sizes: dict[int, tuple[float, float]] = SCALING) -> list[dict[str, Any]]:
     print("\nrandom generator (no humans, virtual leader, 60 s): per-replan time against swarm size")
-    print(f"{'N':>3} {'world':>9} {'replans':>7} {'med ms':>7} {'p95 ms':>7} {'max ms':>7} {'plan s':>7} {'coll':>4}")
+    print(
+        f"{'N':>3} {'world':>9} {'replans':>7} {'med ms':>7} {'p95 ms':>7} {'max ms':>7} {'plan s':>7} {'coll':>4} "
+        f"{'CPU med':>7} {'CPU p95':>7}"
+    )
     out = []
     for n, world in sizes.items():
         env = swarm_env.parallel_env("random", n_followers=n, world_size=world, n_humans=0, max_time=60.0)
@@ -123,13 +135,15 @@ def scaling(seeds: list[int], sizes: dict[int, tuple[float, float]] = SCALING) -
             "replan_ms_p95": _median(rows, "replan_ms_p95"),
             "replan_ms_max": _median(rows, "replan_ms_max"),
             "planning_total_s": _median(rows, "planning_total_s"),
+            "replan_cpu_ms_median": _median(rows, "replan_cpu_ms_median"),
+            "replan_cpu_ms_p95": _median(rows, "replan_cpu_ms_p95"),
             "collisions": sum(r["collisions"] for r in rows),
         }
         out.append(row)
         print(
             f"{n:>3} {world[0]:>4.0f}x{world[1]:<4.0f} {row['replans']:>7.0f} {row['replan_ms_median']:>7.0f} "
             f"{row['replan_ms_p95']:>7.0f} {row['replan_ms_max']:>7.0f} {row['planning_total_s']:>7.2f} "
-            f"{row['collisions']:>4}"
+            f"{row['collisions']:>4} {row['replan_cpu_ms_median']:>7.0f} {row['replan_cpu_ms_p95']:>7.0f}"
         )
     return out
 

@@ -295,6 +295,9 @@ def test_policy_runs_a_small_switch_without_collisions() -> None:
     stats = result["policy_stats"]
     assert stats["replans"] >= 2 and stats["replan_reasons"]["switch"] == 1
     assert stats["planning_time_ms"]["p95"] is not None and stats["rrt_iterations"] > 0
+    cpu = stats["planning_cpu_ms"]  # CPU time of the same replans (issue 12's timing targets)
+    assert set(cpu) == set(stats["planning_time_ms"]) and 0.0 < cpu["median"] <= cpu["p95"] <= cpu["max"]
+    assert cpu["total_s"] >= cpu["max"] / 1e3
     assert stats["tracking_gap_m"]["max"] < 0.3
     # Same seed, same plans: the episode replays exactly.
     again = run_episode(env, CBSRRTExpert(), seed=0)
@@ -312,3 +315,22 @@ def test_policy_registry_and_arguments() -> None:
         make_policy(SwarmEnv(_small_switch_scenario(), action_type="discrete"), None)
     with pytest.raises(ValueError):
         CBSRRTExpert(horizon=-1.0)
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue 12 item 1 (open): on paper_cbs_switch the expert reaches the grid but does not hold it "
+    "(seed 0: settled 54.5 s after the switch, held 14 % of the rest); strict: passes once it is fixed",
+)
+def test_policy_holds_the_paper_formation() -> None:
+    """Paper 000 Fig. 2 (``paper_cbs_switch``, seed 0): collision-free, the episode succeeds, the grid is
+    reached by t = 167 (87 s after the switch) and then every follower stays within the settle tolerance
+    at least 90 % of the remaining steps (``hold_fraction``)."""
+    env = SwarmEnv(load_scenario("paper_cbs_switch"))
+    result = run_episode(env, CBSRRTExpert(), seed=0)
+    assert result["collisions"]["total"] == 0
+    [settle] = result["settle_times"]
+    assert settle["settle_time"] is not None and settle["settle_time"] <= 87.0
+    assert settle["hold_fraction"] >= 0.9
+    assert result["success"]
