@@ -3,6 +3,7 @@
     python benchmarks/cbs_rrt_bench.py                 # paper scenario + scaling, a few minutes
     python benchmarks/cbs_rrt_bench.py --quick         # fewer seeds
     python benchmarks/cbs_rrt_bench.py --json out.json
+    python benchmarks/cbs_rrt_bench.py --quick --plot docs/cbs_rrt/scaling.png   # the report's scaling figure
 
 Part 1 plays ``paper_cbs_switch`` (8 followers, 10 obstacles, V -> grid at t = 80 s)
 for several seeds and prints, per seed and as medians over seeds: the total planning
@@ -148,6 +149,42 @@ def scaling(seeds: list[int], sizes: dict[int, tuple[float, float]] = SCALING) -
     return out
 
 
+# Issue 12's real-time targets (CPU ms per replan): (followers, statistic) -> bound.
+TARGETS = {(8, "p95"): 100.0, (32, "median"): 100.0, (32, "p95"): 300.0}
+
+
+def plot_scaling(rows: list[dict[str, Any]], path: str) -> None:
+    """Per-replan CPU time (median and p95 over each size's seeds) against the swarm size, log-log, with the
+    targets and a line of linear growth through the smallest swarm's median."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = [r["n_followers"] for r in rows]
+    med = [r["replan_cpu_ms_median"] for r in rows]
+    p95 = [r["replan_cpu_ms_p95"] for r in rows]
+    fig, ax = plt.subplots(figsize=(6.0, 4.2))
+    ax.plot(n, med, "o-", label="per-replan CPU time, median")
+    ax.plot(n, p95, "s--", label="per-replan CPU time, p95")
+    ax.plot(n, [med[0] * k / n[0] for k in n], ":", color="gray", label="linear growth (from the smallest swarm)")
+    for (k, stat), bound in TARGETS.items():
+        ax.plot([k], [bound], "v" if stat == "median" else "^", color="red", ms=9)
+        ax.annotate(f"target {stat} <= {bound:.0f} ms", (k, bound), textcoords="offset points", xytext=(6, -3),
+                    fontsize=8, color="red")
+    ax.set_xscale("log", base=2)
+    ax.set_yscale("log")
+    ax.set_xticks(n, [str(k) for k in n])
+    ax.set_xlabel("followers")
+    ax.set_ylabel("CPU time per replan (ms)")
+    ax.set_title("cbs_rrt planning time against swarm size (random worlds, 60 s)", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--seeds", type=int, default=5, help="paper-scenario seeds (default 5)")
@@ -155,11 +192,16 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quick", action="store_true", help="3 paper seeds, 1 seed per size")
     parser.add_argument("--no-scaling", action="store_true", help="skip part 2")
     parser.add_argument("--json", help="write all rows to this JSON file")
+    parser.add_argument("--plot", help="write the scaling figure (part 2) to this image file (needs matplotlib)")
     args = parser.parse_args(argv)
+    if args.plot and args.no_scaling:
+        parser.error("--plot draws part 2: drop --no-scaling")
     n_paper, n_scale = (3, 1) if args.quick else (args.seeds, args.scaling_seeds)
     report: dict[str, Any] = {"paper_cbs_switch": paper(list(range(n_paper)))}
     if not args.no_scaling:
         report["scaling"] = scaling(list(range(n_scale)))
+        if args.plot:
+            plot_scaling(report["scaling"], args.plot)
     if args.json:
         with open(args.json, "w") as fh:
             fh.write(dumps(report, indent=1, default=str))
