@@ -19,13 +19,14 @@ Shared by both trainers (:mod:`swarm_env_baselines.mappo` and :mod:`swarm_env_ba
 from __future__ import annotations
 
 import csv
-import json
 import shutil
 import signal
 import sys
 import threading
 from pathlib import Path
 from typing import Any
+
+from swarm_env.jsonio import dumps
 
 STATE_TENSORS = "state.safetensors"
 STATE_JSON = "state.json"
@@ -139,7 +140,7 @@ def write_checkpoint(directory: Path, tensors: dict[str, Any], meta: dict[str, A
     shutil.rmtree(tmp, ignore_errors=True)
     tmp.mkdir(parents=True)
     save_file({k: v.detach().cpu().contiguous() for k, v in tensors.items()}, str(tmp / STATE_TENSORS))
-    (tmp / STATE_JSON).write_text(json.dumps(meta, indent=1) + "\n")
+    (tmp / STATE_JSON).write_text(dumps(meta, indent=1) + "\n")  # strict JSON (non-finite -> null)
     return swap_in_dir(tmp, directory)
 
 
