@@ -101,10 +101,17 @@ class VOExpert:
             ``preview > 0`` (and ``feed_forward``) the pursued point ``slot + v_slot T``
             is moved out of obstacles as the env moves the slots, and the twist
             keeps pure pursuit's speed but takes the curvature of the arc to
-            ``slot + v_slot preview`` (moved out of obstacles too). Measured
-            (1 s): lower formation error on every paper scenario (paper_vo_90
-            0.152 -> 0.068 m, corridor 0.629 -> 0.266 m) but not on random worlds,
-            where 2 of 30 episodes ended unsettled; hence off by default.
+            ``slot + v_slot preview`` (moved out of obstacles too), slowing down
+            where that curvature needs more than the turn-rate limit. Measured
+            with ``preview=1`` (seed 0): lower formation error on paper_vo_0/45/90,
+            corridor and crowd_reactive (paper_vo_90 0.152 -> 0.068 m, corridor
+            0.629 -> 0.265 m) without collisions, but paper_cbs_switch no longer
+            finished in its 240 s and on random worlds 1000-1029 the error was
+            no lower (0.274 vs 0.247 m) and 2 of 30 episodes ended unsettled;
+            hence off by default. The velocity obstacle still slows a follower
+            down rather than turning it wide when its slot's track is blocked
+            (its penalty is a distance in ``(v, omega)``), which is where most of
+            the remaining gap to the ORCA reference comes from.
 
     Avoidance (velocity obstacles, Eq. 12): any field of
     :class:`swarm_env.safety.AvoidanceParams` (the search's
