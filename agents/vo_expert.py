@@ -106,9 +106,10 @@ class VOExpert:
             with ``preview=1`` (seed 0): lower formation error on paper_vo_0/45/90,
             corridor and crowd_reactive (paper_vo_90 0.152 -> 0.068 m, corridor
             0.629 -> 0.265 m) without collisions, but paper_cbs_switch no longer
-            finished in its 240 s and on random worlds 1000-1029 the error was
-            no lower (0.274 vs 0.247 m) and 2 of 30 episodes ended unsettled;
-            hence off by default. The velocity obstacle still slows a follower
+            finished in its 240 s (a follower left behind an obstacle), and on
+            random worlds 1000-1199 the error was no lower (0.223 vs 0.221 m),
+            one episode had a collision (seed 1121; none without preview) and 6
+            (3 without) ended unsettled; hence off by default. The velocity obstacle still slows a follower
             down rather than turning it wide when its slot's track is blocked
             (its penalty is a distance in ``(v, omega)``), which is where most of
             the remaining gap to the ORCA reference comes from.
