@@ -32,9 +32,10 @@ import os
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 __all__ = ["OutputError", "check_target", "temp_path", "open_atomic", "atomic_write_bytes", "atomic_write_text", "append_line",
-           "ensure_dir", "replace_dir"]
+           "ensure_dir", "replace_dir", "save_figure"]
 
 
 class OutputError(ValueError):
@@ -133,6 +134,15 @@ def atomic_write_text(path: str | os.PathLike[str], text: str, *, root: str | os
                       overwrite: bool = True) -> Path:
     """Write ``text`` (UTF-8) to ``path`` through :func:`open_atomic`; returns the path."""
     return atomic_write_bytes(path, text.encode("utf-8"), root=root, overwrite=overwrite)
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], *, overwrite: bool = True,
+                root: str | os.PathLike[str] | None = None, **savefig_kwargs: Any) -> Path:
+    """``fig.savefig`` (a matplotlib figure) through :func:`open_atomic`; the temporary file keeps ``path``'s
+    suffix, from which matplotlib picks the format. Returns the path."""
+    with open_atomic(path, root=root, overwrite=overwrite) as tmp:
+        fig.savefig(tmp, **savefig_kwargs)
+    return Path(path)
 
 
 def append_line(path: str | os.PathLike[str], line: str, *, root: str | os.PathLike[str] | None = None) -> None:

@@ -257,10 +257,9 @@ def plot_batched(results: list[BatchResult], path: str, *, overwrite: bool = Tru
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    from swarm_env.outputs import open_atomic
+    from swarm_env.outputs import save_figure
 
     try:
-        with open_atomic(path, overwrite=overwrite) as tmp:  # the temp file keeps the suffix: savefig picks the format by it
-            fig.savefig(tmp)
+        save_figure(fig, path, overwrite=overwrite)
     finally:
         plt.close(fig)

@@ -274,6 +274,8 @@ SWEEP_FORMAT = "swarm_env.sweep/1"
 RESULT_FILES = (SWEEP_FILE, EPISODES_FILE, "leaderboard.json", "leaderboard.csv", "leaderboard.md")
 #: Attempts an episode gets when its worker dies or exceeds the episode timeout (the first try and one retry).
 MAX_ATTEMPTS = 2
+#: Seconds a new pool worker may take to start (import swarm-env) on top of the episode timeout.
+STARTUP_GRACE = 120.0
 
 
 def default_episode_timeout(max_steps: int) -> float:
@@ -435,6 +437,7 @@ def _worker_main(conn: Any) -> None:
         job = conn.recv()
         if job is None:
             return
+        conn.send(("started",))  # the episode timeout counts from here, not from the worker's (slow) start-up
         try:
             reason = _run_job(job, lambda seed, metrics, rec: conn.send(("episode", seed, metrics, rec)))
             conn.send(("done", reason))
@@ -455,9 +458,10 @@ class _Slot:
         child.close()
         self.job: _Job | None = None
         self.since = 0.0
+        self.started = False  # whether the worker has begun its job (it may still be importing)
 
     def assign(self, job: _Job) -> None:
-        self.job, self.since = job, time.monotonic()
+        self.job, self.since, self.started = job, time.monotonic(), False
         self.conn.send(job)
 
     def stop(self, kill: bool = False) -> None:
@@ -502,8 +506,12 @@ def _run_pool(jobs: list[_Job], workers: int, sweep: _Sweep, episode_timeout: fl
                 if job is None:
                     continue
                 lost: str | None = None
+                # dead first, then drain: whatever a dead worker sent before dying is in the pipe by now
+                dead = not slot.proc.is_alive()
                 for kind, *payload in _messages(slot.conn):
-                    if kind == "episode":
+                    if kind == "started":
+                        slot.started, slot.since = True, time.monotonic()
+                    elif kind == "episode":
                         sweep.episode(job, *payload)
                         slot.since = time.monotonic()
                     elif kind == "done":
@@ -514,11 +522,13 @@ def _run_pool(jobs: list[_Job], workers: int, sweep: _Sweep, episode_timeout: fl
                         raise payload[0]
                 if slot.job is None:
                     continue
-                if not slot.proc.is_alive() and not slot.conn.poll():
+                if dead:
+                    slot.proc.join()
                     code = slot.proc.exitcode
                     lost = (f"worker killed by signal {-code}" if code is not None and code < 0
                             else f"worker exited with code {code}")
-                elif episode_timeout is not None and time.monotonic() - slot.since > episode_timeout:
+                elif episode_timeout is not None and time.monotonic() - slot.since > (
+                        episode_timeout if slot.started else episode_timeout + STARTUP_GRACE):
                     lost = f"timed out after {episode_timeout:g} s (--episode-timeout)"
                 if lost is None:
                     continue
