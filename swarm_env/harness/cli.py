@@ -469,7 +469,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
                 print(f"wrote {path}")
             if args.videos:
                 for rec in record_worst_videos(board, Path(out) / "videos", fps=args.fps, progress=not args.quiet,
-                                               records_dir=Path(out) / "records", overwrite=True, root=out):
+                                               records_dir=Path(out) / "records", overwrite=True, root=out,
+                                               play_missing=bool(args.resume)):
                     print(f"wrote {rec.path}" + ("" if rec.reproduced else "  (its replay differs from the board's episode)"))
         except (OutputError, ValueError) as exc:
             print(f"error: {exc}", file=sys.stderr)

@@ -27,6 +27,12 @@ process pool (``spawn``: no state inherited from the parent), which gives the
 same metrics as ``workers=1`` because a job does not depend on where it runs;
 only the timings (``wall_time``, ``policy_time``, ``policy_stats``) differ.
 
+Faults. In the pool a worker that dies or whose episode exceeds the per-episode timeout costs only
+that episode (tried once more, then counted in :attr:`Row.failed` and listed in
+:attr:`Leaderboard.failed`); with ``out_dir`` every finished episode is streamed to
+``out_dir/episodes.jsonl``, ``resume=True`` plays only the missing ones, and Ctrl-C raises
+:class:`SweepInterrupted` carrying the board of what is done (see :func:`run_leaderboard`).
+
 Records. Every episode is recorded as it is played (:mod:`swarm_env.harness.recording`: its actions
 and state digests; the metrics are those of an unrecorded run), and each job keeps the record
 of its worst episode (:func:`badness`) in :attr:`Leaderboard.records`, so that
@@ -1049,6 +1055,7 @@ def record_worst_videos(
     records_dir: str | os.PathLike[str] | None = None,
     overwrite: bool = True,
     root: str | os.PathLike[str] | None = None,
+    play_missing: bool = False,
 ) -> list[VideoRecord]:
     """Render each worst episode (:meth:`Leaderboard.worst_episodes`) to
     ``<out_dir>/<name>.mp4`` by replaying its record (:func:`swarm_env.harness.recording.replay`: the
@@ -1058,8 +1065,10 @@ def record_worst_videos(
     The record comes from ``board.records`` (a board made by :func:`run_leaderboard`) or else
     from ``<records_dir>/<name>/`` (saved by an earlier call); with ``records_dir`` the board's
     records are saved there too, one recording each (``swarm-env replay <records_dir>/<name>``).
-    A worst episode with no record raises ``ValueError`` naming it. ``VideoRecord.reproduced``
-    says that the replay matched the record's state digests and the board's metrics; a
+    A worst episode with no record raises ``ValueError`` naming it, unless ``play_missing``: then it is
+    played again with its policy and recorded (a resumed sweep's episodes from before the interruption
+    have no record). ``VideoRecord.reproduced`` says that the replay matched the record's state digests
+    and the board's metrics; a
     ``RuntimeWarning`` says when it did not (the video shows the replay).
 
     Videos are written atomically (:class:`~swarm_env.harness.video.VideoWriter`); an existing video is
@@ -1086,7 +1095,7 @@ def record_worst_videos(
         folder = None if records_dir is None else Path(records_dir) / name
         if folder is not None and root is not None and (folder.exists() or folder.is_symlink()):
             ensure_dir(folder, root=root)  # an existing record folder must not lead outside root
-        rec = _worst_record(board, entry, folder)
+        rec = _worst_record(board, entry, folder, play_missing)
         path = out / f"{name}.mp4"
         with VideoWriter(path, fps=fps, overwrite=overwrite, root=root) as writer:
             result = replay(rec, on_frame=writer.append)
@@ -1105,8 +1114,10 @@ def record_worst_videos(
     return records
 
 
-def _worst_record(board: Leaderboard, entry: Mapping[str, Any], folder: Path | None) -> EpisodeRecord:
-    """The record of a worst episode: from the board (then saved to ``folder``, if given) or from ``folder``."""
+def _worst_record(board: Leaderboard, entry: Mapping[str, Any], folder: Path | None,
+                  play_missing: bool = False) -> EpisodeRecord:
+    """The record of a worst episode: from the board (then saved to ``folder``, if given), from ``folder``, or
+    with ``play_missing`` from playing the episode again (then saved to ``folder``)."""
     policy, scenario, seed = entry["policy"], entry["scenario"], int(entry["seed"])
     rec = board.records.get((policy, scenario, seed))
     if rec is not None:
@@ -1118,6 +1129,17 @@ def _worst_record(board: Leaderboard, entry: Mapping[str, Any], folder: Path | N
         if (rec.policy, rec.scenario_spec, rec.seed) != (policy, scenario, seed):
             raise ValueError(f"{folder}: records policy {rec.policy!r} on {rec.scenario_spec!r} seed {rec.seed}, "
                              f"not the worst episode {policy!r} on {scenario!r} seed {seed}")
+        return rec
+    if play_missing:
+        # Played again with its policy and recorded (an episode does not depend on what ran before it in its
+        # job); the caller checks the replay against the board's metrics, so a difference would be reported.
+        env = SwarmEnv(scenario, **env_kwargs_for(scenario, board.env_kwargs))
+        try:
+            _, rec = record_episode(env, load_policy(policy, env), seed, policy_spec=policy, scenario_spec=scenario)
+        finally:
+            env.close()
+        if folder is not None:
+            save_episode(rec, folder)
         return rec
     where = f" and {folder} holds none" if folder is not None else ""
     raise ValueError(f"no record of the worst episode of policy {policy!r} on {scenario!r} (seed {seed}): the board "
