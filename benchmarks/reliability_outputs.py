@@ -277,7 +277,7 @@ def _sweep_probes(tmp: Path) -> list[tuple[str, Callable[[], bool]]]:
     return [
         ("a worker dies (os._exit) on one episode", faulty("crash:1", failed=1)),
         ("a worker dies once, then the retry succeeds", faulty("flaky:1", failed=0)),
-        ("a worker hangs (--episode-timeout 5)", faulty("hang:1", "--episode-timeout", "5", failed=1)),
+        ("a worker hangs (--episode-timeout 15)", faulty("hang:1", "--episode-timeout", "15", failed=1)),
         ("Ctrl-C mid-sweep, then --resume", interrupted),
     ]
 
