@@ -444,7 +444,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     except SweepInterrupted as exc:
         board = exc.board
         done = len(board.episodes) + len(board.failed)
-        total = sum(len(r.seeds) for r in board.rows if r.method is None)
+        total = sum(len(r.seeds) for r in board.rows if r.members is None)  # played rows, not method aggregates
         where = "nothing written (no --out)"
         if out:
             board.write(out)  # the sweep's own files: replacing them is what the directory is for
