@@ -36,6 +36,7 @@ from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.harness.evaluation import mean_ci95, run_episode  # noqa: E402
 from swarm_env.harness.policies import load_policy  # noqa: E402
 from swarm_env.jsonio import write_json  # noqa: E402
+from swarm_env.outputs import atomic_write_text, save_figure
 from swarm_env.state import WorldState  # noqa: E402
 from swarm_env_agents.vo_expert import VOExpert  # noqa: E402
 
@@ -164,7 +165,7 @@ def plot_positions(name: str, tr: dict[str, np.ndarray], scn: Any, path: Path) -
         ax.legend(fontsize=8, loc="upper left")
     axes[-1, 0].set_xlabel("X position (m)")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -187,7 +188,7 @@ def plot_velocities(name: str, tr: dict[str, np.ndarray], path: Path) -> None:
         a.grid(alpha=0.3)
         a.legend(fontsize=8, loc="best")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -196,7 +197,7 @@ def plot_paths(name: str, tr: dict[str, np.ndarray], scn: Any, path: Path) -> No
     import matplotlib.pyplot as plt
 
     fig = paths_figure(name, tr, scn)
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -353,7 +354,7 @@ def plot_scaling(rows: list[dict[str, Any]], path: Path) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path)
+    save_figure(fig, path)
     plt.close(fig)
 
 
@@ -421,7 +422,7 @@ def main(argv: list[str] | None = None) -> int:
 
     write_json(out / "results.json", results, indent=1, default=float)
     if args.doc:
-        Path(args.doc).write_text(render_doc(results, out, Path(args.doc)))
+        atomic_write_text(args.doc, render_doc(results, out, Path(args.doc)))
         print(f"wrote {args.doc}")
     return 0
 

@@ -22,8 +22,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -31,6 +29,7 @@ import gymnasium
 import numpy as np
 
 from swarm_env.jsonio import write_json
+from swarm_env.outputs import open_atomic, replace_dir
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -210,37 +209,14 @@ def one_line(exc: BaseException) -> str:
 # --------------------------------------------------------------------------- helpers
 
 
-class _atomic:
-    """A temporary path in the target's directory, renamed onto the target on success."""
-
-    def __init__(self, target: Path) -> None:
-        self.target = target
-
-    def __enter__(self) -> Path:
-        fd, name = tempfile.mkstemp(prefix=f".{self.target.name}.", dir=self.target.parent)
-        os.close(fd)
-        self.tmp = Path(name)
-        return self.tmp
-
-    def __exit__(self, exc_type: Any, *_: Any) -> None:
-        if exc_type is None:
-            os.replace(self.tmp, self.target)
-        else:
-            self.tmp.unlink(missing_ok=True)
+# The one atomic-write rule of the project (temp file in the same directory, renamed on success,
+# removed on failure, no symlink followed): swarm_env.outputs.open_atomic, under the name the
+# model writers here and in mappo_policy / rllib_train use.
+_atomic = open_atomic
 
 
-def swap_in_dir(new: Path, target: Path) -> Path:
-    """Replace the directory ``target`` by the finished directory ``new`` (same parent): the old one is moved
-    aside before ``new`` is renamed in, so a reader finds the old or the new directory whole, never a mix."""
-    import shutil
-
-    old = target.with_name(f".{target.name}.old")
-    shutil.rmtree(old, ignore_errors=True)
-    if target.exists():
-        target.rename(old)
-    new.rename(target)
-    shutil.rmtree(old, ignore_errors=True)
-    return target
+#: Replace a directory by a finished sibling (the old one moved aside first): :func:`swarm_env.outputs.replace_dir`.
+swap_in_dir = replace_dir
 
 
 def _space_to_json(space: gymnasium.Space) -> dict[str, Any]:

@@ -64,8 +64,12 @@ def dumps(value: Any, *, indent: int | None = 2, sort_keys: bool = False,
 
 
 def write_json(path: str | os.PathLike[str], value: Any, *, indent: int | None = 2, sort_keys: bool = False,
-               default: Callable[[Any], Any] | None = None) -> Path:
-    """Write ``dumps(value)`` and a final newline to ``path``; returns the path."""
-    path = Path(path)
-    path.write_text(dumps(value, indent=indent, sort_keys=sort_keys, default=default) + "\n")
-    return path
+               default: Callable[[Any], Any] | None = None, overwrite: bool = True,
+               root: str | os.PathLike[str] | None = None) -> Path:
+    """Write ``dumps(value)`` and a final newline to ``path`` atomically (:func:`swarm_env.outputs.atomic_write_text`:
+    a temporary file renamed onto ``path``; a symlink at ``path`` is refused, an existing file only replaced with
+    ``overwrite``, and with ``root`` a path resolving outside that directory is refused); returns the path."""
+    from swarm_env.outputs import atomic_write_text
+
+    text = dumps(value, indent=indent, sort_keys=sort_keys, default=default) + "\n"  # fails before any file is touched
+    return atomic_write_text(path, text, overwrite=overwrite, root=root)

@@ -78,7 +78,7 @@ def test_run_shows_policy_stats_as_a_table_and_video_progress(
     assert max(len(line) for line in lines[head : head + 6]) < 100  # a small table, not one long JSON line
 
     monkeypatch.setattr(cli, "_interactive", lambda: True)  # as at a terminal
-    assert main(argv) == 0
+    assert main(argv + ["--overwrite"]) == 0  # v.mp4 exists now: replaced only on request
     err = capsys.readouterr().err
     assert "video v.mp4" in err and "6/6" in err and "frame" in err  # the reset frame + 5 steps, bar at 100 %
 

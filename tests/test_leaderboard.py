@@ -109,7 +109,7 @@ def test_aggregation_equals_hand_computation(board: Leaderboard) -> None:
 def test_two_workers_give_the_same_metrics_as_one(board: Leaderboard, monkeypatch: pytest.MonkeyPatch) -> None:
     pool_sizes: list[int] = []
     real_pool = lb._run_pool
-    monkeypatch.setattr(lb, "_run_pool", lambda jobs, workers, tick: pool_sizes.append(workers) or real_pool(jobs, workers, tick))
+    monkeypatch.setattr(lb, "_run_pool", lambda jobs, workers, *rest: pool_sizes.append(workers) or real_pool(jobs, workers, *rest))
     pooled = run_leaderboard(["random", "pursuit"], ["paper_vo_0", "random"], SEEDS, env_kwargs=SHORT,
                              workers=2, progress=False)
     assert pool_sizes == [2]  # the jobs really ran in a process pool

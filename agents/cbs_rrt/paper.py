@@ -29,6 +29,7 @@ import numpy as np
 import swarm_env
 from swarm_env.harness.evaluation import run_episode
 from swarm_env.jsonio import write_json
+from swarm_env.outputs import atomic_write_text, save_figure
 from swarm_env.state import WorldState
 from swarm_env_agents.cbs_rrt.cbs import CBS
 from swarm_env_agents.cbs_rrt.conflicts import find_conflicts
@@ -102,7 +103,7 @@ def _save(fig: Any, out: Path | None, name: str) -> Any:
     import matplotlib.pyplot as plt
 
     path = out / name
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 
@@ -411,7 +412,7 @@ def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path,
         "",
     ]
     text = "\n".join(lines)
-    md_path.write_text(text)
+    atomic_write_text(md_path, text)
     return text
 
 

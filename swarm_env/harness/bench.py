@@ -235,9 +235,10 @@ def run_followers_bench(
     return [BatchResult(name, 1, n, *figures[name]) for name, n, _ in cases]
 
 
-def plot_batched(results: list[BatchResult], path: str) -> None:
+def plot_batched(results: list[BatchResult], path: str, *, overwrite: bool = True) -> None:
     """Agent-steps/s against the batch size M (log-log), one line per engine: median over the
-    repeats, with the repeats' range as a band (the ``plots`` extra: matplotlib)."""
+    repeats, with the repeats' range as a band (the ``plots`` extra: matplotlib). Written atomically
+    (:func:`swarm_env.outputs.open_atomic`; an existing file is replaced only with ``overwrite``)."""
     from swarm_env.extras import require
 
     require("matplotlib", "plots", "--plot").use("Agg")
@@ -256,5 +257,9 @@ def plot_batched(results: list[BatchResult], path: str) -> None:
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    fig.savefig(path)
-    plt.close(fig)
+    from swarm_env.outputs import save_figure
+
+    try:
+        save_figure(fig, path, overwrite=overwrite)
+    finally:
+        plt.close(fig)

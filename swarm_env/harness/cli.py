@@ -193,6 +193,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             from swarm_env.harness.recording import ensure_new_recording_dir
 
             ensure_new_recording_dir(args.record)  # a RecordError (a ValueError) before any episode
+        _check_outputs(args, args.json)  # an OutputError (a ValueError) before any episode
     except ScenarioError:
         raise  # main() reports it
     except (TypeError, ValueError) as exc:
@@ -208,7 +209,11 @@ def cmd_run(args: argparse.Namespace) -> int:
 
         from swarm_env.harness.video import VideoWriter
 
-        writer = VideoWriter(args.video, fps=args.fps)
+        try:
+            writer = VideoWriter(args.video, fps=args.fps, overwrite=args.overwrite)
+        except ValueError as exc:  # a bad suffix or fps, or an OutputError: before any episode
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
         # A long episode takes tens of seconds to play, render and encode: show progress, frame by frame.
         bar = tqdm(total=max_frames, desc=f"video {Path(args.video).name}", unit="frame", disable=not _interactive())
 
@@ -216,6 +221,7 @@ def cmd_run(args: argparse.Namespace) -> int:
             writer.append(frame)
             bar.update()
 
+    finished = False
     try:
         report = evaluate(
             args.scenario,
@@ -227,13 +233,15 @@ def cmd_run(args: argparse.Namespace) -> int:
             progress=args.episodes > 1 and bar is None and _interactive(),
             record_dir=args.record,
         )
+        finished = True
     finally:
         if bar is not None:
             bar.total = bar.n  # episodes that end early render fewer frames than the bound
-            bar.set_postfix_str("encoding")
+            bar.set_postfix_str("encoding" if finished else "stopped")
             bar.refresh()
         if writer is not None:
-            writer.close()
+            # a run that failed or was interrupted leaves no video: a truncated one would look like a short run
+            writer.close() if finished else writer.abort()
         if bar is not None:
             bar.close()
     for ep in report["episodes"]:
@@ -249,7 +257,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         f"formation error {s['formation_error']['mean']:.3f} m"
     )
     if args.json:
-        _write_json(args.json, report)
+        _write_json(args.json, report, args.overwrite)
     if args.video:
         print(f"wrote {args.video}")
     if args.record:
@@ -264,11 +272,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
     try:
         records = recording.load_recording(args.dir)
-        writer = VideoWriter(args.video, fps=args.fps) if args.video else None  # checks the suffix and --fps
+        # checks the suffix, --fps and the output path (OutputError) before any replay
+        writer = VideoWriter(args.video, fps=args.fps, overwrite=args.overwrite) if args.video else None
     except (recording.RecordError, ScenarioError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     status = 0
+    finished = False
     try:
         for rec in records:
             result = recording.replay(rec, on_frame=writer.append if writer else None, stop_at_divergence=args.check)
@@ -280,9 +290,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
                 if args.check:
                     status = 1
                     break
+        finished = True
     finally:
         if writer is not None:
-            writer.close()
+            writer.close() if finished else writer.abort()  # no truncated video under the final name
     if args.video:
         print(f"wrote {args.video}")
     return status
@@ -292,6 +303,11 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from swarm_env.harness import bench
 
     progress = (lambda msg: print(msg, file=sys.stderr)) if not args.quiet else None
+    try:
+        _check_outputs(args, args.json, args.plot)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     if args.vs == "vmas" or args.num_envs or args.followers:
         return _bench_batched(args, progress)
     results = bench.run_bench(args.scenario, steps=args.steps, repeats=args.repeats, seed=args.seed, peer=args.vs,
@@ -305,7 +321,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         print(f"ratio swarm_env / {results[1].name}: {results[0].median / results[1].median:.2f}x")
     if args.json:
         doc = [{"name": r.name, "agents": r.agents, "env_steps_per_s": r.env_steps_per_s, "median": r.median} for r in results]
-        _write_json(args.json, doc)
+        _write_json(args.json, doc, args.overwrite)
     return 0
 
 
@@ -335,42 +351,72 @@ def _bench_batched(args: argparse.Namespace, progress: Any) -> int:
                   f"{r.median_cpu / p.median_cpu:.2f}x CPU")
     if args.json:
         _write_json(args.json, [{"name": r.name, "num_envs": r.num_envs, "agents": r.agents, "wall": r.wall,
-                                 "cpu": r.cpu} for r in results])
+                                 "cpu": r.cpu} for r in results], args.overwrite)
     if args.plot:
-        bench.plot_batched(results, args.plot)
+        bench.plot_batched(results, args.plot, overwrite=args.overwrite)
         print(f"wrote {args.plot}")
     return 0
 
 
-def _write_json(path: str, doc: Any) -> None:
+def _check_outputs(args: argparse.Namespace, *paths: str | None) -> None:
+    """Refuse (``OutputError``, a ``ValueError``) an output file that the command could not write safely
+    (:func:`swarm_env.outputs.check_target`): checked before any work, and again when it is written."""
+    from swarm_env.outputs import check_target
+
+    for path in paths:
+        if path:
+            check_target(path, overwrite=args.overwrite)
+
+
+def _write_json(path: str, doc: Any, overwrite: bool) -> None:
     from swarm_env.jsonio import write_json
 
-    write_json(path, doc)  # strict JSON: a non-finite metric is written as null
+    write_json(path, doc, overwrite=overwrite)  # strict JSON (a non-finite metric as null), atomic, no symlink followed
     print(f"wrote {path}")
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    """The leaderboard (:mod:`swarm_env.harness.leaderboard`); every input is checked before any episode runs."""
+    """The leaderboard (:mod:`swarm_env.harness.leaderboard`); every input is checked before any episode runs.
+
+    Exit codes: 0 done, 2 a bad input (one line), 130 Ctrl-C (the finished episodes are written to
+    ``--out``, and ``--resume DIR`` finishes the sweep)."""
     from swarm_env.harness.leaderboard import (
+        SweepInterrupted,
         default_seeds,
         parse_seeds,
+        read_sweep,
         record_worst_videos,
         run_leaderboard,
         validate_inputs,
     )
+    from swarm_env.outputs import OutputError
     from swarm_env.scenario_io import list_scenarios
 
-    scenarios: list[str] = args.scenarios or list_scenarios()
-    env_kwargs: dict[str, Any] = {"action_type": args.action_type}
-    if args.max_cycles is not None:
-        env_kwargs["max_cycles"] = args.max_cycles
     try:
-        env_kwargs.update(parse_env_items(args.env))
+        if args.resume and args.out and Path(args.out) != Path(args.resume):
+            raise ValueError("--resume DIR writes to DIR: drop --out, or give the same directory")
+        out = args.resume or args.out
+        stored = read_sweep(args.resume) if args.resume else None
+        if stored is None and not args.policies:
+            raise ValueError("--policies is required (unless --resume DIR, which takes the sweep from DIR/sweep.json)")
+        # With --resume, what is not given comes from the sweep being finished; what is given must match it.
+        policies: list[str] = args.policies or stored["policies"]
+        scenarios: list[str] = args.scenarios or (stored["scenarios"] if stored else list_scenarios())
+        env_given = args.action_type is not None or args.max_cycles is not None or args.env
+        if stored is not None and not env_given:
+            env_kwargs: dict[str, Any] = dict(stored["env_kwargs"])
+        else:
+            env_kwargs = {"action_type": args.action_type or "continuous"}
+            if args.max_cycles is not None:
+                env_kwargs["max_cycles"] = args.max_cycles
+            env_kwargs.update(parse_env_items(args.env))
         if args.workers < 1:
             raise ValueError(f"--workers must be >= 1, got {args.workers}")
         if args.fps <= 0:
             raise ValueError(f"--fps must be > 0, got {args.fps:g}")
-        if args.videos and not args.out:
+        if args.episode_timeout is not None and not args.episode_timeout > 0:
+            raise ValueError(f"--episode-timeout must be > 0 seconds, got {args.episode_timeout:g}")
+        if args.videos and not out:
             raise ValueError("--videos needs --out DIR (the videos go to DIR/videos/)")
         common = parse_seeds(args.seeds) if args.seeds is not None else None
         seeds: dict[str, list[int]] = {}
@@ -383,37 +429,62 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             if name in seeds:
                 raise ValueError(f"--scenario-seeds gives {name!r} twice")
             seeds[name] = parse_seeds(text)
-        validate_inputs(args.policies, scenarios, env_kwargs)
+        validate_inputs(policies, scenarios, env_kwargs)
     except ScenarioError:
         raise  # main() reports it (as it does UnknownPolicyError)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     for scenario in scenarios:
+        if stored is not None and common is None and not args.scenario_seeds and scenario in stored["seeds"]:
+            seeds.setdefault(scenario, list(stored["seeds"][scenario]))
         seeds.setdefault(scenario, list(common) if common is not None else default_seeds(scenario))
 
-    board = run_leaderboard(
-        args.policies, scenarios, seeds, env_kwargs=env_kwargs, workers=args.workers, progress=not args.quiet,
-        backend=args.backend, ray_address=args.ray_address,
-    )
+    try:
+        board = run_leaderboard(
+            policies, scenarios, seeds, env_kwargs=env_kwargs, workers=args.workers, progress=not args.quiet,
+            backend=args.backend, ray_address=args.ray_address, out_dir=out, resume=bool(args.resume),
+            overwrite=args.overwrite, episode_timeout=args.episode_timeout,
+        )
+    except SweepInterrupted as exc:
+        board = exc.board
+        done = len(board.episodes) + len(board.failed)
+        total = sum(len(r.seeds) for r in board.rows if r.members is None)  # played rows, not method aggregates
+        where = "nothing written (no --out)"
+        if out:
+            board.write(out)  # the sweep's own files: replacing them is what the directory is for
+            where = f"wrote {out}/leaderboard.md, .csv and .json; finish with: swarm-env evaluate --resume {out}"
+        print(f"interrupted: {done} of {total} episodes done; {where}", file=sys.stderr)
+        return 130
+    except ValueError as exc:  # OutputError (results already there, a symlink), a --resume that does not match
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
     print(board.to_markdown())
     print(f"{len(board.episodes)} episodes in {board.wall_time:.1f} s (wall, {args.workers} worker(s))", file=sys.stderr)
+    for entry in board.failed:
+        print(f"warning: episode failed after {entry['attempts']} attempts: policy {entry['policy']!r} on "
+              f"{entry['scenario']!r} seed {entry['seed']}: {entry['error']}", file=sys.stderr)
     for policy in board.policies:  # likely a bad argument (e.g. a missing model file) rather than a misfit
         reasons = {r.na_reason for r in board.rows if r.policy == policy}
         if None not in reasons:
             print(f"warning: policy {policy!r} ran on no scenario: {'; '.join(sorted(str(r) for r in reasons))}", file=sys.stderr)
-    if args.out:
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "leaderboard.md").write_text(board.to_markdown())
-        for path in (out / "leaderboard.md", board.to_csv(out / "leaderboard.csv"), board.to_json(out / "leaderboard.json")):
-            print(f"wrote {path}")
-        if args.videos:
-            for rec in record_worst_videos(board, out / "videos", fps=args.fps, progress=not args.quiet,
-                                           records_dir=out / "records"):
-                print(f"wrote {rec.path}" + ("" if rec.reproduced else "  (its replay differs from the board's episode)"))
+    if out:
+        try:
+            for path in board.write(out):
+                print(f"wrote {path}")
+            if args.videos:
+                for rec in record_worst_videos(board, Path(out) / "videos", fps=args.fps, progress=not args.quiet,
+                                               records_dir=Path(out) / "records", overwrite=True, root=out,
+                                               play_missing=bool(args.resume)):
+                    print(f"wrote {rec.path}" + ("" if rec.reproduced else "  (its replay differs from the board's episode)"))
+        except (OutputError, ValueError) as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return 2
     return 0
 
+
+OVERWRITE_HELP = ("replace output files that exist (without it they are refused); outputs are always written to a "
+                  "temporary file and renamed, and a symlink at an output path is refused")
 
 TRUST_PICKLE_HELP = ("load pickle-bearing model files (SB3 model.zip without policy.safetensors + policy.json, "
                      "vecnormalize.pkl): unpickling runs any code in the file, so only for files you trust "
@@ -513,6 +584,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--fps", type=float, default=20.0, help="video frames per second")
     r.add_argument("--render", choices=["human"], help="show a pygame window")
     r.add_argument("--record", metavar="DIR", help="record every episode to DIR/episode_<k>/ (swarm-env replay DIR)")
+    r.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     r.add_argument("--trust-pickle", action="store_true", help=TRUST_PICKLE_HELP)
     r.set_defaults(func=cmd_run)
 
@@ -520,6 +592,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp.add_argument("dir", help="a recording directory (or one episode_<k> folder of it)")
     rp.add_argument("--video", help="write an .mp4 (or .gif) of the replayed episodes to this file")
     rp.add_argument("--fps", type=float, default=20.0, help="video frames per second")
+    rp.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     rp.add_argument("--check", action="store_true",
                     help="stop at the first step whose state digest differs from the record and exit 1")
     rp.set_defaults(func=cmd_replay)
@@ -539,6 +612,7 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--plot", help="with --num-envs/--vs vmas: write agent-steps/s against M to this PNG")
     b.add_argument("--json", help="write the raw figures to this file")
     b.add_argument("--quiet", action="store_true", help="no per-repeat progress on stderr")
+    b.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     b.set_defaults(func=cmd_bench)
 
     e = sub.add_parser(
@@ -550,8 +624,9 @@ def build_parser() -> argparse.ArgumentParser:
         "fixed scenario gets seeds 0-4 (it is deterministic up to the policy's randomness) and 'random' gets the "
         "held-out seeds 1000-1049.",
     )
-    e.add_argument("--policies", nargs="+", required=True, metavar="SPEC",
-                   help="registered policy names, optionally name:ARG (e.g. vo cbs_rrt random ppo:runs/x/model.zip)")
+    e.add_argument("--policies", nargs="+", metavar="SPEC",
+                   help="registered policy names, optionally name:ARG (e.g. vo cbs_rrt random ppo:runs/x/model.zip); "
+                   "required unless --resume")
     e.add_argument("--scenarios", nargs="+", default=None, metavar="SCENARIO",
                    help="built-in names, 'random' or YAML paths (default: every built-in scenario and random)")
     e.add_argument("--seeds", metavar="SEEDS", help="seeds of every scenario: '0-9', '3' or '0,5,7' (mixes like '0-4,9' too)")
@@ -563,11 +638,20 @@ def build_parser() -> argparse.ArgumentParser:
                    help="local: this machine's process pool; ray: Ray tasks (pip install 'swarm-env[ray]'), the same results")
     e.add_argument("--ray-address", help="with --backend ray: join this cluster ('auto', 'HOST:6379', 'ray://HOST:10001') "
                    "instead of starting a local Ray instance")
-    e.add_argument("--action-type", choices=["continuous", "discrete"], default="continuous")
+    e.add_argument("--action-type", choices=["continuous", "discrete"], default=None, help="default: continuous")
     e.add_argument("--max-cycles", type=int, help="stop each episode after this many steps (default: max_time)")
     e.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                    help=ENV_HELP + "; generator knobs apply to the random scenario only")
-    e.add_argument("--out", metavar="DIR", help="write DIR/leaderboard.md, .csv and .json")
+    e.add_argument("--out", metavar="DIR", help="write DIR/leaderboard.md, .csv and .json; every finished episode is "
+                   "streamed to DIR/episodes.jsonl as it ends (the sweep's inputs in DIR/sweep.json). A DIR that "
+                   "already holds results needs --overwrite or --resume")
+    e.add_argument("--resume", metavar="DIR", help="finish the interrupted sweep in DIR: play only the episodes "
+                   "DIR/episodes.jsonl lacks (the policies, scenarios, seeds and env options come from DIR/sweep.json; "
+                   "any given must match)")
+    e.add_argument("--overwrite", action="store_true", help="replace the results already in --out DIR")
+    e.add_argument("--episode-timeout", type=float, metavar="SECONDS",
+                   help="with --workers >= 2: kill a worker whose episode runs longer, retry the episode once, "
+                   "then count it as failed (default: 60 + 0.1 s per step of the longest episode)")
     e.add_argument("--videos", action="store_true", help="also write DIR/videos/<policy>__<scenario>__seed<k>.mp4 "
                    "of each policy's worst episode per scenario (most collisions, then failure, then formation error), "
                    "replayed from its record, saved as DIR/records/<policy>__<scenario>__seed<k>/")
@@ -592,6 +676,9 @@ def main(argv: list[str] | None = None) -> int:
     except MissingExtraError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # Ctrl-C outside a command's own handling: one line, the shell's code for SIGINT
+        print("interrupted", file=sys.stderr)
+        return 130
     except ImportError as exc:  # an optional dependency imported where it is used, e.g. by a training command
         extra = extra_for_module(exc.name)
         if extra is None:

@@ -27,6 +27,12 @@ process pool (``spawn``: no state inherited from the parent), which gives the
 same metrics as ``workers=1`` because a job does not depend on where it runs;
 only the timings (``wall_time``, ``policy_time``, ``policy_stats``) differ.
 
+Faults. In the pool a worker that dies or whose episode exceeds the per-episode timeout costs only
+that episode (tried once more, then counted in :attr:`Row.failed` and listed in
+:attr:`Leaderboard.failed`); with ``out_dir`` every finished episode is streamed to
+``out_dir/episodes.jsonl``, ``resume=True`` plays only the missing ones, and Ctrl-C raises
+:class:`SweepInterrupted` carrying the board of what is done (see :func:`run_leaderboard`).
+
 Records. Every episode is recorded as it is played (:mod:`swarm_env.harness.recording`: its actions
 and state digests; the metrics are those of an unrecorded run), and each job keeps the record
 of its worst episode (:func:`badness`) in :attr:`Leaderboard.records`, so that
@@ -54,12 +60,10 @@ import hashlib
 import json
 import multiprocessing
 import os
-import queue
 import re
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -235,15 +239,13 @@ class _Job:
     env_kwargs: dict[str, Any]
 
 
-@dataclass(frozen=True)
-class _JobResult:
-    episodes: list[dict[str, Any]]
-    na_reason: str | None
-    worst: EpisodeRecord | None = None  # the record of the job's worst episode (the first seed on ties)
+#: ``on_episode(seed, metrics, record)``: one finished episode of a job.
+_OnEpisode = Callable[[int, dict[str, Any], EpisodeRecord], None]
 
 
-def _run_job(job: _Job, on_episode: Callable[[], None]) -> _JobResult:
-    """Play one (policy, scenario) job with one fresh env and policy; ``on_episode`` ticks progress."""
+def _run_job(job: _Job, on_episode: _OnEpisode) -> str | None:
+    """Play one (policy, scenario) job with one fresh env and policy, reporting each finished episode to
+    ``on_episode`` as it ends; returns ``None``, or the reason the policy refuses the scenario (no episode ran)."""
     env = SwarmEnv(job.scenario, **env_kwargs_for(job.scenario, job.env_kwargs))
     try:
         try:
@@ -251,74 +253,336 @@ def _run_job(job: _Job, on_episode: Callable[[], None]) -> _JobResult:
         except ModelFileError:
             raise  # the same file fails on every scenario: a bad argument, reported as such
         except PolicyError as exc:
-            return _JobResult([], str(exc))
+            return str(exc)
         # Some policies refuse an env in reset() (ValueError), not in their factory; probe once so
         # that this too gives an n/a row. run_episode resets both again with the same seed.
         env.reset(seed=job.seeds[0])
         try:
             policy.reset(env, job.seeds[0])
         except ValueError as exc:
-            message = str(exc) if str(exc).startswith("policy ") else f"policy {job.policy!r}: {exc}"
-            return _JobResult([], message)
-        episodes: list[dict[str, Any]] = []
-        worst: EpisodeRecord | None = None
+            return str(exc) if str(exc).startswith("policy ") else f"policy {job.policy!r}: {exc}"
+        ran = 0
         for seed in job.seeds:
             try:
                 metrics, rec = record_episode(env, policy, seed, policy_spec=job.policy, scenario_spec=job.scenario)
-                episodes.append(metrics)
-                if worst is None or badness(metrics) > badness(worst.metrics):  # strictly: ties keep the first
-                    worst = rec
             except PolicyError as exc:
-                if episodes:  # a refusal after some episodes ran is a fault, not a misfit
+                if ran:  # a refusal after some episodes ran is a fault, not a misfit
                     raise
-                return _JobResult([], str(exc))
+                return str(exc)
             except Exception as exc:
                 exc.add_note(f"while evaluating policy {job.policy!r} on scenario {job.scenario!r}, seed {seed}")
                 raise
-            on_episode()
-        return _JobResult(episodes, None, worst)
+            ran += 1
+            on_episode(seed, metrics, rec)
+        return None
     finally:
         env.close()
 
 
-_PROGRESS_QUEUE: Any = None  # set in each pool worker by _init_worker
+# --------------------------------------------------------------------------- the sweep's bookkeeping
+SWEEP_FILE = "sweep.json"
+EPISODES_FILE = "episodes.jsonl"
+SWEEP_FORMAT = "swarm_env.sweep/1"
+#: Files of a leaderboard directory that mark it as holding results (``--overwrite`` or ``--resume`` needed).
+RESULT_FILES = (SWEEP_FILE, EPISODES_FILE, "leaderboard.json", "leaderboard.csv", "leaderboard.md")
+#: Attempts an episode gets when its worker dies or exceeds the episode timeout (the first try and one retry).
+MAX_ATTEMPTS = 2
+#: Seconds a new pool worker may take to start (import swarm-env) on top of the episode timeout.
+STARTUP_GRACE = 120.0
 
 
-def _init_worker(progress_queue: Any) -> None:
-    global _PROGRESS_QUEUE
-    _PROGRESS_QUEUE = progress_queue
+def default_episode_timeout(max_steps: int) -> float:
+    """The per-episode timeout (seconds) when none is given: ``60 + 0.1 * max_steps``. The slowest
+    episodes of the shipped leaderboard take about 1 ms per step (``docs/leaderboard/leaderboard.json``),
+    so this leaves a hundredfold margin per step plus a minute for loading a policy."""
+    return 60.0 + 0.1 * max_steps
 
 
-def _run_job_in_worker(job: _Job) -> _JobResult:
-    return _run_job(job, lambda: _PROGRESS_QUEUE.put(1))
+class SweepInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`run_leaderboard`: ``board`` holds the episodes finished so far (the
+    rows of unfinished jobs count their missing episodes as ``pending``)."""
+
+    def __init__(self, board: Leaderboard) -> None:
+        super().__init__("interrupted")
+        self.board = board
 
 
-def _run_pool(jobs: list[_Job], workers: int, tick: Callable[[int], None]) -> list[_JobResult]:
-    # spawn: a clean interpreter per worker (fork would copy the parent's threads and pygame state).
-    ctx = multiprocessing.get_context("spawn")
-    progress_queue = ctx.Queue()
-    results: list[_JobResult | None] = [None] * len(jobs)
-    pool = ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=_init_worker, initargs=(progress_queue,))
+class _Sweep:
+    """What is done: finished and failed episodes, refusals, the worst record of each job; each new
+    result is appended to ``<out>/episodes.jsonl`` when there is an output directory."""
+
+    def __init__(self, out: Path | None, tick: Callable[[int], None]) -> None:
+        self.out = out
+        self.tick = tick
+        self.ok: dict[tuple[str, str, int], dict[str, Any]] = {}
+        self.failed: dict[tuple[str, str, int], dict[str, Any]] = {}
+        self.na: dict[tuple[str, str], str] = {}
+        self.worst: dict[tuple[str, str], EpisodeRecord] = {}
+        self.order: dict[tuple[str, str], list[int]] = {}  # each job's seeds, for the first-seed tie rule
+
+    def _stream(self, entry: dict[str, Any]) -> None:
+        if self.out is not None:
+            from swarm_env.outputs import append_line
+
+            append_line(self.out / EPISODES_FILE, dumps(entry, indent=None), root=self.out)
+
+    def episode(self, job: _Job, seed: int, metrics: dict[str, Any], rec: EpisodeRecord | None) -> None:
+        self.ok[(job.policy, job.scenario, seed)] = metrics
+        self._stream({"policy": job.policy, "scenario": job.scenario, "seed": seed, "status": "ok", "metrics": metrics})
+        if rec is not None:
+            key = (job.policy, job.scenario)
+            old = self.worst.get(key)
+            seeds = self.order[key]
+            # strictly worse, or as bad and an earlier seed: the first seed on ties, whatever order episodes came in
+            if old is None or badness(metrics) > badness(old.metrics) or (
+                    badness(metrics) == badness(old.metrics) and seeds.index(seed) < seeds.index(int(old.seed))):
+                self.worst[key] = rec
+        self.tick(1)
+
+    def fail(self, job: _Job, seed: int, error: str, attempts: int) -> None:
+        entry = {"policy": job.policy, "scenario": job.scenario, "seed": seed, "status": "failed", "error": error,
+                 "attempts": attempts}
+        self.failed[(job.policy, job.scenario, seed)] = entry
+        self._stream(entry)
+        self.tick(1)
+
+    def refuse(self, job: _Job, reason: str) -> None:
+        self.na[(job.policy, job.scenario)] = reason
+        self._stream({"policy": job.policy, "scenario": job.scenario, "status": "n/a", "reason": reason})
+
+    def remaining(self, job: _Job) -> tuple[int, ...]:
+        """The job's seeds with no result yet."""
+        if (job.policy, job.scenario) in self.na:
+            return ()
+        return tuple(s for s in job.seeds
+                     if (job.policy, job.scenario, s) not in self.ok and (job.policy, job.scenario, s) not in self.failed)
+
+    def load(self, path: Path) -> None:
+        """Read the results a previous run streamed to ``path``; a torn last line (a crash mid-write) is
+        dropped from the file, a bad line elsewhere is an error naming its line number."""
+        if not path.is_file():
+            return
+        data = path.read_bytes()
+        lines = data.split(b"\n")
+        good_until = 0
+        for i, raw in enumerate(lines):
+            if not raw.strip():
+                good_until += len(raw) + (1 if i < len(lines) - 1 else 0)
+                continue
+            try:
+                entry = json.loads(raw)
+                if not isinstance(entry, dict) or entry.get("status") not in ("ok", "failed", "n/a"):
+                    raise ValueError("not an episode entry")
+            except ValueError as exc:
+                if i == len(lines) - 1:  # the torn last line of a killed run: drop it
+                    break
+                raise ValueError(f"{path}: line {i + 1}: not a result line ({exc})") from None
+            key = (entry["policy"], entry["scenario"])
+            if entry["status"] == "n/a":
+                self.na[key] = entry["reason"]
+            elif entry["status"] == "ok":
+                self.ok[(*key, int(entry["seed"]))] = entry["metrics"]
+            else:
+                self.failed[(*key, int(entry["seed"]))] = entry
+            good_until += len(raw) + (1 if i < len(lines) - 1 else 0)
+        if good_until < len(data):
+            from swarm_env.outputs import atomic_write_bytes
+
+            atomic_write_bytes(path, data[:good_until], root=path.parent)
+
+
+def _sweep_spec(policies: Sequence[str], scenarios: Sequence[str], seed_map: Mapping[str, list[int]],
+                env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
+    # what defines the episodes of a sweep (workers, timeouts and the backend do not change them)
+    return json.loads(dumps({"format": SWEEP_FORMAT, "policies": list(policies), "scenarios": list(scenarios),
+                             "seeds": dict(seed_map), "env_kwargs": dict(env_kwargs)}, indent=None))
+
+
+def read_sweep(directory: str | os.PathLike[str]) -> dict[str, Any]:
+    """The sweep spec stored in ``directory/sweep.json`` (policies, scenarios, seeds, env_kwargs), or a
+    ``ValueError`` naming the file: missing (not a sweep directory), unreadable, or of another format."""
+    path = Path(directory) / SWEEP_FILE
+    if not path.is_file():
+        raise ValueError(f"{path}: missing; --resume needs a directory an earlier 'swarm-env evaluate --out' wrote")
     try:
-        pending: dict[Future[_JobResult], int] = {pool.submit(_run_job_in_worker, job): i for i, job in enumerate(jobs)}
-        while pending:
-            done, _ = wait(pending, timeout=0.2, return_when=FIRST_COMPLETED)
-            _drain(progress_queue, tick)
-            for fut in done:
-                results[pending.pop(fut)] = fut.result()  # re-raises a job's exception here
-        _drain(progress_queue, tick)
-    except BaseException:
-        pool.shutdown(wait=False, cancel_futures=True)
-        raise
-    pool.shutdown(wait=True)
-    return [r for r in results if r is not None]
+        spec = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"{path}: not readable JSON ({exc})") from None
+    if not isinstance(spec, dict) or spec.get("format") != SWEEP_FORMAT:
+        raise ValueError(f"{path}: format: expected {SWEEP_FORMAT!r}, got {spec.get('format') if isinstance(spec, dict) else spec!r}")
+    for key in ("policies", "scenarios", "seeds", "env_kwargs"):
+        if key not in spec:
+            raise ValueError(f"{path}: missing key {key!r}")
+    return spec
 
 
-def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, tick: Callable[[int], None]) -> list[_JobResult]:
+def _prepare_out(out: Path, spec: dict[str, Any], resume: bool, overwrite: bool) -> None:
+    """Make ``out`` ready for streaming: a new sweep (refusing old results unless ``overwrite``) or, with
+    ``resume``, the same sweep as the one stored there."""
+    from swarm_env.outputs import OutputError, atomic_write_bytes, ensure_dir
+
+    if resume:
+        stored = read_sweep(out)
+        for key in ("policies", "scenarios", "seeds", "env_kwargs"):
+            if stored[key] != spec[key]:
+                raise ValueError(f"{out / SWEEP_FILE}: {key} {stored[key]!r} differ from this command's {spec[key]!r}; "
+                                 "--resume finishes the same sweep (drop the differing options or use another --out)")
+        return
+    ensure_dir(out)
+    found = [name for name in RESULT_FILES if (out / name).exists() or (out / name).is_symlink()]
+    if found and not overwrite:
+        raise OutputError(f"{out}: holds results ({', '.join(found)}); pass --overwrite to start again "
+                          f"or --resume {out} to finish that sweep")
+    atomic_write_bytes(out / EPISODES_FILE, b"", root=out)  # a new sweep starts from no episodes
+    from swarm_env.jsonio import write_json
+
+    write_json(out / SWEEP_FILE, spec, indent=1, root=out)
+
+
+# --------------------------------------------------------------------------- the local process pool
+def _worker_main(conn: Any) -> None:
+    """A pool worker: play the jobs it is sent, streaming ``("episode", seed, metrics, record)`` and then
+    ``("done", na_reason)`` back, or ``("raise", exception)``; ``None`` stops it."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the workers
+    while True:
+        job = conn.recv()
+        if job is None:
+            return
+        conn.send(("started",))  # the episode timeout counts from here, not from the worker's (slow) start-up
+        try:
+            reason = _run_job(job, lambda seed, metrics, rec: conn.send(("episode", seed, metrics, rec)))
+            conn.send(("done", reason))
+        except Exception as exc:  # noqa: BLE001 - carried to the parent, which raises it
+            try:
+                conn.send(("raise", exc))
+            except Exception:  # noqa: BLE001 - an exception that does not pickle travels as its text
+                conn.send(("raise", RuntimeError(f"{type(exc).__name__}: {exc}")))
+
+
+class _Slot:
+    """One worker process, the job it plays and when its current episode started."""
+
+    def __init__(self, ctx: Any) -> None:
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_worker_main, args=(child,), daemon=True)
+        self.proc.start()
+        child.close()
+        self.job: _Job | None = None
+        self.since = 0.0
+        self.started = False  # whether the worker has begun its job (it may still be importing)
+
+    def assign(self, job: _Job) -> None:
+        self.job, self.since, self.started = job, time.monotonic(), False
+        self.conn.send(job)
+
+    def stop(self, kill: bool = False) -> None:
+        if kill:
+            self.proc.kill()
+        else:
+            try:
+                self.conn.send(None)
+            except OSError:
+                pass
+        self.proc.join(timeout=None if kill else 5)
+        if self.proc.is_alive():
+            self.proc.kill()
+            self.proc.join()
+        self.conn.close()
+
+
+def _run_pool(jobs: list[_Job], workers: int, sweep: _Sweep, episode_timeout: float | None = None) -> None:
+    """Play ``jobs`` on ``workers`` ``spawn`` processes (no state inherited from the parent), each job's
+    episodes reported to ``sweep`` as they finish.
+
+    A worker that dies (a crash, ``os._exit``, the OOM killer) or whose current episode runs longer
+    than ``episode_timeout`` seconds (then it is killed) costs only that episode: it is tried again
+    once in a fresh worker (:data:`MAX_ATTEMPTS`) and otherwise recorded as failed; the job goes on
+    with its remaining seeds. A Python exception in a job stops the pool and is raised here.
+    """
+    from multiprocessing.connection import wait as wait_any
+
+    ctx = multiprocessing.get_context("spawn")
+    queue_: list[_Job] = list(jobs)
+    attempts: dict[tuple[str, str, int], int] = {}
+    slots = [_Slot(ctx) for _ in range(workers)]
+    try:
+        while queue_ or any(s.job is not None for s in slots):
+            for slot in slots:
+                if slot.job is None and queue_:
+                    slot.assign(queue_.pop(0))
+            busy = [s for s in slots if s.job is not None]
+            ready = wait_any([s.conn for s in busy] + [s.proc.sentinel for s in busy], timeout=0.2)
+            for i, slot in enumerate(slots):
+                job = slot.job
+                if job is None:
+                    continue
+                lost: str | None = None
+                # dead first, then drain: whatever a dead worker sent before dying is in the pipe by now
+                dead = not slot.proc.is_alive()
+                for kind, *payload in _messages(slot.conn):
+                    if kind == "started":
+                        slot.started, slot.since = True, time.monotonic()
+                    elif kind == "episode":
+                        sweep.episode(job, *payload)
+                        slot.since = time.monotonic()
+                    elif kind == "done":
+                        if payload[0] is not None:
+                            sweep.refuse(job, payload[0])
+                        slot.job = None
+                    else:  # "raise": a Python exception in the job stops the leaderboard, as in this process
+                        raise payload[0]
+                if slot.job is None:
+                    continue
+                if dead:
+                    slot.proc.join()
+                    code = slot.proc.exitcode
+                    lost = (f"worker killed by signal {-code}" if code is not None and code < 0
+                            else f"worker exited with code {code}")
+                elif episode_timeout is not None and time.monotonic() - slot.since > (
+                        episode_timeout if slot.started else episode_timeout + STARTUP_GRACE):
+                    lost = f"timed out after {episode_timeout:g} s (--episode-timeout)"
+                if lost is None:
+                    continue
+                slot.stop(kill=True)
+                slots[i] = _Slot(ctx)
+                left = sweep.remaining(job)
+                if not left:
+                    continue
+                seed = left[0]  # the episode it was playing: the first without a result
+                key = (job.policy, job.scenario, seed)
+                attempts[key] = attempts.get(key, 0) + 1
+                if attempts[key] >= MAX_ATTEMPTS:
+                    sweep.fail(job, seed, lost, attempts[key])
+                    left = left[1:]
+                if left:
+                    queue_.insert(0, _Job(job.policy, job.scenario, left, job.env_kwargs))
+            del ready  # only a wake-up: every slot is polled above
+    finally:
+        for slot in slots:
+            slot.stop(kill=slot.job is not None)
+
+
+def _messages(conn: Any) -> list[tuple[Any, ...]]:
+    """The messages waiting on a worker's pipe, up to its job's ``"done"``; fewer if the worker died mid-message
+    (its exit is seen by the caller)."""
+    got: list[tuple[Any, ...]] = []
+    try:
+        while conn.poll():
+            got.append(conn.recv())
+            if got[-1][0] in ("done", "raise"):
+                break
+    except (EOFError, OSError):
+        pass
+    return got
+
+
+def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep) -> None:
     """The jobs as Ray tasks, one per (policy, scenario) job like the local pool, so the episodes
     are the same wherever they run. ``address``: an existing cluster (``"auto"``, ``"ray://..."``,
     ``"HOST:PORT"``); ``None`` starts a local Ray instance with ``num_cpus`` CPUs. Every node needs
-    swarm-env (and the policies' extras) installed."""
+    swarm-env (and the policies' extras) installed. A job's episodes reach ``sweep`` when the job ends."""
     from swarm_env.extras import require
 
     ray = require("ray", "ray", "--backend ray")
@@ -331,40 +595,31 @@ def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, tick: Callabl
         else:
             ray.init(address=address, log_to_driver=False, **trust)
     try:
-        task = ray.remote(num_cpus=1, max_retries=0)(_run_job_quietly)
-        pending = {task.remote(job): i for i, job in enumerate(jobs)}
-        results: list[_JobResult | None] = [None] * len(jobs)
+        task = ray.remote(num_cpus=1, max_retries=0)(_run_job_collect)
+        pending = {task.remote(job): job for job in jobs}
         while pending:
             done, _ = ray.wait(list(pending), num_returns=1)
             for ref in done:
-                i = pending.pop(ref)
+                job = pending.pop(ref)
                 try:
-                    results[i] = ray.get(ref)  # re-raises a job's exception here (as a RayTaskError)
+                    reason, episodes = ray.get(ref)  # re-raises a job's exception here (as a RayTaskError)
                 except ray.exceptions.RayTaskError as exc:
                     if isinstance(exc.cause, ModelFileError):
                         raise exc.cause from None  # its one line, not the remote traceback
                     raise
-                if results[i].na_reason is None:  # type: ignore[union-attr]
-                    tick(len(jobs[i].seeds))
-        return [r for r in results if r is not None]
+                for seed, metrics, rec in episodes:
+                    sweep.episode(job, seed, metrics, rec)
+                if reason is not None:
+                    sweep.refuse(job, reason)
     finally:
         if started:
             ray.shutdown()
 
 
-def _run_job_quietly(job: _Job) -> _JobResult:
-    return _run_job(job, lambda: None)
-
-
-def _drain(progress_queue: Any, tick: Callable[[int], None]) -> None:
-    n = 0
-    while True:
-        try:
-            n += progress_queue.get_nowait()
-        except queue.Empty:
-            break
-    if n:
-        tick(n)
+def _run_job_collect(job: _Job) -> tuple[str | None, list[tuple[int, dict[str, Any], EpisodeRecord]]]:
+    episodes: list[tuple[int, dict[str, Any], EpisodeRecord]] = []
+    reason = _run_job(job, lambda seed, metrics, rec: episodes.append((seed, metrics, rec)))
+    return reason, episodes
 
 
 def run_leaderboard(
@@ -377,6 +632,10 @@ def run_leaderboard(
     progress: bool = True,
     backend: str = "local",
     ray_address: str | None = None,
+    out_dir: str | os.PathLike[str] | None = None,
+    resume: bool = False,
+    overwrite: bool = False,
+    episode_timeout: float | None = None,
 ) -> Leaderboard:
     """Evaluate every policy spec on every scenario for its seeds.
 
@@ -386,13 +645,23 @@ def run_leaderboard(
       ``max_cycles``, ``reward``, ...; random-generator knobs go to ``random`` only, see
       :func:`swarm_env.env.env_kwargs_for`); not ``render_mode``.
     * ``workers``: jobs (one per policy x scenario) run in a ``spawn`` process pool of this
-      size when > 1; the metrics equal those of ``workers=1``.
+      size when > 1; the metrics equal those of ``workers=1``. In the pool a worker that dies or
+      hangs costs only its current episode, tried once more and otherwise counted as failed
+      (:func:`_run_pool`); ``episode_timeout`` (seconds; default :func:`default_episode_timeout`
+      of the longest episode) bounds each episode there. With ``workers=1`` episodes run in this
+      process, with no isolation and no timeout.
     * ``progress``: a tqdm bar over episodes on stderr.
     * ``backend``: ``"local"`` (this process, or the pool above) or ``"ray"``: the same jobs as
       Ray tasks on the cluster at ``ray_address`` (or on a local Ray instance with ``workers``
       CPUs when ``ray_address`` is ``None``); the metrics equal the local ones.
+    * ``out_dir``: stream every finished episode as one JSON line to ``out_dir/episodes.jsonl``
+      and store the sweep's spec in ``out_dir/sweep.json``. A directory that already holds results
+      is refused (:class:`~swarm_env.outputs.OutputError`) unless ``overwrite`` (start again) or
+      ``resume`` (play only the episodes with no result there, after checking that the spec is the
+      same; a resumed sweep gives the same leaderboard as an uninterrupted one).
 
-    All inputs are validated (:func:`validate_inputs`) before any episode runs.
+    All inputs are validated (:func:`validate_inputs`) before any episode runs. Ctrl-C raises
+    :class:`SweepInterrupted` (a ``KeyboardInterrupt``) carrying the board of the finished episodes.
     """
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 1:
         raise ValueError(f"workers must be an int >= 1, got {workers!r}")
@@ -400,51 +669,98 @@ def run_leaderboard(
         raise ValueError(f"backend must be 'local' or 'ray', got {backend!r}")
     if ray_address is not None and backend != "ray":
         raise ValueError("ray_address needs backend='ray'")
+    if episode_timeout is not None and not episode_timeout > 0:
+        raise ValueError(f"episode_timeout must be > 0 seconds, got {episode_timeout!r}")
+    if resume and out_dir is None:
+        raise ValueError("resume needs out_dir (the directory of the sweep to finish)")
     kwargs = dict(env_kwargs or {})
     validate_inputs(policies, scenarios, kwargs)
     seed_map = resolve_seeds(scenarios, seeds)
     members = {p: training_runs(p) for p in policies}
     jobs = [_Job(m, s, tuple(seed_map[s]), kwargs) for p in policies for m in members[p] for s in scenarios]
     method_of = {m: p for p in policies for m in members[p] if len(members[p]) > 1}
+    out = None if out_dir is None else Path(out_dir)
+    if out is not None:
+        _prepare_out(out, _sweep_spec(policies, scenarios, seed_map, kwargs), resume, overwrite)
+    if episode_timeout is None:
+        longest = 0
+        for s in scenarios:
+            probe = SwarmEnv(s, **env_kwargs_for(s, kwargs))
+            longest = max(longest, int(probe.max_steps))
+            probe.close()
+        episode_timeout = default_episode_timeout(longest)
 
     from tqdm.auto import tqdm
 
     total = sum(len(job.seeds) for job in jobs)
     t0 = time.perf_counter()
-    with tqdm(total=total, desc="leaderboard", unit="ep", disable=not progress) as bar:
-        if backend == "ray":
-            results = _run_ray(jobs, ray_address, workers, bar.update)
-        elif workers == 1 or len(jobs) == 1:
-            results = [_run_job(job, lambda: bar.update(1)) for job in jobs]
-        else:
-            results = _run_pool(jobs, min(workers, len(jobs)), bar.update)
-        # a refused job's episodes never ran; count them so the bar ends full
-        skipped = sum(len(job.seeds) for job, r in zip(jobs, results) if r.na_reason is not None)
-        bar.update(skipped)
-    wall = time.perf_counter() - t0
 
+    def build() -> Leaderboard:
+        return _board(policies, scenarios, seed_map, kwargs, jobs, members, method_of, sweep,
+                      time.perf_counter() - t0, workers)
+
+    with tqdm(total=total, desc="leaderboard", unit="ep", disable=not progress) as bar:
+        sweep = _Sweep(out, bar.update)
+        for job in jobs:
+            sweep.order[(job.policy, job.scenario)] = list(job.seeds)
+        if out is not None and resume:
+            sweep.load(out / EPISODES_FILE)
+            bar.update(total - sum(len(sweep.remaining(job)) for job in jobs))
+        todo = [_Job(j.policy, j.scenario, left, j.env_kwargs) for j in jobs if (left := sweep.remaining(j))]
+        try:
+            if not todo:
+                pass
+            elif backend == "ray":
+                _run_ray(todo, ray_address, workers, sweep)
+            elif workers == 1 or len(todo) == 1:
+                for job in todo:
+                    reason = _run_job(job, lambda seed, metrics, rec, job=job: sweep.episode(job, seed, metrics, rec))
+                    if reason is not None:
+                        sweep.refuse(job, reason)
+            else:
+                _run_pool(todo, min(workers, len(todo)), sweep, episode_timeout)
+        except KeyboardInterrupt:
+            raise SweepInterrupted(build()) from None
+        # a refused job's episodes never ran; count them so the bar ends full
+        bar.update(sum(len(job.seeds) for job in jobs if (job.policy, job.scenario) in sweep.na))
+    return build()
+
+
+def _board(policies: list[str], scenarios: list[str], seed_map: dict[str, list[int]], kwargs: dict[str, Any],
+           jobs: list[_Job], members: Mapping[str, tuple[str, ...]], method_of: Mapping[str, str], sweep: _Sweep,
+           wall: float, workers: int) -> Leaderboard:
+    """The leaderboard of what ``sweep`` holds, episodes in job and seed order (so the board does not depend
+    on the order episodes finished in, nor on which of them an earlier, resumed run played)."""
     rows: list[Row] = []
     episodes: list[dict[str, Any]] = []
+    failed: list[dict[str, Any]] = []
     records: dict[tuple[str, str, int], EpisodeRecord] = {}
     by_job: dict[tuple[str, str], Row] = {}
-    for job, result in zip(jobs, results):
-        if result.worst is not None:
-            records[(job.policy, job.scenario, int(result.worst.seed))] = result.worst  # type: ignore[arg-type]
+    for job in jobs:
+        key = (job.policy, job.scenario)
         method = method_of.get(job.policy)
-        if result.na_reason is not None:
-            row = Row(job.policy, job.scenario, list(job.seeds), None, result.na_reason, method=method)
-        else:
-            row = Row(job.policy, job.scenario, list(job.seeds), summarize(result.episodes), method=method)
-            extra = {"method": method} if method else {}
-            episodes.extend({"policy": job.policy, **extra, "scenario": job.scenario, "seed": ep["seed"], "metrics": ep}
-                            for ep in result.episodes)
-        by_job[(job.policy, job.scenario)] = row
+        if key in sweep.na:
+            by_job[key] = Row(job.policy, job.scenario, list(job.seeds), None, sweep.na[key], method=method)
+            continue
+        rec = sweep.worst.get(key)
+        if rec is not None:
+            records[(job.policy, job.scenario, int(rec.seed))] = rec  # type: ignore[arg-type]
+        done = [sweep.ok[(*key, s)] for s in job.seeds if (*key, s) in sweep.ok]
+        lost = [sweep.failed[(*key, s)] for s in job.seeds if (*key, s) in sweep.failed]
+        pending = len(job.seeds) - len(done) - len(lost)
+        extra = {"method": method} if method else {}
+        episodes.extend({"policy": job.policy, **extra, "scenario": job.scenario, "seed": ep["seed"], "metrics": ep}
+                        for ep in done)
+        failed.extend({**e, **extra} for e in lost)
+        by_job[key] = Row(job.policy, job.scenario, list(job.seeds), summarize(done) if done else None, method=method,
+                          failed=len(lost), pending=pending)
     for p in policies:  # policies outer, scenarios inner; a method row before its members' rows
         for s in scenarios:
             if len(members[p]) > 1:
                 rows.append(method_row(p, [by_job[(m, s)] for m in members[p]]))
             rows.extend(by_job[(m, s)] for m in members[p])
-    return Leaderboard(list(policies), list(scenarios), seed_map, kwargs, rows, episodes, wall, workers, records=records)
+    return Leaderboard(list(policies), list(scenarios), seed_map, kwargs, rows, episodes, wall, workers,
+                       records=records, failed=failed)
 
 
 def aggregate_training_seeds(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
@@ -459,14 +775,17 @@ def aggregate_training_seeds(summaries: Sequence[Mapping[str, Any]]) -> dict[str
 
 
 def method_row(method: str, member_rows: Sequence[Row]) -> Row:
-    """The row of a method from its training seeds' rows (n/a if any seed refused the scenario)."""
+    """The row of a method from its training seeds' rows (n/a if any seed refused the scenario; the
+    aggregate of the seeds that finished episodes, with their failed and pending counts summed)."""
     first = member_rows[0]
-    refused = [r for r in member_rows if r.summary is None]
+    names = [r.policy for r in member_rows]
+    refused = [r for r in member_rows if r.na_reason is not None]
     if refused:
-        return Row(method, first.scenario, first.seeds, None, refused[0].na_reason, members=[r.policy for r in member_rows])
-    return Row(method, first.scenario, first.seeds,
-               aggregate_training_seeds([r.summary for r in member_rows if r.summary is not None]),
-               members=[r.policy for r in member_rows])
+        return Row(method, first.scenario, first.seeds, None, refused[0].na_reason, members=names)
+    lost = {"failed": sum(r.failed for r in member_rows), "pending": sum(r.pending for r in member_rows)}
+    played = [r.summary for r in member_rows if r.summary is not None]  # a seed with no finished episode drops out
+    return Row(method, first.scenario, first.seeds, aggregate_training_seeds(played) if played else None,
+               members=names, **lost)
 
 
 # --------------------------------------------------------------------------- aggregation
@@ -486,10 +805,20 @@ class Row:
     na_reason: str | None = None
     method: str | None = None
     members: list[str] | None = None
+    #: episodes whose worker died or timed out on every attempt (not in ``summary``)
+    failed: int = 0
+    #: episodes not played yet (a board of an interrupted sweep)
+    pending: int = 0
 
     @property
     def status(self) -> str:
-        return "ok" if self.na_reason is None else f"n/a: {self.na_reason}"
+        """``ok`` (a summary, possibly of fewer episodes than seeds: see ``failed`` and ``pending``),
+        ``n/a: reason``, ``failed`` (every episode failed) or ``pending`` (none played yet)."""
+        if self.na_reason is not None:
+            return f"n/a: {self.na_reason}"
+        if self.summary is None:
+            return "failed" if self.failed else "pending"
+        return "ok"
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"policy": self.policy, "scenario": self.scenario, "seeds": self.seeds, "status": self.status,
@@ -498,6 +827,9 @@ class Row:
             out["method"] = self.method
         if self.members is not None:
             out["members"] = self.members
+        for key in ("failed", "pending"):  # only when not zero: a complete, fault-free board reads as before
+            if getattr(self, key):
+                out[key] = getattr(self, key)
         return out
 
 
@@ -526,6 +858,8 @@ class Leaderboard:
     ``rows``: one :class:`Row` per policy x scenario (policies outer, scenarios inner).
     ``episodes``: ``{"policy", "scenario", "seed", "metrics"}`` per episode played, where
     ``metrics`` is :func:`~swarm_env.harness.evaluation.run_episode`'s dict.
+    ``failed``: the episodes whose worker died or timed out on every attempt (counted in the rows'
+    ``failed``, left out of their summaries).
     ``records``: ``(policy, scenario, seed)`` -> the :class:`~swarm_env.harness.recording.EpisodeRecord`
     of each job's worst episode (what :func:`record_worst_videos` replays); not in the JSON, so
     empty in a board read back by :meth:`from_json`.
@@ -541,6 +875,8 @@ class Leaderboard:
     workers: int = 1
     metrics: tuple[Metric, ...] = field(default=METRICS, repr=False)
     records: dict[tuple[str, str, int], EpisodeRecord] = field(default_factory=dict, repr=False, compare=False)
+    #: ``{"policy", "scenario", "seed", "status": "failed", "error", "attempts"}`` per failed episode
+    failed: list[dict[str, Any]] = field(default_factory=list)
 
     def row(self, policy: str, scenario: str) -> Row:
         for r in self.rows:
@@ -585,16 +921,27 @@ class Leaderboard:
             lines[0] += (" Rows marked (k seeds) are learned methods trained with k seeds: each cell is the mean of the "
                          "seeds' per-episode means ± a Student-t 95 % half-width across the seeds (the spread between "
                          "training runs); the CSV and JSON also hold one row per seed.")
+        # Lost episodes get their own columns, only on a board that has some: a complete board reads as before.
+        counts = [k for k in ("failed", "pending") if any(getattr(r, k) for r in self.rows)]
+        if counts:
+            lines[0] += (" \"failed\": episodes whose worker crashed or exceeded the episode timeout twice (left out "
+                         "of the row's statistics, which cover the episodes that finished)" if "failed" in counts else "")
+            lines[0] += (" \"pending\": episodes not played yet (an interrupted sweep: swarm-env evaluate --resume DIR)"
+                         if "pending" in counts else "")
         for scenario in self.scenarios:
             seeds = self.seeds[scenario]
             lines += ["", f"### {scenario} — seeds {format_seeds(seeds)} (N = {len(seeds)})", ""]
-            lines.append("| policy | acts on | " + " | ".join(m.label for m in cols) + " |")
-            lines.append("|---|---|" + "---:|" * len(cols))
+            lines.append("| policy | acts on | " + " | ".join(m.label for m in cols) + "".join(f" | {k}" for k in counts)
+                         + " |")
+            lines.append("|---|---|" + "---:|" * (len(cols) + len(counts)))
             for r in (r for r in self.rows if r.scenario == scenario and r.method is None):
-                if r.summary is None:
+                if r.na_reason is not None:
                     cells = [f"n/a: {r.na_reason}"] + [""] * (len(cols) - 1)
+                elif r.summary is None:
+                    cells = [r.status] + [""] * (len(cols) - 1)
                 else:
                     cells = [_fmt_stat(r.summary.get(m.key), m.digits) for m in cols]
+                cells += [str(getattr(r, k)) for k in counts]
                 label = f"`{r.policy}`" + (f" ({len(r.members)} seeds)" if r.members else "")
                 lines.append("| " + " | ".join(_md_cell(c) for c in [label, acts_on(r.policy), *cells]) + " |")
         return "\n".join(lines) + "\n"
@@ -603,11 +950,14 @@ class Leaderboard:
         """The CSV table as dicts: policy, scenario, status, episodes, seeds, method (the method a
         training seed's row belongs to), training_seeds (on a method's row: how many), then
         ``<metric>_mean``, ``<metric>_ci95``, ``<metric>_n`` per metric (empty when n/a; on a
-        method's row the interval and ``n`` are across training seeds)."""
+        method's row the interval and ``n`` are across training seeds). ``failed`` and ``pending`` follow
+        ``episodes`` on a board that has failed or pending episodes."""
         out = []
+        counts = [k for k in ("failed", "pending") if any(getattr(r, k) for r in self.rows)]  # as in to_markdown
         for r in self.rows:
             d: dict[str, Any] = {"policy": r.policy, "scenario": r.scenario, "status": r.status,
                                  "episodes": 0 if r.summary is None else r.summary["episodes"],
+                                 **{k: getattr(r, k) for k in counts},
                                  "seeds": format_seeds(r.seeds), "method": r.method,
                                  "training_seeds": len(r.members) if r.members else None}
             for m in self.metrics:
@@ -618,15 +968,20 @@ class Leaderboard:
             out.append(d)
         return out
 
-    def to_csv(self, path: str | os.PathLike[str]) -> Path:
-        """Write :meth:`csv_rows` (numbers as ``repr`` floats, missing values empty)."""
+    def to_csv(self, path: str | os.PathLike[str], *, overwrite: bool = True,
+               root: str | os.PathLike[str] | None = None) -> Path:
+        """Write :meth:`csv_rows` (numbers as ``repr`` floats, missing values empty), atomically
+        (:func:`swarm_env.outputs.atomic_write_text`, whose ``overwrite`` and ``root`` rules apply)."""
+        import io
+
+        from swarm_env.outputs import atomic_write_text
+
         rows = self.csv_rows()
-        path = Path(path)
-        with path.open("w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]) if rows else ["policy", "scenario", "status"])
-            writer.writeheader()
-            writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in rows)
-        return path
+        buf = io.StringIO(newline="")
+        writer = csv.DictWriter(buf, fieldnames=list(rows[0]) if rows else ["policy", "scenario", "status"])
+        writer.writeheader()
+        writer.writerows({k: ("" if v is None else v) for k, v in row.items()} for row in rows)
+        return atomic_write_text(path, buf.getvalue(), overwrite=overwrite, root=root)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -638,22 +993,36 @@ class Leaderboard:
             "wall_time": self.wall_time,
             "rows": [r.to_dict() for r in self.rows],
             "episodes": self.episodes,
+            **({"failed": self.failed} if self.failed else {}),
         }
 
-    def to_json(self, path: str | os.PathLike[str]) -> Path:
-        """Write everything: inputs, rows with their summaries, every episode's metrics."""
-        path = Path(path)
-        path.write_text(dumps(self.to_dict(), indent=1))
-        return path
+    def to_json(self, path: str | os.PathLike[str], *, overwrite: bool = True,
+                root: str | os.PathLike[str] | None = None) -> Path:
+        """Write everything: inputs, rows with their summaries, every episode's metrics (and the failed
+        episodes, if any), atomically (:func:`swarm_env.outputs.atomic_write_text`)."""
+        from swarm_env.outputs import atomic_write_text
+
+        return atomic_write_text(path, dumps(self.to_dict(), indent=1), overwrite=overwrite, root=root)
+
+    def write(self, out_dir: str | os.PathLike[str], *, overwrite: bool = True) -> list[Path]:
+        """Write ``leaderboard.md``, ``.csv`` and ``.json`` into ``out_dir`` (created if missing), each
+        atomically and never outside ``out_dir`` (:mod:`swarm_env.outputs`); returns their paths."""
+        from swarm_env.outputs import atomic_write_text, ensure_dir
+
+        out = ensure_dir(out_dir)
+        return [atomic_write_text(out / "leaderboard.md", self.to_markdown(), overwrite=overwrite, root=out),
+                self.to_csv(out / "leaderboard.csv", overwrite=overwrite, root=out),
+                self.to_json(out / "leaderboard.json", overwrite=overwrite, root=out)]
 
     @classmethod
     def from_json(cls, path: str | os.PathLike[str]) -> Leaderboard:
         """Read a file written by :meth:`to_json` (e.g. to record videos later)."""
         doc = json.loads(Path(path).read_text())
-        rows = [Row(r["policy"], r["scenario"], r["seeds"], r["summary"], r["na_reason"], r.get("method"), r.get("members"))
+        rows = [Row(r["policy"], r["scenario"], r["seeds"], r["summary"], r["na_reason"], r.get("method"), r.get("members"),
+                    r.get("failed", 0), r.get("pending", 0))
                 for r in doc["rows"]]
         return cls(doc["policies"], doc["scenarios"], doc["seeds"], doc["env_kwargs"], rows, doc["episodes"],
-                   doc.get("wall_time", 0.0), doc.get("workers", 1))
+                   doc.get("wall_time", 0.0), doc.get("workers", 1), failed=doc.get("failed", []))
 
 
 # --------------------------------------------------------------------------- videos
@@ -691,6 +1060,9 @@ def record_worst_videos(
     per_scenario: bool = True,
     progress: bool = True,
     records_dir: str | os.PathLike[str] | None = None,
+    overwrite: bool = True,
+    root: str | os.PathLike[str] | None = None,
+    play_missing: bool = False,
 ) -> list[VideoRecord]:
     """Render each worst episode (:meth:`Leaderboard.worst_episodes`) to
     ``<out_dir>/<name>.mp4`` by replaying its record (:func:`swarm_env.harness.recording.replay`: the
@@ -700,16 +1072,24 @@ def record_worst_videos(
     The record comes from ``board.records`` (a board made by :func:`run_leaderboard`) or else
     from ``<records_dir>/<name>/`` (saved by an earlier call); with ``records_dir`` the board's
     records are saved there too, one recording each (``swarm-env replay <records_dir>/<name>``).
-    A worst episode with no record raises ``ValueError`` naming it. ``VideoRecord.reproduced``
-    says that the replay matched the record's state digests and the board's metrics; a
+    A worst episode with no record raises ``ValueError`` naming it, unless ``play_missing``: then it is
+    played again with its policy and recorded (a resumed sweep's episodes from before the interruption
+    have no record). ``VideoRecord.reproduced`` says that the replay matched the record's state digests
+    and the board's metrics; a
     ``RuntimeWarning`` says when it did not (the video shows the replay).
+
+    Videos are written atomically (:class:`~swarm_env.harness.video.VideoWriter`); an existing video is
+    replaced only with ``overwrite``; with ``root`` (the ``--out`` directory) no video or record is
+    written where a symlink would carry it outside ``root`` (:class:`~swarm_env.outputs.OutputError`).
     """
     from tqdm.auto import tqdm
 
     from swarm_env.harness.video import VideoWriter
+    from swarm_env.outputs import ensure_dir
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = ensure_dir(out_dir, root=root)
+    if records_dir is not None:
+        ensure_dir(records_dir, root=root)
     used: set[str] = set()
     records = []
     for entry in tqdm(board.worst_episodes(per_scenario), desc="worst-episode videos", unit="video", disable=not progress):
@@ -718,9 +1098,12 @@ def record_worst_videos(
         if name in used:  # two specs that differ only in unsafe characters
             name += "-" + hashlib.sha1(f"{policy}\0{scenario}".encode()).hexdigest()[:8]
         used.add(name)
-        rec = _worst_record(board, entry, None if records_dir is None else Path(records_dir) / name)
+        folder = None if records_dir is None else Path(records_dir) / name
+        if folder is not None and root is not None and (folder.exists() or folder.is_symlink()):
+            ensure_dir(folder, root=root)  # an existing record folder must not lead outside root
+        rec = _worst_record(board, entry, folder, play_missing)
         path = out / f"{name}.mp4"
-        with VideoWriter(path, fps=fps) as writer:
+        with VideoWriter(path, fps=fps, overwrite=overwrite, root=root) as writer:
             result = replay(rec, on_frame=writer.append)
         same = result.ok and _json_roundtrip(_behaviour(result.metrics)) == _json_roundtrip(_behaviour(entry["metrics"]))
         if not same:
@@ -737,8 +1120,10 @@ def record_worst_videos(
     return records
 
 
-def _worst_record(board: Leaderboard, entry: Mapping[str, Any], folder: Path | None) -> EpisodeRecord:
-    """The record of a worst episode: from the board (then saved to ``folder``, if given) or from ``folder``."""
+def _worst_record(board: Leaderboard, entry: Mapping[str, Any], folder: Path | None,
+                  play_missing: bool = False) -> EpisodeRecord:
+    """The record of a worst episode: from the board (then saved to ``folder``, if given), from ``folder``, or
+    with ``play_missing`` from playing the episode again (then saved to ``folder``)."""
     policy, scenario, seed = entry["policy"], entry["scenario"], int(entry["seed"])
     rec = board.records.get((policy, scenario, seed))
     if rec is not None:
@@ -750,6 +1135,17 @@ def _worst_record(board: Leaderboard, entry: Mapping[str, Any], folder: Path | N
         if (rec.policy, rec.scenario_spec, rec.seed) != (policy, scenario, seed):
             raise ValueError(f"{folder}: records policy {rec.policy!r} on {rec.scenario_spec!r} seed {rec.seed}, "
                              f"not the worst episode {policy!r} on {scenario!r} seed {seed}")
+        return rec
+    if play_missing:
+        # Played again with its policy and recorded (an episode does not depend on what ran before it in its
+        # job); the caller checks the replay against the board's metrics, so a difference would be reported.
+        env = SwarmEnv(scenario, **env_kwargs_for(scenario, board.env_kwargs))
+        try:
+            _, rec = record_episode(env, load_policy(policy, env), seed, policy_spec=policy, scenario_spec=scenario)
+        finally:
+            env.close()
+        if folder is not None:
+            save_episode(rec, folder)
         return rec
     where = f" and {folder} holds none" if folder is not None else ""
     raise ValueError(f"no record of the worst episode of policy {policy!r} on {scenario!r} (seed {seed}): the board "

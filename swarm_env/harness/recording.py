@@ -67,6 +67,7 @@ from swarm_env.env import SwarmEnv
 from swarm_env.harness.evaluation import run_episode
 from swarm_env.harness.policies import Policy
 from swarm_env.jsonio import dumps
+from swarm_env.outputs import replace_dir
 from swarm_env.scenario import Scenario
 from swarm_env.scenario_io import scenario_from_dict, scenario_to_dict
 from swarm_env.state import CONTACT_KINDS, WorldState
@@ -276,6 +277,8 @@ def save_episode(record: EpisodeRecord, directory: str | os.PathLike[str]) -> Pa
     root = Path(directory)
     root.mkdir(parents=True, exist_ok=True)
     final = root / f"{EPISODE_PREFIX}{record.episode}"
+    if final.is_symlink():
+        raise RecordError(f"{final}: is a symbolic link; refusing to write a recording through it")
     tmp = root / f".{final.name}.tmp-{os.getpid()}-{uuid.uuid4().hex[:8]}"  # mkdir, unlike mkdtemp, honours the umask
     tmp.mkdir()
     try:
@@ -295,9 +298,7 @@ def save_episode(record: EpisodeRecord, directory: str | os.PathLike[str]) -> Pa
         (tmp / _SCENARIO).write_text(text)
         with (tmp / _ACTIONS).open("wb") as f:
             np.savez_compressed(f, actions=record.actions, digest_steps=record.digest_steps, digests=record.digests)
-        if final.exists():
-            shutil.rmtree(final)
-        os.replace(tmp, final)
+        replace_dir(tmp, final)  # the one rule (swarm_env.outputs): no symlink replaced, old folder swapped out whole
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

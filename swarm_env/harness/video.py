@@ -49,15 +49,27 @@ class VideoWriter:
     ``.mp4`` frames are streamed to ffmpeg as they come (odd sides are padded
     by one pixel); ``.gif`` frames are kept in memory and written by
     :meth:`close`. ``quality`` is imageio-ffmpeg's 0-10 scale (mp4 only).
+
+    The file is encoded under a temporary name in ``path``'s directory and renamed to ``path`` by
+    :meth:`close` (:mod:`swarm_env.outputs`): a writer that fails (an exception in the ``with``
+    block, or :meth:`abort`) or is killed never leaves a truncated video under ``path``. A symlink
+    at ``path`` is refused, an existing file is replaced only with ``overwrite``, and with ``root``
+    a path resolving outside that directory is refused (``OutputError``, a ``ValueError``).
     """
 
-    def __init__(self, path: str | os.PathLike[str], fps: float, *, quality: float = 8.0) -> None:
+    def __init__(self, path: str | os.PathLike[str], fps: float, *, quality: float = 8.0, overwrite: bool = True,
+                 root: str | os.PathLike[str] | None = None) -> None:
+        from swarm_env.outputs import check_target
+
         self.path = Path(path)
         suffix = self.path.suffix.lower()
         if suffix not in VIDEO_SUFFIXES:
             raise ValueError(f"{self.path}: unsupported video format {suffix!r}; use one of {VIDEO_SUFFIXES}")
         if not fps > 0:
             raise ValueError(f"fps must be > 0, got {fps!r}")
+        self._overwrite, self._root = overwrite, root
+        check_target(self.path, root=root, overwrite=overwrite)  # refuse before any frame is rendered
+        self._tmp: Path | None = None
         self.fps = float(fps)
         self.quality = quality
         self.n_frames = 0
@@ -83,7 +95,7 @@ class VideoWriter:
                 import imageio.v2 as iio  # noqa: PLC0415 - lazy: optional dependency
 
                 self._writer = iio.get_writer(
-                    self.path,
+                    self._temp_path(),
                     format="FFMPEG",
                     mode="I",
                     fps=self.fps,
@@ -95,20 +107,57 @@ class VideoWriter:
             self._writer.append_data(np.ascontiguousarray(_pad_even(a)))
         self.n_frames += 1
 
+    def _temp_path(self) -> Path:
+        """The hidden file the encoder writes (same directory and suffix as :attr:`path`)."""
+        if self._tmp is None:
+            from swarm_env.outputs import temp_path
+
+            self._tmp = temp_path(self.path)
+        return self._tmp
+
     def close(self) -> None:
-        """Finish the file. Safe to call more than once."""
+        """Finish the file and rename it to :attr:`path` (no file when no frame was appended). Safe to call
+        more than once; if finishing fails, the temporary file is removed and nothing is left at :attr:`path`."""
         if self._closed:
             return
         self._closed = True
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
-        if self._format == "gif" and self._gif_frames:
-            import imageio.v3 as iio3  # noqa: PLC0415
+        from swarm_env.outputs import check_target
 
-            # pillow's GIF duration is per frame in milliseconds; loop=0 repeats forever.
-            iio3.imwrite(self.path, np.stack(self._gif_frames), plugin="pillow", duration=1000.0 / self.fps, loop=0)
-            self._gif_frames = []
+        try:
+            if self._writer is not None:
+                self._writer.close()
+                self._writer = None
+            if self._format == "gif" and self._gif_frames:
+                import imageio.v3 as iio3  # noqa: PLC0415
+
+                # pillow's GIF duration is per frame in milliseconds; loop=0 repeats forever.
+                iio3.imwrite(self._temp_path(), np.stack(self._gif_frames), plugin="pillow",
+                             duration=1000.0 / self.fps, loop=0)
+                self._gif_frames = []
+            if self._tmp is not None:
+                check_target(self.path, root=self._root, overwrite=self._overwrite)
+                os.replace(self._tmp, self.path)
+        finally:
+            if self._tmp is not None:
+                self._tmp.unlink(missing_ok=True)
+                self._tmp = None
+
+    def abort(self) -> None:
+        """Stop without writing :attr:`path`: the encoder is stopped and its temporary file removed."""
+        if self._closed:
+            return
+        self._closed = True
+        self._gif_frames = []
+        try:
+            if self._writer is not None:
+                self._writer.close()
+        except Exception:  # noqa: BLE001 - an encoder failing to stop must not hide the error that aborted it
+            pass
+        finally:
+            self._writer = None
+            if self._tmp is not None:
+                self._tmp.unlink(missing_ok=True)
+                self._tmp = None
 
     def __enter__(self) -> VideoWriter:
         return self
@@ -116,11 +165,17 @@ class VideoWriter:
     def __exit__(
         self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
     ) -> None:
-        self.close()
+        if exc_type is None:
+            self.close()
+        else:
+            self.abort()
 
 
-def save_frame_png(path: str | os.PathLike[str], frame: np.ndarray) -> None:
-    """Write one ``(H, W, 3)`` uint8 frame as a PNG file."""
+def save_frame_png(path: str | os.PathLike[str], frame: np.ndarray, *, overwrite: bool = True) -> None:
+    """Write one ``(H, W, 3)`` uint8 frame as a PNG file (atomically, :func:`swarm_env.outputs.open_atomic`)."""
     import imageio.v3 as iio3  # noqa: PLC0415
 
-    iio3.imwrite(Path(path), _as_rgb(frame), extension=".png")
+    from swarm_env.outputs import open_atomic
+
+    with open_atomic(path, overwrite=overwrite) as tmp:
+        iio3.imwrite(tmp, _as_rgb(frame), extension=".png")
