@@ -400,7 +400,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if stored is None and not args.policies:
             raise ValueError("--policies is required (unless --resume DIR, which takes the sweep from DIR/sweep.json)")
         # With --resume, what is not given comes from the sweep being finished; what is given must match it.
-        policies: list[str] = args.policies or stored["policies"]
+        policies: list[str] = args.policies or (stored or {})["policies"]
         scenarios: list[str] = args.scenarios or (stored["scenarios"] if stored else list_scenarios())
         env_given = args.action_type is not None or args.max_cycles is not None or args.env
         if stored is not None and not env_given:

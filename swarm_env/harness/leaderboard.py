@@ -335,7 +335,7 @@ class _Sweep:
             seeds = self.order[key]
             # strictly worse, or as bad and an earlier seed: the first seed on ties, whatever order episodes came in
             if old is None or badness(metrics) > badness(old.metrics) or (
-                    badness(metrics) == badness(old.metrics) and seeds.index(seed) < seeds.index(int(old.seed))):
+                    badness(metrics) == badness(old.metrics) and seeds.index(seed) < seeds.index(int(old.seed or 0))):
                 self.worst[key] = rec
         self.tick(1)
 
@@ -714,7 +714,10 @@ def run_leaderboard(
                 _run_ray(todo, ray_address, workers, sweep)
             elif workers == 1 or len(todo) == 1:
                 for job in todo:
-                    reason = _run_job(job, lambda seed, metrics, rec, job=job: sweep.episode(job, seed, metrics, rec))
+                    def record(seed: int, metrics: dict[str, Any], rec: Any, job: _Job = job) -> None:
+                        sweep.episode(job, seed, metrics, rec)
+
+                    reason = _run_job(job, record)
                     if reason is not None:
                         sweep.refuse(job, reason)
             else:
@@ -782,10 +785,9 @@ def method_row(method: str, member_rows: Sequence[Row]) -> Row:
     refused = [r for r in member_rows if r.na_reason is not None]
     if refused:
         return Row(method, first.scenario, first.seeds, None, refused[0].na_reason, members=names)
-    lost = {"failed": sum(r.failed for r in member_rows), "pending": sum(r.pending for r in member_rows)}
     played = [r.summary for r in member_rows if r.summary is not None]  # a seed with no finished episode drops out
     return Row(method, first.scenario, first.seeds, aggregate_training_seeds(played) if played else None,
-               members=names, **lost)
+               members=names, failed=sum(r.failed for r in member_rows), pending=sum(r.pending for r in member_rows))
 
 
 # --------------------------------------------------------------------------- aggregation
