@@ -120,7 +120,7 @@ LIMITS: dict[str, tuple[float, str]] = {
     "MAX_FILE_BYTES": (MAX_FILE_BYTES, "size of a scenario file (bytes), checked before reading"),
     "MAX_YAML_NODES": (MAX_YAML_NODES, "YAML nodes once aliases are expanded (alias bombs)"),
     "MAX_YAML_DEPTH": (MAX_YAML_DEPTH, "nesting depth of YAML collections"),
-    "MAX_NUMBER_CHARS": (MAX_NUMBER_CHARS, "characters of one written integer"),
+    "MAX_NUMBER_CHARS": (MAX_NUMBER_CHARS, "characters of one written number"),
     "MAX_ABS_NUMBER": (MAX_ABS_NUMBER, "magnitude of any other number (angles, times, weights, accelerations)"),
     "MAX_ROBOTS": (MAX_ROBOTS, "robots.count; the generator's n_followers"),
     "MAX_HUMANS": (MAX_HUMANS, "humans entries; the generator's n_humans"),
