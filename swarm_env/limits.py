@@ -44,6 +44,8 @@ __all__ = [
     "MAX_DT",
     "MAX_WORLD_SIZE",
     "MIN_RADIUS",
+    "MIN_OBSTACLE_SIZE",
+    "MIN_FORMATION_ANGLE",
     "MAX_SPEED",
     "MAX_TURN_RATE",
     "MAX_NAME_CHARS",
@@ -91,7 +93,7 @@ MAX_NEIGHBORS = MAX_ROBOTS - 1
 #: Most human rows in an observation (``sensors.humans``); rows beyond the humans present are absent.
 MAX_SENSED_HUMANS = MAX_HUMANS
 #: Most physics substeps per control step (``world.substeps``).
-MAX_SUBSTEPS = 64
+MAX_SUBSTEPS = 100
 #: Most control steps per episode, ``floor(world.max_time / world.dt)`` (built-ins: at most 700).
 MAX_EPISODE_STEPS = 10_000
 #: Shortest control period ``world.dt`` (s).
@@ -102,6 +104,12 @@ MAX_DT = 10.0
 MAX_WORLD_SIZE = 1000.0
 #: Smallest disc radius (m) of followers, the robot leader and humans.
 MIN_RADIUS = 0.01
+#: Smallest side of a rectangle obstacle and radius of a circle obstacle (m): a thinner one is a
+#: degenerate shape to the geometry.
+MIN_OBSTACLE_SIZE = 1e-3
+#: Narrowest ``v``/``wedge`` half-opening (degrees); the widest is ``180 - MIN_FORMATION_ANGLE``
+#: (a slot's distance grows as ``1 / sin(angle)``).
+MIN_FORMATION_ANGLE = 1.0
 #: Largest speed (m/s) of followers, the leader and humans.
 MAX_SPEED = 20.0
 #: Largest turn rate (rad/s) of followers and the robot leader.
@@ -137,6 +145,8 @@ LIMITS: dict[str, tuple[float, str]] = {
     "MAX_DT": (MAX_DT, "longest world.dt (s)"),
     "MAX_WORLD_SIZE": (MAX_WORLD_SIZE, "world.size sides and every length (m)"),
     "MIN_RADIUS": (MIN_RADIUS, "smallest disc radius (m): followers, robot leader, humans"),
+    "MIN_OBSTACLE_SIZE": (MIN_OBSTACLE_SIZE, "smallest rectangle side and circle-obstacle radius (m)"),
+    "MIN_FORMATION_ANGLE": (MIN_FORMATION_ANGLE, "formation angle in [MIN, 180 - MIN] degrees"),
     "MAX_SPEED": (MAX_SPEED, "speeds (m/s): robots.max_speed, leader.speed, human speed"),
     "MAX_TURN_RATE": (MAX_TURN_RATE, "turn rates (rad/s)"),
     "MAX_NAME_CHARS": (MAX_NAME_CHARS, "characters of name"),

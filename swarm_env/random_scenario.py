@@ -247,8 +247,10 @@ class RandomScenarioConfig:
         put(self, "human_speed", _float_range(self.human_speed, "human_speed", positive=True, at_most="MAX_SPEED"))
         put(self, "spacing", _float_range(self.spacing, "spacing", positive=True, at_most="MAX_WORLD_SIZE"))
         put(self, "angle", _float_range(self.angle, "angle", positive=True, at_most="MAX_ABS_NUMBER"))
-        if not self.angle[1] < 180.0:
-            raise ScenarioError(SOURCE, "angle", "a range of degrees within (0, 180)", self.angle)
+        lo = LIMITS["MIN_FORMATION_ANGLE"][0]
+        if not (lo <= self.angle[0] and self.angle[1] <= 180.0 - lo):
+            raise ScenarioError(SOURCE, "angle", f"a range of degrees within [{lo:g}, {180 - lo:g}] "
+                                "(swarm_env.limits.MIN_FORMATION_ANGLE)", self.angle)
         if isinstance(self.world_size, str):
             if self.world_size != "auto":
                 raise ScenarioError(SOURCE, "world_size", "'auto' or a (W, H) pair of numbers", self.world_size)

@@ -113,6 +113,7 @@ from swarm_env.limits import (
     MAX_WORLD_SIZE,
     MAX_YAML_DEPTH,
     MAX_YAML_NODES,
+    MIN_OBSTACLE_SIZE,
     clip_repr,
     printable,
     unprintable_chars,
@@ -757,7 +758,8 @@ def _parse_obstacle(src: str, value: Any, key: str, ok: _Errors) -> Obstacle:
     _check_keys(src, m, key, allowed, allowed[:-1] if kind == "rectangle" else allowed, ok)
     if kind == "circle":
         center = ok(_point, src, m.get("center", _BAD), f"{key}.center")
-        radius = ok(_number, src, m.get("radius", _BAD), f"{key}.radius", positive=True, at_most="MAX_WORLD_SIZE")
+        radius = ok(_number, src, m.get("radius", _BAD), f"{key}.radius", positive=True, at_most="MAX_WORLD_SIZE",
+                    at_least="MIN_OBSTACLE_SIZE")
         return ok(CircleObstacle, center=center, radius=radius)
     if kind == "rectangle":
         center = ok(_point, src, m.get("center", _BAD), f"{key}.center")
@@ -906,8 +908,10 @@ def _check_schedule(src: str, scn: Scenario, ok: _Errors) -> None:
         elif f.at <= prev_at:
             ok.add(ScenarioError(src, f"{key}.at", f"a time strictly after the previous entry's at = {prev_at}", f.at))
         prev_at = f.at
-        if not 0.0 < f.angle < 180.0:
-            ok.add(ScenarioError(src, f"{key}.angle", "an arm half-opening in degrees within (0, 180)", f.angle))
+        lo = _limit("MIN_FORMATION_ANGLE")
+        if not lo <= f.angle <= 180.0 - lo:
+            ok.add(ScenarioError(src, f"{key}.angle", f"an arm half-opening in degrees within [{lo:g}, {180 - lo:g}] "
+                                 "(swarm_env.limits.MIN_FORMATION_ANGLE)", f.angle))
         if f.shape == "wedge" and f.angle == 90.0:
             ok.add(ScenarioError(
                 src, f"{key}.angle", "a wedge half-opening other than 90 degrees (its rows would coincide)", f.angle
@@ -1289,6 +1293,8 @@ def _sizes(src: str, value: Any, key: str, expected: str) -> Point:
     for i, v in enumerate(size):
         if v <= 0:
             raise ScenarioError(src, f"{key}[{i}]", expected, v)
+        if v < MIN_OBSTACLE_SIZE:  # world sides are far above it; a thinner rectangle is degenerate
+            raise ScenarioError(src, f"{key}[{i}]", f"{expected} of at least {_bound_text('MIN_OBSTACLE_SIZE')}", v)
         if v > MAX_WORLD_SIZE:
             raise ScenarioError(src, f"{key}[{i}]", f"{expected} of at most {_bound_text('MAX_WORLD_SIZE')}", v)
     return size
