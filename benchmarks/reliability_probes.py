@@ -482,13 +482,17 @@ def table(results: list[dict]) -> str:
     return head + "\n".join(rows) + "\n"
 
 
+_DRAWN = ("random mutations", "random generator knobs")
+
+
 def examples(results: list[dict], per_category: int = 3) -> str:
-    """A few messages per category, and every crash and hang (there should be none)."""
+    """A few messages per category, every hand-made probe that was accepted, and every crash and
+    hang (there should be none)."""
     lines = []
     seen: Counter = Counter()
     for r in results:
-        bad = r["outcome"] in ("crash", "hang")
-        if bad or (r["outcome"] == "clear error" and seen[r["category"]] < per_category):
+        shown = r["outcome"] in ("crash", "hang") or (r["outcome"] == "accepted, steps" and r["category"] not in _DRAWN)
+        if shown or (r["outcome"] == "clear error" and seen[r["category"]] < per_category):
             seen[r["category"]] += 1
             detail = r["detail"].replace("|", "\\|").replace(str(r.get("path", "\0")), "FILE")
             lines.append(f"| {r['category']} | {r['name'][:50].replace('|', '/')} | {r['outcome']} | `{detail}` |")
@@ -537,7 +541,13 @@ episodes of 10^10 steps), and the misleading messages the issue listed. Then see
 mutations of the built-in scenarios (values replaced, scaled, deleted, lists grown to 20,000
 entries, nested), and knobs of `parallel_env("random", ...)`.
 
-Examples (a few clear errors per category; every crash and hang, if any):
+Issue 14 measured, before these bounds: of 97 hostile files, 63 clear errors, 6 tracebacks, 4
+hangs, 2 `MemoryError`s and 5 files accepted that then hung or ran out of memory at run time; of
+5,000 random mutations, 10 crashes, 2 `MemoryError`s and 1 hang; and `parallel_env("random",
+n_humans=(0, 10**9))` hung.
+
+Examples (a few clear errors per category, every hand-made probe that was accepted, and every
+crash and hang, if any):
 
 {examples(scenario)}
 ## Model files

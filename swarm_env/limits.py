@@ -47,6 +47,7 @@ __all__ = [
     "MIN_OBSTACLE_SIZE",
     "MIN_FORMATION_ANGLE",
     "MAX_SPEED",
+    "MIN_SPEED",
     "MAX_TURN_RATE",
     "MAX_NAME_CHARS",
     "MAX_DESCRIPTION_CHARS",
@@ -112,6 +113,8 @@ MIN_OBSTACLE_SIZE = 1e-3
 MIN_FORMATION_ANGLE = 1.0
 #: Largest speed (m/s) of followers, the leader and humans.
 MAX_SPEED = 20.0
+#: Smallest speed (m/s) of followers, the leader and humans (times are lengths over speeds).
+MIN_SPEED = 1e-3
 #: Largest turn rate (rad/s) of followers and the robot leader.
 MAX_TURN_RATE = 100.0
 #: Longest ``name`` (characters); names must also be printable (no control or bidi characters).
@@ -148,6 +151,7 @@ LIMITS: dict[str, tuple[float, str]] = {
     "MIN_OBSTACLE_SIZE": (MIN_OBSTACLE_SIZE, "smallest rectangle side and circle-obstacle radius (m)"),
     "MIN_FORMATION_ANGLE": (MIN_FORMATION_ANGLE, "formation angle in [MIN, 180 - MIN] degrees"),
     "MAX_SPEED": (MAX_SPEED, "speeds (m/s): robots.max_speed, leader.speed, human speed"),
+    "MIN_SPEED": (MIN_SPEED, "smallest of the same speeds (m/s)"),
     "MAX_TURN_RATE": (MAX_TURN_RATE, "turn rates (rad/s)"),
     "MAX_NAME_CHARS": (MAX_NAME_CHARS, "characters of name"),
     "MAX_DESCRIPTION_CHARS": (MAX_DESCRIPTION_CHARS, "characters of description"),

@@ -244,7 +244,8 @@ class RandomScenarioConfig:
         put(self, "n_humans", _int_range(self.n_humans, "n_humans", 0))
         put(self, "n_switches", _int_range(self.n_switches, "n_switches", 0))
         put(self, "obstacle_size", _float_range(self.obstacle_size, "obstacle_size", positive=True, at_most="MAX_WORLD_SIZE"))
-        put(self, "human_speed", _float_range(self.human_speed, "human_speed", positive=True, at_most="MAX_SPEED"))
+        put(self, "human_speed", _float_range(self.human_speed, "human_speed", positive=True, at_most="MAX_SPEED",
+                                              at_least="MIN_SPEED"))
         put(self, "spacing", _float_range(self.spacing, "spacing", positive=True, at_most="MAX_WORLD_SIZE"))
         put(self, "angle", _float_range(self.angle, "angle", positive=True, at_most="MAX_ABS_NUMBER"))
         lo = LIMITS["MIN_FORMATION_ANGLE"][0]
@@ -266,8 +267,8 @@ class RandomScenarioConfig:
         bounds = {
             "human_radius": ("MAX_WORLD_SIZE", "MIN_RADIUS"),
             "radius": ("MAX_WORLD_SIZE", "MIN_RADIUS"),
-            "leader_speed": ("MAX_SPEED", None),
-            "max_speed": ("MAX_SPEED", None),
+            "leader_speed": ("MAX_SPEED", "MIN_SPEED"),
+            "max_speed": ("MAX_SPEED", "MIN_SPEED"),
             "max_turn_rate": ("MAX_TURN_RATE", None),
             "dt": ("MAX_DT", "MIN_DT"),
             "max_time": ("MAX_ABS_NUMBER", None),

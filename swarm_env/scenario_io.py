@@ -49,7 +49,7 @@ seconds and radians, except the two ``angle`` fields, which are degrees.
 Formation shapes: ``v``, ``line``, ``column``, ``wedge``, ``diamond``, ``circle``,
 ``grid`` (``columns``: int >= 0, 0 = automatic) and ``custom`` (``offsets``: one
 ``[x, y]`` per follower in the leader frame, x forward, y left). ``spacing`` (m)
-is the distance between neighbouring slots, ``angle`` (degrees, in (0, 180)) the
+is the distance between neighbouring slots, ``angle`` (degrees, in [1, 179]) the
 half-opening of the ``v``/``wedge`` arms from the leader's backward axis.
 
 Parsing checks types and ranges section by section; then :func:`validate_scenario`,
@@ -64,7 +64,15 @@ does not depend on it, and raises one :class:`~swarm_env.scenario.ScenarioError`
 YAML syntax errors) and what was expected. Checked beyond types and ranges
 (``bool`` is not a number; numbers must be finite):
 
-* unknown keys (the message lists the allowed ones), duplicate YAML keys;
+* the bounds of :mod:`swarm_env.limits`, one table for every value that sets an amount of
+  work or memory: the file's size (checked before reading; FIFOs, devices and directories are
+  refused), YAML alias expansion and nesting, the length of written numbers, counts (robots,
+  humans, obstacles, waypoints, rays, neighbours, substeps), control steps per episode
+  (``max_time / dt``), the world's size, speeds and radii; each message names its bound;
+* ``name`` and ``description`` without control or bidi characters; messages escape them
+  anyway and cut the values they show to 80 characters;
+* unknown keys (the message lists the allowed ones), duplicate YAML keys (keys brought in
+  by a merge key, ``<<: *anchor``, may be overridden);
 * waypoints and start poses inside the world (discs by their radius);
 * consecutive waypoints distinct; polygons convex with non-zero area;
 * the formation schedule: first ``at`` is 0, strictly increasing; ``offsets`` only
@@ -72,7 +80,7 @@ YAML syntax errors) and what was expected. Checked beyond types and ranges
   slots of every formation at least ``2 * robots.radius`` apart (and clear of a
   robot leader's disc);
 * starting poses free of obstacles, of each other, of a robot leader and of the
-  humans' first waypoints;
+  humans' first waypoints; humans' first waypoints clear of obstacles;
 * ``leader.speed <= robots.max_speed`` (otherwise the followers can never keep up);
 * the anti-tunnelling rule (pymunk has no continuous collision detection): with
   ``v_rel = 2 * max(robots.max_speed, leader.speed) + max(human speeds)`` and
@@ -182,6 +190,8 @@ _REWARD_KEYS = _keys(RewardSpec)
 _EPS = 1e-9
 # The bounds of every disc radius (followers, robot leader, humans).
 _RADIUS = {"at_least": "MIN_RADIUS", "at_most": "MAX_WORLD_SIZE"}
+# The bounds of every speed (followers' top speed, the leader's, humans').
+_SPEED = {"at_least": "MIN_SPEED", "at_most": "MAX_SPEED"}
 
 
 class _Bad:
@@ -646,8 +656,7 @@ def _parse_robots(src: str, value: Any, ok: _Errors) -> RobotSpec:
     _check_keys(src, m, "robots", _ROBOT_KEYS, ("count",), ok)
     count = ok(_integer, src, m.get("count", _BAD), "robots.count", minimum=1, at_most="MAX_ROBOTS")
     radius = ok(_number, src, m.get("radius", RobotSpec.radius), "robots.radius", positive=True, **_RADIUS)
-    max_speed = ok(_number, src, m.get("max_speed", RobotSpec.max_speed), "robots.max_speed", positive=True,
-                   at_most="MAX_SPEED")
+    max_speed = ok(_number, src, m.get("max_speed", RobotSpec.max_speed), "robots.max_speed", positive=True, **_SPEED)
     max_turn = ok(_number, src, m.get("max_turn_rate", RobotSpec.max_turn_rate), "robots.max_turn_rate", positive=True,
                   at_most="MAX_TURN_RATE")
     max_accel = ok(_optional_positive, src, m.get("max_accel", RobotSpec.max_accel), "robots.max_accel")
@@ -686,7 +695,7 @@ def _parse_leader(src: str, value: Any, ok: _Errors) -> LeaderSpec:
     m = _mapping(src, value, "leader")
     _check_keys(src, m, "leader", _LEADER_KEYS, ("kind", "path", "speed"), ok)
     kind = ok(_choice, src, m.get("kind", _BAD), "leader.kind", LEADER_KINDS)
-    speed = ok(_number, src, m.get("speed", _BAD), "leader.speed", positive=True, at_most="MAX_SPEED")
+    speed = ok(_number, src, m.get("speed", _BAD), "leader.speed", positive=True, **_SPEED)
     radius = ok(_number, src, m.get("radius", LeaderSpec.radius), "leader.radius", positive=True, **_RADIUS)
     max_turn = ok(_number, src, m.get("max_turn_rate", LeaderSpec.max_turn_rate), "leader.max_turn_rate", positive=True,
                   at_most="MAX_TURN_RATE")
@@ -779,7 +788,7 @@ def _parse_obstacle(src: str, value: Any, key: str, ok: _Errors) -> Obstacle:
 def _parse_human(src: str, value: Any, key: str, ok: _Errors) -> HumanSpec:
     m = _mapping(src, value, key)
     _check_keys(src, m, key, _HUMAN_KEYS, ("path",), ok)
-    speed = ok(_number, src, m.get("speed", HumanSpec.speed), f"{key}.speed", positive=True, at_most="MAX_SPEED")
+    speed = ok(_number, src, m.get("speed", HumanSpec.speed), f"{key}.speed", positive=True, **_SPEED)
     radius = ok(_number, src, m.get("radius", HumanSpec.radius), f"{key}.radius", positive=True, **_RADIUS)
     mode = ok(_choice, src, m.get("mode", HumanSpec.mode), f"{key}.mode", HUMAN_MODES)
     delay = ok(_number, src, m.get("start_delay", HumanSpec.start_delay), f"{key}.start_delay", nonnegative=True)
@@ -1316,9 +1325,9 @@ def _check_keys(
     prefix = f"{key}." if key else ""
     for k in m:
         if not isinstance(k, str):
-            ok.add(ScenarioError(src, f"{prefix}{k!r}", "string keys", k))
+            ok.add(ScenarioError(src, f"{prefix}{clip_repr(k)}", "string keys", _short(k)))
         elif k not in allowed:
-            close = difflib.get_close_matches(k, allowed, n=1)
+            close = difflib.get_close_matches(k, allowed, n=1) if len(k) <= 100 else []  # a typo is short
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             where = f"the keys of {key}" if key else "the top-level sections"
             ok.add(ScenarioError(src, f"{prefix}{k}", f"one of {where}: {', '.join(allowed)}{hint}", k))

@@ -138,6 +138,7 @@ def test_merge_keys_are_not_duplicates(tmp_path: Path) -> None:
     (("world", "max_time"), 1e5, "MAX_EPISODE_STEPS"),
     (("world", "size"), [5000.0, 14.0], "MAX_WORLD_SIZE"),
     (("robots", "radius"), 1e-9, "MIN_RADIUS"),
+    (("leader", "speed"), 1e-300, "MIN_SPEED"),
     (("obstacles", 0), {"type": "rectangle", "center": [5.0, 5.0], "size": [1e-300, 1.0]}, "MIN_OBSTACLE_SIZE"),
     (("leader", "path"), [[2.0, 7.0], [17.0, 7.0]] * 6000, "MAX_WAYPOINTS"),
 ])
