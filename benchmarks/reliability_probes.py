@@ -28,6 +28,7 @@ import copy
 import json
 import math
 import os
+import pickle
 import queue
 import random
 import signal
@@ -39,6 +40,8 @@ import time
 from collections import Counter, defaultdict
 from pathlib import Path
 from typing import Any
+
+from swarm_env.jsonio import dumps, write_json
 
 OUTCOMES = ("clear error", "accepted, steps", "crash", "hang")
 ROOT = Path(__file__).resolve().parent.parent
@@ -258,7 +261,8 @@ def random_probes(count: int, seed: int) -> list[dict]:
         "radius": [0.1, 0.25, 0.6, 1e-300],
         "substeps": [1, 4, 12, 10**6],
     }
-    probes = [{"kind": "random", "category": "random generator knobs", "name": json.dumps(k), "knobs": k} for k in fixed]
+    probes = [{"kind": "random", "category": "random generator knobs", "name": dumps(k, indent=None), "knobs": k}
+              for k in fixed]
     for i in range(count):
         names = rng.sample(sorted(knob_values), rng.randint(1, 4))
         knobs = {n: rng.choice(knob_values[n]) for n in names}
@@ -320,14 +324,16 @@ def child(args: argparse.Namespace) -> None:
 
     limit = args.memory_gib << 30
     resource.setrlimit(resource.RLIMIT_AS, (limit, limit))
-    probes = json.loads(Path(args.probes).read_text())
+    # The probes hold NaN and infinities on purpose, which strict JSON cannot carry: they go to the
+    # child as a pickle this process wrote into its own private temporary directory.
+    probes = pickle.loads(Path(args.probes).read_bytes())
 
     def alarm(_sig: int, _frame: Any) -> None:
         raise _Timeout
 
     signal.signal(signal.SIGALRM, alarm)
     for i in range(args.start, len(probes)):
-        print(json.dumps({"index": i, "started": True}), flush=True)
+        print(dumps({"index": i, "started": True}, indent=None), flush=True)
         t0 = time.perf_counter()
         signal.alarm(args.timeout)
         try:
@@ -336,14 +342,14 @@ def child(args: argparse.Namespace) -> None:
             outcome, detail = "hang", f"over {args.timeout} s"
         finally:
             signal.alarm(0)
-        print(json.dumps({"index": i, "outcome": outcome, "detail": detail,
-                          "seconds": round(time.perf_counter() - t0, 3)}), flush=True)
+        print(dumps({"index": i, "outcome": outcome, "detail": detail,
+                     "seconds": round(time.perf_counter() - t0, 3)}, indent=None), flush=True)
 
 
 def run_all(probes: list[dict], timeout: int, memory_gib: int, workdir: Path) -> list[dict]:
     """Each probe's result, running them in as few children as crashes and hangs allow."""
-    spec = workdir / "probes.json"
-    spec.write_text(json.dumps(probes))
+    spec = workdir / "probes.pickle"
+    spec.write_bytes(pickle.dumps(probes))
     results: dict[int, dict] = {}
     start = 0
     while start < len(probes):
@@ -425,11 +431,9 @@ def model_probes(tmp: Path) -> list[dict]:
             return v * 2 + 1 if isinstance(v, int) and not isinstance(v, bool) and v > 1 else v
 
         for f in files(where, ".json"):
-            f.write_text(json.dumps(grow(json.loads(f.read_text()))))
+            write_json(f, grow(json.loads(f.read_text())))
 
     def pickle_only(where: Path) -> None:
-        import pickle
-
         for f in files(where, ".safetensors"):
             f.unlink()
         (where / "model.pt").write_bytes(pickle.dumps({"weights": [1, 2, 3]}))
