@@ -578,6 +578,8 @@ def _round_corners(points: np.ndarray, radius: float, travel: float) -> tuple[tu
     out: list[np.ndarray] = [points[0]]
     for j in range(1, len(points) - 1):
         a, v, b = points[j - 1], points[j], points[j + 1]
+        if min(np.linalg.norm(v - a), np.linalg.norm(b - v)) < 1e-9:
+            continue  # a path shorter than the mm rounding (a tiny max_time): no corner to round
         u_in = (v - a) / np.linalg.norm(v - a)
         u_out = (b - v) / np.linalg.norm(b - v)
         turn = math.atan2(u_in[0] * u_out[1] - u_in[1] * u_out[0], float(u_in @ u_out))

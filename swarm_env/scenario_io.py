@@ -1200,7 +1200,7 @@ def _number(
     try:
         x = float(value)
     except OverflowError:  # an integer beyond float range (from a dict: files bound their digits)
-        x = math.copysign(math.inf, value)
+        x = math.inf if value > 0 else -math.inf
     if not math.isfinite(x):
         raise ScenarioError(src, key, "a finite " + kind.removeprefix("a "), _short(value))
     if (positive and x <= 0) or (nonnegative and x < 0):
