@@ -519,8 +519,8 @@ limited to {args.memory_gib} GiB of address space and {args.timeout} s, and ende
 * **crash**: any other exception, a `MemoryError`, or a message that is not a short printable line;
 * **hang**: over the time limit.
 
-Produced by (about {seconds / 60:.0f} minutes on a 2-core machine; {args.mutations} mutations with seed
-{args.seed}, {args.random_draws} random knob sets):
+Produced by ({args.mutations} mutations with seed {args.seed}, {args.random_draws} random knob sets; the
+run took {seconds:.0f} s on a shared 2-core machine, so its times are rough):
 
 ```bash
 {cmd}
