@@ -119,7 +119,13 @@ def convex_ccw(points: Sequence[Sequence[float]] | np.ndarray) -> np.ndarray:
     area2 = float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
     scale = float(np.ptp(pts, axis=0).max())
     if abs(area2) <= 1e-12 * scale * scale:
-        raise ValueError("polygon has zero area (all vertices collinear)")
+        # Zero signed area: either every vertex is on one line, or the boundary crosses itself
+        # so that its lobes cancel (a bow tie).
+        rel = pts - pts[0]
+        spread = np.abs(rel[:, 0, None] * rel[None, :, 1] - rel[:, 1, None] * rel[None, :, 0]).max()
+        if spread <= 1e-12 * scale * scale:
+            raise ValueError("polygon has zero area (all vertices collinear)")
+        raise ValueError("polygon is self-intersecting (its boundary crosses itself, so its signed area is zero)")
     if area2 < 0.0:
         pts = pts[::-1].copy()
     e = np.roll(pts, -1, axis=0) - pts  # edge i goes from vertex i to vertex i+1

@@ -48,7 +48,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import Any, Literal, cast
 
 import numpy as np
 
@@ -60,6 +60,7 @@ from swarm_env.formation import (
     virtual_slot_trajectory,
 )
 from swarm_env.geometry import StaticMap
+from swarm_env.limits import LIMITS, MAX_EPISODE_STEPS, MAX_HUMANS, MAX_ROBOTS, MAX_WORLD_SIZE
 from swarm_env.paths import PolylinePath
 from swarm_env.scenario import (
     FORMATION_SHAPES,
@@ -93,6 +94,8 @@ __all__ = [
 SOURCE = "random"
 OBSTACLE_TYPES = ("circle", "rectangle", "polygon")
 IntRange = int | tuple[int, int]
+# The leader kinds of swarm_env.scenario.LeaderSpec.
+LeaderKind = Literal["virtual", "robot"]
 
 # Tunables of the layout that are not knobs (they shape "a sensible world", not its difficulty).
 _TRAVEL_FRACTION = 0.7  # the leader's path takes this share of max_time
@@ -105,8 +108,9 @@ _SLOT_SPEED_SHARE = 0.9  # slot targets move at most this share of max_speed whi
 _DEFAULT_WORLD = 20.0  # m, the side of an ``auto`` world for small formations
 _PATH_ROOM = 8.0  # m of path room an ``auto`` world keeps between the formation margins
 
-#: Upper bounds of the count knobs (inclusive): bounded work per reset whatever the input.
-KNOB_LIMITS = {"n_followers": 64, "n_obstacles": 100, "n_humans": 32, "n_switches": 8}
+#: Upper bounds of the count knobs (inclusive): bounded work per reset whatever the input. Teams and
+#: crowds are bounded as in files (swarm_env.limits); the other two bound the generator's own work.
+KNOB_LIMITS = {"n_followers": MAX_ROBOTS, "n_obstacles": 100, "n_humans": MAX_HUMANS, "n_switches": 8}
 
 
 # --------------------------------------------------------------------------- knob validation
@@ -128,15 +132,31 @@ def _int_range(value: Any, name: str, minimum: int) -> tuple[int, int]:
     return (lo, hi)
 
 
-def _float_range(value: Any, name: str, *, positive: bool, ordered: bool = True) -> tuple[float, float]:
-    ok = isinstance(value, (tuple, list)) and len(value) == 2
-    if ok:
-        ok = all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_)) for v in value)
-    if not ok:
+def _is_real(v: Any) -> bool:
+    return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+
+
+def _as_float(v: Any) -> float:
+    try:
+        return float(v)
+    except OverflowError:  # an int beyond float range
+        return math.inf
+
+
+def _float_range(
+    value: Any, name: str, *, positive: bool, at_most: str, ordered: bool = True, at_least: str | None = None
+) -> tuple[float, float]:
+    """A pair of finite numbers within the bounds named ``at_most`` / ``at_least`` of :data:`swarm_env.limits.LIMITS`."""
+    if not (isinstance(value, (tuple, list)) and len(value) == 2 and all(_is_real(v) for v in value)):
         raise ScenarioError(SOURCE, name, "a pair of numbers", value)
-    lo, hi = float(value[0]), float(value[1])
+    lo, hi = _as_float(value[0]), _as_float(value[1])
     if not (math.isfinite(lo) and math.isfinite(hi)) or (positive and min(lo, hi) <= 0) or (ordered and hi < lo):
         raise ScenarioError(SOURCE, name, "a pair of finite positive numbers" + (" with lo <= hi" if ordered else ""), value)
+    bottom = LIMITS[at_least][0] if at_least else -math.inf
+    if max(lo, hi) > LIMITS[at_most][0] or min(lo, hi) < bottom:
+        where = f"at least {bottom:g} (swarm_env.limits.{at_least}) and " if at_least else ""
+        raise ScenarioError(SOURCE, name, f"numbers {where}at most {LIMITS[at_most][0]:g} (swarm_env.limits.{at_most})",
+                            value)
     return (lo, hi)
 
 
@@ -144,14 +164,19 @@ def _names(value: Any, name: str, allowed: tuple[str, ...]) -> tuple[str, ...]:
     if isinstance(value, str) or not isinstance(value, (tuple, list)) or not value:
         raise ScenarioError(SOURCE, name, f"a non-empty list of: {', '.join(allowed)}", value)
     for v in value:
-        if v not in allowed:
+        if not isinstance(v, str) or v not in allowed:
             raise ScenarioError(SOURCE, name, f"names among: {', '.join(allowed)}", v)
     return tuple(value)
 
 
-def _positive(value: Any, name: str) -> None:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+def _positive(value: Any, name: str, at_most: str, at_least: str | None = None) -> None:
+    """A finite positive number within the bounds named ``at_most`` / ``at_least`` of :data:`swarm_env.limits.LIMITS`."""
+    if not _is_real(value) or not math.isfinite(_as_float(value)) or value <= 0:
         raise ScenarioError(SOURCE, name, "a finite positive number", value)
+    if value > LIMITS[at_most][0] or (at_least is not None and value < LIMITS[at_least][0]):
+        where = f"at least {LIMITS[at_least][0]:g} (swarm_env.limits.{at_least}) and " if at_least else ""
+        raise ScenarioError(SOURCE, name, f"a number {where}at most {LIMITS[at_most][0]:g} (swarm_env.limits.{at_most})",
+                            value)
 
 
 @dataclass(frozen=True)
@@ -220,24 +245,48 @@ class RandomScenarioConfig:
         put(self, "n_obstacles", _int_range(self.n_obstacles, "n_obstacles", 0))
         put(self, "n_humans", _int_range(self.n_humans, "n_humans", 0))
         put(self, "n_switches", _int_range(self.n_switches, "n_switches", 0))
-        put(self, "obstacle_size", _float_range(self.obstacle_size, "obstacle_size", positive=True))
-        put(self, "human_speed", _float_range(self.human_speed, "human_speed", positive=True))
-        put(self, "spacing", _float_range(self.spacing, "spacing", positive=True))
-        put(self, "angle", _float_range(self.angle, "angle", positive=True))
-        if not self.angle[1] < 180.0:
-            raise ScenarioError(SOURCE, "angle", "a range of degrees within (0, 180)", self.angle)
-        if self.world_size != "auto":
-            put(self, "world_size", _float_range(self.world_size, "world_size", positive=True, ordered=False))
+        put(self, "obstacle_size", _float_range(self.obstacle_size, "obstacle_size", positive=True, at_most="MAX_WORLD_SIZE"))
+        put(self, "human_speed", _float_range(self.human_speed, "human_speed", positive=True, at_most="MAX_SPEED",
+                                              at_least="MIN_SPEED"))
+        put(self, "spacing", _float_range(self.spacing, "spacing", positive=True, at_most="MAX_WORLD_SIZE"))
+        put(self, "angle", _float_range(self.angle, "angle", positive=True, at_most="MAX_ABS_NUMBER"))
+        lo = LIMITS["MIN_FORMATION_ANGLE"][0]
+        if not (lo <= self.angle[0] and self.angle[1] <= 180.0 - lo):
+            raise ScenarioError(SOURCE, "angle", f"a range of degrees within [{lo:g}, {180 - lo:g}] "
+                                "(swarm_env.limits.MIN_FORMATION_ANGLE)", self.angle)
+        if isinstance(self.world_size, str):
+            if self.world_size != "auto":
+                raise ScenarioError(SOURCE, "world_size", "'auto' or a (W, H) pair of numbers", self.world_size)
+        else:
+            put(self, "world_size", _float_range(self.world_size, "world_size", positive=True, ordered=False,
+                                                 at_most="MAX_WORLD_SIZE"))
         put(self, "obstacle_types", _names(self.obstacle_types, "obstacle_types", OBSTACLE_TYPES))
         put(self, "shapes", _names(self.shapes, "shapes", tuple(s for s in FORMATION_SHAPES if s != "custom")))
-        if self.leader_kind not in LEADER_KINDS:
+        if not isinstance(self.leader_kind, str) or self.leader_kind not in LEADER_KINDS:
             raise ScenarioError(SOURCE, "leader_kind", f"one of {', '.join(LEADER_KINDS)}", self.leader_kind)
-        if self.human_behavior not in HUMAN_BEHAVIORS:
+        if not isinstance(self.human_behavior, str) or self.human_behavior not in HUMAN_BEHAVIORS:
             raise ScenarioError(SOURCE, "human_behavior", f"one of {', '.join(HUMAN_BEHAVIORS)}", self.human_behavior)
-        for name in ("human_radius", "leader_speed", "max_time", "dt", "radius", "max_speed", "max_turn_rate"):
-            _positive(getattr(self, name), name)
-        if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or self.substeps < 1:
-            raise ScenarioError(SOURCE, "substeps", "an integer >= 1", self.substeps)
+        bounds = {
+            "human_radius": ("MAX_WORLD_SIZE", "MIN_RADIUS"),
+            "radius": ("MAX_WORLD_SIZE", "MIN_RADIUS"),
+            "leader_speed": ("MAX_SPEED", "MIN_SPEED"),
+            "max_speed": ("MAX_SPEED", "MIN_SPEED"),
+            "max_turn_rate": ("MAX_TURN_RATE", None),
+            "dt": ("MAX_DT", "MIN_DT"),
+            "max_time": ("MAX_ABS_NUMBER", None),
+        }
+        for name, (at_most, at_least) in bounds.items():
+            _positive(getattr(self, name), name, at_most, at_least)
+        steps = math.floor(self.max_time / self.dt + 1e-9)
+        if steps > MAX_EPISODE_STEPS:
+            raise ScenarioError(SOURCE, "max_time", f"at most {MAX_EPISODE_STEPS} control steps per episode "
+                                f"(swarm_env.limits.MAX_EPISODE_STEPS): max_time / dt = {steps}", self.max_time)
+        if self.max_time < self.dt:
+            raise ScenarioError(SOURCE, "max_time", f"at least one control period (dt = {self.dt:g})", self.max_time)
+        max_sub = int(LIMITS["MAX_SUBSTEPS"][0])
+        if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or not 1 <= self.substeps <= max_sub:
+            raise ScenarioError(SOURCE, "substeps", f"an integer in [1, {max_sub}] (swarm_env.limits.MAX_SUBSTEPS)",
+                                self.substeps)
         if self.leader_speed > self.max_speed:
             raise ScenarioError(SOURCE, "leader_speed", f"at most max_speed = {self.max_speed}", self.leader_speed)
         if not isinstance(self.sensors, SensorSpec):
@@ -245,13 +294,18 @@ class RandomScenarioConfig:
         if not isinstance(self.reward, RewardSpec):
             put(self, "reward", _parse_reward(SOURCE, self.reward))
         # The anti-tunnelling rule of scenario_io, for the fastest humans this config can draw.
-        v_rel = 2.0 * max(self.max_speed, self.leader_speed) + (self.top_human_speed() if self.n_humans[1] else 0.0)
-        r_min = min(self.radius, self.human_radius) if self.n_humans[1] else self.radius
+        humans = _span(self.n_humans)[1] > 0
+        v_rel = 2.0 * max(self.max_speed, self.leader_speed) + (self.top_human_speed() if humans else 0.0)
+        r_min = min(self.radius, self.human_radius) if humans else self.radius
         need = required_substeps(v_rel, r_min, self.dt)
         if self.substeps < need:
             raise ScenarioError(
                 SOURCE, "substeps", f"at least {need} (v_rel * dt / substeps <= r_min, v_rel = {v_rel:g} m/s)", self.substeps
             )
+        side = max(self.resolved_world_size())
+        if side > MAX_WORLD_SIZE:  # an auto world grown for a wide formation (checked before any drawing)
+            raise ScenarioError(SOURCE, "spacing", f"a formation that fits a world of at most {MAX_WORLD_SIZE:g} m "
+                                f"(swarm_env.limits.MAX_WORLD_SIZE; it needs {side:g} m)", self.spacing)
 
 
     def top_human_speed(self) -> float:
@@ -344,7 +398,7 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
         world=WorldSpec(size=(float(W), float(H)), dt=cfg.dt, substeps=cfg.substeps, max_time=cfg.max_time),
         robots=RobotSpec(count=n, radius=r, max_speed=cfg.max_speed, max_turn_rate=cfg.max_turn_rate),
         leader=LeaderSpec(
-            kind=cfg.leader_kind, path=path, speed=cfg.leader_speed, radius=r, max_turn_rate=round(leader_turn, 6)
+            kind=cast(LeaderKind, cfg.leader_kind), path=path, speed=cfg.leader_speed, radius=r, max_turn_rate=round(leader_turn, 6)
         ),
         formations=tuple(formations),
         obstacles=(),
@@ -527,6 +581,8 @@ def _round_corners(points: np.ndarray, radius: float, travel: float) -> tuple[tu
     out: list[np.ndarray] = [points[0]]
     for j in range(1, len(points) - 1):
         a, v, b = points[j - 1], points[j], points[j + 1]
+        if min(np.linalg.norm(v - a), np.linalg.norm(b - v)) < 1e-9:
+            continue  # a path shorter than the mm rounding (a tiny max_time): no corner to round
         u_in = (v - a) / np.linalg.norm(v - a)
         u_out = (b - v) / np.linalg.norm(b - v)
         turn = math.atan2(u_in[0] * u_out[1] - u_in[1] * u_out[0], float(u_in @ u_out))
@@ -704,6 +760,11 @@ def _samples(line: PolylinePath) -> np.ndarray:
     return line.points_at(np.linspace(0.0, line.length, k))
 
 
-def _draw_int(rng: np.random.Generator, spec: tuple[int, int]) -> int:
-    lo, hi = spec
+def _span(spec: IntRange) -> tuple[int, int]:
+    """A knob's ``(lo, hi)`` (``RandomScenarioConfig`` stores every count as a pair after validation)."""
+    return (spec, spec) if isinstance(spec, int) else spec
+
+
+def _draw_int(rng: np.random.Generator, spec: IntRange) -> int:
+    lo, hi = _span(spec)
     return lo if lo == hi else int(rng.integers(lo, hi + 1))

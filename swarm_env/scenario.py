@@ -15,6 +15,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Literal
 
+from swarm_env.limits import clip_repr, printable
+
 Point = tuple[float, float]
 Pose = tuple[float, float, float]
 
@@ -35,7 +37,9 @@ class ScenarioError(ValueError):
     """A scenario file or dict is malformed.
 
     The message names the source (file path or ``<dict>``), the key path
-    (e.g. ``robots.max_speed``) and what was expected.
+    (e.g. ``robots.max_speed``) and what was expected. It is one line, safe to print:
+    control and bidi characters are escaped, and the value shown (``got``) is cut to
+    :data:`swarm_env.limits.MESSAGE_VALUE_CHARS` characters, built in bounded time.
 
     Validation reports every problem it finds, not only the first: ``errors`` holds
     them all (one :class:`ScenarioError` each, in file order; ``(self,)`` for a single
@@ -49,8 +53,11 @@ class ScenarioError(ValueError):
         self.expected = expected
         self.got = got
         self.errors: tuple[ScenarioError, ...] = (self,)
-        got_txt = "" if got is None else f", got {got!r}"
-        super().__init__(f"{source}: {key}: expected {expected}{got_txt}")
+        got_txt = "" if got is None else f", got {clip_repr(got)}"
+        # Keys, sources and expectations can quote the file (an unknown key, a path): escaped, and
+        # bounded so that one line stays one line.
+        super().__init__(f"{printable(str(source), 200)}: {printable(str(key), 200)}: "
+                         f"expected {printable(str(expected), 1000)}{got_txt}")
 
     @classmethod
     def several(cls, errors: list[ScenarioError] | tuple[ScenarioError, ...]) -> ScenarioError:

@@ -49,7 +49,7 @@ seconds and radians, except the two ``angle`` fields, which are degrees.
 Formation shapes: ``v``, ``line``, ``column``, ``wedge``, ``diamond``, ``circle``,
 ``grid`` (``columns``: int >= 0, 0 = automatic) and ``custom`` (``offsets``: one
 ``[x, y]`` per follower in the leader frame, x forward, y left). ``spacing`` (m)
-is the distance between neighbouring slots, ``angle`` (degrees, in (0, 180)) the
+is the distance between neighbouring slots, ``angle`` (degrees, in [1, 179]) the
 half-opening of the ``v``/``wedge`` arms from the leader's backward axis.
 
 Parsing checks types and ranges section by section; then :func:`validate_scenario`,
@@ -64,7 +64,15 @@ does not depend on it, and raises one :class:`~swarm_env.scenario.ScenarioError`
 YAML syntax errors) and what was expected. Checked beyond types and ranges
 (``bool`` is not a number; numbers must be finite):
 
-* unknown keys (the message lists the allowed ones), duplicate YAML keys;
+* the bounds of :mod:`swarm_env.limits`, one table for every value that sets an amount of
+  work or memory: the file's size (checked before reading; FIFOs, devices and directories are
+  refused), YAML alias expansion and nesting, the length of written numbers, counts (robots,
+  humans, obstacles, waypoints, rays, neighbours, substeps), control steps per episode
+  (``max_time / dt``), the world's size, speeds and radii; each message names its bound;
+* ``name`` and ``description`` without control or bidi characters; messages escape them
+  anyway and cut the values they show to 80 characters;
+* unknown keys (the message lists the allowed ones), duplicate YAML keys (keys brought in
+  by a merge key, ``<<: *anchor``, may be overridden);
 * waypoints and start poses inside the world (discs by their radius);
 * consecutive waypoints distinct; polygons convex with non-zero area;
 * the formation schedule: first ``at`` is 0, strictly increasing; ``offsets`` only
@@ -72,7 +80,7 @@ YAML syntax errors) and what was expected. Checked beyond types and ranges
   slots of every formation at least ``2 * robots.radius`` apart (and clear of a
   robot leader's disc);
 * starting poses free of obstacles, of each other, of a robot leader and of the
-  humans' first waypoints;
+  humans' first waypoints; humans' first waypoints clear of obstacles;
 * ``leader.speed <= robots.max_speed`` (otherwise the followers can never keep up);
 * the anti-tunnelling rule (pymunk has no continuous collision detection): with
   ``v_rel = 2 * max(robots.max_speed, leader.speed) + max(human speeds)`` and
@@ -95,6 +103,7 @@ import difflib
 import math
 import numbers
 import os
+import stat
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -104,6 +113,19 @@ import yaml
 
 from swarm_env.formation import formation_offsets, formation_start
 from swarm_env.geometry import StaticMap, convex_ccw
+from swarm_env.limits import (
+    LIMITS,
+    MAX_EPISODE_STEPS,
+    MAX_FILE_BYTES,
+    MAX_NUMBER_CHARS,
+    MAX_WORLD_SIZE,
+    MAX_YAML_DEPTH,
+    MAX_YAML_NODES,
+    MIN_OBSTACLE_SIZE,
+    clip_repr,
+    printable,
+    unprintable_chars,
+)
 from swarm_env.scenario import (
     FORMATION_SHAPES,
     HUMAN_BEHAVIORS,
@@ -166,6 +188,10 @@ _REWARD_KEYS = _keys(RewardSpec)
 
 # Slack for geometric comparisons of values people type with a few decimals.
 _EPS = 1e-9
+# The bounds of every disc radius (followers, robot leader, humans).
+_RADIUS = {"at_least": "MIN_RADIUS", "at_most": "MAX_WORLD_SIZE"}
+# The bounds of every speed (followers' top speed, the leader's, humans').
+_SPEED = {"at_least": "MIN_SPEED", "at_most": "MAX_SPEED"}
 
 
 class _Bad:
@@ -273,16 +299,17 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
     _check_keys(src, data, "", _TOP_KEYS, _TOP_REQUIRED, ok)
 
     default_name = Path(src).stem if src not in ("<dict>", "") and not src.startswith("<") else "custom"
-    name = ok(_string, src, data.get("name", default_name), "name", nonempty=True)
-    description = ok(_string, src, data.get("description", ""), "description")
+    name = ok(_string, src, data.get("name", default_name), "name", nonempty=True, at_most="MAX_NAME_CHARS")
+    description = ok(_string, src, data.get("description", ""), "description", at_most="MAX_DESCRIPTION_CHARS",
+                     allowed="\n\t\r")
 
     world = ok(_parse_world, src, data.get("world", _BAD), ok)
     robots = ok(_parse_robots, src, data.get("robots", _BAD), ok)
     leader = ok(_parse_leader, src, data.get("leader", _BAD), ok)
     count = robots.count if isinstance(robots, RobotSpec) else _plain_count(data.get("robots"))
     formations = ok(_parse_formations, src, data.get("formations", _BAD), count, ok)
-    obstacles = ok(_parse_list, src, data.get("obstacles", []), "obstacles", _parse_obstacle, ok)
-    humans = ok(_parse_list, src, data.get("humans", []), "humans", _parse_human, ok)
+    obstacles = ok(_parse_list, src, data.get("obstacles", []), "obstacles", _parse_obstacle, "MAX_OBSTACLES", ok)
+    humans = ok(_parse_list, src, data.get("humans", []), "humans", _parse_human, "MAX_HUMANS", ok)
     sensors = ok(_parse_sensors, src, data.get("sensors", {}), ok)
     reward = ok(_parse_reward, src, data.get("reward", {}), ok)
     ok.raise_all()  # a scenario is built only from sections that all parsed
@@ -314,6 +341,8 @@ def validate_scenario(scn: Scenario) -> Scenario:
     """
     src = scn.source
     ok = _Errors()
+    _check_bounds(src, scn, ok)
+    ok.raise_all()  # the checks below take time with the sizes: only within the bounds
     ok(_check_world, src, scn)
     _check_geometry(src, scn, ok)
     _check_schedule(src, scn, ok)
@@ -399,14 +428,99 @@ def required_substeps(v_rel: float, r_min: float, dt: float) -> int:
 # --------------------------------------------------------------------------- file loading
 
 
+_MERGE_TAG = "tag:yaml.org,2002:merge"
+
+
 class _StrictLoader(yaml.SafeLoader):
-    """SafeLoader that refuses duplicate mapping keys (PyYAML silently keeps the last one)."""
+    """SafeLoader that refuses duplicate mapping keys (PyYAML silently keeps the last one) and
+    whatever would make loading unbounded (see :mod:`swarm_env.limits`): collections nested
+    deeper than ``MAX_YAML_DEPTH``, documents that stand for more than ``MAX_YAML_NODES``
+    nodes once their aliases are expanded (alias bombs; recursive aliases are refused too),
+    and numbers written with more than ``MAX_NUMBER_CHARS`` characters.
+    """
+
+    def __init__(self, stream: str) -> None:
+        super().__init__(stream)
+        self._depth = 0
+        self._nodes = 0
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        # The composer recurses once per level: bound the depth before Python's recursion limit does.
+        if self.check_event(yaml.AliasEvent):
+            return super().compose_node(parent, index)
+        self._nodes += 1
+        mark = self.peek_event().start_mark
+        if self._nodes > MAX_YAML_NODES:
+            raise yaml.composer.ComposerError(
+                None, None, f"more than {MAX_YAML_NODES} nodes (swarm_env.limits.MAX_YAML_NODES)", mark
+            )
+        if not self.check_event(yaml.SequenceStartEvent, yaml.MappingStartEvent):
+            return super().compose_node(parent, index)
+        self._depth += 1
+        try:
+            if self._depth > MAX_YAML_DEPTH:
+                raise yaml.composer.ComposerError(
+                    None, None, f"collections nested at most {MAX_YAML_DEPTH} deep (swarm_env.limits.MAX_YAML_DEPTH)",
+                    mark,
+                )
+            return super().compose_node(parent, index)
+        finally:
+            self._depth -= 1
+
+    def get_single_data(self) -> Any:
+        node = self.get_single_node()
+        if node is None:
+            return None
+        _check_expansion(node)  # before anything is constructed (or repr'd in a message)
+        return self.construct_document(node)
+
+
+def _children(node: yaml.Node) -> list[yaml.Node]:
+    if isinstance(node, yaml.SequenceNode):
+        return list(node.value)
+    if isinstance(node, yaml.MappingNode):
+        return [n for pair in node.value for n in pair]
+    return []
+
+
+def _check_expansion(root: yaml.Node) -> None:
+    """Raise a ComposerError when the node graph ``root`` (aliases are shared nodes) expands to
+    more than ``MAX_YAML_NODES`` nodes or contains itself. Each node is visited once: the
+    expanded size of a node is memoised, so a nine-level alias bomb costs nine visits, not 10**9."""
+    size: dict[int, int] = {}
+    open_nodes: set[int] = set()  # the nodes on the current path (a node met again there is a cycle)
+    stack: list[tuple[yaml.Node, bool]] = [(root, False)]
+    while stack:
+        node, done = stack.pop()
+        key = id(node)
+        if done:
+            open_nodes.discard(key)
+            total = 1 + sum(size[id(c)] for c in _children(node))
+            if total > MAX_YAML_NODES:
+                raise yaml.composer.ComposerError(
+                    None, None,
+                    f"aliases that expand to at most {MAX_YAML_NODES} nodes (swarm_env.limits.MAX_YAML_NODES); "
+                    "this one expands to more", node.start_mark,
+                )
+            size[key] = total
+            continue
+        if key in size:
+            continue
+        if key in open_nodes:
+            raise yaml.composer.ComposerError(None, None, "no recursive alias (a collection inside itself)",
+                                              node.start_mark)
+        open_nodes.add(key)
+        stack.append((node, True))
+        stack.extend((c, False) for c in _children(node) if id(c) not in size)
 
 
 def _construct_strict_mapping(loader: _StrictLoader, node: yaml.MappingNode, deep: bool = False) -> dict:
-    loader.flatten_mapping(node)
+    # Duplicates among the keys written in this mapping; keys brought in by a merge (<<: *base)
+    # may be overridden by written ones, as YAML's merge key means.
     seen: set = set()
     for key_node, _ in node.value:
+        if key_node.tag == _MERGE_TAG:
+            continue
         key = loader.construct_object(key_node, deep=True)
         try:
             duplicate = key in seen
@@ -415,28 +529,101 @@ def _construct_strict_mapping(loader: _StrictLoader, node: yaml.MappingNode, dee
             break
         if duplicate:
             raise yaml.constructor.ConstructorError(
-                "while constructing a mapping", node.start_mark, f"found duplicate key {key!r}", key_node.start_mark
+                "while constructing a mapping", node.start_mark, f"found duplicate key {clip_repr(key)}",
+                key_node.start_mark,
             )
+    loader.flatten_mapping(node)
     return loader.construct_mapping(node, deep=deep)
 
 
+def _bounded_number(construct: Callable[[Any, Any], Any]) -> Callable[[Any, Any], Any]:
+    """A number constructor that first refuses scalars longer than ``MAX_NUMBER_CHARS``
+    (Python's int() of a 5000-digit string raises; sexagesimal ints loop over their parts)."""
+
+    def construct_bounded(loader: _StrictLoader, node: yaml.ScalarNode) -> Any:
+        if len(node.value) > MAX_NUMBER_CHARS:
+            raise yaml.constructor.ConstructorError(
+                None, None,
+                f"a number written with at most {MAX_NUMBER_CHARS} characters (swarm_env.limits.MAX_NUMBER_CHARS), "
+                f"got {len(node.value)}", node.start_mark,
+            )
+        return construct(loader, node)
+
+    return construct_bounded
+
+
 _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_strict_mapping)
+_StrictLoader.add_constructor("tag:yaml.org,2002:int", _bounded_number(yaml.SafeLoader.construct_yaml_int))
+_StrictLoader.add_constructor("tag:yaml.org,2002:float", _bounded_number(yaml.SafeLoader.construct_yaml_float))
+
+
+def _yaml_problem(exc: Exception) -> str:
+    """A YAML error as one short line: what, and where (line, column), never the file's text."""
+    if isinstance(exc, yaml.MarkedYAMLError):
+        what = "; ".join(str(p) for p in (exc.context, exc.problem) if p)
+        mark = exc.problem_mark or exc.context_mark
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        return printable(what, 200) + where
+    return printable(f"{type(exc).__name__}: {exc}", 200)
+
+
+def _read_text(path: Path) -> str:
+    """The text of the scenario file ``path``, read only when it is a regular file of at most
+    ``MAX_FILE_BYTES`` bytes (a FIFO, a device such as /dev/zero, a directory or a symlink to
+    one of them is refused before reading)."""
+    src = str(path)
+    try:
+        # O_NONBLOCK: opening a FIFO must not wait for a writer (it is refused just below).
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+    except FileNotFoundError:
+        raise ScenarioError(src, "<file>", "an existing scenario file (not found)") from None
+    except OSError as exc:
+        raise ScenarioError(src, "<file>", f"a readable file ({exc.strerror or exc})") from None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = ("directory" if stat.S_ISDIR(st.st_mode) else "FIFO" if stat.S_ISFIFO(st.st_mode)
+                    else "device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode)
+                    else "socket" if stat.S_ISSOCK(st.st_mode) else "special file")
+            raise ScenarioError(src, "<file>", f"a regular file (this is a {kind})")
+        if st.st_size > MAX_FILE_BYTES:
+            raise ScenarioError(src, "<file>", f"a file of at most {MAX_FILE_BYTES} bytes "
+                                "(swarm_env.limits.MAX_FILE_BYTES)", f"{st.st_size} bytes")
+        chunks: list[bytes] = []
+        left = MAX_FILE_BYTES + 1  # a file that grows after fstat is still cut here
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 16))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+        raw = b"".join(chunks)
+    except OSError as exc:
+        raise ScenarioError(src, "<file>", f"a readable file ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+    if len(raw) > MAX_FILE_BYTES:
+        raise ScenarioError(src, "<file>", f"a file of at most {MAX_FILE_BYTES} bytes (swarm_env.limits.MAX_FILE_BYTES)")
+    try:
+        return raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(src, "<file>", f"a UTF-8 text file (byte {exc.start} is not UTF-8)") from None
 
 
 def _load_file(path: Path) -> Scenario:
     src = str(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ScenarioError(src, "<file>", "an existing scenario file (not found)") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise ScenarioError(src, "<file>", f"a readable UTF-8 file ({exc})") from None
+    text = _read_text(path)
     try:
         data = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 - SafeLoader subclass
-    except yaml.YAMLError as exc:
-        raise ScenarioError(src, "<file>", "valid YAML: " + " ".join(str(exc).split())) from None
+    except (yaml.YAMLError, ValueError, OverflowError, TypeError) as exc:
+        # ValueError and friends: constructors of YAML 1.1 types (a timestamp such as 2001-02-30).
+        raise ScenarioError(src, "<file>", "valid YAML: " + _yaml_problem(exc)) from None
     if data is None:
         raise ScenarioError(src, "<file>", "a YAML mapping of sections (the file is empty)")
+    if not isinstance(data, Mapping):
+        # Not the value itself: a text file that is not a scenario would have its first line echoed.
+        raise ScenarioError(src, "<top level>", "a YAML mapping of scenario sections (world, robots, leader, formations); "
+                            f"this file holds a {type(data).__name__}")
     return scenario_from_dict(data, source=src)
 
 
@@ -455,23 +642,27 @@ def _parse_world(src: str, value: Any, ok: _Errors) -> WorldSpec:
     m = _mapping(src, value, "world")
     _check_keys(src, m, "world", _WORLD_KEYS, ("size",), ok)
     size = ok(_sizes, src, m.get("size", _BAD), "world.size", "a positive size (m)")
-    dt = ok(_number, src, m.get("dt", WorldSpec.dt), "world.dt", positive=True)
-    substeps = ok(_integer, src, m.get("substeps", WorldSpec.substeps), "world.substeps", minimum=1)
+    dt = ok(_number, src, m.get("dt", WorldSpec.dt), "world.dt", positive=True, at_most="MAX_DT", at_least="MIN_DT")
+    substeps = ok(_integer, src, m.get("substeps", WorldSpec.substeps), "world.substeps", minimum=1,
+                  at_most="MAX_SUBSTEPS")
     max_time = ok(_number, src, m.get("max_time", WorldSpec.max_time), "world.max_time", positive=True)
-    tol = ok(_number, src, m.get("settle_tolerance", WorldSpec.settle_tolerance), "world.settle_tolerance", positive=True)
+    tol = ok(_number, src, m.get("settle_tolerance", WorldSpec.settle_tolerance), "world.settle_tolerance", positive=True,
+             at_most="MAX_WORLD_SIZE")
     return ok(WorldSpec, size=size, dt=dt, substeps=substeps, max_time=max_time, settle_tolerance=tol)
 
 
 def _parse_robots(src: str, value: Any, ok: _Errors) -> RobotSpec:
     m = _mapping(src, value, "robots")
     _check_keys(src, m, "robots", _ROBOT_KEYS, ("count",), ok)
-    count = ok(_integer, src, m.get("count", _BAD), "robots.count", minimum=1)
-    radius = ok(_number, src, m.get("radius", RobotSpec.radius), "robots.radius", positive=True)
-    max_speed = ok(_number, src, m.get("max_speed", RobotSpec.max_speed), "robots.max_speed", positive=True)
-    max_turn = ok(_number, src, m.get("max_turn_rate", RobotSpec.max_turn_rate), "robots.max_turn_rate", positive=True)
+    count = ok(_integer, src, m.get("count", _BAD), "robots.count", minimum=1, at_most="MAX_ROBOTS")
+    radius = ok(_number, src, m.get("radius", RobotSpec.radius), "robots.radius", positive=True, **_RADIUS)
+    max_speed = ok(_number, src, m.get("max_speed", RobotSpec.max_speed), "robots.max_speed", positive=True, **_SPEED)
+    max_turn = ok(_number, src, m.get("max_turn_rate", RobotSpec.max_turn_rate), "robots.max_turn_rate", positive=True,
+                  at_most="MAX_TURN_RATE")
     max_accel = ok(_optional_positive, src, m.get("max_accel", RobotSpec.max_accel), "robots.max_accel")
     max_turn_accel = ok(_optional_positive, src, m.get("max_turn_accel", RobotSpec.max_turn_accel), "robots.max_turn_accel")
-    wheelbase = ok(_number, src, m.get("wheelbase", RobotSpec.wheelbase), "robots.wheelbase", positive=True)
+    wheelbase = ok(_number, src, m.get("wheelbase", RobotSpec.wheelbase), "robots.wheelbase", positive=True,
+                   at_most="MAX_WORLD_SIZE")
     start = ok(_start, src, m.get("start", "formation"), count, ok)
     return ok(
         RobotSpec,
@@ -492,7 +683,7 @@ def _start(src: str, raw_start: Any, count: int, ok: _Errors) -> Any:
         if raw_start != "formation":
             raise ScenarioError(src, "robots.start", "'formation' or a list of [x, y, theta] poses", raw_start)
         return "formation"
-    poses = _sequence(src, raw_start, "robots.start", "'formation' or a list of [x, y, theta] poses")
+    poses = _sequence(src, raw_start, "robots.start", "'formation' or a list of [x, y, theta] poses", "MAX_ROBOTS", "poses")
     if len(poses) != count:
         raise ScenarioError(
             src, "robots.start", f"one [x, y, theta] pose per follower (robots.count = {count})", f"{len(poses)} poses"
@@ -504,10 +695,12 @@ def _parse_leader(src: str, value: Any, ok: _Errors) -> LeaderSpec:
     m = _mapping(src, value, "leader")
     _check_keys(src, m, "leader", _LEADER_KEYS, ("kind", "path", "speed"), ok)
     kind = ok(_choice, src, m.get("kind", _BAD), "leader.kind", LEADER_KINDS)
-    speed = ok(_number, src, m.get("speed", _BAD), "leader.speed", positive=True)
-    radius = ok(_number, src, m.get("radius", LeaderSpec.radius), "leader.radius", positive=True)
-    max_turn = ok(_number, src, m.get("max_turn_rate", LeaderSpec.max_turn_rate), "leader.max_turn_rate", positive=True)
-    lookahead = ok(_number, src, m.get("lookahead", LeaderSpec.lookahead), "leader.lookahead", positive=True)
+    speed = ok(_number, src, m.get("speed", _BAD), "leader.speed", positive=True, **_SPEED)
+    radius = ok(_number, src, m.get("radius", LeaderSpec.radius), "leader.radius", positive=True, **_RADIUS)
+    max_turn = ok(_number, src, m.get("max_turn_rate", LeaderSpec.max_turn_rate), "leader.max_turn_rate", positive=True,
+                  at_most="MAX_TURN_RATE")
+    lookahead = ok(_number, src, m.get("lookahead", LeaderSpec.lookahead), "leader.lookahead", positive=True,
+                   at_most="MAX_WORLD_SIZE")
     delay = ok(_number, src, m.get("start_delay", LeaderSpec.start_delay), "leader.start_delay", nonnegative=True)
     path = ok(_path, src, m.get("path", _BAD), "leader.path", ok)
     return ok(
@@ -519,12 +712,14 @@ def _parse_leader(src: str, value: Any, ok: _Errors) -> LeaderSpec:
 def _plain_count(robots: Any) -> int | None:
     """``robots.count`` when it is valid although another robots key is not (``None``: unknown)."""
     n = robots.get("count") if isinstance(robots, Mapping) else None
-    return int(n) if isinstance(n, numbers.Integral) and not isinstance(n, (bool, np.bool_)) and n >= 1 else None
+    if not isinstance(n, numbers.Integral) or isinstance(n, (bool, np.bool_)):
+        return None
+    return int(n) if 1 <= int(n) <= _limit("MAX_ROBOTS") else None
 
 
 def _parse_formations(src: str, value: Any, count: int | None, ok: _Errors) -> tuple[FormationSpec, ...]:
     """``count`` is ``robots.count`` (``None`` when that is invalid: the offsets are then not counted)."""
-    items = _sequence(src, value, "formations", "a list of at least one formation entry")
+    items = _sequence(src, value, "formations", "a list of at least one formation entry", "MAX_FORMATIONS", "entries")
     if not items:
         raise ScenarioError(src, "formations", "at least one formation entry (the one active at t = 0)", [])
     return ok.all(tuple(ok(_parse_formation, src, item, f"formations[{i}]", count, ok) for i, item in enumerate(items)))
@@ -535,9 +730,11 @@ def _parse_formation(src: str, item: Any, key: str, count: int | None, ok: _Erro
     _check_keys(src, m, key, _FORMATION_KEYS, ("at", "shape"), ok)
     at = ok(_number, src, m.get("at", _BAD), f"{key}.at", nonnegative=True)
     shape = ok(_choice, src, m.get("shape", _BAD), f"{key}.shape", FORMATION_SHAPES)
-    spacing = ok(_number, src, m.get("spacing", FormationSpec.spacing), f"{key}.spacing", positive=True)
+    spacing = ok(_number, src, m.get("spacing", FormationSpec.spacing), f"{key}.spacing", positive=True,
+                 at_most="MAX_WORLD_SIZE")
     angle = ok(_number, src, m.get("angle", FormationSpec.angle), f"{key}.angle")
-    columns = ok(_integer, src, m.get("columns", FormationSpec.columns), f"{key}.columns", minimum=0)
+    columns = ok(_integer, src, m.get("columns", FormationSpec.columns), f"{key}.columns", minimum=0,
+                 at_most="MAX_ROBOTS")
     offsets = ok(_offsets_of, src, m, key, shape, count, ok)
     return ok(FormationSpec, at=at, shape=shape, spacing=spacing, angle=angle, offsets=offsets, columns=columns)
 
@@ -554,7 +751,7 @@ def _offsets_of(src: str, m: Mapping[str, Any], key: str, shape: str, count: int
     if "offsets" not in m or m["offsets"] is None:
         n = "one" if count is None else str(count)
         raise ScenarioError(src, f"{key}.offsets", f"a list of {n} [x, y] offsets (required by shape 'custom')")
-    pts = _sequence(src, m["offsets"], f"{key}.offsets", "a list of [x, y] offsets")
+    pts = _sequence(src, m["offsets"], f"{key}.offsets", "a list of [x, y] offsets", "MAX_ROBOTS", "offsets")
     if count is not None and len(pts) != count:
         raise ScenarioError(src, f"{key}.offsets", f"one [x, y] offset {per}", f"{len(pts)} offsets")
     return ok.all(tuple(ok(_point, src, p, f"{key}.offsets[{j}]") for j, p in enumerate(pts)))
@@ -571,7 +768,8 @@ def _parse_obstacle(src: str, value: Any, key: str, ok: _Errors) -> Obstacle:
     _check_keys(src, m, key, allowed, allowed[:-1] if kind == "rectangle" else allowed, ok)
     if kind == "circle":
         center = ok(_point, src, m.get("center", _BAD), f"{key}.center")
-        radius = ok(_number, src, m.get("radius", _BAD), f"{key}.radius", positive=True)
+        radius = ok(_number, src, m.get("radius", _BAD), f"{key}.radius", positive=True, at_most="MAX_WORLD_SIZE",
+                    at_least="MIN_OBSTACLE_SIZE")
         return ok(CircleObstacle, center=center, radius=radius)
     if kind == "rectangle":
         center = ok(_point, src, m.get("center", _BAD), f"{key}.center")
@@ -580,7 +778,8 @@ def _parse_obstacle(src: str, value: Any, key: str, ok: _Errors) -> Obstacle:
         return ok(RectangleObstacle, center=center, size=size, angle=angle)
     if "points" not in m:
         return _BAD  # reported by _check_keys
-    pts = _sequence(src, m["points"], f"{key}.points", "a list of at least 3 [x, y] vertices")
+    pts = _sequence(src, m["points"], f"{key}.points", "a list of at least 3 [x, y] vertices", "MAX_POLYGON_VERTICES",
+                    "vertices")
     if len(pts) < 3:
         raise ScenarioError(src, f"{key}.points", "at least 3 [x, y] vertices of a convex polygon", f"{len(pts)} points")
     points = ok.all(tuple(ok(_point, src, p, f"{key}.points[{j}]") for j, p in enumerate(pts)))
@@ -590,8 +789,8 @@ def _parse_obstacle(src: str, value: Any, key: str, ok: _Errors) -> Obstacle:
 def _parse_human(src: str, value: Any, key: str, ok: _Errors) -> HumanSpec:
     m = _mapping(src, value, key)
     _check_keys(src, m, key, _HUMAN_KEYS, ("path",), ok)
-    speed = ok(_number, src, m.get("speed", HumanSpec.speed), f"{key}.speed", positive=True)
-    radius = ok(_number, src, m.get("radius", HumanSpec.radius), f"{key}.radius", positive=True)
+    speed = ok(_number, src, m.get("speed", HumanSpec.speed), f"{key}.speed", positive=True, **_SPEED)
+    radius = ok(_number, src, m.get("radius", HumanSpec.radius), f"{key}.radius", positive=True, **_RADIUS)
     mode = ok(_choice, src, m.get("mode", HumanSpec.mode), f"{key}.mode", HUMAN_MODES)
     delay = ok(_number, src, m.get("start_delay", HumanSpec.start_delay), f"{key}.start_delay", nonnegative=True)
     behavior = ok(_choice, src, m.get("behavior", HumanSpec.behavior), f"{key}.behavior", HUMAN_BEHAVIORS)
@@ -609,10 +808,13 @@ def _parse_sensors(src: str, value: Any, ok: _Errors | None = None) -> SensorSpe
     d = SensorSpec()
     return ok(
         SensorSpec,
-        lidar_rays=ok(_integer, src, m.get("lidar_rays", d.lidar_rays), "sensors.lidar_rays", minimum=1),
-        lidar_range=ok(_number, src, m.get("lidar_range", d.lidar_range), "sensors.lidar_range", positive=True),
-        neighbors=ok(_integer, src, m.get("neighbors", d.neighbors), "sensors.neighbors", minimum=0),
-        humans=ok(_integer, src, m.get("humans", d.humans), "sensors.humans", minimum=0),
+        lidar_rays=ok(_integer, src, m.get("lidar_rays", d.lidar_rays), "sensors.lidar_rays", minimum=1,
+                      at_most="MAX_LIDAR_RAYS"),
+        lidar_range=ok(_number, src, m.get("lidar_range", d.lidar_range), "sensors.lidar_range", positive=True,
+                       at_most="MAX_WORLD_SIZE"),
+        neighbors=ok(_integer, src, m.get("neighbors", d.neighbors), "sensors.neighbors", minimum=0,
+                     at_most="MAX_NEIGHBORS"),
+        humans=ok(_integer, src, m.get("humans", d.humans), "sensors.humans", minimum=0, at_most="MAX_SENSED_HUMANS"),
     )
 
 
@@ -633,6 +835,42 @@ def _parse_reward(src: str, value: Any, ok: _Errors | None = None) -> RewardSpec
 
 
 # --------------------------------------------------------------------------- cross-section checks
+
+
+def _check_bounds(src: str, scn: Scenario, ok: _Errors) -> None:
+    """The bounds of :mod:`swarm_env.limits` that set the work of validating and simulating ``scn``,
+    for scenarios built in Python (the ``random`` generator's): a file's values were checked
+    one by one as they were parsed. Also the derived count: control steps per episode."""
+    w, r, se = scn.world, scn.robots, scn.sensors
+    counts = (
+        (r.count, "robots.count", "MAX_ROBOTS", "followers"),
+        (len(scn.humans), "humans", "MAX_HUMANS", "entries"),
+        (len(scn.obstacles), "obstacles", "MAX_OBSTACLES", "entries"),
+        (len(scn.formations), "formations", "MAX_FORMATIONS", "entries"),
+        (len(scn.leader.path), "leader.path", "MAX_WAYPOINTS", "waypoints"),
+        (w.substeps, "world.substeps", "MAX_SUBSTEPS", "substeps"),
+        (se.lidar_rays, "sensors.lidar_rays", "MAX_LIDAR_RAYS", "rays"),
+        (se.neighbors, "sensors.neighbors", "MAX_NEIGHBORS", "rows"),
+        (se.humans, "sensors.humans", "MAX_SENSED_HUMANS", "rows"),
+    )
+    for n, key, limit, what in counts:
+        ok(_count_limit, src, int(n), key, limit, what)
+    for i, side in enumerate(w.size):
+        if not 0.0 < side <= MAX_WORLD_SIZE:
+            ok.add(ScenarioError(src, f"world.size[{i}]", f"a positive size (m) of at most {_bound_text('MAX_WORLD_SIZE')}",
+                                 side))
+    if not (math.isfinite(w.dt) and math.isfinite(w.max_time)) or not _limit("MIN_DT") <= w.dt <= _limit("MAX_DT"):
+        ok.add(ScenarioError(src, "world.dt", f"a control period in [{_limit('MIN_DT'):g}, {_limit('MAX_DT'):g}] s "
+                             "(swarm_env.limits.MIN_DT, MAX_DT) and a finite max_time", w.dt))
+        return
+    steps = math.floor(w.max_time / w.dt + 1e-9)
+    if steps > MAX_EPISODE_STEPS:
+        ok.add(ScenarioError(
+            src, "world.max_time",
+            f"at most {_bound_text('MAX_EPISODE_STEPS')} control steps per episode: max_time / dt = "
+            f"{w.max_time:g} / {w.dt:g} = {steps} steps (shorten max_time or lengthen dt)",
+            w.max_time,
+        ))
 
 
 def _check_world(src: str, scn: Scenario) -> None:
@@ -680,8 +918,10 @@ def _check_schedule(src: str, scn: Scenario, ok: _Errors) -> None:
         elif f.at <= prev_at:
             ok.add(ScenarioError(src, f"{key}.at", f"a time strictly after the previous entry's at = {prev_at}", f.at))
         prev_at = f.at
-        if not 0.0 < f.angle < 180.0:
-            ok.add(ScenarioError(src, f"{key}.angle", "an arm half-opening in degrees within (0, 180)", f.angle))
+        lo = _limit("MIN_FORMATION_ANGLE")
+        if not lo <= f.angle <= 180.0 - lo:
+            ok.add(ScenarioError(src, f"{key}.angle", f"an arm half-opening in degrees within [{lo:g}, {180 - lo:g}] "
+                                 "(swarm_env.limits.MIN_FORMATION_ANGLE)", f.angle))
         if f.shape == "wedge" and f.angle == 90.0:
             ok.add(ScenarioError(
                 src, f"{key}.angle", "a wedge half-opening other than 90 degrees (its rows would coincide)", f.angle
@@ -808,6 +1048,13 @@ def _check_start(src: str, scn: Scenario) -> None:
             i = int(bad[0])
             fail(i, f"follower discs clear of obstacles (follower {i} at ({xy[i, 0]:.3g}, {xy[i, 1]:.3g}) is "
                     f"{dist[i]:.3g} m from one, radius {r:g})")
+        for j, hum in enumerate(scn.humans):  # a human that starts inside an obstacle is stuck (or pushed out)
+            dh = float(static.distance(np.asarray(hum.path[0], dtype=np.float64), walls=False))
+            if dh < hum.radius - 1e-6:
+                raise ScenarioError(
+                    src, f"humans[{j}].path[0]", f"a human start clear of obstacles (its disc of radius {hum.radius:g} m "
+                    f"is {dh:.3g} m from one)", list(hum.path[0]),
+                )
         if scn.leader.kind == "robot":
             d0 = float(static.distance(np.asarray(scn.leader.path[0], dtype=np.float64), walls=False))
             if d0 < scn.leader.radius - 1e-6:
@@ -863,7 +1110,7 @@ def _convex_ccw(src: str, points: Sequence[Point], key: str) -> tuple[Point, ...
 
 
 def _path(src: str, value: Any, key: str, ok: _Errors) -> tuple[Point, ...]:
-    pts = _sequence(src, value, key, "a list of at least 2 [x, y] waypoints")
+    pts = _sequence(src, value, key, "a list of at least 2 [x, y] waypoints", "MAX_WAYPOINTS", "waypoints")
     if len(pts) < 2:
         raise ScenarioError(src, key, "at least 2 [x, y] waypoints", f"{len(pts)} points")
     return ok.all(tuple(ok(_point, src, p, f"{key}[{i}]") for i, p in enumerate(pts)))
@@ -896,33 +1143,76 @@ def _inside(src: str, p: Point, margin: float, world: WorldSpec, key: str, what:
 # --------------------------------------------------------------------------- value helpers
 
 
+class _Shown:
+    """A value as an error message shows it (its bounded repr), standing in for a large one."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+    def __repr__(self) -> str:
+        return self.text
+
+
 def _short(value: Any) -> Any:
-    text = repr(value)
-    return value if len(text) <= 80 else text[:77] + "..."
+    """``value`` itself when it is a scalar, else its bounded repr (:func:`swarm_env.limits.clip_repr`):
+    an error never holds on to, or walks the whole of, a huge or self-containing structure."""
+    if value is None or isinstance(value, (bool, float, str)) or (isinstance(value, int) and value.bit_length() <= 256):
+        return value
+    return _Shown(clip_repr(value))
 
 
 def _is_number(value: Any) -> bool:
     return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
 
 
+def _limit(name: str) -> float:
+    """The value of the bound ``name`` of :data:`swarm_env.limits.LIMITS`."""
+    return LIMITS[name][0]
+
+
+def _bound_text(name: str) -> str:
+    """How a message names a bound: its value and where it is defined."""
+    return f"{_limit(name):g} (swarm_env.limits.{name})"
+
+
 def _number(
-    src: str, value: Any, key: str, *, positive: bool = False, nonnegative: bool = False
+    src: str,
+    value: Any,
+    key: str,
+    *,
+    positive: bool = False,
+    nonnegative: bool = False,
+    at_most: str = "MAX_ABS_NUMBER",
+    at_least: str | None = None,
 ) -> float:
+    """A finite real number; ``at_most`` / ``at_least`` name its bounds in :data:`swarm_env.limits.LIMITS`
+    (``at_most`` bounds the magnitude of a signed number)."""
     kind = "a positive number" if positive else "a non-negative number" if nonnegative else "a number"
     if not _is_number(value):
         hint = ""
         if isinstance(value, str):
             try:
                 float(value)
-                hint = " (YAML 1.1 reads exponents without a dot, like 1e3, as text: write 1.0e3)"
-            except ValueError:
+                hint = (" (YAML 1.1 reads numbers with an exponent as text unless they have a dot and a signed "
+                        "exponent: write 1.0e+3, not 1e3 or 1.0e3)")
+            except (ValueError, OverflowError):
                 pass
         raise ScenarioError(src, key, kind + hint, _short(value))
-    x = float(value)
+    try:
+        x = float(value)
+    except OverflowError:  # an integer beyond float range (from a dict: files bound their digits)
+        x = math.inf if value > 0 else -math.inf
     if not math.isfinite(x):
-        raise ScenarioError(src, key, "a finite " + kind.removeprefix("a "), x)
+        raise ScenarioError(src, key, "a finite " + kind.removeprefix("a "), _short(value))
     if (positive and x <= 0) or (nonnegative and x < 0):
-        raise ScenarioError(src, key, kind, value)
+        raise ScenarioError(src, key, kind, _short(value))
+    hi = _limit(at_most)
+    signed = not (positive or nonnegative)
+    if (abs(x) if signed else x) > hi:
+        what = "magnitude" if signed else "value"
+        raise ScenarioError(src, key, f"{kind} of {what} at most {_bound_text(at_most)}", _short(value))
+    if at_least is not None and x < _limit(at_least):
+        raise ScenarioError(src, key, f"{kind} of at least {_bound_text(at_least)}", _short(value))
     return x
 
 
@@ -934,17 +1224,37 @@ def _optional_positive(src: str, value: Any, key: str) -> float | None:
     return _number(src, value, key, positive=True)
 
 
-def _integer(src: str, value: Any, key: str, *, minimum: int) -> int:
+def _count_limit(src: str, n: int, key: str, limit: str, what: str) -> None:
+    """``n`` (a number of entries, items or the like) is at most the bound ``limit``."""
+    if n > _limit(limit):
+        raise ScenarioError(src, key, f"at most {_bound_text(limit)} {what}", f"{n} {what}")
+
+
+def _integer(src: str, value: Any, key: str, *, minimum: int, at_most: str) -> int:
+    """An integer in ``[minimum, LIMITS[at_most]]``."""
+    hi = int(_limit(at_most))
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Integral):
-        raise ScenarioError(src, key, f"an integer >= {minimum}", _short(value))
+        raise ScenarioError(src, key, f"an integer in [{minimum}, {hi}]", _short(value))
     if int(value) < minimum:
-        raise ScenarioError(src, key, f"an integer >= {minimum}", int(value))
+        raise ScenarioError(src, key, f"an integer >= {minimum}", _short(value))
+    if int(value) > hi:
+        raise ScenarioError(src, key, f"an integer of at most {_bound_text(at_most)}", _short(value))
     return int(value)
 
 
-def _string(src: str, value: Any, key: str, *, nonempty: bool = False) -> str:
+def _string(src: str, value: Any, key: str, *, at_most: str, nonempty: bool = False, allowed: str = "") -> str:
+    """A string of at most ``LIMITS[at_most]`` characters without control, bidi or other invisible
+    characters (those in ``allowed`` excepted): it is printed by ``swarm-env`` and written in files."""
     if not isinstance(value, str) or (nonempty and not value.strip()):
         raise ScenarioError(src, key, "a non-empty string" if nonempty else "a string", _short(value))
+    if len(value) > _limit(at_most):
+        raise ScenarioError(src, key, f"a string of at most {_bound_text(at_most)} characters",
+                            f"{len(value)} characters")
+    bad = unprintable_chars(value, allowed)
+    if bad:
+        shown = ", ".join(printable(c) for c in bad[:5])
+        raise ScenarioError(src, key, "a string without control, bidi or other invisible characters "
+                            f"(found {shown})", _short(value))
     return value
 
 
@@ -962,18 +1272,23 @@ def _mapping(src: str, value: Any, key: str) -> Mapping[str, Any]:
     return value
 
 
-def _sequence(src: str, value: Any, key: str, expected: str) -> list[Any]:
+def _sequence(src: str, value: Any, key: str, expected: str, at_most: str | None = None, what: str = "items") -> list[Any]:
+    """A list (of at most ``LIMITS[at_most]`` ``what``, checked before it is copied)."""
     if isinstance(value, np.ndarray):
+        if at_most is not None:
+            _count_limit(src, len(value), key, at_most, what)
         value = value.tolist()
     if isinstance(value, (str, bytes)) or not isinstance(value, Sequence):
         raise ScenarioError(src, key, expected, _short(value))
+    if at_most is not None:
+        _count_limit(src, len(value), key, at_most, what)
     return list(value)
 
 
 def _numbers(src: str, value: Any, key: str, n: int, form: str) -> tuple[float, ...]:
-    seq = _sequence(src, value, key, f"a list {form}")
-    if len(seq) != n:
+    if isinstance(value, Sequence) and not isinstance(value, (str, bytes)) and len(value) != n:
         raise ScenarioError(src, key, f"a list {form} of {n} numbers", _short(value))
+    seq = _sequence(src, value, key, f"a list {form}")
     return tuple(_number(src, v, f"{key}[{i}]") for i, v in enumerate(seq))
 
 
@@ -983,19 +1298,24 @@ def _point(src: str, value: Any, key: str) -> Point:
 
 
 def _sizes(src: str, value: Any, key: str, expected: str) -> Point:
-    """A ``[w, h]`` pair of positive numbers (``expected`` says what each is)."""
+    """A ``[w, h]`` pair of positive numbers of at most ``MAX_WORLD_SIZE`` (``expected`` says what each is)."""
     size = _point(src, value, key)
     for i, v in enumerate(size):
         if v <= 0:
             raise ScenarioError(src, f"{key}[{i}]", expected, v)
+        if v < MIN_OBSTACLE_SIZE:  # world sides are far above it; a thinner rectangle is degenerate
+            raise ScenarioError(src, f"{key}[{i}]", f"{expected} of at least {_bound_text('MIN_OBSTACLE_SIZE')}", v)
+        if v > MAX_WORLD_SIZE:
+            raise ScenarioError(src, f"{key}[{i}]", f"{expected} of at most {_bound_text('MAX_WORLD_SIZE')}", v)
     return size
 
 
-def _parse_list(src: str, value: Any, key: str, parse: Callable[..., Any], ok: _Errors) -> tuple:
-    """``parse(src, item, "key[i]", ok)`` of every item of an optional list section (``None``: empty)."""
+def _parse_list(src: str, value: Any, key: str, parse: Callable[..., Any], at_most: str, ok: _Errors) -> tuple:
+    """``parse(src, item, "key[i]", ok)`` of every item of an optional list section (``None``: empty)
+    of at most ``LIMITS[at_most]`` entries."""
     if value is None:
         return ()
-    items = _sequence(src, value, key, "a list")
+    items = _sequence(src, value, key, "a list", at_most, "entries")
     return ok.all(tuple(ok(parse, src, item, f"{key}[{i}]", ok) for i, item in enumerate(items)))
 
 
@@ -1006,9 +1326,9 @@ def _check_keys(
     prefix = f"{key}." if key else ""
     for k in m:
         if not isinstance(k, str):
-            ok.add(ScenarioError(src, f"{prefix}{k!r}", "string keys", k))
+            ok.add(ScenarioError(src, f"{prefix}{clip_repr(k)}", "string keys", _short(k)))
         elif k not in allowed:
-            close = difflib.get_close_matches(k, allowed, n=1)
+            close = difflib.get_close_matches(k, allowed, n=1) if len(k) <= 100 else []  # a typo is short
             hint = f" (did you mean {close[0]!r}?)" if close else ""
             where = f"the keys of {key}" if key else "the top-level sections"
             ok.add(ScenarioError(src, f"{prefix}{k}", f"one of {where}: {', '.join(allowed)}{hint}", k))

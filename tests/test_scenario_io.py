@@ -294,7 +294,7 @@ BAD_CASES = [
     ("offsets_on_v", _set("formations.0.offsets", [[-1, 1], [-1, -1]]), "formations[0].offsets", "custom"),
     ("columns_on_v", _set("formations.0.columns", 2), "formations[0].columns", "grid"),
     ("spacing_tight", _set("formations.0.spacing", 0.3), "formations[0].spacing", "apart"),
-    ("angle_range", _set("formations.0.angle", 180), "formations[0].angle", "(0, 180)"),
+    ("angle_range", _set("formations.0.angle", 180), "formations[0].angle", "within [1, 179]"),
     ("wedge_90", _set("formations.0", {"at": 0.0, "shape": "wedge", "angle": 90}), "formations[0].angle", "90"),
     ("obstacle_type", _set("obstacles.0", {"type": "triangle"}), "obstacles[0].type", "polygon"),
     ("obstacle_no_type", _set("obstacles.0", {"center": [1, 1]}), "obstacles[0].type", "required"),
