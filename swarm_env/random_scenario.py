@@ -97,6 +97,11 @@ IntRange = int | tuple[int, int]
 # The leader kinds of swarm_env.scenario.LeaderSpec.
 LeaderKind = Literal["virtual", "robot"]
 
+
+def _span(spec: IntRange) -> tuple[int, int]:
+    """A knob's ``(lo, hi)`` (``RandomScenarioConfig`` stores every count as a pair after validation)."""
+    return (spec, spec) if isinstance(spec, int) else spec
+
 # Tunables of the layout that are not knobs (they shape "a sensible world", not its difficulty).
 _TRAVEL_FRACTION = 0.7  # the leader's path takes this share of max_time
 _MAX_TURN = math.radians(60.0)  # largest heading change at a waypoint
@@ -758,11 +763,6 @@ def _ray_room(p: np.ndarray, u: np.ndarray, want: float, margin: float, W: float
 def _samples(line: PolylinePath) -> np.ndarray:
     k = max(2, int(math.ceil(line.length / _SAMPLE_STEP)) + 1)
     return line.points_at(np.linspace(0.0, line.length, k))
-
-
-def _span(spec: IntRange) -> tuple[int, int]:
-    """A knob's ``(lo, hi)`` (``RandomScenarioConfig`` stores every count as a pair after validation)."""
-    return (spec, spec) if isinstance(spec, int) else spec
 
 
 def _draw_int(rng: np.random.Generator, spec: IntRange) -> int:
