@@ -102,6 +102,7 @@ def _span(spec: IntRange) -> tuple[int, int]:
     """A knob's ``(lo, hi)`` (``RandomScenarioConfig`` stores every count as a pair after validation)."""
     return (spec, spec) if isinstance(spec, int) else spec
 
+
 # Tunables of the layout that are not knobs (they shape "a sensible world", not its difficulty).
 _TRAVEL_FRACTION = 0.7  # the leader's path takes this share of max_time
 _MAX_TURN = math.radians(60.0)  # largest heading change at a waypoint
