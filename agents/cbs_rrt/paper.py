@@ -19,6 +19,7 @@ imported lazily (it is an optional dependency, ``pip install swarm-env[plots]``)
 from __future__ import annotations
 
 import argparse
+import json
 import statistics
 import time
 from pathlib import Path
@@ -240,6 +241,36 @@ def slot_error(states: list[WorldState], out: Path | None, settled_at: float | N
 # ------------------------------------------------------------------------------- page
 
 
+def _scaling_section(out: Path, rel: str) -> list[str]:
+    """The planning-time section, from the timing benchmark's files in ``out`` (``bench.json``, ``scaling.png``:
+    ``python benchmarks/cbs_rrt_bench.py --quick --plot OUT/scaling.png --json OUT/bench.json``); empty without them."""
+    bench, figure = out / "bench.json", out / "scaling.png"
+    if not (bench.is_file() and figure.is_file()):
+        return []
+    data = json.loads(bench.read_text())
+    paper_rows, scale = data.get("paper_cbs_switch", []), data.get("scaling", [])
+    lines = [
+        "## Planning time and swarm size",
+        "",
+        f"From `python benchmarks/cbs_rrt_bench.py --quick --plot {out.as_posix()}/scaling.png --json "
+        f"{out.as_posix()}/bench.json` (CPU time of the process; budgets are iteration counts, so the plans do not",
+        "depend on the machine, only the times do). Issue 12's targets: per-replan p95 <= 100 ms and <= 2 s per",
+        "`paper_cbs_switch` episode at 8 followers; per-replan median <= 100 ms and p95 <= 300 ms at 32.",
+        "",
+        "| case | replans | CPU per replan, median (ms) | p95 (ms) | CPU per episode (s) |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for r in paper_rows:
+        lines.append(f"| paper_cbs_switch seed {r['seed']} | {r['replans']} | {r['replan_cpu_ms_median']:.0f} | "
+                     f"{r['replan_cpu_ms_p95']:.0f} | {r['planning_cpu_s']:.2f} |")
+    for r in scale:
+        lines.append(f"| random, {r['n_followers']} followers (median of {len(r['episodes'])} seed(s)) | "
+                     f"{r['replans']:.0f} | {r['replan_cpu_ms_median']:.0f} | {r['replan_cpu_ms_p95']:.0f} | "
+                     f"{r['planning_total_s']:.2f} (wall) |")
+    lines += ["", f"![planning time against swarm size]({rel}/scaling.png)", ""]
+    return lines
+
+
 def _fmt(x: Any, nd: int = 1) -> str:
     return "never" if x is None else f"{x:.{nd}f}"
 
@@ -379,6 +410,7 @@ def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path,
         "",
         f"![before and after CBS]({rel}/cbs_before_after.png)",
         "",
+        *_scaling_section(out, rel),
         "## Telemetry",
         "",
         "`policy_stats` (in `swarm-env run --json` output and `run_episode`): `replans` and `replan_reasons`,",
