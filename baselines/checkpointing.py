@@ -23,6 +23,7 @@ import shutil
 import signal
 import sys
 import threading
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -113,6 +114,32 @@ def ignore_interrupts() -> None:
 
 
 # --------------------------------------------------------------------------- checkpoint files
+
+
+def run_training(start: Callable[[], Path]) -> Path | int:
+    """A trainer's command line around ``start()`` (a new run or ``--resume``): its run directory, or the exit
+    code after one line on stderr: the signal's code (130/143) for :class:`TrainingInterrupted`, 130 for a
+    second Ctrl-C (nothing saved since the last checkpoint), 2 for a bad option, run name or file."""
+    try:
+        return start()
+    except TrainingInterrupted as exc:
+        print(exc, file=sys.stderr)
+        return exc.exit_code
+    except KeyboardInterrupt:
+        print("stopped at once: nothing saved since the last checkpoint", file=sys.stderr)
+        return 130
+    except (ValueError, TypeError, FileExistsError, FileNotFoundError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+
+
+def claim_run_dir(run_dir: Path) -> Path:
+    """Create ``run_dir`` for a new run; ``FileExistsError`` pointing to ``--resume`` if it holds one already."""
+    if (run_dir / "config.json").exists():
+        raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name, "
+                              f"or continue it with --resume {run_dir}")
+    run_dir.mkdir(parents=True, exist_ok=True)
+    return run_dir
 
 
 def resume_config(run_dir: str | Path, overrides: dict[str, Any], allowed: tuple[str, ...]) -> Path:

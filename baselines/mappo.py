@@ -644,14 +644,12 @@ def train(cfg: MAPPOConfig) -> Path:
     :class:`~swarm_env_baselines.checkpointing.TrainingInterrupted`; :func:`resume` goes on from there.
     Raises ``FileExistsError`` if the run directory already holds a run.
     """
+    from swarm_env_baselines.checkpointing import claim_run_dir
     from swarm_env_baselines.train import package_versions
 
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     run_dir = Path(cfg.runs_dir) / (cfg.run_name or f"{cfg.kind}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}")
-    if (run_dir / "config.json").exists():
-        raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name, "
-                              f"or continue it with --resume {run_dir}")
-    run_dir.mkdir(parents=True, exist_ok=True)
+    claim_run_dir(run_dir)
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
     write_json(run_dir / "versions.json", package_versions())
     for name, columns in (("eval.csv", EVAL_COLUMNS), ("train.csv", TRAIN_COLUMNS)):
@@ -893,26 +891,19 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env_baselines.checkpointing import TrainingInterrupted
+    from swarm_env_baselines.checkpointing import run_training
 
     args = vars(build_parser().parse_args(argv))
     for name in ("env_kwargs", "train_env_kwargs"):
         if name in args:
             args[name] = dict(args[name])
-    try:
-        if "resume" in args:
-            run = resume(args.pop("resume"), **args)
-        else:
-            run = train(MAPPOConfig(**args))
-    except TrainingInterrupted as exc:
-        print(exc, file=sys.stderr)
-        return exc.exit_code
-    except KeyboardInterrupt:
-        print("stopped at once: nothing saved since the last checkpoint", file=sys.stderr)
-        return 130
-    except (TypeError, ValueError, FileExistsError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    if "resume" in args:
+        where = args.pop("resume")
+        run = run_training(lambda: resume(where, **args))
+    else:
+        run = run_training(lambda: train(MAPPOConfig(**args)))
+    if isinstance(run, int):
+        return run
     print(run)
     print((run / "summary.json").read_text())
     return 0

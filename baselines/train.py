@@ -138,13 +138,12 @@ def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
     raised; :func:`resume` goes on from there. Raises ``FileExistsError`` if the run directory already
     holds a run.
     """
+    from swarm_env_baselines.checkpointing import claim_run_dir
+
     stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
     name = cfg.run_name or f"{cfg.algo}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}"
     run_dir = Path(cfg.runs_dir) / name
-    if (run_dir / "config.json").exists():
-        raise FileExistsError(f"run directory {run_dir} already holds a run; pick another --run-name, "
-                              f"or continue it with --resume {run_dir}")
-    run_dir.mkdir(parents=True, exist_ok=True)
+    claim_run_dir(run_dir)
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
     write_json(run_dir / "versions.json", package_versions())
     return _learn(cfg, run_dir, None, trust_pickle)
@@ -320,27 +319,22 @@ def config_from_args(argv: list[str] | None = None) -> TrainConfig:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env_baselines.checkpointing import TrainingInterrupted
+    from swarm_env_baselines.checkpointing import run_training
 
     args = vars(build_parser().parse_args(argv))
-    try:
-        trust = args.pop("trust_pickle", False) or None
+    trust = args.pop("trust_pickle", False) or None
+
+    def start() -> Path:
         if args.get("resume"):
             if args.get("config"):
                 raise ValueError("--resume continues the run's own config.json: drop --config")
-            run_dir = resume(args["resume"], trust_pickle=trust,
-                             **{k: v for k, v in args.items() if k not in ("resume", "config")})
-        else:
-            run_dir = train(config_from_args(argv), trust_pickle=trust)
-    except TrainingInterrupted as exc:
-        print(exc, file=sys.stderr)
-        return exc.exit_code
-    except KeyboardInterrupt:
-        print("stopped at once: nothing saved since the last checkpoint", file=sys.stderr)
-        return 130
-    except (ValueError, TypeError, FileExistsError, FileNotFoundError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+            return resume(args["resume"], trust_pickle=trust,
+                          **{k: v for k, v in args.items() if k not in ("resume", "config")})
+        return train(config_from_args(argv), trust_pickle=trust)
+
+    run_dir = run_training(start)
+    if isinstance(run_dir, int):
+        return run_dir
     print(run_dir)
     summary = json.loads((run_dir / "summary.json").read_text())
     print(dumps(summary))
