@@ -202,6 +202,7 @@ def _killed_writer_probes(tmp: Path) -> list[tuple[str, Callable[[], bool]]]:
         def probe() -> bool:
             path = tmp / f"k{sig}.mp4"
             proc = subprocess.Popen(CLI + ["run", "--scenario", "paper_cbs_switch", "--policy", "vo", "--video", str(path)],
+                                    preexec_fn=_default_sigint,
                                     cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                                     env={**os.environ, "SDL_VIDEODRIVER": "dummy"})
             deadline = time.monotonic() + TIMEOUT
@@ -257,6 +258,7 @@ def _sweep_probes(tmp: Path) -> list[tuple[str, Callable[[], bool]]]:
     def interrupted() -> bool:
         out = tmp / "lb-int"
         proc = subprocess.Popen(CLI + base + ["--policies", "slow:0,1,2", "--out", str(out)], cwd=ROOT,
+                                preexec_fn=_default_sigint,
                                 stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
                                 env={**os.environ, **env, "SWARM_ENV_FAULT_SLEEP": "30"})
         stream = out / "episodes.jsonl"
@@ -289,6 +291,12 @@ CATEGORIES: dict[str, Callable[[Path], list[tuple[str, Callable[[], bool]]]]] = 
     "output: writer killed mid-file": _killed_writer_probes,
     "evaluate: dead, hung or interrupted workers": _sweep_probes,
 }
+
+
+def _default_sigint() -> None:
+    """In a probe's child: SIGINT handled by default, as at a terminal (a script started in the background
+    inherits an ignored SIGINT, and its Ctrl-C probes would then test nothing)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def probes(quick: bool = False, details: list[dict[str, Any]] | None = None) -> list[dict[str, Any]]:

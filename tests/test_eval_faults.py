@@ -176,7 +176,10 @@ def test_ctrl_c_exits_130_with_partial_results_and_resume_finishes(faults: Path,
     cmd = [sys.executable, "-m", "swarm_env.harness.cli", "evaluate", "--policies", "slow:0,1,2", "--scenarios",
            "paper_vo_0", "--seeds", "0-2", "--max-cycles", "20", "--quiet", "--out", str(out)]
     env = {**os.environ, "SWARM_ENV_FAULT_SLEEP": "30"}
-    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # (SIGINT handled by default in the child, as at a terminal: a runner that started this suite in the
+    # background would otherwise pass its ignored SIGINT on to it)
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     stream = out / EPISODES_FILE
     deadline = time.monotonic() + 300
     while time.monotonic() < deadline and not (stream.is_file() and stream.read_text().count("\n") >= 1):
