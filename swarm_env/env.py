@@ -619,4 +619,5 @@ def _step_limit(max_time: float, dt: float, max_cycles: int | None) -> int:
 
 
 def _clone_space(space: gymnasium.spaces.Box) -> gymnasium.spaces.Box:
-    return gymnasium.spaces.Box(space.low.copy(), space.high.copy(), dtype=space.dtype)
+    dtype: Any = space.dtype  # (gymnasium's stubs type Box.dtype more loosely than its argument)
+    return gymnasium.spaces.Box(space.low.copy(), space.high.copy(), dtype=dtype)

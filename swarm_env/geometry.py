@@ -29,6 +29,7 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.compiled import compiled_kernels
 from swarm_env.scenario import CircleObstacle, Obstacle, PolygonObstacle, RectangleObstacle
 
 WALL_NAMES = ("bottom", "right", "top", "left")  # wall index order 0..3
@@ -289,6 +290,19 @@ class StaticMap:
             poly_edges.append(tuple(rows))
         put(self, "_owner_sd_data", (tuple(tuple(float(v) for v in row) for row in circles), tuple(poly_edges)))
 
+    def kernel_arrays(self) -> tuple:
+        """The map as :mod:`swarm_env.clearance_kernel` takes it, after the point:
+        ``(W, H, bound, circles, P, Mmax, ax, ay, ex, ey, inv_ee, nx, ny)`` (the bounding discs of
+        :meth:`distance_lower_bound`, then the padded polygon edges edge-major, index ``m * P + p``)."""
+        hit = self.__dict__.get("_kernel")
+        if hit is None:  # built once (a cache beside the frozen fields)
+            f = self._flat
+            W, H = self.size
+            hit = (W, H, self._bound, self.circles, f["P"], f["M"],
+                   *(np.ascontiguousarray(f[k].ravel()) for k in ("ax", "ay", "ex", "ey", "inv_ee", "nx", "ny")))
+            self.__dict__["_kernel"] = hit
+        return hit
+
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()
         state["_memo"] = {}  # a cache: not worth pickling
@@ -359,6 +373,11 @@ class StaticMap:
         pts = np.asarray(points, dtype=np.float64)
         shape = pts.shape[:-1]
         pts = pts.reshape(-1, 2)
+        if walls and len(pts) <= _FAST_MAX_POINTS and compiled_kernels():  # the same bits, fewer numpy calls
+            from swarm_env.clearance_kernel import distances
+
+            k = self.kernel_arrays()
+            return distances(np.ascontiguousarray(pts), *k[:2], *k[3:]).reshape(shape)
         step = self._chunk
         if len(pts) <= step:
             return self._distance(pts, walls).reshape(shape)
@@ -398,6 +417,12 @@ class StaticMap:
             return float(upper)
         if math.isfinite(upper) and len(pts) <= _FAST_MAX_POINTS:
             lb = self.distance_lower_bound(pts) if lower is None else lower
+            if compiled_kernels():  # the same number, see swarm_env.clearance_kernel
+                from swarm_env.clearance_kernel import static_min_distance
+
+                k = self.kernel_arrays()
+                return float(static_min_distance(np.ascontiguousarray(pts), np.ascontiguousarray(sub), float(upper),
+                                                 np.asarray(lb, dtype=np.float64), _SCREEN_MARGIN, *k[:2], *k[3:]))
             cand = np.flatnonzero(lb - sub < upper + _SCREEN_MARGIN)
             if len(cand) < len(pts):
                 pts, sub = pts[cand], sub[cand]
@@ -411,6 +436,10 @@ class StaticMap:
         wall is nearest. Meant for skipping exact clearances that cannot matter."""
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 2)
         W, H = self.size
+        if compiled_kernels():  # the same bits, see swarm_env.clearance_kernel
+            from swarm_env.clearance_kernel import lower_bounds
+
+            return lower_bounds(np.ascontiguousarray(pts), W, H, self._bound)
         x, y = pts[:, 0], pts[:, 1]
         lb = np.minimum(np.minimum(x, W - x), np.minimum(y, H - y))  # wall clearance inside the world
         if lb.min() < 0.0:  # outside the world the clearance is lower still

@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from swarm_env.compiled import compiled_kernels
 from swarm_env.geometry import StaticMap
 from swarm_env.scenario import SensorSpec
 from swarm_env.state import WorldState
@@ -130,6 +131,9 @@ def _norm(v: np.ndarray, axis: int) -> np.ndarray:
     return np.sqrt(np.add.reduce(v * v, axis=axis))
 
 
+_NO_DISTANCES = np.zeros((0, 0))
+
+
 class ObservationBuilder:
     """Builds every follower's observation (and the global state) in one vectorised pass."""
 
@@ -179,19 +183,42 @@ class ObservationBuilder:
     def build(self, state: WorldState, lidar: np.ndarray | None = None) -> np.ndarray:
         """(N, size) float32 observations of the N followers of ``state``; ``lidar``: their
         ``(N, rays)`` scan (m) if the caller computed it (:meth:`scan`, for many worlds at once)."""
-        out = self._assemble(state)
-        np.divide(self.lidar([state]) if lidar is None else lidar, self.sensors.lidar_range,
-                  out=out[:, self.layout["lidar"]])
-        np.clip(out, self.low, self.high, out=out)
-        return out.astype(np.float32)
+        obs = self.build_without_lidar(state)
+        self.fill_lidar(obs, self.lidar([state]) if lidar is None else lidar)
+        return obs
 
     def build_without_lidar(self, state: WorldState) -> np.ndarray:
         """:meth:`build` with the lidar columns left at 0, for :meth:`fill_lidar` to complete
         elsewhere (the batched engine's workers, which never load the lidar kernel). The clip
-        and the float32 cast work entry by entry, so the two halves give :meth:`build`'s bits."""
+        and the float32 cast work entry by entry, so the two halves give :meth:`build`'s bits.
+
+        Compiled (:mod:`swarm_env.obs_kernel`) unless :func:`swarm_env.compiled.use_compiled_kernels`
+        turned the kernels off; the numpy reference :meth:`_assemble` gives the same bits."""
+        if compiled_kernels():
+            return self._assemble_compiled(state)
         out = self._assemble(state)
         np.clip(out, self.low, self.high, out=out)
         return out.astype(np.float32)
+
+    def _assemble_compiled(self, state: WorldState) -> np.ndarray:
+        """:meth:`build_without_lidar` by :func:`swarm_env.obs_kernel.assemble`."""
+        from swarm_env.obs_kernel import assemble
+
+        scn = state.scenario
+        n = state.n_followers
+        th = state.follower_pose[:, 2]
+        k = self.sensors.neighbors if n > 1 else 0
+        hk = self.sensors.humans if len(state.human_pos) else 0
+        rel = state.leader_pose[2] - th
+        return assemble(
+            state.follower_pose, state.follower_vel, state.follower_twist,
+            np.array([scn.robots.max_speed, scn.robots.max_turn_rate], dtype=np.float64),
+            np.cos(th), np.sin(th), np.cos(rel), np.sin(rel),
+            float(min(state.next_switch_time - state.time, self.capacity.max_time)),
+            state.leader_pose, np.asarray(state.leader_vel, dtype=np.float64), state.slot_targets,
+            state.follower_distances() if k else _NO_DISTANCES, k, self.layout["neighbors"].start,
+            state.human_pos, state.human_vel, hk, self.layout["humans"].start, self.size, self.low, self.high,
+        )
 
     def fill_lidar(self, obs: np.ndarray, lidar: np.ndarray) -> None:
         """Write the lidar columns of ``obs`` (``(..., size)`` float32, from

@@ -32,11 +32,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from swarm_env.compiled import compiled_kernels
 from swarm_env.scenario import RewardSpec
 from swarm_env.state import LEADER_ID, WorldState
 
 #: What a follower can touch, in the order of the ``contact_*`` terms and of the ``contacts_*`` infos.
 CONTACT_GROUPS = ("robot", "obstacle", "human", "wall")
+_NO_LEADER = np.zeros((0, 3))  # clearance_kernel's "no robot leader"
+_NO_DISTANCES = np.zeros((0, 0))
 _GROUP_OF_KIND = {"robot_robot": 0, "robot_obstacle": 1, "robot_human": 2, "robot_wall": 3}
 REWARD_TERMS = (
     "formation",
@@ -100,6 +103,17 @@ def clearance(state: WorldState, below: float = np.inf) -> np.ndarray:
     (the static clearance of a follower whose cheap lower bound is already ``>= below`` is
     not computed: the clearance reward only needs the followers inside its margin).
     """
+    if compiled_kernels():  # the same bits, see swarm_env.clearance_kernel
+        from swarm_env.clearance_kernel import clearance as compiled
+
+        n = state.n_followers
+        if state.leader_is_robot:
+            leader = np.array([[state.leader_pose[0], state.leader_pose[1], state.leader_radius]])
+        else:
+            leader = _NO_LEADER
+        return compiled(state.follower_pose, state.follower_radius, float(below),
+                        state.follower_distances() if n > 1 else _NO_DISTANCES, leader, state.human_pos,
+                        state.human_radius, *state.static.kernel_arrays())
     pos = state.follower_pose[:, :2]
     r = state.follower_radius
     static = state.static

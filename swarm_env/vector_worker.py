@@ -4,8 +4,9 @@ Started by the engine as ``python -m swarm_env.vector_worker ADDRESS`` with the 
 authentication key on standard input; receives the pickled world factories, then serves
 ``reset`` / ``step`` / ``state`` / ``call`` / ``close`` until told to stop or the engine goes
 away. Imports neither torch nor numba: the engine fills the lidar columns itself, and the
-velocity-obstacle search (robot leaders, the safety layer) runs its numpy reference here, which
-gives the compiled search's bits (``swarm_env.guidance.use_compiled_search``).
+velocity-obstacle search (robot leaders, the safety layer) and the per-step kernels (observations,
+clearances) run their numpy references here, which give the compiled bits
+(``swarm_env.guidance.use_compiled_search``, ``swarm_env.compiled.use_compiled_kernels``).
 """
 
 from __future__ import annotations
@@ -19,9 +20,11 @@ from typing import Any
 
 def serve(address: str, authkey: bytes) -> None:
     from swarm_env import guidance
+    from swarm_env.compiled import use_compiled_kernels
     from swarm_env.vector import _WorldBlock
 
     guidance.use_compiled_search(False)
+    use_compiled_kernels(False)
 
     conn = Client(address, authkey=authkey)
     block: Any = None

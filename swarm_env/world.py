@@ -37,6 +37,7 @@ import pymunk
 
 from swarm_env import formation as formation_lib
 from swarm_env import guidance
+from swarm_env.compiled import compiled_kernels
 from swarm_env.geometry import StaticMap
 from swarm_env.paths import PolylinePath, human_paths, human_states, virtual_leader
 from swarm_env.scenario import Scenario
@@ -105,11 +106,11 @@ _SET_BODY_ANGULAR_VELOCITY = _BODY.angular_velocity.fset
 _SET_BODY_POSITION = _BODY.position.fset
 
 
-def _advance_twist(drive: list, dt: float) -> tuple[float, float]:
+def _advance_twist(drive: np.ndarray, dt: float) -> tuple[float, float]:
     """Move the realised twist of ``drive`` (see :func:`_drive`) towards the command for ``dt`` s."""
-    v_cmd, w_cmd, v, w, dv, dw = drive
-    v = v_cmd if dv is None else v + min(max(v_cmd - v, -dv * dt), dv * dt)
-    w = w_cmd if dw is None else w + min(max(w_cmd - w, -dw * dt), dw * dt)
+    v_cmd, w_cmd, v, w, dv, dw = drive.tolist()
+    v = v_cmd if dv != dv else v + min(max(v_cmd - v, -dv * dt), dv * dt)  # dv != dv: NaN, no limit
+    w = w_cmd if dw != dw else w + min(max(w_cmd - w, -dw * dt), dw * dt)
     drive[2] = v
     drive[3] = w
     return v, w
@@ -124,9 +125,11 @@ def _drive(body: pymunk.Body, gravity: Any, damping: float, dt: float) -> None:
     (measured: 0.11 m of overlap at 0.65 m/s). Setting the wheel velocity here
     lets the contact solver correct it within the same substep.
 
-    ``body.drive`` is the list ``[v_cmd, omega_cmd, v, omega, dv_max, domega_max]``:
+    ``body.drive`` is the float64 array ``[v_cmd, omega_cmd, v, omega, dv_max, domega_max]``:
     the commanded twist, the realised one (updated in place: moved towards the
-    command by at most ``dv_max``/``domega_max`` per second, ``None`` = no limit).
+    command by at most ``dv_max``/``domega_max`` per second, NaN = no limit).
+    :mod:`swarm_env.drive_kernel` compiles the same callback (installed where it passes its
+    self-test); :func:`_install_fast_drive` is the next fastest, then this function.
     """
     v, w = _advance_twist(body.drive, dt)
     a = _BODY_ANGLE(body)
@@ -177,15 +180,33 @@ def _install_fast_drive(body: pymunk.Body) -> None:
 
 
 def _unit_body(
-    position: tuple[float, float], angle: float, radius: float, limits: tuple[float | None, float | None]
+    position: tuple[float, float],
+    angle: float,
+    radius: float,
+    limits: tuple[float | None, float | None],
+    compiled: bool = True,
 ) -> pymunk.Body:
+    """A differential-drive robot's body; ``compiled``: its velocity callback is the compiled one
+    where :mod:`swarm_env.drive_kernel` is available and the compiled kernels are on."""
     body = pymunk.Body(_ROBOT_MASS, pymunk.moment_for_circle(_ROBOT_MASS, 0.0, radius))
     body.position = position
     body.angle = angle
-    body.drive = [0.0, 0.0, 0.0, 0.0, limits[0], limits[1]]
+    body.drive = np.array([0.0, 0.0, 0.0, 0.0, *(math.nan if x is None else float(x) for x in limits)])
     body.velocity_func = _drive
-    _install_fast_drive(body)
+    _install_drive(body, compiled)
     return body
+
+
+def _install_drive(body: pymunk.Body, compiled: bool = True) -> None:
+    """Give ``body`` the fastest velocity callback that gives :func:`_drive`'s bits here."""
+    if isinstance(body.drive, list):  # a world pickled before the drive state became an array
+        body.drive = np.array([math.nan if x is None else float(x) for x in body.drive])
+    if compiled and compiled_kernels():
+        from swarm_env import drive_kernel
+
+        if drive_kernel.install(body):
+            return
+    _install_fast_drive(body)
 
 
 # pymunk.batch.Buffer never frees its C arrays, so there is one per thread (a buffer is
@@ -394,7 +415,7 @@ class World:
         self.__dict__.update(state)
         self._reader = _BodyReader(self.space, self._bodies)
         for body in self._bodies + ([self._leader_body] if self._leader_body is not None else []):
-            _install_fast_drive(body)
+            _install_drive(body)
 
     # ------------------------------------------------------------------ building
     @staticmethod
@@ -609,9 +630,9 @@ class World:
         b = self._leader_body
         return np.array([b.position.x, b.position.y, float(guidance.wrap_angle(b.angle))])
 
-    def snapshot(self) -> WorldState:
-        """A frozen copy of the current state."""
-        raw = self._reader.read()  # (n, 6): x, y, angle, vx, vy, omega
+    def _follower_arrays(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(pose, vel, twist)`` of the followers from the reader's ``(n, 6)`` rows (the numpy
+        reference of :func:`swarm_env.snapshot_kernel.follower_arrays`)."""
         angle = raw[:, 2]
         twist = np.empty((self.n, 2))
         np.add(raw[:, 3] * np.cos(angle), raw[:, 4] * np.sin(angle), out=twist[:, 0])  # forward speed
@@ -619,6 +640,17 @@ class World:
         pose = raw[:, :3].copy()
         pose[:, 2] = guidance.wrap_angle(angle)
         vel = raw[:, 3:5].copy()
+        return pose, vel, twist
+
+    def snapshot(self) -> WorldState:
+        """A frozen copy of the current state."""
+        raw = self._reader.read()  # (n, 6): x, y, angle, vx, vy, omega
+        if compiled_kernels():  # the same bits, see swarm_env.snapshot_kernel
+            from swarm_env.snapshot_kernel import follower_arrays
+
+            pose, vel, twist = follower_arrays(np.ascontiguousarray(raw))
+        else:
+            pose, vel, twist = self._follower_arrays(raw)
         if self._leader_body is None:
             lpose = np.array(self._virtual_pose, dtype=float)
             lvel = np.array(self._virtual_vel, dtype=float)

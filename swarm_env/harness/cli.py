@@ -18,6 +18,7 @@ import argparse
 import contextlib
 import importlib
 import os
+import statistics
 import sys
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -313,14 +314,22 @@ def cmd_bench(args: argparse.Namespace) -> int:
     results = bench.run_bench(args.scenario, steps=args.steps, repeats=args.repeats, seed=args.seed, peer=args.vs,
                               progress=progress)
     rows = [
-        [r.name, str(r.agents), f"{r.median:,.0f}", f"{r.agent_steps_per_s:,.0f}", f"{min(r.env_steps_per_s):,.0f}-{max(r.env_steps_per_s):,.0f}"]
+        [r.name, str(r.agents), f"{r.median:,.0f}", f"{r.cpu_median:,.0f}", f"{r.agent_steps_per_s:,.0f}",
+         f"{min(r.env_steps_per_s):,.0f}-{max(r.env_steps_per_s):,.0f}"]
         for r in results
     ]
-    print(_table(rows, ["env", "agents", "env-steps/s (median)", "agent-steps/s", "range"]))
+    print(_table(rows, ["env", "agents", "env-steps/s (median)", "per CPU s (median)", "agent-steps/s", "range"]))
     if len(results) == 2:
-        print(f"ratio swarm_env / {results[1].name}: {results[0].median / results[1].median:.2f}x")
+        ours, peer = results
+        # the two ran back to back in each repeat: the median of the per-repeat ratios cancels most load drift
+        paired = statistics.median(a / b for a, b in zip(ours.env_steps_per_s, peer.env_steps_per_s))
+        paired_cpu = statistics.median(a / b for a, b in zip(ours.cpu_env_steps_per_s, peer.cpu_env_steps_per_s))
+        print(f"ratio swarm_env / {peer.name}: {ours.median / peer.median:.2f}x of the medians "
+              f"(CPU time: {ours.cpu_median / peer.cpu_median:.2f}x); median of the per-repeat ratios "
+              f"{paired:.2f}x (CPU time: {paired_cpu:.2f}x)")
     if args.json:
-        doc = [{"name": r.name, "agents": r.agents, "env_steps_per_s": r.env_steps_per_s, "median": r.median} for r in results]
+        doc = [{"name": r.name, "agents": r.agents, "env_steps_per_s": r.env_steps_per_s, "median": r.median,
+                "cpu_env_steps_per_s": r.cpu_env_steps_per_s, "cpu_median": r.cpu_median} for r in results]
         _write_json(args.json, doc, args.overwrite)
     return 0
 

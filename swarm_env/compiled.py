@@ -1,0 +1,27 @@
+"""One switch for the compiled (numba) per-step kernels of the core: the observations' assembly
+(:mod:`swarm_env.obs_kernel`) and the followers' clearances (:mod:`swarm_env.clearance_kernel`).
+
+Each kernel has a numpy reference beside it that gives the same bits (their tests compare the
+two on whole episodes). The references import no numba, which is why the batched engine's worker
+processes (:mod:`swarm_env.vector_worker`) switch the kernels off: the workers' memory target. The
+velocity-obstacle search has its own switch (:func:`swarm_env.guidance.use_compiled_search`).
+"""
+
+from __future__ import annotations
+
+_ENABLED = True
+
+
+def use_compiled_kernels(flag: bool) -> None:
+    """Run the per-step kernels compiled (``True``, the default) or as their numpy references
+    (``False``): the same results either way."""
+    global _ENABLED
+    _ENABLED = bool(flag)
+
+
+def compiled_kernels() -> bool:
+    """Whether the per-step kernels run compiled (see :func:`use_compiled_kernels`)."""
+    return _ENABLED
+
+
+__all__ = ["compiled_kernels", "use_compiled_kernels"]
