@@ -3,7 +3,7 @@
     OPENBLAS_NUM_THREADS=1 python benchmarks/step_kernels.py [--steps 1000] [--repeats 5]
 
 The kernels (``swarm_env.compiled``: the observations' assembly, the clearances, the snapshot's
-arrays and the robots' velocity callback) give the references' bits; this measures what they buy.
+arrays, the scripted humans and the robots' velocity callback) give the references' bits; this measures what they buy.
 Two envs of each scenario, one built with the kernels on and one with them off (the velocity
 callback is chosen when a world is built), are stepped with the same random actions, alternating
 repeat by repeat; the table gives the median microseconds per env step over CPU time

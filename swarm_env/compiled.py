@@ -1,5 +1,8 @@
 """One switch for the compiled (numba) per-step kernels of the core: the observations' assembly
-(:mod:`swarm_env.obs_kernel`) and the followers' clearances (:mod:`swarm_env.clearance_kernel`).
+(:mod:`swarm_env.obs_kernel`), the followers' clearances and static distances
+(:mod:`swarm_env.clearance_kernel`), the snapshot's arrays (:mod:`swarm_env.snapshot_kernel`), the
+scripted humans (:mod:`swarm_env.human_kernel`) and the robots' velocity callback
+(:mod:`swarm_env.drive_kernel`, chosen when a world is built).
 
 Each kernel has a numpy reference beside it that gives the same bits (their tests compare the
 two on whole episodes). The references import no numba, which is why the batched engine's worker

@@ -362,6 +362,7 @@ class World:
 
         self._human_bodies: list[pymunk.Body] = []
         self._human_paths = human_paths(scenario.humans)
+        self._packed_humans: Any = None  # swarm_env.human_kernel.PackedHumans, built at first use
         hpos, hvel = human_states(scenario.humans, 0.0, self._human_paths)
         for j, h in enumerate(scenario.humans):
             body = pymunk.Body(body_type=pymunk.Body.KINEMATIC)
@@ -409,6 +410,7 @@ class World:
         state = self.__dict__.copy()
         del state["_reader"]
         state["_crowd"] = None  # RVO2's simulator does not pickle; it is rebuilt at the next step
+        state["_packed_humans"] = None  # rebuilt at first use (and a copy may land where numba is not loaded)
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -517,7 +519,14 @@ class World:
     def _human_states(self, t: float, since_step: float) -> tuple[np.ndarray, np.ndarray]:
         """Every human's position and velocity at time ``t``, ``since_step`` s into the current
         control step: scripted humans on their paths, reactive ones at their step velocity."""
-        pos, vel = human_states(self.scenario.humans, t, self._human_paths)
+        if compiled_kernels():  # the same bits, see swarm_env.human_kernel
+            if self._packed_humans is None:
+                from swarm_env.human_kernel import PackedHumans
+
+                self._packed_humans = PackedHumans(self.scenario.humans, self._human_paths)
+            pos, vel = self._packed_humans.states(t)
+        else:
+            pos, vel = human_states(self.scenario.humans, t, self._human_paths)
         if len(self._reactive):
             pos[self._reactive] = self._react_start + self._react_vel * since_step
             vel[self._reactive] = self._react_vel
