@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarm_env.compiled import compiled_kernels
+from swarm_env_agents.cbs_rrt import kernels
 from swarm_env_agents.cbs_rrt.conflicts import pair_first_conflict
 from swarm_env_agents.cbs_rrt.timed_path import START, TimedPath
 
@@ -133,6 +135,7 @@ class ConstraintTable:
             self.active[i] = (grid >= con.t_start - dt) & (grid <= con.t_end + dt)
             r[i] = con.radius + slack
         self.r2 = (r * r)[:, None]
+        self._r2_flat = np.ascontiguousarray(self.r2[:, 0])
         # Grid columns where some constraint is active: points at other times skip the test.
         self.any_active = self.active.any(axis=0)
 
@@ -142,6 +145,15 @@ class ConstraintTable:
         x = np.asarray(x, dtype=np.float64)
         if self.count == 0:
             return np.ones(x.shape, dtype=bool)
+        if compiled_kernels():  # the same answers, see .kernels
+            ya = np.asarray(y, dtype=np.float64)
+            ta = np.asarray(t, dtype=np.float64)
+            if ya.shape != x.shape or ta.shape != x.shape:  # scalars or broadcasting: the rare case
+                ya, ta = np.broadcast_to(ya, x.shape), np.broadcast_to(ta, x.shape)
+            out = kernels.constraint_free(x.ravel(), ya.ravel(), ta.ravel(), self.t0, self._inv_dt, float(self.k - 1),
+                                          self.px, self.py, self._r2_flat, self.active, self.any_active)
+            if out is not None:
+                return out.reshape(x.shape)
         g = (np.asarray(t, dtype=np.float64) - self.t0) * self._inv_dt + 0.5
         k = np.minimum(np.maximum(g, 0.0), self.k - 1).astype(np.int64)  # nearest grid time
         if not self.any_active[k].any():
@@ -161,6 +173,9 @@ class ConstraintTable:
             return True
         k0 = min(max(int((t_from - self.t0) * self._inv_dt + 0.5), 0), self.k - 1)
         k1 = min(max(int((t_to - self.t0) * self._inv_dt + 0.5), 0), self.k - 1) + 1
+        if compiled_kernels():  # the same answer, see .kernels
+            return bool(kernels.constraint_still_free(float(x), float(y), k0, k1, self.px, self.py, self._r2_flat,
+                                                      self.active))
         act = self.active[:, k0:k1]
         if not act.any():
             return True

@@ -25,7 +25,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from swarm_env.compiled import compiled_kernels
 from swarm_env.geometry import StaticMap
+from swarm_env_agents.cbs_rrt import kernels
 
 __all__ = ["DistanceField", "distance_field"]
 
@@ -80,7 +82,20 @@ class DistanceField:
         return self.resolution / math.sqrt(2.0)
 
     def clearance_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-        """Bilinear clearance at points given as two arrays of equal shape (m)."""
+        """Bilinear clearance at points given as two arrays of equal shape (m): compiled
+        (:mod:`.kernels`, the same bits) unless :func:`swarm_env.compiled.use_compiled_kernels`
+        turned the kernels off."""
+        if compiled_kernels():
+            xa = np.asarray(x, dtype=np.float64)
+            out = kernels.clearance_xy(np.ascontiguousarray(xa).ravel(),
+                                       np.ascontiguousarray(y, dtype=np.float64).ravel(),
+                                       self._inv, self._xmax, self._ymax, self.nx, self.values)
+            if out is not None:
+                return out.reshape(xa.shape)
+        return self._clearance_xy(x, y)
+
+    def _clearance_xy(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """The numpy reference of :meth:`clearance_xy`."""
         # Grid coordinates clamped into the grid (no extrapolation): ufuncs, not np.clip, whose
         # Python-level overhead dominated this hot function.
         gx = np.minimum(np.maximum(np.asarray(x, dtype=np.float64) * self._inv, 0.0), self._xmax)

@@ -208,7 +208,12 @@ class MotionPrimitives:
         x, y, th = float(pose[0]), float(pose[1]), float(pose[2])
         c, s = math.cos(th), math.sin(th)
         loc = self.local[k]
-        return np.column_stack([x + c * loc[:, 0] - s * loc[:, 1], y + s * loc[:, 0] + c * loc[:, 1], th + loc[:, 2]])
+        out = np.empty((len(loc), 3))  # (column_stack's own overhead was most of this hot call's cost)
+        lx, ly = loc[:, 0], loc[:, 1]
+        out[:, 0] = x + c * lx - s * ly
+        out[:, 1] = y + s * lx + c * ly
+        out[:, 2] = th + loc[:, 2]
+        return out
 
     def classify(self, a: Sequence[float], b: Sequence[float], tol: float = 1e-6) -> int:
         """Index of the primitive that takes pose ``a`` exactly to pose ``b`` (within ``tol``
