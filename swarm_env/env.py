@@ -240,7 +240,7 @@ class SwarmEnv(ParallelEnv):
         else:
             if knobs:
                 raise TypeError(f"unexpected keyword arguments {sorted(knobs)}: generator knobs apply to 'random' only")
-            template = scenario if isinstance(scenario, Scenario) else load_scenario(scenario)
+            template = load_scenario(scenario)  # a Scenario object is checked as a file would be
             if reward_spec is not None:
                 template = dataclasses.replace(template, reward=reward_spec)
         self._fixed = template if self._random is None else None

@@ -156,6 +156,7 @@ __all__ = [
     "min_substeps",
     "required_substeps",
     "validate_scenario",
+    "check_scenario_object",
     "start_poses",
 ]
 
@@ -253,14 +254,15 @@ def load_scenario(spec: str | os.PathLike[str] | Mapping[str, Any] | Scenario) -
 
     ``spec`` is a built-in name (see :func:`list_scenarios`), a path to a YAML file,
     an already-parsed mapping (validated with source ``<dict>``) or a
-    :class:`Scenario` (returned unchanged). ``"random"`` is refused: random worlds
-    are drawn per episode by :func:`swarm_env.random_scenario.random_scenario`.
+    :class:`Scenario` (one built in Python passes the same gate as a file: see
+    :func:`check_scenario_object`). ``"random"`` is refused: random worlds are drawn
+    per episode by :func:`swarm_env.random_scenario.random_scenario`.
 
     Raises :class:`ScenarioError` for anything invalid, including missing files and
     YAML syntax errors (key ``<file>``).
     """
     if isinstance(spec, Scenario):
-        return spec
+        return check_scenario_object(spec)
     if isinstance(spec, Mapping):
         return scenario_from_dict(spec)
     if not isinstance(spec, (str, os.PathLike)):
@@ -328,6 +330,30 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
         source=src,
     )
     return validate_scenario(scn)
+
+
+def check_scenario_object(scn: Scenario) -> Scenario:
+    """The full gate for a :class:`Scenario` built in Python (``SwarmEnv(Scenario(...))``).
+
+    Its fields are written out as the YAML mapping (:func:`scenario_to_dict`) and parsed back
+    (:func:`scenario_from_dict`), so types, ranges, the bounds of :mod:`swarm_env.limits` and the
+    semantic checks of :func:`validate_scenario` all apply, as for a file. Returns ``scn`` itself
+    when it was valid (every valid scenario survives the round trip unchanged), or raises
+    :class:`ScenarioError` naming ``scn.source``; a field of the wrong kind (a string where a
+    number belongs, a number where a list does) is reported under the key ``<object>``.
+    """
+    src = str(scn.source)
+    try:
+        data = scenario_to_dict(scn)
+    except (TypeError, ValueError, OverflowError, AttributeError, IndexError, KeyError) as exc:
+        raise ScenarioError(src, "<object>", "a Scenario whose fields have the documented types "
+                            "(swarm_env.scenario)", str(exc)) from None
+    checked = scenario_from_dict(data, src)
+    try:
+        same = bool(checked == scn)
+    except (ValueError, TypeError):  # numpy arrays in the fields: their == is elementwise
+        same = False
+    return scn if same else checked
 
 
 def validate_scenario(scn: Scenario) -> Scenario:

@@ -258,6 +258,39 @@ def test_generator_knobs_are_bounded(knobs: dict, bound: str) -> None:
 # --------------------------------------------------------------------------- documentation
 
 
+@pytest.mark.parametrize(
+    "section, field, value, key",
+    [
+        ("robots", "count", 10**9, "robots.count"),
+        ("robots", "max_speed", -1.0, "robots.max_speed"),
+        ("world", "dt", 1e-9, "world.dt"),
+        ("sensors", "lidar_rays", 10**9, "sensors.lidar_rays"),
+        ("robots", "max_speed", "fast", "<object>"),
+        ("leader", "path", 3.0, "<object>"),
+    ],
+)
+def test_scenario_objects_pass_the_same_gate_as_files(section: str, field: str, value: object, key: str) -> None:
+    """A Scenario built in Python (SwarmEnv(Scenario(...))) used to skip every check."""
+    import dataclasses
+
+    scn = load_scenario("paper_vo_0")
+    bad = dataclasses.replace(scn, **{section: dataclasses.replace(getattr(scn, section), **{field: value})})
+    started = time.perf_counter()
+    with pytest.raises(ScenarioError) as err:
+        SwarmEnv(bad)
+    assert err.value.key == key
+    assert "\n" not in str(err.value)
+    assert time.perf_counter() - started < 5.0
+
+
+def test_valid_scenario_objects_come_back_unchanged() -> None:
+    for name in ("paper_vo_0", "paper_cbs_switch", "crowd_reactive"):
+        scn = load_scenario(name)
+        assert load_scenario(scn) is scn
+        a, b = SwarmEnv(scn).reset(seed=3)[0], SwarmEnv(name).reset(seed=3)[0]
+        assert all((a[k] == b[k]).all() for k in a)
+
+
 def test_docs_list_every_bound_with_its_value() -> None:
     """docs/scenarios.md's table is LIMITS (one place: the table follows the code)."""
     doc = (ROOT / "docs" / "scenarios.md").read_text()
