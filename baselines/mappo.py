@@ -120,8 +120,11 @@ class MAPPOConfig:
     total_steps: int = 2_000_000
     #: Seed of the networks, the action sampling and the training worlds.
     seed: int = 0
-    #: Env copies stepped together.
+    #: Env copies stepped together (the worlds of one batched engine, swarm_env.vector).
     n_copies: int = 8
+    #: Worker processes for the worlds' physics (1: in the training process); the results do not depend on it.
+    #: Not with --residual (its experts read the worlds in this process).
+    env_procs: int = 1
     #: Rollout length per copy between updates.
     n_steps: int = 128
     #: Adam learning rate.
@@ -174,7 +177,7 @@ class MAPPOConfig:
             raise ValueError(f"shield must be one of {', '.join(SHIELD_MODES)}, got {self.shield!r}")
         if self.pretrain in ("", "none", "None"):
             self.pretrain = "none"
-        for name in ("total_steps", "n_copies", "n_steps", "n_epochs", "n_minibatches", "torch_threads"):
+        for name in ("total_steps", "n_copies", "n_steps", "n_epochs", "n_minibatches", "torch_threads", "env_procs"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
@@ -191,6 +194,10 @@ class MAPPOConfig:
             raise ValueError(f"imitation_anneal must be in [0, 1], got {self.imitation_anneal!r}")
         if self.shield == "off" and (self.intervention_coef or self.imitation_coef):
             raise ValueError("intervention_coef and imitation_coef need a shield (--shield teach or execute)")
+        if self.env_procs > self.n_copies:
+            raise ValueError(f"env_procs must be at most n_copies ({self.n_copies}), got {self.env_procs}")
+        if self.residual and self.env_procs > 1:
+            raise ValueError("a residual policy's experts read the worlds in the training process: use --env-procs 1")
         if self.residual and self.pretrain != "none":
             raise ValueError("a residual policy starts from its expert (zero correction): use --pretrain none")
         self.hidden = tuple(int(h) for h in self.hidden)
@@ -220,11 +227,11 @@ def make_env(cfg: MAPPOConfig, shielded: bool) -> Any:
 
 def make_engine(cfg: MAPPOConfig) -> Any:
     """The training worlds: a :class:`~swarm_env.vector.SwarmVectorEnv` of ``n_copies`` :func:`make_env`
-    worlds (shielded for ``shield="execute"``), stepped in this process (experts and the teaching shield
-    read the worlds' states every step)."""
+    worlds (shielded for ``shield="execute"``), their physics in ``env_procs`` processes (1: this one)."""
     from swarm_env.vector import SwarmVectorEnv
 
-    return SwarmVectorEnv.from_factories([_world_factory(cfg, cfg.shield == "execute")] * cfg.n_copies)
+    return SwarmVectorEnv.from_factories([_world_factory(cfg, cfg.shield == "execute")] * cfg.n_copies,
+                                         n_procs=cfg.env_procs)
 
 
 def evaluate(policy: MAPPOPolicy, cfg: MAPPOConfig, seeds: list[int]) -> dict[str, Any]:
@@ -667,7 +674,7 @@ def _fmt(x: Any) -> Any:
 CHECKPOINT_DIR = "checkpoint"
 CHECKPOINT_FORMAT = "swarm_env.mappo-checkpoint/1"
 #: What ``--resume`` may change: the budget, and settings that leave the results as they are.
-RESUME_OVERRIDES = ("total_steps", "eval_workers", "progress")
+RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "progress")
 
 
 def train(cfg: MAPPOConfig) -> Path:

@@ -51,12 +51,13 @@ def _digest(*arrays: Any) -> str:
     return h.hexdigest()[:24]
 
 
-def run_case(name: str, tmp_path: Path) -> dict[str, Any]:
+def run_case(name: str, tmp_path: Path, env_procs: int = 1) -> dict[str, Any]:
     """The trainer's loop (``_train_loop`` without files): every update's batch digest and losses, then
     digests of the networks, the optimizer's moments and the statistics."""
     import torch
 
-    cfg = mappo.MAPPOConfig(**{**BASE, **CASES[name], "runs_dir": str(tmp_path), "run_name": name})
+    extra = {"env_procs": env_procs} if env_procs > 1 else {}  # (the recording trainer had no such option)
+    cfg = mappo.MAPPOConfig(**{**BASE, **CASES[name], **extra, "runs_dir": str(tmp_path), "run_name": name})
     trainer = mappo.Trainer(cfg, tmp_path / name)
     params = [*trainer.actor.parameters(), trainer.log_std, *trainer.critic.parameters()]
     optim = torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
@@ -87,16 +88,58 @@ def run_case(name: str, tmp_path: Path) -> dict[str, Any]:
     return {"updates": rows, "final": final}
 
 
-@pytest.mark.parametrize("name", list(CASES))
-def test_training_is_bit_for_bit_the_reference_trainers(name: str, tmp_path: Path) -> None:
+@pytest.mark.parametrize("name, env_procs", [(name, 1) for name in CASES] + [("shield_teach", 2),
+                                                                           ("mappo_collision_ends", 3)])
+def test_training_is_bit_for_bit_the_reference_trainers(name: str, env_procs: int, tmp_path: Path) -> None:
+    """In the training process and with the worlds' physics in worker processes (env_procs)."""
     expected = json.loads(DATA.read_text())[name]
-    got = run_case(name, tmp_path)
+    got = run_case(name, tmp_path, env_procs)
     assert all(r["dones"] for r in got["updates"])  # episodes ended (and auto-reset) inside every rollout
     if name == "mappo_collision_ends":  # more than the time limit's one episode end per copy and rollout
         assert sum(r["dones"] for r in got["updates"]) > 3 * 3 * ENV["n_followers"]
     for u, (a, b) in enumerate(zip(got["updates"], expected["updates"], strict=True)):
         assert a == b, f"update {u}"
     assert got["final"] == expected["final"]
+
+
+@pytest.mark.filterwarnings("error:.*rebuilt env copies differ")
+def test_a_run_resumed_with_its_worlds_in_worker_processes_ends_as_an_uninterrupted_one(tmp_path: Path,
+                                                                                        monkeypatch) -> None:
+    """The checkpoint's worlds are rebuilt by replay and handed to the engine's workers (set_world): the resumed
+    run (env_procs 2) ends with the networks and checkpoint of the uninterrupted one (env_procs 1), bit for bit."""
+    from safetensors.numpy import load_file
+
+    cfg = {**BASE, **CASES["shield_execute"], "total_steps": 5 * 3 * 24 * 2, "checkpoint_every": 1,
+           "runs_dir": str(tmp_path)}
+    whole = mappo.train(mappo.MAPPOConfig(**cfg, run_name="whole"))
+    original = mappo.Trainer.update
+
+    def update(self, batch, optim, u, n_updates):
+        stats = original(self, batch, optim, u, n_updates)
+        if u == 2:  # back to the checkpoint after 48 steps: every world 8 steps into its third episode
+            raise RuntimeError("simulated crash")
+        return stats
+
+    with monkeypatch.context() as m:
+        m.setattr(mappo.Trainer, "update", update)
+        with pytest.raises(RuntimeError, match="simulated crash"):
+            mappo.train(mappo.MAPPOConfig(**cfg, run_name="parts"))
+    parts = tmp_path / "parts"
+    starts = json.loads((parts / "checkpoint" / "state.json").read_text())["episode_starts"]
+    assert all(s["seed"] is None and s["rng"] for s in starts)  # generator states of auto-resets
+    mappo.resume(parts, env_procs=2)
+    for name in ("policy.safetensors", "checkpoint/state.safetensors"):
+        a, b = load_file(str(whole / name)), load_file(str(parts / name))
+        assert a.keys() == b.keys() and all(np.array_equal(a[k], b[k]) for k in a), name
+
+
+def test_env_procs_is_checked() -> None:
+    with pytest.raises(ValueError, match="at most n_copies"):
+        mappo.MAPPOConfig(n_copies=2, env_procs=3)
+    with pytest.raises(ValueError, match="--env-procs 1"):
+        mappo.MAPPOConfig(residual="vo", pretrain="none", env_procs=2)
+    with pytest.raises(ValueError, match="env_procs must be a positive int"):
+        mappo.MAPPOConfig(env_procs=0)
 
 
 if __name__ == "__main__":  # regenerate the reference (only when the training is meant to change)
