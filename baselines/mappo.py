@@ -19,14 +19,20 @@ estimate of the return's scale; truncated episodes are bootstrapped from the val
 last state; the update sees the actor inputs exactly as normalised when the actions were
 drawn (``train.csv``'s ``first_ratio_error`` stays 0).
 
+Rollouts go through the batched engine (:class:`swarm_env.vector.SwarmVectorEnv`, ``n_copies``
+worlds, their physics in ``env_procs`` processes): one call steps every world, observations,
+rewards and infos come back as arrays, and a finished world is reset in the same step (its
+generator going on). The training is bit for bit what the earlier loop over ``n_copies`` separate
+``SwarmEnv`` objects gave (``tests/test_mappo_engine.py`` holds reference runs of that loop).
+
 Options that the shipped baselines use (docs/baselines.md gives their commands and results):
 
 * ``pretrain`` (default ``vo``): a DAgger warm start of the actor from that expert
   (:mod:`swarm_env_baselines.imitation`, a few minutes) so that PPO starts from a policy that holds its
   slot; the observation statistics are then fixed. ``--pretrain none`` starts from scratch.
-* ``shield``: the VO safety layer of :mod:`swarm_env.safety`. ``execute``: every copy is a
-  :class:`swarm_env.wrappers.SafetyShield`, the env executes the safe actions and the policy is
-  scored through it. ``teach``: the env executes the learner's own actions, but the shield
+* ``shield``: the VO safety layer of :mod:`swarm_env.safety`. ``execute``: every world is in a
+  :class:`swarm_env.wrappers.SafetyShield` (the engine's ``shield=True``), the env executes the safe
+  actions and the policy is scored through it. ``teach``: the env executes the learner's own actions, but the shield
   computes the safe action nearest to each sampled one; ``intervention_coef`` charges the size
   of that correction as a reward penalty, and ``imitation_coef`` adds a loss pulling the actor's
   mean to the safe action wherever the shield intervened (decayed to 0 over the first
@@ -927,7 +933,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="swarm-env train mappo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--resume", metavar="RUN_DIR", default=argparse.SUPPRESS,
                         help="go on with this run from its latest checkpoint (its config.json; only --total-steps, "
-                             "--eval-workers and --progress may be given with it)")
+                             "--eval-workers, --env-procs and --progress may be given with it)")
     add_dataclass_options(parser, MAPPOConfig)
     return parser
 

@@ -7,6 +7,7 @@ of SwarmEnvs::
 
     git show 2fb36b4:baselines/mappo.py > /tmp/mappo_before.py
     python benchmarks/mappo_rollouts.py --peer /tmp/mappo_before.py --updates 6 --repeats 3
+    python benchmarks/mappo_rollouts.py --vs-config '{"env_procs": 2}'     # the physics in 2 workers
 
 Both trainers are built with the same seed, so they do the same work (the same worlds, actions and
 networks, bit for bit); their updates are interleaved (alternating which goes first), and the
@@ -51,21 +52,22 @@ def _one_update(trainer: Any, optim: Any, u: int, n_updates: int) -> dict[str, f
             "agent_steps": steps}
 
 
-def run(modules: dict[str, Any], cfg_kwargs: dict[str, Any], updates: int, repeats: int) -> dict[str, Any]:
-    """``updates`` interleaved PPO updates of each trainer, ``repeats`` times with fresh trainers."""
+def run(entries: dict[str, tuple[Any, dict[str, Any]]], updates: int, repeats: int) -> dict[str, Any]:
+    """``updates`` interleaved PPO updates of each trainer (name -> (mappo module, config fields)),
+    ``repeats`` times with fresh trainers."""
     import torch
 
-    rows: dict[str, list[dict[str, float]]] = {name: [] for name in modules}
+    rows: dict[str, list[dict[str, float]]] = {name: [] for name in entries}
     with tempfile.TemporaryDirectory() as tmp:
         for r in range(repeats):
             trainers, optims = {}, {}
-            for name, mod in modules.items():
+            for name, (mod, cfg_kwargs) in entries.items():
                 cfg = mod.MAPPOConfig(**cfg_kwargs, runs_dir=tmp, run_name=f"{name}{r}")
                 trainer = mod.Trainer(cfg, Path(tmp) / f"{name}{r}")
                 trainer.start()
                 params = [*trainer.actor.parameters(), trainer.log_std, *trainer.critic.parameters()]
                 trainers[name], optims[name] = trainer, torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
-            names = list(modules)
+            names = list(entries)
             for u in range(updates):
                 for name in (names if (u + r) % 2 == 0 else names[::-1]):
                     # Sampling and minibatches use each trainer's own generator: the order changes no number.
@@ -90,14 +92,18 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--updates", type=int, default=6)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--config", default="{}", help="MAPPOConfig fields as JSON (on top of the defaults)")
+    parser.add_argument("--vs-config", help="instead of --peer: this trainer with these fields changed (JSON), "
+                                            "e.g. '{\"env_procs\": 2}'")
     args = parser.parse_args(argv)
     from swarm_env_baselines import mappo
 
     cfg_kwargs = {"pretrain": "none", "eval_every": 0, "progress": False, **json.loads(args.config)}
-    modules = {"engine": mappo}
+    entries = {"engine": (mappo, cfg_kwargs)}
     if args.peer:
-        modules = {"peer": _load_peer(args.peer), **modules}
-    result = run(modules, cfg_kwargs, args.updates, args.repeats)
+        entries = {"peer": (_load_peer(args.peer), cfg_kwargs), **entries}
+    elif args.vs_config:
+        entries["engine_vs"] = (mappo, {**cfg_kwargs, **json.loads(args.vs_config)})
+    result = run(entries, args.updates, args.repeats)
     print(json.dumps({"config": cfg_kwargs, "updates": args.updates, "repeats": args.repeats, **result}, indent=1))
     return 0
 
