@@ -19,14 +19,20 @@ estimate of the return's scale; truncated episodes are bootstrapped from the val
 last state; the update sees the actor inputs exactly as normalised when the actions were
 drawn (``train.csv``'s ``first_ratio_error`` stays 0).
 
+Rollouts go through the batched engine (:class:`swarm_env.vector.SwarmVectorEnv`, ``n_copies``
+worlds, their physics in ``env_procs`` processes): one call steps every world, observations,
+rewards and infos come back as arrays, and a finished world is reset in the same step (its
+generator going on). The training is bit for bit what the earlier loop over ``n_copies`` separate
+``SwarmEnv`` objects gave (``tests/test_mappo_engine.py`` holds reference runs of that loop).
+
 Options that the shipped baselines use (docs/baselines.md gives their commands and results):
 
 * ``pretrain`` (default ``vo``): a DAgger warm start of the actor from that expert
   (:mod:`swarm_env_baselines.imitation`, a few minutes) so that PPO starts from a policy that holds its
   slot; the observation statistics are then fixed. ``--pretrain none`` starts from scratch.
-* ``shield``: the VO safety layer of :mod:`swarm_env.safety`. ``execute``: every copy is a
-  :class:`swarm_env.wrappers.SafetyShield`, the env executes the safe actions and the policy is
-  scored through it. ``teach``: the env executes the learner's own actions, but the shield
+* ``shield``: the VO safety layer of :mod:`swarm_env.safety`. ``execute``: every world is in a
+  :class:`swarm_env.wrappers.SafetyShield` (the engine's ``shield=True``), the env executes the safe
+  actions and the policy is scored through it. ``teach``: the env executes the learner's own actions, but the shield
   computes the safe action nearest to each sampled one; ``intervention_coef`` charges the size
   of that correction as a reward penalty, and ``imitation_coef`` adds a loss pulling the actor's
   mean to the safe action wherever the shield intervened (decayed to 0 over the first
@@ -120,8 +126,11 @@ class MAPPOConfig:
     total_steps: int = 2_000_000
     #: Seed of the networks, the action sampling and the training worlds.
     seed: int = 0
-    #: Env copies stepped together.
+    #: Env copies stepped together (the worlds of one batched engine, swarm_env.vector).
     n_copies: int = 8
+    #: Worker processes for the worlds' physics (1: in the training process); the results do not depend on it.
+    #: Not with --residual (its experts read the worlds in this process).
+    env_procs: int = 1
     #: Rollout length per copy between updates.
     n_steps: int = 128
     #: Adam learning rate.
@@ -174,7 +183,7 @@ class MAPPOConfig:
             raise ValueError(f"shield must be one of {', '.join(SHIELD_MODES)}, got {self.shield!r}")
         if self.pretrain in ("", "none", "None"):
             self.pretrain = "none"
-        for name in ("total_steps", "n_copies", "n_steps", "n_epochs", "n_minibatches", "torch_threads"):
+        for name in ("total_steps", "n_copies", "n_steps", "n_epochs", "n_minibatches", "torch_threads", "env_procs"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive int, got {value!r}")
@@ -191,6 +200,10 @@ class MAPPOConfig:
             raise ValueError(f"imitation_anneal must be in [0, 1], got {self.imitation_anneal!r}")
         if self.shield == "off" and (self.intervention_coef or self.imitation_coef):
             raise ValueError("intervention_coef and imitation_coef need a shield (--shield teach or execute)")
+        if self.env_procs > self.n_copies:
+            raise ValueError(f"env_procs must be at most n_copies ({self.n_copies}), got {self.env_procs}")
+        if self.residual and self.env_procs > 1:
+            raise ValueError("a residual policy's experts read the worlds in the training process: use --env-procs 1")
         if self.residual and self.pretrain != "none":
             raise ValueError("a residual policy starts from its expert (zero correction): use --pretrain none")
         self.hidden = tuple(int(h) for h in self.hidden)
@@ -206,17 +219,25 @@ class MAPPOConfig:
 # --------------------------------------------------------------------------- evaluation
 
 
+def _world_factory(cfg: MAPPOConfig, shielded: bool) -> Any:
+    from swarm_env.vector import EnvFactory
+
+    return EnvFactory(cfg.scenario, {**cfg.env_kwargs, **cfg.train_env_kwargs}, shielded)
+
+
 def make_env(cfg: MAPPOConfig, shielded: bool) -> Any:
-    """One training env: a SwarmEnv of the run's scenario (``env_kwargs`` then ``train_env_kwargs``),
-    wrapped in the safety layer if ``shielded``."""
-    from swarm_env.env import SwarmEnv
+    """One training world: a SwarmEnv of the run's scenario (``env_kwargs`` then ``train_env_kwargs``),
+    wrapped in the safety layer if ``shielded`` (what each world of :func:`make_engine` is)."""
+    return _world_factory(cfg, shielded)()
 
-    env = SwarmEnv(cfg.scenario, **{**cfg.env_kwargs, **cfg.train_env_kwargs})
-    if shielded:
-        from swarm_env.wrappers import SafetyShield
 
-        env = SafetyShield(env)
-    return env
+def make_engine(cfg: MAPPOConfig) -> Any:
+    """The training worlds: a :class:`~swarm_env.vector.SwarmVectorEnv` of ``n_copies`` :func:`make_env`
+    worlds (shielded for ``shield="execute"``), their physics in ``env_procs`` processes (1: this one)."""
+    from swarm_env.vector import SwarmVectorEnv
+
+    return SwarmVectorEnv.from_factories([_world_factory(cfg, cfg.shield == "execute")] * cfg.n_copies,
+                                         n_procs=cfg.env_procs)
 
 
 def evaluate(policy: MAPPOPolicy, cfg: MAPPOConfig, seeds: list[int]) -> dict[str, Any]:
@@ -289,7 +310,8 @@ class Batch:
 
 
 class Trainer:
-    """The state of one run: env copies, networks, statistics; :meth:`collect` then :meth:`update`."""
+    """The state of one run: the worlds (one :class:`~swarm_env.vector.SwarmVectorEnv` of ``n_copies``
+    worlds), networks, statistics; :meth:`collect` then :meth:`update`."""
 
     def __init__(self, cfg: MAPPOConfig, run_dir: Path) -> None:
         import torch
@@ -300,12 +322,11 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         torch.use_deterministic_algorithms(True)
         self.gen = torch.Generator().manual_seed(cfg.seed)
-        self.envs = [make_env(cfg, cfg.shield == "execute") for _ in range(cfg.n_copies)]
-        base = self.envs[0].unwrapped
-        self.agents = list(base.possible_agents)
-        self.n, self.m = len(self.agents), cfg.n_copies
-        self.obs_dim = base.observation_space(self.agents[0]).shape[0] + (2 if cfg.residual else 0)
-        self.state_dim = base.state_space.shape[0] if cfg.critic == "central" else 0
+        self.venv = make_engine(cfg)
+        self.agents = list(self.venv.possible_agents)
+        self.n, self.m = self.venv.num_agents, cfg.n_copies
+        self.obs_dim = self.venv.single_observation_space.shape[0] + (2 if cfg.residual else 0)
+        self.state_dim = self.venv.state_space.shape[0] if cfg.critic == "central" else 0
         self.actor = mlp([self.obs_dim, *cfg.hidden, 2])
         self.log_std = torch.nn.Parameter(torch.full((2,), float(cfg.log_std_init)))
         self.critic = mlp([self.obs_dim + self.state_dim, *cfg.hidden, 1])
@@ -320,7 +341,8 @@ class Trainer:
         if cfg.residual:
             from swarm_env.harness.policies import load_policy
 
-            self.experts = [load_policy(cfg.residual, e.unwrapped) for e in self.envs]
+            # One expert per world, given that world's env (the engine runs its worlds in this process).
+            self.experts = [load_policy(cfg.residual, e) for e in self._world_envs()]
         self.shield_params: Any = None
         if cfg.shield == "teach":
             from swarm_env.safety import AvoidanceParams
@@ -329,6 +351,10 @@ class Trainer:
             self.shield_params = AvoidanceParams(w_heading=0.0, w_current=cfg.teach_w_current,
                                                  side_bias=cfg.teach_side_bias)
         self.pretrain_log: list[dict[str, float]] = []
+
+    def _world_envs(self, indices: list[int] | None = None) -> list[Any]:
+        """The worlds' own ``SwarmEnv`` objects (what an expert's ``reset(env, seed)`` takes)."""
+        return self.venv.get_attr("unwrapped", indices)
 
     # ---------------------------------------------------------------- warm start
     def pretrain(self) -> None:
@@ -343,24 +369,28 @@ class Trainer:
         env.close()
 
     # ---------------------------------------------------------------- rollouts
-    def _inputs(self, k: int, obs: dict[str, np.ndarray]) -> np.ndarray:
-        """Actor inputs (N, D) of copy ``k``: the observations (and for a residual, the expert's actions)."""
-        x = np.stack([obs[a] for a in self.agents])
+    def _inputs(self, k: int, obs: np.ndarray, world_state: Any) -> np.ndarray:
+        """Actor inputs (N, D) of copy ``k`` from its observations ``obs`` (N, obs_dim): the observations,
+        and for a residual the expert's actions in ``world_state`` (kept in ``base_actions``)."""
         if not self.cfg.residual:
-            return x
-        env = self.envs[k]
-        base = self.experts[k].act(obs, env.unwrapped.world_state())
+            return obs
+        # The expert's protocol takes observations by agent (it reads only their names).
+        base = self.experts[k].act({a: obs[i] for i, a in enumerate(self.agents)}, world_state)
         self.base_actions[k] = np.stack([base[a] for a in self.agents])
-        return np.concatenate([x, self.base_actions[k]], axis=1)
+        return np.concatenate([obs, self.base_actions[k]], axis=1)
 
-    def _state(self, k: int) -> np.ndarray:
-        return self.envs[k].state() if self.state_dim else np.zeros(1, np.float32)
+    def _world_states(self) -> list[Any]:
+        """Every world's current WorldState when an expert needs them (residual), else Nones."""
+        return self.venv.call("world_state") if self.cfg.residual else [None] * self.m
 
     def start(self) -> None:
-        """Start the first episode of every copy (world ``k`` from seed ``100 * seed + k``)."""
+        """Start the first episode of every world (world ``k`` from seed ``100 * seed + k``)."""
         self._allocate()
-        for k in range(len(self.envs)):
-            self._begin_episode(k, {"seed": 100 * self.cfg.seed + k, "rng": None})
+        obs, _ = self.venv.reset(seed=100 * self.cfg.seed)
+        states = self._world_states()
+        for k, start in enumerate(self.venv.episode_starts()):
+            self._begin_episode(k, start, obs[k], states[k])
+        self._read_states()
 
     def _allocate(self) -> None:
         m, n = self.m, self.n
@@ -368,25 +398,22 @@ class Trainer:
         self.inputs = np.zeros((m, n, self.obs_dim), np.float32)
         self.states = np.zeros((m, max(self.state_dim, 1)), np.float32)
         self.returns = np.zeros((m, n))
-        # What a checkpoint needs to rebuild each copy's world as it is now (see :meth:`restore`): how its
-        # episode began, and every action the world has executed since.
+        # What a checkpoint needs to rebuild each world as it is now (see :meth:`restore`): how its episode
+        # began (the engine's episode_starts), and every action the world has executed since.
         self.episode_starts: list[dict[str, Any]] = [{} for _ in range(m)]
         self.episode_actions: list[list[np.ndarray]] = [[] for _ in range(m)]
 
-    def _begin_episode(self, k: int, start: dict[str, Any]) -> dict[str, np.ndarray]:
-        """Reset copy ``k`` as ``start`` says (``{"seed": int}`` a seeded reset; ``{"rng": state}`` the env's
-        generator at that state, then an unseeded reset: the same world as when it was recorded) and its expert."""
-        env = self.envs[k]
-        if start.get("seed") is not None:
-            obs, _ = env.reset(seed=start["seed"])
-        else:
-            _set_world_rng(env, start["rng"])
-            obs, _ = env.reset()
-        for ex in self.experts[k:k + 1]:
-            ex.reset(env.unwrapped, None)
+    def _begin_episode(self, k: int, start: dict[str, Any], obs: np.ndarray, world_state: Any) -> None:
+        """World ``k`` has begun an episode as ``start`` says (the engine's :meth:`episode_starts` entry), with
+        first observations ``obs``: reset its expert and its inputs, forget the last episode's actions."""
+        if self.experts:
+            self.experts[k].reset(self._world_envs([k])[0], None)
         self.episode_starts[k], self.episode_actions[k] = start, []
-        self.inputs[k], self.states[k] = self._inputs(k, obs), self._state(k)
-        return obs
+        self.inputs[k] = self._inputs(k, obs, world_state)
+
+    def _read_states(self) -> None:
+        if self.state_dim:
+            self.states[:] = self.venv.state()
 
     def critic_input(self, inputs: np.ndarray, states: np.ndarray) -> Any:
         import torch
@@ -397,7 +424,7 @@ class Trainer:
         return torch.as_tensor(x)
 
     def collect(self) -> Batch:
-        """One rollout of ``n_steps`` steps of every copy."""
+        """One rollout of ``n_steps`` steps of every world, one engine step each."""
         import torch
 
         cfg, m, n = self.cfg, self.m, self.n
@@ -418,48 +445,61 @@ class Trainer:
             batch.critic_in.append(cin)
             sampled = np.clip(action.numpy(), -1.0, 1.0).reshape(m, n, 2)
             env_action = residual_action(self.base_actions, sampled, cfg.residual_scale) if cfg.residual else sampled
-            for k, e in enumerate(self.envs):
-                self._step_copy(k, e, env_action[k], batch, t)
+            self._step_worlds(env_action, batch, t)
         return batch
 
-    def _step_copy(self, k: int, env: Any, action: np.ndarray, batch: Batch, t: int) -> None:
+    def _step_worlds(self, action: np.ndarray, batch: Batch, t: int) -> None:
+        """Step every world with ``action`` (M, N, 2) and write row ``t`` of ``batch``."""
         import torch
 
-        cfg, n, agents = self.cfg, self.n, self.agents
-        cols = slice(k * n, (k + 1) * n)
+        cfg, m, n = self.cfg, self.m, self.n
         correction = None
-        if cfg.shield == "teach":
+        if cfg.shield == "teach":  # the safe action nearest to each sampled one, in the state it was sampled in
             from swarm_env.safety import shield_actions
 
-            res = shield_actions(env.unwrapped.world_state(), action, self.shield_params)
-            batch.safe[t, cols], batch.intervened[t, cols], correction = res.actions, res.intervened, res.correction
-        obs, rewards, terms, truncs, infos = env.step({a: action[i] for i, a in enumerate(agents)})
-        self.episode_actions[k].append(np.array(action))
-        rew = np.array([rewards[a] for a in agents])
+            corrections = []
+            for k, state in enumerate(self.venv.call("world_state")):
+                res = shield_actions(state, action[k], self.shield_params)
+                cols = slice(k * n, (k + 1) * n)
+                batch.safe[t, cols], batch.intervened[t, cols] = res.actions, res.intervened
+                corrections.append(res.correction)
+            correction = np.stack(corrections)  # the shield's own dtype, as the penalty always had it
+        obs, rew, terms, truncs, infos = self.venv.step(action)
+        for k in range(m):
+            self.episode_actions[k].append(np.array(action[k]))
         if cfg.shield == "execute":
-            correction = np.array([infos[a]["shield_correction"] for a in agents])
-            batch.safe[t, cols] = np.stack([env.last_safe_actions[a] for a in agents])
-            batch.intervened[t, cols] = correction > 0
+            # float64 as the per-agent infos' Python floats were: the penalty below keeps its bits.
+            correction = infos["shield_correction"].astype(np.float64)
+            batch.safe[t] = infos["shield_action"].reshape(m * n, 2)
+            batch.intervened[t] = (correction > 0).reshape(m * n)
         if correction is not None and cfg.intervention_coef:
             rew = rew - cfg.intervention_coef * correction
-        batch.contacts += sum(infos[a]["contacts_robot"] + infos[a]["contacts_obstacle"] + infos[a]["contacts_human"]
-                              + infos[a]["contacts_wall"] for a in agents)
-        self.returns[k] = self.returns[k] * cfg.gamma + rew
-        self.ret_rms.update(self.returns[k])
-        scaled = np.clip(rew / np.sqrt(self.ret_rms.var + self.ret_rms.epsilon), -10.0, 10.0)
-        done = not env.agents
-        if done:
-            if any(truncs.values()) and not any(terms.values()):  # bootstrap a cut-off episode
-                last_in = self._inputs(k, obs)
-                with torch.no_grad():
-                    scaled = scaled + cfg.gamma * self.critic(
-                        self.critic_input(last_in[None], self._state(k)[None])).squeeze(-1).numpy()
-            self.returns[k] = 0.0
-            self._begin_episode(k, {"seed": None, "rng": _world_rng(env)})  # an unseeded reset: the stream goes on
-        else:
-            self.inputs[k], self.states[k] = self._inputs(k, obs), self._state(k)
-        batch.rewards[t, cols] = scaled
-        batch.dones[t, cols] = float(done)
+        batch.contacts += int(sum(infos[f"contacts_{g}"].sum() for g in ("robot", "obstacle", "human", "wall")))
+        done = terms | truncs
+        states = self._world_states()
+        starts = self.venv.episode_starts() if done.any() else None
+        # The return-scale statistics move world by world, in world order: each world's rewards are scaled
+        # by the statistics after its own update (as when the worlds were stepped one by one).
+        for k in range(m):
+            cols = slice(k * n, (k + 1) * n)
+            self.returns[k] = self.returns[k] * cfg.gamma + rew[k]
+            self.ret_rms.update(self.returns[k])
+            scaled = np.clip(rew[k] / np.sqrt(self.ret_rms.var + self.ret_rms.epsilon), -10.0, 10.0)
+            if done[k]:
+                if truncs[k] and not terms[k]:  # bootstrap a cut-off episode from its last state
+                    last_in = self._inputs(k, infos["final_obs"][k], infos["final_world_state"][k])
+                    last_state = infos["final_state"][k] if self.state_dim else np.zeros(1, np.float32)
+                    with torch.no_grad():
+                        scaled = scaled + cfg.gamma * self.critic(
+                            self.critic_input(last_in[None], last_state[None])).squeeze(-1).numpy()
+                self.returns[k] = 0.0
+                assert starts is not None
+                self._begin_episode(k, starts[k], obs[k], states[k])  # the engine's auto-reset: the stream goes on
+            else:
+                self.inputs[k] = self._inputs(k, obs[k], states[k])
+            batch.rewards[t, cols] = scaled
+            batch.dones[t, cols] = float(done[k])
+        self._read_states()
 
     # ---------------------------------------------------------------- update
     def update(self, batch: Batch, optim: Any, update_index: int, n_updates: int) -> dict[str, float]:
@@ -520,7 +560,7 @@ class Trainer:
         if self.cfg.residual:
             from swarm_env.harness.policies import load_policy
 
-            expert = load_policy(self.cfg.residual, self.envs[0].unwrapped)
+            expert = load_policy(self.cfg.residual, self._world_envs([0])[0])
             return ResidualPolicy(self.actor, self.obs_rms.copy(), expert, self.cfg.residual_scale)
         return MAPPOPolicy(self.actor, self.obs_rms.copy())
 
@@ -557,10 +597,12 @@ class Trainer:
     def restore(self, tensors: dict[str, Any], meta: dict[str, Any], optim: Any, source: Path) -> None:
         """Load a :meth:`checkpoint_state` (read from ``source``, named in errors) into this fresh trainer.
 
-        The env copies cannot be saved mid-episode (their physics lives in pymunk), so each is rebuilt:
-        its episode is reset as it began (the seed, or the world generator's state) and every action it
-        executed since is played again. The env is deterministic, so the worlds, observations and
-        experts come back as they were; the rebuilt inputs are checked against the saved ones.
+        The worlds cannot be saved mid-episode (their physics lives in pymunk), so each is rebuilt: a
+        fresh env (:func:`make_env`) is reset as the world's episode began (the seed, or the world
+        generator's state) and every action it executed since is played again, with its expert; the
+        env is deterministic, so the world, its observations and the expert come back as they were, and
+        it takes the world's place in the engine (:meth:`~swarm_env.vector.SwarmVectorEnv.set_world`).
+        The rebuilt inputs are checked against the saved ones.
         """
         import torch
 
@@ -588,14 +630,26 @@ class Trainer:
         if len(starts) != self.m or returns.shape != self.returns.shape:
             raise ValueError(f"{source}: the checkpoint has {len(starts)} env copies, this run {self.m}")
         self.returns[:] = returns
+        self.venv.reset(seed=100 * self.cfg.seed)  # every world gets an episode; each is then replaced
         agents = self.agents
         for k, start in enumerate(starts):
-            obs = self._begin_episode(k, start)
+            env = make_env(self.cfg, self.cfg.shield == "execute")
+            if start.get("seed") is not None:
+                obs, _ = env.reset(seed=start["seed"])
+            else:
+                _set_world_rng(env, start["rng"])
+                obs, _ = env.reset()
+            if self.experts:
+                self.experts[k].reset(env.unwrapped, None)
+            self.inputs[k] = self._inputs(k, np.stack([obs[a] for a in agents]), env.unwrapped.world_state())
             actions = tensors.get(f"episode.{k}.actions")
             for action in ([] if actions is None else actions.numpy()):
-                obs, *_ = self.envs[k].step({a: action[i] for i, a in enumerate(agents)})
+                obs, *_ = env.step({a: action[i] for i, a in enumerate(agents)})
                 self.episode_actions[k].append(np.array(action))
-                self.inputs[k], self.states[k] = self._inputs(k, obs), self._state(k)
+                self.inputs[k] = self._inputs(k, np.stack([obs[a] for a in agents]), env.unwrapped.world_state())
+            self.episode_starts[k] = start
+            self.venv.set_world(k, env, start)
+        self._read_states()
         if not (np.array_equal(self.inputs, saved_inputs) and np.array_equal(self.states, saved_states)):
             import warnings
 
@@ -603,17 +657,11 @@ class Trainer:
                           "scenario?); training goes on from the rebuilt worlds", stacklevel=2)
 
     def close(self) -> None:
-        for e in self.envs:
-            e.close()
-
-
-def _world_rng(env: Any) -> dict[str, Any]:
-    """The state of ``env``'s world generator (it draws each unseeded episode's world), as JSON values."""
-    return env.unwrapped._rng.bit_generator.state  # noqa: SLF001 - the env keeps no public handle on it
+        self.venv.close()
 
 
 def _set_world_rng(env: Any, state: dict[str, Any]) -> None:
-    """Put ``env``'s world generator in ``state`` (from :func:`_world_rng`)."""
+    """Put ``env``'s world generator in ``state`` (an ``episode_starts()`` entry's ``rng`` of the engine)."""
     bit_generator = getattr(np.random, state["bit_generator"])()
     bit_generator.state = state
     env.unwrapped._rng = np.random.Generator(bit_generator)  # noqa: SLF001
@@ -632,7 +680,7 @@ def _fmt(x: Any) -> Any:
 CHECKPOINT_DIR = "checkpoint"
 CHECKPOINT_FORMAT = "swarm_env.mappo-checkpoint/1"
 #: What ``--resume`` may change: the budget, and settings that leave the results as they are.
-RESUME_OVERRIDES = ("total_steps", "eval_workers", "progress")
+RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "progress")
 
 
 def train(cfg: MAPPOConfig) -> Path:
@@ -885,7 +933,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="swarm-env train mappo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--resume", metavar="RUN_DIR", default=argparse.SUPPRESS,
                         help="go on with this run from its latest checkpoint (its config.json; only --total-steps, "
-                             "--eval-workers and --progress may be given with it)")
+                             "--eval-workers, --env-procs and --progress may be given with it)")
     add_dataclass_options(parser, MAPPOConfig)
     return parser
 

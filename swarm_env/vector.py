@@ -35,8 +35,19 @@ Contract:
   the first observation of its next episode (reset without a seed: its generator continues),
   ``infos["_final"][m]`` is ``True``, ``infos["final_obs"][m]`` holds the last observation of the
   finished episode and ``infos["final_metrics"][m]`` its ``episode_metrics()``.
+  Also for learners that bootstrap or consult an expert at the end of an episode:
+  ``infos["final_state"][m]`` is the finished episode's last :meth:`~swarm_env.env.SwarmEnv.state`
+  and ``infos["final_world_state"][m]`` its last :class:`~swarm_env.state.WorldState` (lists,
+  ``None`` for worlds that did not end).
 * **Infos** are ``(M, N)`` arrays under the keys of a ``SwarmEnv``'s per-agent infos
-  (:data:`INFO_KEYS`), plus the :data:`~swarm_env.wrappers.SHIELD_INFO_KEYS` for shielded worlds.
+  (:data:`INFO_KEYS`), plus the :data:`~swarm_env.wrappers.SHIELD_INFO_KEYS` for shielded worlds
+  and ``infos["shield_action"]``, ``(M, N, 2)`` float32: the safe actions the worlds executed
+  (zeros at reset), what ``SafetyShield.last_safe_actions`` holds for a single env.
+* **Episodes can be rebuilt**: :meth:`~SwarmVectorEnv.episode_starts` says how each world's
+  episode began (its seed, or its generator's state before an unseeded reset), and
+  :meth:`~SwarmVectorEnv.set_world` puts a world rebuilt elsewhere (e.g. a ``SwarmEnv`` reset
+  the same way and given the same actions) in place of world ``m``: how a trainer resumes from a
+  checkpoint without pickling physics.
 """
 
 from __future__ import annotations
@@ -97,8 +108,10 @@ class _BlockResult:
     terminated: np.ndarray | None = None  # (B,)
     truncated: np.ndarray | None = None
     infos: dict[str, np.ndarray] = field(default_factory=dict)  # (B, N) each
-    # Worlds whose episode ended in this step: (block index, last obs without lidar, its scan input, metrics).
-    final: list[tuple[int, np.ndarray, tuple[np.ndarray, np.ndarray], dict[str, Any]]] = field(default_factory=list)
+    # Worlds whose episode ended in this step: (block index, last obs without lidar, its scan input, metrics,
+    # last state() vector, last WorldState).
+    final: list[tuple[int, np.ndarray, tuple[np.ndarray, np.ndarray], dict[str, Any], np.ndarray, Any]] = field(
+        default_factory=list)
 
 
 class _WorldBlock:
@@ -115,6 +128,9 @@ class _WorldBlock:
             raise ValueError("either every world is in a SafetyShield or none is (the infos must have the same keys)")
         self.shielded = shielded.pop()
         self._sent: list[StaticMap | None] = [None] * len(self.worlds)
+        # How each world's current episode began (episode_starts): {"seed": s, "rng": None} for a seeded
+        # reset, {"seed": None, "rng": generator state} for an unseeded one.
+        self.starts: list[dict[str, Any]] = [{} for _ in self.worlds]
 
     def describe(self) -> dict[str, Any]:
         e = self.envs[0]
@@ -135,10 +151,12 @@ class _WorldBlock:
         out.infos = _stack_columns([info_columns(e._prev_dist, terms, touching, False) for e in self.envs], INFO_KEYS)
         if self.shielded:
             out.infos.update(_stack_columns([[zeros > 0, zeros, zeros == 0] for _ in self.envs], SHIELD_INFO_KEYS))
+            out.infos["shield_action"] = np.zeros((len(self.envs), len(zeros), 2), np.float32)
         return out
 
     def step(self, norm: np.ndarray) -> _BlockResult:
         shield_cols = []
+        safe = []
         outcomes: list[StepOutcome] = []
         t0 = time.perf_counter()
         for w, e, act in zip(self.worlds, self.envs, norm):
@@ -146,17 +164,19 @@ class _WorldBlock:
                 res = w.protect(act)
                 act = res.actions.astype(np.float64)  # what SafetyShield.step hands the env, as float64
                 shield_cols.append([res.intervened, res.correction, res.feasible])
+                safe.append(res.actions)
             outcomes.append(e._advance(act))
         obs = np.stack([e._obs.build_without_lidar(o.state) for e, o in zip(self.envs, outcomes)])
         wall = (time.perf_counter() - t0) / len(self.envs)  # the block's wall time, shared equally
         infos = _stack_columns([info_columns(o.dist, o.terms, o.touching, o.collided) for o in outcomes], INFO_KEYS)
         if self.shielded:
             infos.update(_stack_columns(shield_cols, SHIELD_INFO_KEYS))
+            infos["shield_action"] = np.stack(safe)
         final = []
         for b, (w, e, o) in enumerate(zip(self.worlds, self.envs, outcomes)):
             e._account(o, wall)
             if o.terminated or o.truncated:
-                final.append((b, obs[b].copy(), lidar_input(o.state), w.episode_metrics()))
+                final.append((b, obs[b].copy(), lidar_input(o.state), w.episode_metrics(), e.state(), o.state))
                 self._restart(b, None)
                 obs[b] = e._obs.build_without_lidar(e._state)  # type: ignore[arg-type]
         return _BlockResult(
@@ -169,6 +189,8 @@ class _WorldBlock:
 
     def _restart(self, b: int, seed: Seed) -> None:
         """Reset world ``b`` as its ``reset(seed)`` would, without building observations there."""
+        rng = self.envs[b]._rng
+        self.starts[b] = {"seed": seed, "rng": None if seed is not None or rng is None else rng.bit_generator.state}
         self.envs[b]._start(seed)
         if self.shielded:
             self.worlds[b].start_episode()
@@ -183,6 +205,28 @@ class _WorldBlock:
 
     def state(self) -> np.ndarray:
         return np.stack([e.state() for e in self.envs])
+
+    def episode_starts(self) -> list[dict[str, Any]]:
+        return [dict(s) for s in self.starts]
+
+    def set_world(self, b: int, world: World, start: dict[str, Any]) -> StaticMap:
+        """Put ``world`` (reset and stepped elsewhere) in place of world ``b``; return its map."""
+        e = world.unwrapped
+        if not isinstance(e, SwarmEnv) or isinstance(world, SafetyShield) != self.shielded:
+            kind = "a SafetyShield(SwarmEnv)" if self.shielded else "a SwarmEnv"
+            raise TypeError(f"world {b} must be {kind} like the others, got {type(world).__name__}")
+        if list(e.possible_agents) != list(self.envs[b].possible_agents) or e._state is None or not e.agents:
+            raise ValueError("the new world needs the same team and an episode under way (reset, not ended)")
+        self.worlds[b].close()
+        self.worlds[b], self.envs[b], self.starts[b] = world, e, dict(start)
+        self._sent[b] = e._state.static
+        return e._state.static
+
+    def set_world_pickled(self, b: int, data: bytes, start: dict[str, Any]) -> StaticMap:
+        """:meth:`set_world` of a world pickled by the engine (worker processes)."""
+        import pickle
+
+        return self.set_world(b, pickle.loads(data), start)
 
     def call(self, indices: Sequence[int], method: str, args: tuple, kwargs: dict) -> list[Any]:
         return [getattr(self.worlds[b], method)(*args, **kwargs) for b in indices]
@@ -382,10 +426,13 @@ class SwarmVectorEnv:
             done = terminated | truncated
             infos["_final"] = done
             infos["final_obs"] = obs.copy()
-            infos["final_metrics"] = [None] * self.num_envs
-            for m, last, metrics in final:
+            for key in ("final_metrics", "final_state", "final_world_state"):
+                infos[key] = [None] * self.num_envs
+            for m, last, metrics, state, world_state in final:
                 infos["final_obs"][m] = last
                 infos["final_metrics"][m] = metrics
+                infos["final_state"][m] = state
+                infos["final_world_state"][m] = world_state
         return obs, rewards, terminated, truncated, infos
 
     def _run(self, cmd: str, per_block: list[tuple]) -> list[_BlockResult]:
@@ -395,18 +442,18 @@ class SwarmVectorEnv:
             remote.send(cmd, *args)
         return [remote.result() for remote in self._remotes]
 
-    def _merge(self, results: list[_BlockResult]) -> tuple[np.ndarray, dict[str, Any], list[tuple[int, np.ndarray, dict]]]:
+    def _merge(self, results: list[_BlockResult]) -> tuple[np.ndarray, dict[str, Any], list[tuple]]:
         """Concatenate the blocks' results and fill every lidar column with one kernel call."""
         obs = results[0].obs if len(results) == 1 else np.concatenate([r.obs for r in results])
         infos = {k: np.concatenate([r.infos[k] for r in results]) for k in results[0].infos}
-        finals = [(a + b, last, scan_in, metrics) for (a, _), r in zip(self._spans, results) for b, last, scan_in, metrics in r.final]
+        finals = [(a + f[0], *f[1:]) for (a, _), r in zip(self._spans, results) for f in r.final]
         final_obs = []
         if finals:  # the finished episodes' last observations, in the maps they were played in
             lidar = self._scan([f[2] for f in finals], [f[0] for f in finals])
             n = self.num_agents
-            for k, (m, last, _, metrics) in enumerate(finals):
+            for k, (m, last, _, *rest) in enumerate(finals):
                 self._obs.fill_lidar(last, lidar[k * n:(k + 1) * n])
-                final_obs.append((m, last, metrics))
+                final_obs.append((m, last, *rest))
         for (a, _), r in zip(self._spans, results):
             for b, static in r.maps.items():
                 self._maps[a + b] = static
@@ -467,6 +514,48 @@ class SwarmVectorEnv:
         for r in self._remotes:
             r.send("state")
         return np.concatenate([r.result() for r in self._remotes])
+
+    def episode_starts(self) -> list[dict[str, Any]]:
+        """How each world's current episode began, as JSON values: ``{"seed": s, "rng": None}`` after a
+        seeded reset, ``{"seed": None, "rng": state}`` after an unseeded one (``state``: the world
+        generator's ``bit_generator.state`` just before it drew the episode). A ``SwarmEnv`` whose
+        ``_rng`` is put in that state (or that is reset with that seed) and reset draws the same episode."""
+        if self._local is not None:
+            return self._local.episode_starts()
+        for r in self._remotes:
+            r.send("episode_starts")
+        return [s for r in self._remotes for s in r.result()]
+
+    def set_world(self, m: int, world: World, start: dict[str, Any] | None = None) -> None:
+        """Replace world ``m`` by ``world``, a ``SwarmEnv`` (a ``SafetyShield`` of one if the worlds are
+        shielded) with the same team and an episode under way, rebuilt elsewhere; the engine goes on
+        stepping it from its current state. ``start`` is what :meth:`episode_starts` reports for it
+        from now on (how that episode began). With ``n_procs > 1`` the world is pickled to its worker.
+
+        The engine must have been reset (the other worlds need an episode too); the world's next
+        observation is whatever the next :meth:`step` returns (build the current one with the world
+        itself if needed)."""
+        if not self._live:
+            raise RuntimeError("call reset() before set_world()")
+        if not 0 <= m < self.num_envs:
+            raise IndexError(f"world index {m} out of range for {self.num_envs} worlds")
+        e = getattr(world, "unwrapped", None)
+        if not isinstance(e, SwarmEnv) or isinstance(world, SafetyShield) != self.shielded:
+            kind = "a SafetyShield(SwarmEnv)" if self.shielded else "a SwarmEnv"
+            raise TypeError(f"world {m} must be {kind} like the others, got {type(world).__name__}")
+        if list(e.possible_agents) != self.possible_agents or e._state is None or not e.agents:
+            raise ValueError("the new world needs the same team and an episode under way (reset, not ended)")
+        start = dict(start or {})
+        if self._local is not None:
+            static = self._local.set_world(m, world, start)
+        else:
+            import cloudpickle
+
+            p = next(p for p, (a, b) in enumerate(self._spans) if a <= m < b)
+            self._remotes[p].send("set_world_pickled", m - self._spans[p][0], cloudpickle.dumps(world), start)
+            static = self._remotes[p].result()
+        self._maps[m] = static
+        self._packed = None  # the batch's packed maps include the replaced world's
 
     def call(self, method: str, *args: Any, indices: Sequence[int] | None = None, **kwargs: Any) -> list[Any]:
         """``[world.method(*args, **kwargs) for world in worlds[indices]]`` (all by default), in

@@ -35,6 +35,9 @@ def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: boo
         assert np.array_equal(obs[m], _rows(o, agents))
         for key in keys:
             assert np.array_equal(infos[key][m], _rows(i, agents, key)), key
+    assert venv.episode_starts() == [{"seed": seed + m, "rng": None} for m in range(num_envs)]
+    if shield:
+        assert infos["shield_action"].shape == (num_envs, len(agents), 2) and not infos["shield_action"].any()
     rng = np.random.default_rng(seed)
     ended = 0
     for t in range(steps):
@@ -51,16 +54,25 @@ def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: boo
             assert np.array_equal(rew[m], _rows(r, agents)), (t, m)
             for key in keys:
                 assert np.array_equal(infos[key][m], _rows(i, agents, key)), (t, m, key)
+            if shield:  # the executed safe actions
+                assert np.array_equal(infos["shield_action"][m], _rows(env.last_safe_actions, agents)), (t, m)
             if not env.agents:
                 ended += 1
                 assert infos["_final"][m]
                 assert np.array_equal(infos["final_obs"][m], last)
                 metrics = {k: v for k, v in env.episode_metrics().items() if k != "wall_time"}
                 assert {k: v for k, v in infos["final_metrics"][m].items() if k != "wall_time"} == metrics
+                assert np.array_equal(infos["final_state"][m], env.state())
+                final_world = infos["final_world_state"][m]
+                assert final_world.time == env.world_state().time
+                assert np.array_equal(final_world.follower_pose, env.world_state().follower_pose)
+                before = env.unwrapped._rng.bit_generator.state  # what the unseeded reset draws from
                 o, _ = env.reset()  # auto-reset: the generator continues
+                assert venv.episode_starts()[m] == {"seed": None, "rng": before}
                 last = _rows(o, agents)
             elif "_final" in infos:
                 assert not infos["_final"][m] and infos["final_metrics"][m] is None
+                assert infos["final_state"][m] is None and infos["final_world_state"][m] is None
             assert np.array_equal(obs[m], last), (t, m)
         assert np.array_equal(venv.state(), np.stack([e.state() for e in refs]))
     venv.close()
@@ -178,4 +190,52 @@ def test_per_world_calls_reach_the_right_world_in_any_process() -> None:
         assert len(metrics) == 1 and metrics[0]["steps"] == 0
         with pytest.raises(IndexError, match="out of range"):
             venv.get_attr("max_cycles", indices=[3])
+        venv.close()
+
+
+@pytest.mark.parametrize("n_procs", [1, 2])
+def test_a_world_rebuilt_from_its_episode_start_and_actions_takes_its_place_bitwise(n_procs: int) -> None:
+    """How a trainer resumes: a fresh world reset as episode_starts() says and given the same actions,
+    put in with set_world, goes on exactly as the original (here against an engine that never stopped)."""
+    import numpy.random
+
+    kwargs = dict(max_cycles=9, n_humans=(1, 2), n_followers=3)
+    whole = SwarmVectorEnv("random", 3, shield=True, **kwargs)
+    rebuilt = SwarmVectorEnv("random", 3, shield=True, n_procs=n_procs, **kwargs)
+    rng = np.random.default_rng(0)
+    actions = [rng.uniform(-1, 1, (3, 3, 2)) for _ in range(26)]
+    for venv in (whole, rebuilt):
+        venv.reset(seed=30)
+    history: list[list[np.ndarray]] = [[], [], []]
+    for a in actions[:13]:  # every world ends its first episode at step 9: world starts are generator states
+        whole.step(a)
+        _, _, term, trunc, _ = rebuilt.step(a)
+        for m in range(3):
+            history[m] = [] if term[m] or trunc[m] else [*history[m], a[m]]
+    starts = rebuilt.episode_starts()
+    assert all(s["seed"] is None and s["rng"] for s in starts)
+    for m in (0, 2):
+        world = EnvFactory("random", kwargs, shield=True)()
+        bits = getattr(numpy.random, starts[m]["rng"]["bit_generator"])()
+        bits.state = starts[m]["rng"]
+        world.unwrapped._rng = np.random.Generator(bits)
+        world.reset()
+        for a in history[m]:
+            world.step(dict(zip(world.possible_agents, a)))
+        rebuilt.set_world(m, world, starts[m])
+    assert rebuilt.episode_starts() == starts
+    for a in actions[13:]:  # the rebuilt worlds end their episode and start the next from the right stream
+        out_a, out_b = whole.step(a), rebuilt.step(a)
+        for x, y in zip(out_a[:4], out_b[:4]):
+            assert np.array_equal(x, y)
+        for key in ("shield_action", "shield_correction", "slot_distance"):
+            assert np.array_equal(out_a[4][key], out_b[4][key])
+        assert np.array_equal(whole.state(), rebuilt.state())
+    assert [m["shield"] for m in whole.call("episode_metrics")] == [m["shield"] for m in rebuilt.call("episode_metrics")]
+    with pytest.raises(TypeError, match="SafetyShield"):
+        rebuilt.set_world(1, EnvFactory("random", kwargs)())
+    fresh = SwarmVectorEnv("random", 2, **kwargs)
+    with pytest.raises(RuntimeError, match="reset"):
+        fresh.set_world(0, EnvFactory("random", kwargs)())
+    for venv in (whole, rebuilt, fresh):
         venv.close()
