@@ -55,6 +55,7 @@ and JSON hold both.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import json
@@ -63,10 +64,10 @@ import os
 import re
 import time
 import warnings
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -243,9 +244,12 @@ class _Job:
 _OnEpisode = Callable[[int, dict[str, Any], EpisodeRecord], None]
 
 
-def _run_job(job: _Job, on_episode: _OnEpisode) -> str | None:
-    """Play one (policy, scenario) job with one fresh env and policy, reporting each finished episode to
-    ``on_episode`` as it ends; returns ``None``, or the reason the policy refuses the scenario (no episode ran)."""
+def _play_job(job: _Job) -> Generator[tuple[Any, ...], None, None]:
+    """Play one (policy, scenario) job with one fresh env and policy, yielding ``("episode", seed, metrics,
+    record)`` as each episode ends and then ``("done", na_reason)``: ``None``, or the reason the policy refuses
+    the scenario (then no episode ran). A Python exception (a :class:`ModelFileError` included) propagates.
+
+    These are the messages a pool worker sends and a Ray task yields, so every backend plays a job alike."""
     env = SwarmEnv(job.scenario, **env_kwargs_for(job.scenario, job.env_kwargs))
     try:
         try:
@@ -253,14 +257,16 @@ def _run_job(job: _Job, on_episode: _OnEpisode) -> str | None:
         except ModelFileError:
             raise  # the same file fails on every scenario: a bad argument, reported as such
         except PolicyError as exc:
-            return str(exc)
+            yield ("done", str(exc))
+            return
         # Some policies refuse an env in reset() (ValueError), not in their factory; probe once so
         # that this too gives an n/a row. run_episode resets both again with the same seed.
         env.reset(seed=job.seeds[0])
         try:
             policy.reset(env, job.seeds[0])
         except ValueError as exc:
-            return str(exc) if str(exc).startswith("policy ") else f"policy {job.policy!r}: {exc}"
+            yield ("done", str(exc) if str(exc).startswith("policy ") else f"policy {job.policy!r}: {exc}")
+            return
         ran = 0
         for seed in job.seeds:
             try:
@@ -268,15 +274,27 @@ def _run_job(job: _Job, on_episode: _OnEpisode) -> str | None:
             except PolicyError as exc:
                 if ran:  # a refusal after some episodes ran is a fault, not a misfit
                     raise
-                return str(exc)
+                yield ("done", str(exc))
+                return
             except Exception as exc:
                 exc.add_note(f"while evaluating policy {job.policy!r} on scenario {job.scenario!r}, seed {seed}")
                 raise
             ran += 1
-            on_episode(seed, metrics, rec)
-        return None
+            yield ("episode", seed, metrics, rec)
+        yield ("done", None)
     finally:
         env.close()
+
+
+def _run_job(job: _Job, on_episode: _OnEpisode) -> str | None:
+    """:func:`_play_job` in this process, reporting each finished episode to ``on_episode`` as it ends; returns
+    ``None``, or the reason the policy refuses the scenario (no episode ran)."""
+    with contextlib.closing(_play_job(job)) as messages:  # closed (the env too) if on_episode raises
+        for kind, *payload in messages:
+            if kind == "done":
+                return cast("str | None", payload[0])
+            on_episode(*payload)
+    raise AssertionError("_play_job ended without its 'done' message")  # pragma: no cover - it always sends one
 
 
 # --------------------------------------------------------------------------- the sweep's bookkeeping
@@ -547,21 +565,29 @@ def _run_pool(jobs: list[_Job], workers: int, sweep: _Sweep, episode_timeout: fl
                     continue
                 slot.stop(kill=True)
                 slots[i] = _Slot(ctx)
-                left = sweep.remaining(job)
-                if not left:
-                    continue
-                seed = left[0]  # the episode it was playing: the first without a result
-                key = (job.policy, job.scenario, seed)
-                attempts[key] = attempts.get(key, 0) + 1
-                if attempts[key] >= MAX_ATTEMPTS:
-                    sweep.fail(job, seed, lost, attempts[key])
-                    left = left[1:]
-                if left:
-                    queue_.insert(0, _Job(job.policy, job.scenario, left, job.env_kwargs))
+                rest = _lose_episode(sweep, job, lost, attempts)
+                if rest is not None:
+                    queue_.insert(0, rest)
             del ready  # only a wake-up: every slot is polled above
     finally:
         for slot in slots:
             slot.stop(kill=slot.job is not None)
+
+
+def _lose_episode(sweep: _Sweep, job: _Job, lost: str, attempts: dict[tuple[str, str, int], int]) -> _Job | None:
+    """Count a lost attempt of the episode ``job`` was playing when its worker died or timed out (the first of
+    its seeds without a result: a job plays its seeds in order), record it as failed after :data:`MAX_ATTEMPTS`
+    attempts, and return the job of the seeds still to play (``None`` when none are left)."""
+    left = sweep.remaining(job)
+    if not left:
+        return None
+    seed = left[0]
+    key = (job.policy, job.scenario, seed)
+    attempts[key] = attempts.get(key, 0) + 1
+    if attempts[key] >= MAX_ATTEMPTS:
+        sweep.fail(job, seed, lost, attempts[key])
+        left = left[1:]
+    return _Job(job.policy, job.scenario, left, job.env_kwargs) if left else None
 
 
 def _messages(conn: Any) -> list[tuple[Any, ...]]:
@@ -578,11 +604,47 @@ def _messages(conn: Any) -> list[tuple[Any, ...]]:
     return got
 
 
-def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep) -> None:
-    """The jobs as Ray tasks, one per (policy, scenario) job like the local pool, so the episodes
-    are the same wherever they run. ``address``: an existing cluster (``"auto"``, ``"ray://..."``,
-    ``"HOST:PORT"``); ``None`` starts a local Ray instance with ``num_cpus`` CPUs. Every node needs
-    swarm-env (and the policies' extras) installed. A job's episodes reach ``sweep`` when the job ends."""
+def _ray_job(job: _Job) -> Iterator[tuple[Any, ...]]:
+    """The Ray task of one job, a streaming generator: ``("started",)`` once it runs (the episode timeout
+    counts from here, not from a worker's start-up), then :func:`_play_job`'s messages as they happen."""
+    yield ("started",)
+    yield from _play_job(job)
+
+
+@dataclass
+class _RayTask:
+    """A job's Ray task in flight: its job, when its current episode (or, before ``started``, the task) began."""
+
+    job: _Job
+    since: float
+    started: bool = False
+    done: bool = False
+
+
+def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep,
+             episode_timeout: float | None = None) -> None:
+    """Play ``jobs`` as Ray tasks, each job's episodes reported to ``sweep`` as they finish, with the local
+    pool's fault rules (:func:`_run_pool`).
+
+    ``address``: an existing cluster (``"auto"``, ``"ray://..."``, ``"HOST:PORT"``); ``None`` starts a local
+    Ray instance with ``num_cpus`` CPUs (shut down at the end; an instance already running in this process is
+    used and left running). Every node needs swarm-env (and the policies' extras) installed.
+
+    A task whose worker dies (``WorkerCrashedError`` and Ray's other system errors: a lost node, the memory
+    monitor) or whose current episode runs longer than ``episode_timeout`` seconds (then it is cancelled with
+    ``ray.cancel(force=True)``, which kills its worker) costs only that episode: it is played again once in a
+    new task (:data:`MAX_ATTEMPTS`; Ray's own retries are off) and otherwise recorded as failed; the job goes on
+    with its remaining seeds. A task not started yet is given ``episode_timeout`` + :data:`STARTUP_GRACE`. At
+    most as many tasks are in flight as the cluster has CPUs, so a submitted task starts at once. A Python
+    exception in a job stops the sweep and is raised here (a :class:`ModelFileError` as itself). Whenever this
+    returns or raises (Ctrl-C's ``KeyboardInterrupt`` included), the tasks still running are cancelled.
+    """
+    # One streaming task (an ObjectRefGenerator) per job rather than one task per episode: a job plays its seeds
+    # with one env and one policy exactly as in the pool (_play_job: a policy file loaded and the refusal probe
+    # run once per job, not per episode; an episode does not depend on the ones before it, so the metrics are
+    # the same either way), the episodes still reach the sweep one by one as they end, and the retry rule is
+    # the pool's own (_lose_episode: the episode lost is the job's first without a result). The price: a sweep
+    # runs at most one task per job at a time, as the pool does.
     from swarm_env.extras import require
 
     ray = require("ray", "ray", "--backend ray")
@@ -594,32 +656,71 @@ def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep
             ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, **trust)
         else:
             ray.init(address=address, log_to_driver=False, **trust)
+    task = ray.remote(num_cpus=1, max_retries=0)(_ray_job)
+    capacity = max(1, int(ray.cluster_resources().get("CPU", 1)))
+    queue_: list[_Job] = list(jobs)
+    attempts: dict[tuple[str, str, int], int] = {}
+    running: dict[Any, _RayTask] = {}  # ObjectRefGenerator -> its task
     try:
-        task = ray.remote(num_cpus=1, max_retries=0)(_run_job_collect)
-        pending = {task.remote(job): job for job in jobs}
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            for ref in done:
-                job = pending.pop(ref)
-                try:
-                    reason, episodes = ray.get(ref)  # re-raises a job's exception here (as a RayTaskError)
-                except ray.exceptions.RayTaskError as exc:
-                    if isinstance(exc.cause, ModelFileError):
-                        raise exc.cause from None  # its one line, not the remote traceback
-                    raise
-                for seed, metrics, rec in episodes:
-                    sweep.episode(job, seed, metrics, rec)
-                if reason is not None:
-                    sweep.refuse(job, reason)
+        while queue_ or running:
+            while queue_ and len(running) < capacity:
+                job = queue_.pop(0)
+                running[task.remote(job)] = _RayTask(job, time.monotonic())
+            ray.wait(list(running), num_returns=1, timeout=0.2)  # only a wake-up: every task is polled below
+            for gen in list(running):
+                t = running[gen]
+                lost = _drain_ray_task(ray, gen, t, sweep)
+                if lost is None and not t.done and episode_timeout is not None:
+                    if time.monotonic() - t.since > (episode_timeout if t.started else episode_timeout + STARTUP_GRACE):
+                        ray.cancel(gen, force=True)
+                        lost = f"timed out after {episode_timeout:g} s (--episode-timeout)"
+                if lost is None:
+                    if running[gen].done:
+                        del running[gen]
+                    continue
+                rest = _lose_episode(sweep, running.pop(gen).job, lost, attempts)
+                if rest is not None:
+                    queue_.insert(0, rest)
     finally:
+        for gen in running:  # Ctrl-C or an exception: stop what still runs (a cluster's tasks would go on)
+            try:
+                ray.cancel(gen, force=True)
+            except Exception:  # noqa: BLE001 - already finished or gone; nothing left to stop
+                pass
         if started:
             ray.shutdown()
 
 
-def _run_job_collect(job: _Job) -> tuple[str | None, list[tuple[int, dict[str, Any], EpisodeRecord]]]:
-    episodes: list[tuple[int, dict[str, Any], EpisodeRecord]] = []
-    reason = _run_job(job, lambda seed, metrics, rec: episodes.append((seed, metrics, rec)))
-    return reason, episodes
+def _drain_ray_task(ray: Any, gen: Any, task: _RayTask, sweep: _Sweep) -> str | None:
+    """Take the messages ``gen`` (a job's :func:`_ray_job`) has ready, reporting its episodes and its end
+    (``task.done``) to ``sweep``; returns why the episode it was playing is lost (its worker died), else ``None``.
+    A Python exception in the job is raised here, a :class:`ModelFileError` as itself (its one line)."""
+    while not task.done and ray.wait([gen], num_returns=1, timeout=0)[0]:
+        try:
+            ref = next(gen)
+        except StopIteration:  # not seen: a job's task ends with its "done" or an error
+            return "the Ray task ended before its job did"
+        try:
+            kind, *payload = ray.get(ref)
+        except ray.exceptions.RayTaskError as exc:
+            if isinstance(exc.cause, ModelFileError):
+                raise exc.cause from None  # its one line, not the remote traceback
+            if isinstance(exc.cause, KeyboardInterrupt):  # a Ctrl-C that reached the worker too: the sweep's
+                raise KeyboardInterrupt from None
+            raise
+        except ray.exceptions.RayError as exc:  # the worker, not the job: WorkerCrashedError, a lost node, OOM
+            text = (str(exc).strip().splitlines() or [""])[0][:200]
+            return f"Ray worker died ({type(exc).__name__}: {text})"
+        if kind == "started":
+            task.started, task.since = True, time.monotonic()
+        elif kind == "episode":
+            sweep.episode(task.job, *payload)
+            task.since = time.monotonic()
+        else:  # "done"
+            if payload[0] is not None:
+                sweep.refuse(task.job, payload[0])
+            task.done = True
+    return None
 
 
 def run_leaderboard(
@@ -711,7 +812,7 @@ def run_leaderboard(
             if not todo:
                 pass
             elif backend == "ray":
-                _run_ray(todo, ray_address, workers, sweep)
+                _run_ray(todo, ray_address, workers, sweep, episode_timeout)
             elif workers == 1 or len(todo) == 1:
                 for job in todo:
                     def record(seed: int, metrics: dict[str, Any], rec: Any, job: _Job = job) -> None:
