@@ -29,7 +29,6 @@ from swarm_env.harness.leaderboard import (  # noqa: E402
     _behaviour,
     run_leaderboard,
 )
-from swarm_env.harness.policies import ModelFileError  # noqa: E402
 
 SHORT = {"max_cycles": 20}  # 20-step episodes: the fault tests time the faults, not the episodes
 SEEDS = [0, 1, 2]
@@ -165,7 +164,7 @@ def test_ray_a_crashed_or_hung_episode_costs_only_itself(faults: Path, tmp_path:
         assert [x["seed"] for x in lines if x["policy"] == p] == SEEDS
 
 
-def test_ray_resume_plays_only_the_missing_episodes_and_a_bad_model_file_is_one_error(tmp_path: Path) -> None:
+def test_ray_resume_plays_only_the_missing_episodes(tmp_path: Path) -> None:
     full = run_leaderboard(["pursuit", "zero"], ["paper_vo_0"], SEEDS, env_kwargs=SHORT, progress=False,
                            out_dir=tmp_path / "full")
     stream = (tmp_path / "full" / EPISODES_FILE).read_text().splitlines()
@@ -181,12 +180,6 @@ def test_ray_resume_plays_only_the_missing_episodes_and_a_bad_model_file_is_one_
     # the two kept lines, then the four missing episodes, each once: nothing was played twice
     assert [(x["policy"], x["seed"]) for x in lines[:2]] == [("pursuit", 0), ("pursuit", 1)]
     assert sorted((x["policy"], x["seed"]) for x in lines[2:]) == [("pursuit", 2), ("zero", 0), ("zero", 1), ("zero", 2)]
-    assert not ray.is_initialized()
-    # a bad model file stops the sweep with its own one-line error, not Ray's remote traceback
-    with pytest.raises(ModelFileError) as err:
-        run_leaderboard(["ppo:" + str(tmp_path / "missing.zip")], ["paper_vo_0"], [0], env_kwargs=SHORT,
-                        progress=False, backend="ray", workers=2)
-    assert "\n" not in str(err.value) and "missing.zip" in str(err.value)
     assert not ray.is_initialized()
 
 
@@ -222,3 +215,33 @@ def test_ray_streams_episodes_and_ctrl_c_writes_partial_results_then_resume_fini
     assert board.rows[0].pending == 0 and board.failed == []
     same_as_pursuit(board, "slow:1,2", pursuit_board, SEEDS)
     assert [json.loads(x)["seed"] for x in stream.read_text().splitlines()] == SEEDS  # seed 0 was not played again
+
+
+def test_ray_ctrl_c_cancels_the_tasks_on_an_instance_it_did_not_start(faults: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    import swarm_env.harness.leaderboard as lb
+
+    real = lb._Sweep.episode
+
+    def episode_then_ctrl_c(self: Any, *args: Any) -> None:  # Ctrl-C right after the first episode is recorded
+        real(self, *args)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(lb._Sweep, "episode", episode_then_ctrl_c)
+    monkeypatch.setenv("SWARM_ENV_FAULT_SLEEP", "300")  # before ray.init: its workers take this environment
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        # slow:1 plays seed 0 and then sleeps; slow:0 sleeps at once: both tasks hold a CPU when Ctrl-C comes
+        with pytest.raises(lb.SweepInterrupted) as info:
+            run_leaderboard(["slow:1", "slow:0"], ["paper_vo_0"], SEEDS, env_kwargs=SHORT, progress=False,
+                            backend="ray")
+        board = info.value.board
+        assert [(e["policy"], e["seed"]) for e in board.episodes] == [("slow:1", 0)]
+        assert [r.pending for r in board.rows] == [2, 3]
+        assert ray.is_initialized()  # not ours to shut down
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and ray.available_resources().get("CPU", 0) < 2:
+            time.sleep(0.2)
+        assert ray.available_resources().get("CPU", 0) == 2  # both sleeping tasks were cancelled
+    finally:
+        ray.shutdown()

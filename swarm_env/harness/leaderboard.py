@@ -27,8 +27,8 @@ process pool (``spawn``: no state inherited from the parent), which gives the
 same metrics as ``workers=1`` because a job does not depend on where it runs;
 only the timings (``wall_time``, ``policy_time``, ``policy_stats``) differ.
 
-Faults. In the pool a worker that dies or whose episode exceeds the per-episode timeout costs only
-that episode (tried once more, then counted in :attr:`Row.failed` and listed in
+Faults. In the pool and on Ray a worker that dies or whose episode exceeds the per-episode timeout
+costs only that episode (tried once more, then counted in :attr:`Row.failed` and listed in
 :attr:`Leaderboard.failed`); with ``out_dir`` every finished episode is streamed to
 ``out_dir/episodes.jsonl``, ``resume=True`` plays only the missing ones, and Ctrl-C raises
 :class:`SweepInterrupted` carrying the board of what is done (see :func:`run_leaderboard`).
@@ -64,7 +64,7 @@ import os
 import re
 import time
 import warnings
-from collections.abc import Callable, Generator, Iterable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -604,17 +604,22 @@ def _messages(conn: Any) -> list[tuple[Any, ...]]:
     return got
 
 
-def _ray_job(job: _Job) -> Iterator[tuple[Any, ...]]:
-    """The Ray task of one job, a streaming generator: ``("started",)`` once it runs (the episode timeout
-    counts from here, not from a worker's start-up), then :func:`_play_job`'s messages as they happen."""
-    yield ("started",)
-    yield from _play_job(job)
+def _ray_job(job: _Job, task_id: int, queue: Any) -> None:
+    """The Ray task of one job: puts ``(task_id, "started")`` on ``queue`` (a ``ray.util.queue.Queue``) once it
+    runs (the episode timeout counts from here, not from a worker's start-up), then ``(task_id, *message)`` for
+    each of :func:`_play_job`'s messages as it happens. ``put`` returns once the queue holds the message, so a
+    task that has ended has delivered all of its messages."""
+    queue.put((task_id, "started"))
+    for message in _play_job(job):
+        queue.put((task_id, *message))
 
 
 @dataclass
 class _RayTask:
-    """A job's Ray task in flight: its job, when its current episode (or, before ``started``, the task) began."""
+    """A job's Ray task in flight: its job, when its current episode (or, before ``started``, the task) began,
+    whether it has begun and whether its job's ``"done"`` came."""
 
+    ref: Any
     job: _Job
     since: float
     started: bool = False
@@ -639,12 +644,13 @@ def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep
     exception in a job stops the sweep and is raised here (a :class:`ModelFileError` as itself). Whenever this
     returns or raises (Ctrl-C's ``KeyboardInterrupt`` included), the tasks still running are cancelled.
     """
-    # One streaming task (an ObjectRefGenerator) per job rather than one task per episode: a job plays its seeds
-    # with one env and one policy exactly as in the pool (_play_job: a policy file loaded and the refusal probe
-    # run once per job, not per episode; an episode does not depend on the ones before it, so the metrics are
-    # the same either way), the episodes still reach the sweep one by one as they end, and the retry rule is
-    # the pool's own (_lose_episode: the episode lost is the job's first without a result). The price: a sweep
-    # runs at most one task per job at a time, as the pool does.
+    # One task per job, as in the pool, rather than one per episode: a job plays its seeds with one env and one
+    # policy (_play_job: a policy file loaded and the refusal probe run once per job, not per episode; an episode
+    # does not depend on the ones before it, so the metrics are the same either way), and the retry rule is the
+    # pool's own (_lose_episode: the episode lost is the job's first without a result). The price: a sweep runs
+    # at most one task per job at a time, as the pool does. The episodes come back through one
+    # ray.util.queue.Queue (an actor) as they end rather than as a streaming generator's items, because Ray
+    # Client (--ray-address ray://...) does not support streaming generators (ray-project/ray#43357).
     from swarm_env.extras import require
 
     ray = require("ray", "ray", "--backend ray")
@@ -653,73 +659,99 @@ def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep
         # The pickle opt-in travels to the workers (on a cluster they do not inherit this process's environment).
         trust = {"runtime_env": {"env_vars": {TRUST_PICKLE_ENV: "1"}}} if pickle_trusted() else {}
         if address is None:
-            ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, **trust)
+            # address="local": a new instance, even where `ray start` left a cluster this would otherwise join
+            ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, **trust)
         else:
             ray.init(address=address, log_to_driver=False, **trust)
-    task = ray.remote(num_cpus=1, max_retries=0)(_ray_job)
-    capacity = max(1, int(ray.cluster_resources().get("CPU", 1)))
-    queue_: list[_Job] = list(jobs)
-    attempts: dict[tuple[str, str, int], int] = {}
-    running: dict[Any, _RayTask] = {}  # ObjectRefGenerator -> its task
+    from ray.util.queue import Queue
+
+    queue: Any = None
+    running: dict[int, _RayTask] = {}  # task id -> its task
     try:
-        while queue_ or running:
-            while queue_ and len(running) < capacity:
-                job = queue_.pop(0)
-                running[task.remote(job)] = _RayTask(job, time.monotonic())
-            ray.wait(list(running), num_returns=1, timeout=0.2)  # only a wake-up: every task is polled below
-            for gen in list(running):
-                t = running[gen]
-                lost = _drain_ray_task(ray, gen, t, sweep)
-                if lost is None and not t.done and episode_timeout is not None:
-                    if time.monotonic() - t.since > (episode_timeout if t.started else episode_timeout + STARTUP_GRACE):
-                        ray.cancel(gen, force=True)
-                        lost = f"timed out after {episode_timeout:g} s (--episode-timeout)"
-                if lost is None:
-                    if running[gen].done:
-                        del running[gen]
+        queue = Queue(actor_options={"num_cpus": 0})  # holds no CPU: every CPU can run a job
+        task = ray.remote(num_cpus=1, max_retries=0)(_ray_job)
+        capacity = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        waiting: list[_Job] = list(jobs)
+        attempts: dict[tuple[str, str, int], int] = {}
+        next_id = 0
+        while waiting or running:
+            while waiting and len(running) < capacity:
+                job = waiting.pop(0)
+                running[next_id] = _RayTask(task.remote(job, next_id, queue), job, time.monotonic())
+                next_id += 1
+            refs = [t.ref for t in running.values()]
+            ray.wait(refs, num_returns=1, timeout=0.2)  # a wake-up when a task ends; episodes come by the queue
+            # ended first, then the queue: a task that has ended has put all of its messages there
+            ended, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
+            _drain_ray_queue(queue, running, sweep)
+            ended_set = set(ended)
+            for task_id, t in list(running.items()):
+                lost: str | None = None
+                if t.ref in ended_set:
+                    lost = _ray_task_result(ray, t.ref)
+                    if lost is None and not t.done:  # not seen: a job's task sends "done" or raises
+                        lost = "the Ray task ended before its job did"
+                elif t.done:  # its job is finished; the task is returning
+                    pass
+                elif episode_timeout is not None and time.monotonic() - t.since > (
+                        episode_timeout if t.started else episode_timeout + STARTUP_GRACE):
+                    ray.cancel(t.ref, force=True)
+                    lost = f"timed out after {episode_timeout:g} s (--episode-timeout)"
+                else:
                     continue
-                rest = _lose_episode(sweep, running.pop(gen).job, lost, attempts)
-                if rest is not None:
-                    queue_.insert(0, rest)
+                del running[task_id]  # a given-up task's later messages are dropped: its episode is played again
+                if lost is not None:
+                    rest = _lose_episode(sweep, t.job, lost, attempts)
+                    if rest is not None:
+                        waiting.insert(0, rest)
     finally:
-        for gen in running:  # Ctrl-C or an exception: stop what still runs (a cluster's tasks would go on)
+        for t in running.values():  # Ctrl-C or an exception: stop what still runs (a cluster's tasks would go on)
             try:
-                ray.cancel(gen, force=True)
+                ray.cancel(t.ref, force=True)
             except Exception:  # noqa: BLE001 - already finished or gone; nothing left to stop
+                pass
+        if queue is not None:
+            try:
+                queue.shutdown(force=True)
+            except Exception:  # noqa: BLE001 - gone with its node; nothing left to stop
                 pass
         if started:
             ray.shutdown()
 
 
-def _drain_ray_task(ray: Any, gen: Any, task: _RayTask, sweep: _Sweep) -> str | None:
-    """Take the messages ``gen`` (a job's :func:`_ray_job`) has ready, reporting its episodes and its end
-    (``task.done``) to ``sweep``; returns why the episode it was playing is lost (its worker died), else ``None``.
-    A Python exception in the job is raised here, a :class:`ModelFileError` as itself (its one line)."""
-    while not task.done and ray.wait([gen], num_returns=1, timeout=0)[0]:
-        try:
-            ref = next(gen)
-        except StopIteration:  # not seen: a job's task ends with its "done" or an error
-            return "the Ray task ended before its job did"
-        try:
-            kind, *payload = ray.get(ref)
-        except ray.exceptions.RayTaskError as exc:
-            if isinstance(exc.cause, ModelFileError):
-                raise exc.cause from None  # its one line, not the remote traceback
-            if isinstance(exc.cause, KeyboardInterrupt):  # a Ctrl-C that reached the worker too: the sweep's
-                raise KeyboardInterrupt from None
-            raise
-        except ray.exceptions.RayError as exc:  # the worker, not the job: WorkerCrashedError, a lost node, OOM
-            text = (str(exc).strip().splitlines() or [""])[0][:200]
-            return f"Ray worker died ({type(exc).__name__}: {text})"
+def _drain_ray_queue(queue: Any, running: Mapping[int, _RayTask], sweep: _Sweep) -> None:
+    """Report the messages waiting in ``queue`` (from :func:`_ray_job`) to ``sweep``: episodes, refusals, and
+    each task's start and end (``started``, ``done``); those of a task no longer running are dropped."""
+    n = queue.qsize()
+    for task_id, kind, *payload in queue.get_nowait_batch(n) if n else []:
+        t = running.get(task_id)
+        if t is None or t.done:  # a task given up (timed out): its episode is played again elsewhere
+            continue
         if kind == "started":
-            task.started, task.since = True, time.monotonic()
+            t.started, t.since = True, time.monotonic()
         elif kind == "episode":
-            sweep.episode(task.job, *payload)
-            task.since = time.monotonic()
+            sweep.episode(t.job, *payload)
+            t.since = time.monotonic()
         else:  # "done"
             if payload[0] is not None:
-                sweep.refuse(task.job, payload[0])
-            task.done = True
+                sweep.refuse(t.job, payload[0])
+            t.done = True
+
+
+def _ray_task_result(ray: Any, ref: Any) -> str | None:
+    """``None`` when the task ended normally; why its episode is lost when its worker died. A Python exception
+    in the job is raised here, a :class:`ModelFileError` as itself (its one line, not Ray's remote traceback)."""
+    try:
+        ray.get(ref)
+    except ray.exceptions.RayTaskError as exc:
+        if isinstance(exc.cause, ModelFileError):
+            raise exc.cause from None
+        if isinstance(exc.cause, KeyboardInterrupt):  # a Ctrl-C that reached the worker too: the sweep's
+            raise KeyboardInterrupt from None
+        raise
+    except ray.exceptions.RayError as exc:  # the worker, not the job: WorkerCrashedError, a lost node, OOM
+        text = (str(exc).strip().splitlines() or [""])[0][:200]
+        return f"Ray worker died ({type(exc).__name__}: {text})"
     return None
 
 
@@ -754,7 +786,9 @@ def run_leaderboard(
     * ``progress``: a tqdm bar over episodes on stderr.
     * ``backend``: ``"local"`` (this process, or the pool above) or ``"ray"``: the same jobs as
       Ray tasks on the cluster at ``ray_address`` (or on a local Ray instance with ``workers``
-      CPUs when ``ray_address`` is ``None``); the metrics equal the local ones.
+      CPUs when ``ray_address`` is ``None``); the metrics equal the local ones, and the pool's
+      fault rules hold there too (:func:`_run_ray`): ``episode_timeout`` bounds each episode, a
+      dead or timed-out task costs only its episode, episodes stream to ``out_dir`` as they end.
     * ``out_dir``: stream every finished episode as one JSON line to ``out_dir/episodes.jsonl``
       and store the sweep's spec in ``out_dir/sweep.json``. A directory that already holds results
       is refused (:class:`~swarm_env.outputs.OutputError`) unless ``overwrite`` (start again) or
