@@ -249,7 +249,7 @@ def _play_job(job: _Job) -> Generator[tuple[Any, ...], None, None]:
     record)`` as each episode ends and then ``("done", na_reason)``: ``None``, or the reason the policy refuses
     the scenario (then no episode ran). A Python exception (a :class:`ModelFileError` included) propagates.
 
-    These are the messages a pool worker sends and a Ray task yields, so every backend plays a job alike."""
+    These are the messages a pool worker sends and a Ray task puts on its queue, so every backend plays a job alike."""
     env = SwarmEnv(job.scenario, **env_kwargs_for(job.scenario, job.env_kwargs))
     try:
         try:
