@@ -1,9 +1,19 @@
-"""Ray: ``evaluate --backend ray`` equals the local pool; RLlib PPO trains and its exported actor is a
-policy (marker ``ray``: ``pip install -e '.[rl,ray]'`` then ``python -m pytest -m ray``)."""
+"""Ray: ``evaluate --backend ray`` equals the local pool and keeps its fault contract (a crashed or hung
+episode retried once then failed, episodes streamed to DIR/episodes.jsonl as they end, Ctrl-C and --resume);
+RLlib PPO trains and its exported actor is a policy (marker ``ray``: ``pip install -e '.[rl,ray]'`` then
+``python -m pytest -m ray``)."""
 
 from __future__ import annotations
 
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -12,7 +22,16 @@ pytestmark = pytest.mark.ray
 ray = pytest.importorskip("ray")
 pytest.importorskip("ray.rllib")
 
-from swarm_env.harness.leaderboard import _behaviour, run_leaderboard  # noqa: E402
+from swarm_env.harness.leaderboard import (  # noqa: E402
+    EPISODES_FILE,
+    TIMING_KEYS,
+    Leaderboard,
+    _behaviour,
+    run_leaderboard,
+)
+
+SHORT = {"max_cycles": 20}  # 20-step episodes: the fault tests time the faults, not the episodes
+SEEDS = [0, 1, 2]
 
 
 def _episodes(board) -> list[dict]:
@@ -87,3 +106,142 @@ def test_the_command_line_runs_on_ray(tmp_path: Path, capsys) -> None:
     assert "| `pursuit` |" in (out / "leaderboard.md").read_text()
     with pytest.raises(ValueError, match="ray_address needs backend='ray'"):
         run_leaderboard(["pursuit"], ["paper_vo_90"], [0], progress=False, ray_address="auto")
+
+
+# --------------------------------------------------------------------------- the local pool's fault contract
+def behaviour(board: Leaderboard) -> list[tuple[str, str, int, dict[str, Any]]]:
+    """The episodes without their timings, as JSON stores them (a resumed board reads some back from JSON)."""
+    return [(e["policy"], e["scenario"], e["seed"],
+             json.loads(json.dumps({k: v for k, v in e["metrics"].items() if k not in TIMING_KEYS})))
+            for e in board.episodes]
+
+
+@pytest.fixture(scope="module")
+def pursuit_board() -> Leaderboard:
+    return run_leaderboard(["pursuit"], ["paper_vo_0"], SEEDS, env_kwargs=SHORT, progress=False)
+
+
+def same_as_pursuit(board: Leaderboard, policy: str, pursuit_board: Leaderboard, seeds: list[int]) -> None:
+    """The fault policies play pursuit except where they fail: their finished episodes are pursuit's."""
+    want = {s: m for (_, _, s, m) in behaviour(pursuit_board)}
+    got = [(s, m) for (p, _, s, m) in behaviour(board) if p == policy]
+    assert [s for s, _ in got] == seeds
+    assert all(m == want[s] for s, m in got)
+
+
+def test_ray_a_crashed_or_hung_episode_costs_only_itself(faults: Path, tmp_path: Path, pursuit_board: Leaderboard) -> None:
+    t0 = time.monotonic()
+    board = run_leaderboard(["crash:1", "hang:1", "flaky:0,2", "pursuit"], ["paper_vo_0"], SEEDS, env_kwargs=SHORT,
+                            workers=2, progress=False, backend="ray", out_dir=tmp_path / "lb",
+                            episode_timeout=15.0)  # generous: a loaded machine must not time out a 20-step episode
+    assert time.monotonic() - t0 < 600
+    assert not ray.is_initialized()
+    # crash: os._exit in the worker, twice -> failed, with the local pool's record shape
+    crash, hang = board.row("crash:1", "paper_vo_0"), board.row("hang:1", "paper_vo_0")
+    assert (crash.status, crash.failed, crash.summary["episodes"]) == ("ok", 1, 2)
+    assert (hang.status, hang.failed, hang.summary["episodes"]) == ("ok", 1, 2)
+    lost = {e["policy"]: e for e in board.failed}
+    assert sorted(lost) == ["crash:1", "hang:1"]
+    assert set(lost["crash:1"]) == {"policy", "scenario", "seed", "status", "error", "attempts"}
+    assert (lost["crash:1"]["seed"], lost["crash:1"]["attempts"]) == (1, 2)
+    assert "WorkerCrashedError" in lost["crash:1"]["error"]
+    assert (lost["hang:1"]["seed"], lost["hang:1"]["attempts"]) == (1, 2)
+    assert lost["hang:1"]["error"] == "timed out after 15 s (--episode-timeout)"  # as the pool words it
+    # flaky dies once on seeds 0 and 2: retried in a new task, and then it plays them
+    assert (faults / "flaky-0").exists() and (faults / "flaky-2").exists()
+    assert board.row("flaky:0,2", "paper_vo_0").failed == 0
+    # the episodes around the faults are unharmed: the same as pursuit's
+    same_as_pursuit(board, "crash:1", pursuit_board, [0, 2])
+    same_as_pursuit(board, "hang:1", pursuit_board, [0, 2])
+    same_as_pursuit(board, "flaky:0,2", pursuit_board, SEEDS)
+    same_as_pursuit(board, "pursuit", pursuit_board, SEEDS)
+    # every episode streamed once; within a job in the order its episodes ended (seed order)
+    lines = [json.loads(x) for x in (tmp_path / "lb" / EPISODES_FILE).read_text().splitlines()]
+    assert sorted((x["policy"], x["seed"], x["status"]) for x in lines) == sorted(
+        [(p, s, "failed" if (p, s) in {("crash:1", 1), ("hang:1", 1)} else "ok")
+         for p in ("crash:1", "hang:1", "flaky:0,2", "pursuit") for s in SEEDS])
+    for p in ("crash:1", "hang:1", "flaky:0,2", "pursuit"):
+        assert [x["seed"] for x in lines if x["policy"] == p] == SEEDS
+
+
+def test_ray_resume_plays_only_the_missing_episodes(tmp_path: Path) -> None:
+    full = run_leaderboard(["pursuit", "zero"], ["paper_vo_0"], SEEDS, env_kwargs=SHORT, progress=False,
+                           out_dir=tmp_path / "full")
+    stream = (tmp_path / "full" / EPISODES_FILE).read_text().splitlines()
+    part = tmp_path / "part"  # an interrupted sweep: two lines finished, the third torn mid-write by a kill
+    part.mkdir()
+    shutil.copy(tmp_path / "full" / "sweep.json", part / "sweep.json")
+    (part / EPISODES_FILE).write_text(stream[0] + "\n" + stream[1] + "\n" + stream[2][:40])
+    resumed = run_leaderboard(["pursuit", "zero"], ["paper_vo_0"], SEEDS, env_kwargs=SHORT, progress=False,
+                              out_dir=part, resume=True, backend="ray", workers=2)
+    assert behaviour(resumed) == behaviour(full)
+    assert [r.summary["collisions"] for r in resumed.rows] == [r.summary["collisions"] for r in full.rows]
+    lines = [json.loads(x) for x in (part / EPISODES_FILE).read_text().splitlines()]
+    # the two kept lines, then the four missing episodes, each once: nothing was played twice
+    assert [(x["policy"], x["seed"]) for x in lines[:2]] == [("pursuit", 0), ("pursuit", 1)]
+    assert sorted((x["policy"], x["seed"]) for x in lines[2:]) == [("pursuit", 2), ("zero", 0), ("zero", 1), ("zero", 2)]
+    assert not ray.is_initialized()
+
+
+def test_ray_streams_episodes_and_ctrl_c_writes_partial_results_then_resume_finishes(
+        faults: Path, tmp_path: Path, pursuit_board: Leaderboard) -> None:
+    out = tmp_path / "lb"
+    cli = [sys.executable, "-m", "swarm_env.harness.cli", "evaluate"]
+    cmd = cli + ["--policies", "slow:1,2", "--scenarios", "paper_vo_0", "--seeds", "0-2", "--max-cycles", "20",
+                 "--backend", "ray", "--workers", "2", "--quiet", "--out", str(out)]
+    env = {**os.environ, "SWARM_ENV_FAULT_SLEEP": "300"}
+    # (SIGINT handled by default in the child, as at a terminal: a runner that started this suite in the
+    # background would otherwise pass its ignored SIGINT on to it)
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    stream = out / EPISODES_FILE
+    deadline = time.monotonic() + 300
+    while time.monotonic() < deadline and not (stream.is_file() and stream.read_text().count("\n") >= 1):
+        time.sleep(0.2)
+    # seed 0 is in the stream while seed 1 sleeps in the same job's task: episodes stream as they end, not per job
+    assert proc.poll() is None and [json.loads(x)["seed"] for x in stream.read_text().splitlines()] == [0]
+    proc.send_signal(signal.SIGINT)
+    stdout, stderr = proc.communicate(timeout=120)
+    assert proc.returncode == 130, stderr
+    # the last line is ours (Ray may log its start above it)
+    assert stderr.strip().splitlines()[-1].startswith("interrupted: 1 of 3 episodes done"), stderr
+    partial = json.loads((out / "leaderboard.json").read_text())
+    assert [e["seed"] for e in partial["episodes"]] == [0] and partial["rows"][0]["pending"] == 2
+    env["SWARM_ENV_FAULT_SLEEP"] = "0"
+    done = subprocess.run(cli + ["--resume", str(out), "--backend", "ray", "--workers", "2", "--quiet"],
+                          env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    board = Leaderboard.from_json(out / "leaderboard.json")
+    assert board.rows[0].pending == 0 and board.failed == []
+    same_as_pursuit(board, "slow:1,2", pursuit_board, SEEDS)
+    assert [json.loads(x)["seed"] for x in stream.read_text().splitlines()] == SEEDS  # seed 0 was not played again
+
+
+def test_ray_ctrl_c_cancels_the_tasks_on_an_instance_it_did_not_start(faults: Path,
+                                                                     monkeypatch: pytest.MonkeyPatch) -> None:
+    import swarm_env.harness.leaderboard as lb
+
+    real = lb._Sweep.episode
+
+    def episode_then_ctrl_c(self: Any, *args: Any) -> None:  # Ctrl-C right after the first episode is recorded
+        real(self, *args)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(lb._Sweep, "episode", episode_then_ctrl_c)
+    monkeypatch.setenv("SWARM_ENV_FAULT_SLEEP", "300")  # before ray.init: its workers take this environment
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        # slow:1 plays seed 0 and then sleeps; slow:0 sleeps at once: both tasks hold a CPU when Ctrl-C comes
+        with pytest.raises(lb.SweepInterrupted) as info:
+            run_leaderboard(["slow:1", "slow:0"], ["paper_vo_0"], SEEDS, env_kwargs=SHORT, progress=False,
+                            backend="ray")
+        board = info.value.board
+        assert [(e["policy"], e["seed"]) for e in board.episodes] == [("slow:1", 0)]
+        assert [r.pending for r in board.rows] == [2, 3]
+        assert ray.is_initialized()  # not ours to shut down
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline and ray.available_resources().get("CPU", 0) < 2:
+            time.sleep(0.2)
+        assert ray.available_resources().get("CPU", 0) == 2  # both sleeping tasks were cancelled
+    finally:
+        ray.shutdown()

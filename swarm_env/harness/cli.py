@@ -644,7 +644,8 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--workers", type=int, default=1, help="processes running (policy, scenario) jobs in parallel "
                    "(with --backend ray and no --ray-address: the local Ray instance's CPUs)")
     e.add_argument("--backend", choices=["local", "ray"], default="local",
-                   help="local: this machine's process pool; ray: Ray tasks (pip install 'swarm-env[ray]'), the same results")
+                   help="local: this machine's process pool; ray: Ray tasks (pip install 'swarm-env[ray]'), the same "
+                   "results and the same fault handling")
     e.add_argument("--ray-address", help="with --backend ray: join this cluster ('auto', 'HOST:6379', 'ray://HOST:10001') "
                    "instead of starting a local Ray instance")
     e.add_argument("--action-type", choices=["continuous", "discrete"], default=None, help="default: continuous")
@@ -659,8 +660,9 @@ def build_parser() -> argparse.ArgumentParser:
                    "any given must match)")
     e.add_argument("--overwrite", action="store_true", help="replace the results already in --out DIR")
     e.add_argument("--episode-timeout", type=float, metavar="SECONDS",
-                   help="with --workers >= 2: kill a worker whose episode runs longer, retry the episode once, "
-                   "then count it as failed (default: 60 + 0.1 s per step of the longest episode)")
+                   help="with --workers >= 2 or --backend ray: kill a worker whose episode runs longer (on Ray: "
+                   "cancel its task), retry the episode once, then count it as failed (default: 60 + 0.1 s per step "
+                   "of the longest episode)")
     e.add_argument("--videos", action="store_true", help="also write DIR/videos/<policy>__<scenario>__seed<k>.mp4 "
                    "of each policy's worst episode per scenario (most collisions, then failure, then formation error), "
                    "replayed from its record, saved as DIR/records/<policy>__<scenario>__seed<k>/")

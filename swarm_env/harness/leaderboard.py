@@ -27,8 +27,8 @@ process pool (``spawn``: no state inherited from the parent), which gives the
 same metrics as ``workers=1`` because a job does not depend on where it runs;
 only the timings (``wall_time``, ``policy_time``, ``policy_stats``) differ.
 
-Faults. In the pool a worker that dies or whose episode exceeds the per-episode timeout costs only
-that episode (tried once more, then counted in :attr:`Row.failed` and listed in
+Faults. In the pool and on Ray a worker that dies or whose episode exceeds the per-episode timeout
+costs only that episode (tried once more, then counted in :attr:`Row.failed` and listed in
 :attr:`Leaderboard.failed`); with ``out_dir`` every finished episode is streamed to
 ``out_dir/episodes.jsonl``, ``resume=True`` plays only the missing ones, and Ctrl-C raises
 :class:`SweepInterrupted` carrying the board of what is done (see :func:`run_leaderboard`).
@@ -55,6 +55,7 @@ and JSON hold both.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import json
@@ -63,10 +64,10 @@ import os
 import re
 import time
 import warnings
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Generator, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -243,9 +244,12 @@ class _Job:
 _OnEpisode = Callable[[int, dict[str, Any], EpisodeRecord], None]
 
 
-def _run_job(job: _Job, on_episode: _OnEpisode) -> str | None:
-    """Play one (policy, scenario) job with one fresh env and policy, reporting each finished episode to
-    ``on_episode`` as it ends; returns ``None``, or the reason the policy refuses the scenario (no episode ran)."""
+def _play_job(job: _Job) -> Generator[tuple[Any, ...], None, None]:
+    """Play one (policy, scenario) job with one fresh env and policy, yielding ``("episode", seed, metrics,
+    record)`` as each episode ends and then ``("done", na_reason)``: ``None``, or the reason the policy refuses
+    the scenario (then no episode ran). A Python exception (a :class:`ModelFileError` included) propagates.
+
+    These are the messages a pool worker sends and a Ray task puts on its queue, so every backend plays a job alike."""
     env = SwarmEnv(job.scenario, **env_kwargs_for(job.scenario, job.env_kwargs))
     try:
         try:
@@ -253,14 +257,16 @@ def _run_job(job: _Job, on_episode: _OnEpisode) -> str | None:
         except ModelFileError:
             raise  # the same file fails on every scenario: a bad argument, reported as such
         except PolicyError as exc:
-            return str(exc)
+            yield ("done", str(exc))
+            return
         # Some policies refuse an env in reset() (ValueError), not in their factory; probe once so
         # that this too gives an n/a row. run_episode resets both again with the same seed.
         env.reset(seed=job.seeds[0])
         try:
             policy.reset(env, job.seeds[0])
         except ValueError as exc:
-            return str(exc) if str(exc).startswith("policy ") else f"policy {job.policy!r}: {exc}"
+            yield ("done", str(exc) if str(exc).startswith("policy ") else f"policy {job.policy!r}: {exc}")
+            return
         ran = 0
         for seed in job.seeds:
             try:
@@ -268,15 +274,27 @@ def _run_job(job: _Job, on_episode: _OnEpisode) -> str | None:
             except PolicyError as exc:
                 if ran:  # a refusal after some episodes ran is a fault, not a misfit
                     raise
-                return str(exc)
+                yield ("done", str(exc))
+                return
             except Exception as exc:
                 exc.add_note(f"while evaluating policy {job.policy!r} on scenario {job.scenario!r}, seed {seed}")
                 raise
             ran += 1
-            on_episode(seed, metrics, rec)
-        return None
+            yield ("episode", seed, metrics, rec)
+        yield ("done", None)
     finally:
         env.close()
+
+
+def _run_job(job: _Job, on_episode: _OnEpisode) -> str | None:
+    """:func:`_play_job` in this process, reporting each finished episode to ``on_episode`` as it ends; returns
+    ``None``, or the reason the policy refuses the scenario (no episode ran)."""
+    with contextlib.closing(_play_job(job)) as messages:  # closed (the env too) if on_episode raises
+        for kind, *payload in messages:
+            if kind == "done":
+                return cast("str | None", payload[0])
+            on_episode(*payload)
+    raise AssertionError("_play_job ended without its 'done' message")  # pragma: no cover - it always sends one
 
 
 # --------------------------------------------------------------------------- the sweep's bookkeeping
@@ -547,21 +565,29 @@ def _run_pool(jobs: list[_Job], workers: int, sweep: _Sweep, episode_timeout: fl
                     continue
                 slot.stop(kill=True)
                 slots[i] = _Slot(ctx)
-                left = sweep.remaining(job)
-                if not left:
-                    continue
-                seed = left[0]  # the episode it was playing: the first without a result
-                key = (job.policy, job.scenario, seed)
-                attempts[key] = attempts.get(key, 0) + 1
-                if attempts[key] >= MAX_ATTEMPTS:
-                    sweep.fail(job, seed, lost, attempts[key])
-                    left = left[1:]
-                if left:
-                    queue_.insert(0, _Job(job.policy, job.scenario, left, job.env_kwargs))
+                rest = _lose_episode(sweep, job, lost, attempts)
+                if rest is not None:
+                    queue_.insert(0, rest)
             del ready  # only a wake-up: every slot is polled above
     finally:
         for slot in slots:
             slot.stop(kill=slot.job is not None)
+
+
+def _lose_episode(sweep: _Sweep, job: _Job, lost: str, attempts: dict[tuple[str, str, int], int]) -> _Job | None:
+    """Count a lost attempt of the episode ``job`` was playing when its worker died or timed out (the first of
+    its seeds without a result: a job plays its seeds in order), record it as failed after :data:`MAX_ATTEMPTS`
+    attempts, and return the job of the seeds still to play (``None`` when none are left)."""
+    left = sweep.remaining(job)
+    if not left:
+        return None
+    seed = left[0]
+    key = (job.policy, job.scenario, seed)
+    attempts[key] = attempts.get(key, 0) + 1
+    if attempts[key] >= MAX_ATTEMPTS:
+        sweep.fail(job, seed, lost, attempts[key])
+        left = left[1:]
+    return _Job(job.policy, job.scenario, left, job.env_kwargs) if left else None
 
 
 def _messages(conn: Any) -> list[tuple[Any, ...]]:
@@ -578,11 +604,53 @@ def _messages(conn: Any) -> list[tuple[Any, ...]]:
     return got
 
 
-def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep) -> None:
-    """The jobs as Ray tasks, one per (policy, scenario) job like the local pool, so the episodes
-    are the same wherever they run. ``address``: an existing cluster (``"auto"``, ``"ray://..."``,
-    ``"HOST:PORT"``); ``None`` starts a local Ray instance with ``num_cpus`` CPUs. Every node needs
-    swarm-env (and the policies' extras) installed. A job's episodes reach ``sweep`` when the job ends."""
+def _ray_job(job: _Job, task_id: int, queue: Any) -> None:
+    """The Ray task of one job: puts ``(task_id, "started")`` on ``queue`` (a ``ray.util.queue.Queue``) once it
+    runs (the episode timeout counts from here, not from a worker's start-up), then ``(task_id, *message)`` for
+    each of :func:`_play_job`'s messages as it happens. ``put`` returns once the queue holds the message, so a
+    task that has ended has delivered all of its messages."""
+    queue.put((task_id, "started"))
+    for message in _play_job(job):
+        queue.put((task_id, *message))
+
+
+@dataclass
+class _RayTask:
+    """A job's Ray task in flight: its job, when its current episode (or, before ``started``, the task) began,
+    whether it has begun and whether its job's ``"done"`` came."""
+
+    ref: Any
+    job: _Job
+    since: float
+    started: bool = False
+    done: bool = False
+
+
+def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep,
+             episode_timeout: float | None = None) -> None:
+    """Play ``jobs`` as Ray tasks, each job's episodes reported to ``sweep`` as they finish, with the local
+    pool's fault rules (:func:`_run_pool`).
+
+    ``address``: an existing cluster (``"auto"``, ``"ray://..."``, ``"HOST:PORT"``); ``None`` starts a local
+    Ray instance with ``num_cpus`` CPUs (shut down at the end; an instance already running in this process is
+    used and left running). Every node needs swarm-env (and the policies' extras) installed.
+
+    A task whose worker dies (``WorkerCrashedError`` and Ray's other system errors: a lost node, the memory
+    monitor) or whose current episode runs longer than ``episode_timeout`` seconds (then it is cancelled with
+    ``ray.cancel(force=True)``, which kills its worker) costs only that episode: it is played again once in a
+    new task (:data:`MAX_ATTEMPTS`; Ray's own retries are off) and otherwise recorded as failed; the job goes on
+    with its remaining seeds. A task not started yet is given ``episode_timeout`` + :data:`STARTUP_GRACE`. At
+    most as many tasks are in flight as the cluster has CPUs, so a submitted task starts at once. A Python
+    exception in a job stops the sweep and is raised here (a :class:`ModelFileError` as itself). Whenever this
+    returns or raises (Ctrl-C's ``KeyboardInterrupt`` included), the tasks still running are cancelled.
+    """
+    # One task per job, as in the pool, rather than one per episode: a job plays its seeds with one env and one
+    # policy (_play_job: a policy file loaded and the refusal probe run once per job, not per episode; an episode
+    # does not depend on the ones before it, so the metrics are the same either way), and the retry rule is the
+    # pool's own (_lose_episode: the episode lost is the job's first without a result). The price: a sweep runs
+    # at most one task per job at a time, as the pool does. The episodes come back through one
+    # ray.util.queue.Queue (an actor) as they end rather than as a streaming generator's items, because Ray
+    # Client (--ray-address ray://...) does not support streaming generators (ray-project/ray#43357).
     from swarm_env.extras import require
 
     ray = require("ray", "ray", "--backend ray")
@@ -591,35 +659,100 @@ def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep
         # The pickle opt-in travels to the workers (on a cluster they do not inherit this process's environment).
         trust = {"runtime_env": {"env_vars": {TRUST_PICKLE_ENV: "1"}}} if pickle_trusted() else {}
         if address is None:
-            ray.init(num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, **trust)
+            # address="local": a new instance, even where `ray start` left a cluster this would otherwise join
+            ray.init(address="local", num_cpus=num_cpus, include_dashboard=False, log_to_driver=False, **trust)
         else:
             ray.init(address=address, log_to_driver=False, **trust)
+    from ray.util.queue import Queue
+
+    queue: Any = None
+    running: dict[int, _RayTask] = {}  # task id -> its task
     try:
-        task = ray.remote(num_cpus=1, max_retries=0)(_run_job_collect)
-        pending = {task.remote(job): job for job in jobs}
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            for ref in done:
-                job = pending.pop(ref)
-                try:
-                    reason, episodes = ray.get(ref)  # re-raises a job's exception here (as a RayTaskError)
-                except ray.exceptions.RayTaskError as exc:
-                    if isinstance(exc.cause, ModelFileError):
-                        raise exc.cause from None  # its one line, not the remote traceback
-                    raise
-                for seed, metrics, rec in episodes:
-                    sweep.episode(job, seed, metrics, rec)
-                if reason is not None:
-                    sweep.refuse(job, reason)
+        queue = Queue(actor_options={"num_cpus": 0})  # holds no CPU: every CPU can run a job
+        task = ray.remote(num_cpus=1, max_retries=0)(_ray_job)
+        capacity = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        waiting: list[_Job] = list(jobs)
+        attempts: dict[tuple[str, str, int], int] = {}
+        next_id = 0
+        while waiting or running:
+            while waiting and len(running) < capacity:
+                job = waiting.pop(0)
+                running[next_id] = _RayTask(task.remote(job, next_id, queue), job, time.monotonic())
+                next_id += 1
+            refs = [t.ref for t in running.values()]
+            ray.wait(refs, num_returns=1, timeout=0.2)  # a wake-up when a task ends; episodes come by the queue
+            # ended first, then the queue: a task that has ended has put all of its messages there
+            ended, _ = ray.wait(refs, num_returns=len(refs), timeout=0)
+            _drain_ray_queue(queue, running, sweep)
+            ended_set = set(ended)
+            for task_id, t in list(running.items()):
+                lost: str | None = None
+                if t.ref in ended_set:
+                    lost = _ray_task_result(ray, t.ref)
+                    if lost is None and not t.done:  # not seen: a job's task sends "done" or raises
+                        lost = "the Ray task ended before its job did"
+                elif t.done:  # its job is finished; the task is returning
+                    pass
+                elif episode_timeout is not None and time.monotonic() - t.since > (
+                        episode_timeout if t.started else episode_timeout + STARTUP_GRACE):
+                    ray.cancel(t.ref, force=True)
+                    lost = f"timed out after {episode_timeout:g} s (--episode-timeout)"
+                else:
+                    continue
+                del running[task_id]  # a given-up task's later messages are dropped: its episode is played again
+                if lost is not None:
+                    rest = _lose_episode(sweep, t.job, lost, attempts)
+                    if rest is not None:
+                        waiting.insert(0, rest)
     finally:
+        for t in running.values():  # Ctrl-C or an exception: stop what still runs (a cluster's tasks would go on)
+            try:
+                ray.cancel(t.ref, force=True)
+            except Exception:  # noqa: BLE001 - already finished or gone; nothing left to stop
+                pass
+        if queue is not None:
+            try:
+                queue.shutdown(force=True)
+            except Exception:  # noqa: BLE001 - gone with its node; nothing left to stop
+                pass
         if started:
             ray.shutdown()
 
 
-def _run_job_collect(job: _Job) -> tuple[str | None, list[tuple[int, dict[str, Any], EpisodeRecord]]]:
-    episodes: list[tuple[int, dict[str, Any], EpisodeRecord]] = []
-    reason = _run_job(job, lambda seed, metrics, rec: episodes.append((seed, metrics, rec)))
-    return reason, episodes
+def _drain_ray_queue(queue: Any, running: Mapping[int, _RayTask], sweep: _Sweep) -> None:
+    """Report the messages waiting in ``queue`` (from :func:`_ray_job`) to ``sweep``: episodes, refusals, and
+    each task's start and end (``started``, ``done``); those of a task no longer running are dropped."""
+    n = queue.qsize()
+    for task_id, kind, *payload in queue.get_nowait_batch(n) if n else []:
+        t = running.get(task_id)
+        if t is None or t.done:  # a task given up (timed out): its episode is played again elsewhere
+            continue
+        if kind == "started":
+            t.started, t.since = True, time.monotonic()
+        elif kind == "episode":
+            sweep.episode(t.job, *payload)
+            t.since = time.monotonic()
+        else:  # "done"
+            if payload[0] is not None:
+                sweep.refuse(t.job, payload[0])
+            t.done = True
+
+
+def _ray_task_result(ray: Any, ref: Any) -> str | None:
+    """``None`` when the task ended normally; why its episode is lost when its worker died. A Python exception
+    in the job is raised here, a :class:`ModelFileError` as itself (its one line, not Ray's remote traceback)."""
+    try:
+        ray.get(ref)
+    except ray.exceptions.RayTaskError as exc:
+        if isinstance(exc.cause, ModelFileError):
+            raise exc.cause from None
+        if isinstance(exc.cause, KeyboardInterrupt):  # a Ctrl-C that reached the worker too: the sweep's
+            raise KeyboardInterrupt from None
+        raise
+    except ray.exceptions.RayError as exc:  # the worker, not the job: WorkerCrashedError, a lost node, OOM
+        text = (str(exc).strip().splitlines() or [""])[0][:200]
+        return f"Ray worker died ({type(exc).__name__}: {text})"
+    return None
 
 
 def run_leaderboard(
@@ -653,7 +786,9 @@ def run_leaderboard(
     * ``progress``: a tqdm bar over episodes on stderr.
     * ``backend``: ``"local"`` (this process, or the pool above) or ``"ray"``: the same jobs as
       Ray tasks on the cluster at ``ray_address`` (or on a local Ray instance with ``workers``
-      CPUs when ``ray_address`` is ``None``); the metrics equal the local ones.
+      CPUs when ``ray_address`` is ``None``); the metrics equal the local ones, and the pool's
+      fault rules hold there too (:func:`_run_ray`): ``episode_timeout`` bounds each episode, a
+      dead or timed-out task costs only its episode, episodes stream to ``out_dir`` as they end.
     * ``out_dir``: stream every finished episode as one JSON line to ``out_dir/episodes.jsonl``
       and store the sweep's spec in ``out_dir/sweep.json``. A directory that already holds results
       is refused (:class:`~swarm_env.outputs.OutputError`) unless ``overwrite`` (start again) or
@@ -711,7 +846,7 @@ def run_leaderboard(
             if not todo:
                 pass
             elif backend == "ray":
-                _run_ray(todo, ray_address, workers, sweep)
+                _run_ray(todo, ray_address, workers, sweep, episode_timeout)
             elif workers == 1 or len(todo) == 1:
                 for job in todo:
                     def record(seed: int, metrics: dict[str, Any], rec: Any, job: _Job = job) -> None:
