@@ -29,6 +29,8 @@ from pathlib import Path
 from statistics import median
 from typing import Any
 
+from swarm_env.jsonio import dumps
+
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
@@ -104,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
     elif args.vs_config:
         entries["engine_vs"] = (mappo, {**cfg_kwargs, **json.loads(args.vs_config)})
     result = run(entries, args.updates, args.repeats)
-    print(json.dumps({"config": cfg_kwargs, "updates": args.updates, "repeats": args.repeats, **result}, indent=1))
+    print(dumps({"config": cfg_kwargs, "updates": args.updates, "repeats": args.repeats, **result}, indent=1))
     return 0
 
 
