@@ -1485,33 +1485,40 @@ class _VOBatch:
         has_goal = self.goal_heading is not None
         search = (float(self.tau), float(self.v_max), float(self.omega_max), float(self.w_pref), float(self.w_heading),
                   float(self.side_bias), float(self.w_current), has_current,
-                  c(self.current, dtype=np.float64).reshape(n, 2) if has_current else np.zeros((n, 2)), has_goal,
-                  c(self.goal_heading, dtype=np.float64).reshape(n) if has_goal else _E1)
+                  _f64(self.current).reshape(n, 2) if has_current else np.zeros((n, 2)), has_goal,
+                  _f64(self.goal_heading).reshape(n) if has_goal else _E1)
         twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe = vo_kernel.select(
-            self._kernel_world(), times, c(self.pref_pts, dtype=np.float64), trajectories, grid, c(self.pv),
-            c(self.pw), c(self.theta, dtype=np.float64), search, bool(fast), bool(self.escape), _FIRST_STAGE,
-            bool(self.allow_still_overlap), (float(self.v_max), float(self.tau), float(self.horizon)))
+            self._kernel_world(), times, _f64(self.pref_pts), trajectories, grid, _f64(self.pv), _f64(self.pw),
+            _f64(self.theta), search, bool(fast), bool(self.escape), _FIRST_STAGE, bool(self.allow_still_overlap),
+            (float(self.v_max), float(self.tau), float(self.horizon)))
         return VOBatchResult(twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe)
 
     def _kernel_world(self) -> tuple:
-        """The robots, the discs and the static map as :mod:`swarm_env.vo_kernel` takes them."""
-        n, c, f64 = self.n, np.ascontiguousarray, np.float64
+        """The robots, the discs and the static map as :mod:`swarm_env.vo_kernel` takes them (writeable
+        copies throughout, as :func:`swarm_env.vo_kernel.follower_select` builds its own: one compiled
+        search for both)."""
+        n = self.n
         d, dv, vel = self.d, self.dv, self.vel
         n_moving = d.shape[0]
         spd_h = np.hypot(dv[:, 0], dv[:, 1]) * self.horizon
         reciprocal = self.reciprocal
         has_recip = bool(reciprocal is not False and np.any(reciprocal))
         if has_recip:
-            recip_in = c(np.broadcast_to(np.asarray(reciprocal, dtype=bool), (n, n_moving)))
+            recip_in = np.array(np.broadcast_to(np.asarray(reciprocal, dtype=bool), (n, n_moving)), order="C")
             own_speed = np.zeros(n) if vel is None else np.hypot(vel[:, 0], vel[:, 1])
         else:
             recip_in, own_speed = np.zeros((n, n_moving), dtype=bool), np.zeros(n)
         has_mask = self.disc_mask is not None
-        mask = c(np.asarray(self.disc_mask, dtype=bool).reshape(n, n_moving)) if has_mask else recip_in
-        own_vel = np.zeros((n, 2)) if vel is None else c(vel, dtype=f64)
-        return ((c(self.poses2, dtype=f64), c(self.rad, dtype=f64), float(self.ext), float(self.horizon),
-                 float(self.h_static), c(d, dtype=f64), c(dv, dtype=f64), spd_h, has_recip, recip_in, c(own_speed, dtype=f64),
-                 own_vel, has_mask, mask, self.static is not None) + _kernel_map(self.static))
+        mask = np.array(np.asarray(self.disc_mask, dtype=bool).reshape(n, n_moving), order="C") if has_mask else recip_in
+        own_vel = np.zeros((n, 2)) if vel is None else _f64(vel)
+        return ((_f64(self.poses2), _f64(self.rad), float(self.ext), float(self.horizon), float(self.h_static), _f64(d),
+                 _f64(dv), spd_h, has_recip, recip_in, _f64(own_speed), own_vel, has_mask, mask, self.static is not None)
+                + _kernel_map(self.static))
+
+
+def _f64(a: Any) -> np.ndarray:
+    """A writeable C-ordered float64 copy of ``a`` (one array type for the kernels whatever the input)."""
+    return np.array(a, dtype=np.float64, order="C")
 
 
 @lru_cache(maxsize=64)

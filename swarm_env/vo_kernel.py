@@ -32,9 +32,10 @@ _INF = math.inf
 _TWO_PI = 2.0 * math.pi
 # error_model="numpy": a division by zero gives inf/nan as in numpy instead of raising.
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
-# The per-candidate tests are inlined into their callers by numba (not only by LLVM): a call that takes
-# the tuples of arrays costs reference counting on every array in them, which was most of the search's
-# time when paid per candidate (measured: the search 1.7x faster inlined, same bits).
+# The disc and static tests are inlined into their callers by numba (not only by LLVM): a call that takes
+# the tuples of arrays costs about a microsecond (measured on paper_cbs_switch), most of the search's
+# time when paid twice per candidate. Inlined into _contact (and _probe) only, not further: inlining
+# _contact into its caller too made the search another ~7 % faster but its compilation ~40 % slower.
 _inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 
 
@@ -328,7 +329,7 @@ def _static_context(world):
             over_nrm[:n_over], free, fcols)
 
 
-@_inline
+@_jit
 def _contact(i, times, xs, ys, discs, static, has_static, still_ok):
     """``_VOBatch.contact_times`` of one trajectory of robot ``i``."""
     ttc = _INF
@@ -385,7 +386,8 @@ def _candidates(i, grid, pv, pw, theta, search, twists, penalty, order):
     v_scale = v_max if v_max > 0 else 1.0
     w_scale = omega_max if omega_max > 0 else 1.0
     twists[i, 0, 0], twists[i, 0, 1] = pv[i], pw[i]
-    twists[i, 1:] = grid
+    for c in range(g1 - 1):  # (element by element: an array slice assignment compiles numba's shape-error
+        twists[i, c + 1, 0], twists[i, c + 1, 1] = grid[c, 0], grid[c, 1]  # formatting, seconds of compile time)
     gh = goal[i] if has_goal else theta[i] + pw[i] * tau
     for c in range(g1):
         tv, tw = twists[i, c, 0], twists[i, c, 1]
@@ -412,7 +414,8 @@ def _arc_points(i, pts, pref_pts, body, cos_t, sin_t):
     """``_VOBatch.all_points`` of robot ``i`` for the arc model, into ``pts[i]``: the preferred twist's
     trajectory, then the grid's body-frame trajectories rotated by the robot's heading."""
     k1 = pref_pts.shape[1]
-    pts[i, 0] = pref_pts[i]
+    for k in range(k1):
+        pts[i, 0, k, 0], pts[i, 0, k, 1] = pref_pts[i, k, 0], pref_pts[i, k, 1]
     c, s = cos_t[i], sin_t[i]
     for j in range(body.shape[0]):
         for k in range(k1):
@@ -714,12 +717,14 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
             own_speed[i] = math.hypot(own_vel[i, 0], own_vel[i, 1])
             for j in range(n):
                 recip_in[i, j] = True  # the other followers; the robot leader and the humans are avoided fully
-    world = (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, True, mask,
+    has_mask = n >= 0  # (True, typed bool: see no_goal below)
+    world = (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
              has_static) + static_map
     discs = _keep_discs(world)
     static = _static_context(world)
     pref_pts = _preferred_trajectories(pv, pw, theta, tau, horizon, n_arc)
-    search = (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, False,
+    no_goal = n < 0  # (False, typed bool rather than a literal: select and this entry share one _search)
+    search = (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, no_goal,
               np.empty(0))
     return _search(discs, static, has_static, times, pref_pts, (body, cos_t, sin_t, np.empty((0, 1, 1, 2))), grid,
                    pv, pw, theta, search, fast, escape, first_stage, still_ok, (v_max, tau, horizon))
