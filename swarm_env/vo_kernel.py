@@ -1,24 +1,35 @@
-"""The velocity-obstacle selection of :func:`swarm_env.guidance.vo_select_batch`, compiled with numba.
+"""The velocity-obstacle selection of :func:`swarm_env.guidance.vo_select_batch`, compiled with numba,
+and the ``vo`` expert's pure pursuit.
 
 :class:`swarm_env.guidance._VOBatch` is the reference: numpy, readable, one vectorised pass per
 stage of the search. For the handful of robots of one world it spends most of its time in numpy's
-per-call overhead on small temporaries (``python benchmarks/vo_act.py``: 1.4 ms per ``act()`` of the
-``vo`` expert at 8 followers, of which ~60 % in the contact tests and the passes' bookkeeping). These
-kernels run the same search robot by robot, candidate by candidate, and stop each robot at its
-first safe candidate of a pass, without temporaries.
+per-call overhead on small temporaries. These kernels run the same search robot by robot,
+candidate by candidate, and stop each robot at its first safe candidate of a pass, without
+temporaries. Entries: :func:`select` (``_VOBatch.select_compiled``: any call of
+``vo_select_batch``), :func:`follower_select` (``swarm_env.safety.safe_follower_twists``: the
+followers' discs, masks and reciprocity built from the world's arrays, the preferred twists'
+trajectories and the whole search in one call) and :func:`pursuit` (``VOExpert.preferred_twists``
+without preview). With all three the ``vo`` expert's ``act()`` on paper_cbs_switch (8 followers)
+takes ~0.25-0.33 ms of CPU against ~1.8-2.4 ms for the numpy reference (``python
+benchmarks/vo_act.py``, ratio ~7; it was ~0.75 ms with only the search compiled).
 
 Same bits as the reference, by construction and by test (``tests/test_vo_kernel.py`` replays every
-state of several episodes and hundreds of synthetic calls through both): every floating-point
-operation is the reference's, in the reference's order (``a * b + c * d`` where it computes
-``a * b``, then ``+= c * d``). The trajectories of the preferred twists and the robots' headings'
-cosines come from numpy as in the reference; ``hypot``, ``cos``, ``sin`` and ``%`` inside the
-kernels are the C library's, which numpy also calls for float64 here (if a platform's numpy used
-other implementations, the two could differ in a last bit: the test would say so).
+step of several whole episodes — the whole ``act()`` — and hundreds of synthetic calls through
+both): every floating-point operation is the reference's, in the reference's order (``a * b + c * d``
+where it computes ``a * b``, then ``+= c * d``; ``np.sinc``'s own formula where the reference calls
+it; numpy's rules for ties of signed zeros in ``np.maximum``/``np.minimum``/``np.clip``).
+``hypot``, ``cos``, ``sin`` and ``%`` inside the kernels are the C library's, which numpy also
+calls for float64 here (``test_the_kernels_math_is_numpys_on_this_platform`` checks 1M samples of
+each: if a platform's numpy used other implementations, the two could differ in a last bit).
+``arctan2`` is the exception: numpy's is a SIMD implementation that differs from the C library's
+``atan2`` in the last bit for a few per cent of inputs on this machine, so :func:`pursuit` takes
+numpy's bearings as an input instead of computing them.
 
 Which candidates are tested follows the reference's passes exactly (it matters for the reported
 ``n_safe``, not for the answer): pass 1 the least-penalty candidate, pass 2 up to rank
 ``first_stage`` plus the standing candidates, pass 3 the rest; a robot left alone after a pass
-tests the rest at once.
+tests the rest at once. A robot answered in pass 1 (its preferred twist is safe) gets neither its
+candidates' penalties nor their trajectories computed.
 """
 
 from __future__ import annotations
