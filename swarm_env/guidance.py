@@ -1528,7 +1528,7 @@ def _kernel_plan(v_max: float, omega_max: float, n_v: int, n_w: int, v_min: floa
     the trajectories' times and (arc model) the grid's body-frame trajectories ``(G, K+1, 2)``
     (``_grid_trajectories``; empty for the chord model). Writeable copies of the cached read-only
     arrays, so that the kernels see one array type whatever the caller (never written to)."""
-    grid = np.array(_twist_grid(v_max, omega_max, n_v, n_w, v_min), dtype=np.float64, order="C")
+    grid = np.array(sample_twists(v_max, omega_max, n_v, n_w, v_min), dtype=np.float64, order="C")  # (checks them)
     if model == "arc":
         times, body = (np.array(a, dtype=np.float64, order="C")
                        for a in _grid_trajectories(v_max, omega_max, n_v, n_w, v_min, tau, horizon, n_arc))
