@@ -61,6 +61,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm_env import guidance
 from swarm_env.formation import SLOT_MARGIN
 from swarm_env.guidance import pure_pursuit, slot_velocities
 from swarm_env.harness.policies import expert_factory
@@ -206,7 +207,11 @@ class VOExpert:
         return res.twist, res.feasible, res.escaped
 
     def preferred_twists(self, state: WorldState) -> np.ndarray:
-        """Pure pursuit towards each follower's (led) slot target: ``(N, 2)`` twists before avoidance."""
+        """Pure pursuit towards each follower's (led) slot target: ``(N, 2)`` twists before avoidance.
+
+        Without preview the pursuit itself runs compiled (:func:`swarm_env.vo_kernel.pursuit`) unless
+        :func:`swarm_env.guidance.use_compiled_search` turned the compiled search off; the numpy code
+        below is its reference (same bits, ``tests/test_vo_kernel.py``)."""
         robots = state.scenario.robots
         slots = state.slot_targets
         T = self.time_gap
@@ -215,6 +220,8 @@ class VOExpert:
         if self.feed_forward:
             v_slot = slot_velocities(state.leader_pose, state.leader_vel, float(state.leader_twist[1]), slots)
             target = slots + v_slot * T
+            if not preview and guidance.compiled_search():
+                return self._pursuit_compiled(state.follower_pose, target, v_max, omega_max)
             if preview:
                 # The env's rule for slots (world.World: radius + SLOT_MARGIN): a led point inside
                 # an obstacle would steer the robot into it.
@@ -222,6 +229,8 @@ class VOExpert:
                 target = state.static.project_free(target, clearance)
         else:
             target = slots
+            if guidance.compiled_search():
+                return self._pursuit_compiled(state.follower_pose, target, v_max, omega_max)
         twist = pure_pursuit(state.follower_pose, target, v_max, omega_max, T)
         if preview:
             ahead = state.static.project_free(slots + v_slot * self.preview, clearance)
@@ -244,6 +253,19 @@ class VOExpert:
         arrived = d[:, 0] ** 2 + d[:, 1] ** 2 < self.arrive_radius**2
         twist[arrived] = 0.0
         return twist
+
+    def _pursuit_compiled(self, pose: np.ndarray, target: np.ndarray, v_max: float, omega_max: float) -> np.ndarray:
+        """:meth:`preferred_twists` without preview from the pursued points ``target`` ``(N, 2)``, by
+        :func:`swarm_env.vo_kernel.pursuit`. The bearing of each target is numpy's ``arctan2``, as in
+        the reference: the C library's ``atan2`` (what a kernel would call) differs from numpy's SIMD
+        one in the last bit for a few per cent of inputs on this machine."""
+        from swarm_env import vo_kernel
+
+        if v_max < 0.0 or omega_max < 0.0:  # (pure_pursuit's check)
+            raise ValueError("v_max and omega_max must be >= 0")
+        d = target - pose[:, :2]
+        return vo_kernel.pursuit(pose, target, np.arctan2(d[:, 1], d[:, 0]), v_max, omega_max, self.time_gap,
+                                 self.full_turn, self.arrive_radius**2)
 
     # ------------------------------------------------------------------ telemetry
     def _reset_stats(self) -> None:

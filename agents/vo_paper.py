@@ -619,7 +619,8 @@ pursues where the slot will be one time gap ahead, so a moving slot is tracked w
 velocity-obstacle search (Eq. 12) over 78 candidate twists tested on their predicted arcs against the
 other followers (reciprocally), the robot leader and the humans (plain VO), static circles, polygons
 (exact Minkowski sums) and walls within a 3 s horizon; the safe candidate closest to the pursuit twist
-wins. All followers are evaluated in one vectorised numpy pass (`swarm_env.guidance.vo_select_batch`)."""
+wins. All followers are evaluated in one pass (`swarm_env.guidance.vo_select_batch`, compiled:
+`swarm_env.vo_kernel`)."""
 
 #: Hand-written explanations of the failing random episodes (seed -> note), from their videos.
 FAILURE_NOTES: dict[int, str] = {

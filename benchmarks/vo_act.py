@@ -11,10 +11,10 @@ noise). Reported over the states: median, p95 and max of ``act()`` and median
 and p95 of ``env.step`` (the peer: the cost of simulating one step), in
 microseconds, plus how often every follower's preferred twist was safe (the
 fast path). Timings are of this machine and this run: compare numbers from the
-same run only. The search runs compiled (:mod:`swarm_env.vo_kernel`); the
-numpy reference (``guidance.use_compiled_search(False)``, same answers) is timed
-on the same states, interleaved with it, as the peer of the compiled search
-("reference CPU median" and the ratio).
+same run only. ``act()`` runs compiled (:mod:`swarm_env.vo_kernel`: the pure
+pursuit and the search); the numpy reference (``guidance.use_compiled_search(False)``,
+same actions) is timed on the same states, interleaved with it, as its peer
+("reference CPU median" and the ratio, the figure to compare on a loaded machine).
 """
 
 from __future__ import annotations

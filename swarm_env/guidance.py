@@ -96,6 +96,11 @@ _FIRST_STAGE = 24
 _COMPILED = True
 
 
+def compiled_search() -> bool:
+    """Whether the search runs compiled (see :func:`use_compiled_search`)."""
+    return _COMPILED
+
+
 def use_compiled_search(flag: bool) -> None:
     """Run :func:`vo_select_batch` compiled (``True``, the default) or with the numpy reference
     (``False``). Both give the same bits (``tests/test_vo_kernel.py``); the reference imports no
@@ -1089,7 +1094,7 @@ class _VOBatch:
         n_v, n_w, w_pref, w_heading, side_bias = params.n_v, params.n_w, params.w_pref, params.w_heading, params.side_bias
         escape, allow_still_overlap, w_current = params.escape, params.allow_still_overlap, params.w_current
         self.static, self.v_max, self.omega_max, self.v_min = static, v_max, omega_max, v_min
-        self.horizon, self.h_static, self.tau, self.model = horizon, h_static, tau, model
+        self.horizon, self.h_static, self.tau, self.model, self.n_arc = horizon, h_static, tau, model, n_arc
         self.n_v, self.n_w, self.w_pref, self.w_heading, self.side_bias = n_v, n_w, w_pref, w_heading, side_bias
         self.escape, self.allow_still_overlap, self.goal_heading = escape, allow_still_overlap, goal_heading
         self.current, self.w_current = current, w_current
@@ -1455,66 +1460,109 @@ class _VOBatch:
     # ------------------------------------------------------------------ the compiled twin
     def select_compiled(self, fast: bool) -> VOBatchResult:
         """:meth:`select` by :mod:`swarm_env.vo_kernel`: the same rule and bits. What numpy computes
-        here (as :meth:`select` does) is what is not correctly rounded — the trajectories, the
-        penalties and their order, the probes' headings, the discs' speeds; the kernel keeps the
-        discs, builds the static context and runs the contact tests and the passes."""
+        here (as :meth:`select` does) is what is not correctly rounded the same way in the kernel —
+        the preferred twists' trajectories and (chord model) the candidates'; the kernel keeps the
+        discs, builds the static context, computes the penalties and their order, and runs the
+        contact tests, the passes and the escape probes."""
         from swarm_env import vo_kernel
 
-        n, pv, pw = self.n, self.pv, self.pw
-        world = self._kernel_world()
-        times = np.ascontiguousarray(self.times, dtype=np.float64)
-        ttc0 = np.empty(0)
-        if fast and self.goal_heading is None:
-            ttc0 = vo_kernel.preferred_contacts(world, times, np.ascontiguousarray(self.pref_pts),
-                                                self.allow_still_overlap)
-            if np.isinf(ttc0).all():
-                out = np.empty((n, 2))
-                out[:, 0], out[:, 1] = pv, pw
-                ok = np.ones(n, dtype=bool)
-                return VOBatchResult(out, ok, np.ones(n, dtype=np.int64), np.full(n, np.inf), ~ok, ok, ok.copy())
+        n = self.n
         c = np.ascontiguousarray
+        grid, times, body = _kernel_plan(float(self.v_max), float(self.omega_max), int(self.n_v), int(self.n_w),
+                                         float(self.v_min), float(self.tau), float(self.horizon), self.model,
+                                         int(self.n_arc))
         if self.model == "arc":
             theta = self.theta
             if n == 1:  # as all_points: math.cos for one robot
                 cos_t, sin_t = np.array([math.cos(float(theta[0]))]), np.array([math.sin(float(theta[0]))])
             else:
                 cos_t, sin_t = np.cos(theta), np.sin(theta)
-            trajectories = (c(self.body, dtype=np.float64), cos_t, sin_t, _NO_TRAJECTORIES)
+            trajectories = (body, cos_t, sin_t, _NO_TRAJECTORIES)
         else:
             self._candidates()
-            trajectories = (_NO_BODY, _E1, _E1, c(self.all_points(), dtype=np.float64))
+            trajectories = (body, _E1, _E1, c(self.all_points(), dtype=np.float64))
         has_current = bool(self.w_current) and self.current is not None
         has_goal = self.goal_heading is not None
         search = (float(self.tau), float(self.v_max), float(self.omega_max), float(self.w_pref), float(self.w_heading),
                   float(self.side_bias), float(self.w_current), has_current,
-                  c(self.current, dtype=np.float64).reshape(n, 2) if has_current else np.zeros((n, 2)), has_goal,
-                  c(self.goal_heading, dtype=np.float64).reshape(n) if has_goal else _E1)
-        grid = c(sample_twists(self.v_max, self.omega_max, self.n_v, self.n_w, self.v_min))
+                  _f64(self.current).reshape(n, 2) if has_current else np.zeros((n, 2)), has_goal,
+                  _f64(self.goal_heading).reshape(n) if has_goal else _E1)
         twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe = vo_kernel.select(
-            world, times, c(self.pref_pts, dtype=np.float64), trajectories, ttc0, grid, c(pv), c(pw), c(self.theta),
-            search, bool(fast), bool(self.escape), _FIRST_STAGE, self.allow_still_overlap,
+            self._kernel_world(), times, _f64(self.pref_pts), trajectories, grid, _f64(self.pv), _f64(self.pw),
+            _f64(self.theta), search, bool(fast), bool(self.escape), _FIRST_STAGE, bool(self.allow_still_overlap),
             (float(self.v_max), float(self.tau), float(self.horizon)))
         return VOBatchResult(twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe)
 
     def _kernel_world(self) -> tuple:
-        """The robots, the discs and the static map as :mod:`swarm_env.vo_kernel` takes them."""
-        n, c, f64 = self.n, np.ascontiguousarray, np.float64
+        """The robots, the discs and the static map as :mod:`swarm_env.vo_kernel` takes them (writeable
+        copies throughout, as :func:`swarm_env.vo_kernel.follower_select` builds its own: one compiled
+        search for both)."""
+        n = self.n
         d, dv, vel = self.d, self.dv, self.vel
         n_moving = d.shape[0]
         spd_h = np.hypot(dv[:, 0], dv[:, 1]) * self.horizon
         reciprocal = self.reciprocal
         has_recip = bool(reciprocal is not False and np.any(reciprocal))
         if has_recip:
-            recip_in = c(np.broadcast_to(np.asarray(reciprocal, dtype=bool), (n, n_moving)))
+            recip_in = np.array(np.broadcast_to(np.asarray(reciprocal, dtype=bool), (n, n_moving)), order="C")
             own_speed = np.zeros(n) if vel is None else np.hypot(vel[:, 0], vel[:, 1])
         else:
             recip_in, own_speed = np.zeros((n, n_moving), dtype=bool), np.zeros(n)
         has_mask = self.disc_mask is not None
-        mask = c(np.asarray(self.disc_mask, dtype=bool).reshape(n, n_moving)) if has_mask else recip_in
-        own_vel = np.zeros((n, 2)) if vel is None else c(vel, dtype=f64)
-        return ((c(self.poses2, dtype=f64), c(self.rad, dtype=f64), float(self.ext), float(self.horizon),
-                 float(self.h_static), c(d, dtype=f64), c(dv, dtype=f64), spd_h, has_recip, recip_in, c(own_speed, dtype=f64),
-                 own_vel, has_mask, mask, self.static is not None) + _kernel_map(self.static))
+        mask = np.array(np.asarray(self.disc_mask, dtype=bool).reshape(n, n_moving), order="C") if has_mask else recip_in
+        own_vel = np.zeros((n, 2)) if vel is None else _f64(vel)
+        return ((_f64(self.poses2), _f64(self.rad), float(self.ext), float(self.horizon), float(self.h_static), _f64(d),
+                 _f64(dv), spd_h, has_recip, recip_in, _f64(own_speed), own_vel, has_mask, mask, self.static is not None)
+                + _kernel_map(self.static))
+
+
+def _f64(a: Any) -> np.ndarray:
+    """A writeable C-ordered float64 copy of ``a`` (one array type for the kernels whatever the input)."""
+    return np.array(a, dtype=np.float64, order="C")
+
+
+@lru_cache(maxsize=64)
+def _kernel_plan(v_max: float, omega_max: float, n_v: int, n_w: int, v_min: float, tau: float, horizon: float,
+                 model: str, n_arc: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(grid, times, body)`` for :mod:`swarm_env.vo_kernel`: the candidate grid (:func:`sample_twists`),
+    the trajectories' times and (arc model) the grid's body-frame trajectories ``(G, K+1, 2)``
+    (``_grid_trajectories``; empty for the chord model). Writeable copies of the cached read-only
+    arrays, so that the kernels see one array type whatever the caller (never written to)."""
+    grid = np.array(sample_twists(v_max, omega_max, n_v, n_w, v_min), dtype=np.float64, order="C")  # (checks them)
+    if model == "arc":
+        times, body = (np.array(a, dtype=np.float64, order="C")
+                       for a in _grid_trajectories(v_max, omega_max, n_v, n_w, v_min, tau, horizon, n_arc))
+    else:
+        times, body = np.array([0.0, horizon]), _NO_BODY
+    return grid, times, body
+
+
+_FOLLOWER_PLANS: dict[int, tuple] = {}
+
+
+def _follower_plan(params: VOParams, v_max: float, omega_max: float) -> tuple:
+    """What :func:`swarm_env.vo_kernel.follower_select` takes besides the world for ``params`` (arc
+    model) and the limits: ``(plan, scalars, flags)`` (see there), cached per ``params`` object (the
+    values are those :class:`_VOBatch` derives from it)."""
+    hit = _FOLLOWER_PLANS.get(id(params))
+    if hit is not None and hit[0] is params and hit[1] == v_max and hit[2] == omega_max:
+        return hit[3]
+    p = params
+    horizon = p.horizon
+    h_static = float(horizon if p.horizon_static is None else min(p.horizon_static, horizon))
+    ext = max(abs(p.v_min), abs(v_max)) * horizon  # as _VOBatch.__init__
+    plan = _kernel_plan(float(v_max), float(omega_max), int(p.n_v), int(p.n_w), float(p.v_min), float(p.tau),
+                        float(horizon), "arc", int(p.n_arc))
+    scalars = (float(p.margin), float(horizon), h_static, float(ext), float(p.tau), int(p.n_arc),
+               float(p.v_min), float(v_max), float(omega_max), float(p.w_pref), float(p.w_heading),
+               float(p.side_bias), float(p.w_current))
+    reciprocal = bool(getattr(p, "reciprocal", False))  # (safety.AvoidanceParams': the followers avoid each other so)
+    flags = (bool(p.fast), bool(p.escape), bool(p.allow_still_overlap), reciprocal, bool(p.w_current), _FIRST_STAGE)
+    value = (plan, scalars, flags)
+    if len(_FOLLOWER_PLANS) >= 32:
+        _FOLLOWER_PLANS.pop(next(iter(_FOLLOWER_PLANS)))
+    _FOLLOWER_PLANS[id(params)] = (params, v_max, omega_max, value)  # (params kept alive: its id stays unique)
+    return value
 
 
 def _kernel_map(static: StaticMap | None) -> tuple:

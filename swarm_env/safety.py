@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarm_env import guidance
 from swarm_env.guidance import VOBatchResult, VOParams, vo_select_batch
 from swarm_env.state import WorldState
 
@@ -56,7 +57,14 @@ def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: Avoid
     the least dangerous one, or an escape turn, is returned), ``result.preferred_safe``
     whether the preferred twist itself was safe (then it is returned unchanged unless a
     heading term makes another candidate cheaper).
+
+    Runs compiled (:func:`swarm_env.vo_kernel.follower_select`: the discs, the masks and the whole
+    search in one call) unless :func:`swarm_env.guidance.use_compiled_search` turned the compiled
+    search off; this function's numpy body below is the reference (same bits,
+    ``tests/test_vo_kernel.py``).
     """
+    if guidance.compiled_search() and params.model == "arc":
+        return _follower_twists_compiled(state, preferred, params)
     robots = state.scenario.robots
     pose = state.follower_pose
     n = len(pose)
@@ -97,6 +105,42 @@ def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: Avoid
         velocity=state.follower_vel,
         current=state.follower_twist,
     )
+
+
+def _follower_twists_compiled(state: WorldState, preferred: np.ndarray, params: AvoidanceParams) -> VOBatchResult:
+    """:func:`safe_follower_twists` by :func:`swarm_env.vo_kernel.follower_select`: the same discs (in
+    the same order) and the same search, one kernel call."""
+    from swarm_env import vo_kernel
+
+    robots = state.scenario.robots
+    v_max, omega_max = float(robots.max_speed), float(robots.max_turn_rate)
+    pose = state.follower_pose
+    n = len(pose)
+    has_leader = state.leader_is_robot
+    n_h = len(state.human_pos)
+    k = n + int(has_leader)
+    # One writeable array per kind (the snapshot's own are read-only, another array type for numba):
+    # x, y, radius, vx, vy of every moving disc, and each follower's heading, current and preferred twists.
+    moving = np.empty((k + n_h, 5))
+    moving[:n, :2] = pose[:, :2]
+    moving[:n, 2] = state.follower_radius
+    moving[:n, 3:] = state.follower_vel
+    if has_leader:
+        moving[n, :2] = state.leader_pose[:2]
+        moving[n, 2] = state.leader_radius
+        moving[n, 3:] = state.leader_vel
+    if n_h:
+        moving[k:, :2] = state.human_pos
+        moving[k:, 2] = state.human_radius + params.human_margin
+        moving[k:, 3:] = state.human_vel
+    own = np.empty((n, 5))
+    own[:, 0] = pose[:, 2]
+    own[:, 1:3] = state.follower_twist
+    own[:, 3:] = np.asarray(preferred, dtype=np.float64).reshape(n, 2)
+    plan, scalars, flags = guidance._follower_plan(params, v_max, omega_max)
+    static = state.static
+    return VOBatchResult(*vo_kernel.follower_select(moving, own, n, guidance._kernel_map(static), static is not None,
+                                                    plan, scalars, flags))
 
 
 @dataclass(frozen=True)

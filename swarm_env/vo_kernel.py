@@ -1,24 +1,35 @@
-"""The velocity-obstacle selection of :func:`swarm_env.guidance.vo_select_batch`, compiled with numba.
+"""The velocity-obstacle selection of :func:`swarm_env.guidance.vo_select_batch`, compiled with numba,
+and the ``vo`` expert's pure pursuit.
 
 :class:`swarm_env.guidance._VOBatch` is the reference: numpy, readable, one vectorised pass per
 stage of the search. For the handful of robots of one world it spends most of its time in numpy's
-per-call overhead on small temporaries (``python benchmarks/vo_act.py``: 1.4 ms per ``act()`` of the
-``vo`` expert at 8 followers, of which ~60 % in the contact tests and the passes' bookkeeping). These
-kernels run the same search robot by robot, candidate by candidate, and stop each robot at its
-first safe candidate of a pass, without temporaries.
+per-call overhead on small temporaries. These kernels run the same search robot by robot,
+candidate by candidate, and stop each robot at its first safe candidate of a pass, without
+temporaries. Entries: :func:`select` (``_VOBatch.select_compiled``: any call of
+``vo_select_batch``), :func:`follower_select` (``swarm_env.safety.safe_follower_twists``: the
+followers' discs, masks and reciprocity built from the world's arrays, the preferred twists'
+trajectories and the whole search in one call) and :func:`pursuit` (``VOExpert.preferred_twists``
+without preview). With all three the ``vo`` expert's ``act()`` on paper_cbs_switch (8 followers)
+takes ~0.25-0.33 ms of CPU against ~1.8-2.4 ms for the numpy reference (``python
+benchmarks/vo_act.py``, ratio ~7; it was ~0.75 ms with only the search compiled).
 
 Same bits as the reference, by construction and by test (``tests/test_vo_kernel.py`` replays every
-state of several episodes and hundreds of synthetic calls through both): every floating-point
-operation is the reference's, in the reference's order (``a * b + c * d`` where it computes
-``a * b``, then ``+= c * d``). The trajectories of the preferred twists and the robots' headings'
-cosines come from numpy as in the reference; ``hypot``, ``cos``, ``sin`` and ``%`` inside the
-kernels are the C library's, which numpy also calls for float64 here (if a platform's numpy used
-other implementations, the two could differ in a last bit: the test would say so).
+step of several whole episodes — the whole ``act()`` — and hundreds of synthetic calls through
+both): every floating-point operation is the reference's, in the reference's order (``a * b + c * d``
+where it computes ``a * b``, then ``+= c * d``; ``np.sinc``'s own formula where the reference calls
+it; numpy's rules for ties of signed zeros in ``np.maximum``/``np.minimum``/``np.clip``).
+``hypot``, ``cos``, ``sin`` and ``%`` inside the kernels are the C library's, which numpy also
+calls for float64 here (``test_the_kernels_math_is_numpys_on_this_platform`` checks 1M samples of
+each: if a platform's numpy used other implementations, the two could differ in a last bit).
+``arctan2`` is the exception: numpy's is a SIMD implementation that differs from the C library's
+``atan2`` in the last bit for a few per cent of inputs on this machine, so :func:`pursuit` takes
+numpy's bearings as an input instead of computing them.
 
 Which candidates are tested follows the reference's passes exactly (it matters for the reported
 ``n_safe``, not for the answer): pass 1 the least-penalty candidate, pass 2 up to rank
 ``first_stage`` plus the standing candidates, pass 3 the rest; a robot left alone after a pass
-tests the rest at once.
+tests the rest at once. A robot answered in pass 1 (its preferred twist is safe) gets neither its
+candidates' penalties nor their trajectories computed.
 """
 
 from __future__ import annotations
@@ -32,6 +43,11 @@ _INF = math.inf
 _TWO_PI = 2.0 * math.pi
 # error_model="numpy": a division by zero gives inf/nan as in numpy instead of raising.
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+# The disc and static tests are inlined into their callers by numba (not only by LLVM): a call that takes
+# the tuples of arrays costs about a microsecond (measured on paper_cbs_switch), most of the search's
+# time when paid twice per candidate. Inlined into _contact (and _probe) only, not further: inlining
+# _contact into its caller too made the search another ~7 % faster but its compilation ~40 % slower.
+_inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
 
 
 @_jit
@@ -55,7 +71,7 @@ def _ray_disc(px: float, py: float, R2: float, wx: float, wy: float, limit: floa
     return t
 
 
-@_jit
+@_inline
 def _disc_row(i, times, xs, ys, discs, still_ok, probe):
     """Contact time of robot ``i``'s trajectory ``(xs, ys)`` (displacements at ``times``) with its
     kept discs (``guidance._rows_disc_ttc`` and the horizon cut of ``_VOBatch.contact_times``).
@@ -96,7 +112,7 @@ def _disc_row(i, times, xs, ys, discs, still_ok, probe):
     return best
 
 
-@_jit
+@_inline
 def _static_row(i, times, xs, ys, static, circles):
     """Contact time of robot ``i``'s trajectory with the static map (``guidance._rows_static_ttc``:
     walls, then, with ``circles``, the static circles, then the exact polygon test behind its
@@ -338,22 +354,13 @@ def _contact(i, times, xs, ys, discs, static, has_static, still_ok):
 
 
 @_jit
-def preferred_contacts(world, times, pref_pts, still_ok):
-    """Pass 1 of the fast path: each robot's contact time on its preferred twist ``(N,)``.
-    ``world``: the robots, discs and map as ``_VOBatch._kernel_world`` packs them."""
-    discs = _keep_discs(world)
-    static = _static_context(world)
-    has_static = world[14]
-    n = pref_pts.shape[0]
-    out = np.empty(n)
-    for i in range(n):
-        out[i] = _contact(i, times, pref_pts[i, :, 0], pref_pts[i, :, 1], discs, static, has_static, still_ok)
-    return out
-
-
-@_jit
-def _evaluate(i, c, ttc, times, pts, discs, static, has_static, still_ok):
-    ttc[i, c] = _contact(i, times, pts[i, c, :, 0], pts[i, c, :, 1], discs, static, has_static, still_ok)
+def _test(i, traj, cols, lo, hi, out, times, discs, static, has_static, still_ok):
+    """Contact times of robot ``i``'s trajectories ``traj[c]`` ``(K+1, 2)`` for the candidates
+    ``c = cols[r]``, ``lo <= r < hi``, into ``out[c]``. The one place the contact test is inlined:
+    a call per robot and pass, so the tuples of arrays are unpacked once per call, not per candidate."""
+    for r in range(lo, hi):
+        c = cols[r]
+        out[c] = _contact(i, times, traj[c, :, 0], traj[c, :, 1], discs, static, has_static, still_ok)
 
 
 @_jit
@@ -381,39 +388,97 @@ def _probe(i, c, discs, static, has_static, still_ok, probe):
 
 
 @_jit
-def _candidates(grid, pv, pw, theta, search):
-    """``_VOBatch._candidates``: each robot's candidates (its preferred twist first, then ``grid``),
-    their penalties and their stable penalty order, and the columns of the standing twist ``(0, 0)``."""
+def _candidates(i, grid, pv, pw, theta, search, twists, penalty, order):
+    """``_VOBatch._candidates`` for robot ``i``: its candidates (its preferred twist first, then
+    ``grid``) into ``twists[i]``, their penalties into ``penalty[i]`` and their stable penalty order
+    into ``order[i]``."""
     tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, has_goal, goal = search
-    n = pv.shape[0]
     g1 = grid.shape[0] + 1
-    twists = np.empty((n, g1, 2))
-    penalty = np.empty((n, g1))
-    order = np.empty((n, g1), dtype=np.int64)
     v_scale = v_max if v_max > 0 else 1.0
     w_scale = omega_max if omega_max > 0 else 1.0
+    twists[i, 0, 0], twists[i, 0, 1] = pv[i], pw[i]
+    for c in range(g1 - 1):  # (element by element: an array slice assignment compiles numba's shape-error
+        twists[i, c + 1, 0], twists[i, c + 1, 1] = grid[c, 0], grid[c, 1]  # formatting, seconds of compile time)
+    gh = goal[i] if has_goal else theta[i] + pw[i] * tau
+    for c in range(g1):
+        tv, tw = twists[i, c, 0], twists[i, c, 1]
+        dv_ = (tv - pv[i]) / v_scale
+        dw_ = (tw - pw[i]) / w_scale
+        head = abs((theta[i] + tw * tau - gh + math.pi) % _TWO_PI - math.pi) / math.pi
+        pen = w_pref * math.hypot(dv_, dw_) + w_heading * head + side_bias * max(dw_, 0.0)
+        if has_current and c > 0:
+            # (commitment to the twist being driven: see _VOBatch._candidates)
+            pen += w_current * math.hypot((tv - current[i, 0]) / v_scale, (tw - current[i, 1]) / w_scale)
+        penalty[i, c] = pen
+    # Stable insertion sort: ties keep grid order (the preferred twist first), as numpy's stable argsort.
+    for c in range(g1):
+        order[i, c] = c
+        j = c
+        while j > 0 and penalty[i, order[i, j - 1]] > penalty[i, c]:
+            order[i, j] = order[i, j - 1]
+            j -= 1
+        order[i, j] = c
+
+
+@_jit
+def _arc_points(i, pts, pref_pts, body, cos_t, sin_t):
+    """``_VOBatch.all_points`` of robot ``i`` for the arc model, into ``pts[i]``: the preferred twist's
+    trajectory, then the grid's body-frame trajectories rotated by the robot's heading."""
+    k1 = pref_pts.shape[1]
+    for k in range(k1):
+        pts[i, 0, k, 0], pts[i, 0, k, 1] = pref_pts[i, k, 0], pref_pts[i, k, 1]
+    c, s = cos_t[i], sin_t[i]
+    for j in range(body.shape[0]):
+        for k in range(k1):
+            x, y = body[j, k, 0], body[j, k, 1]
+            pts[i, j + 1, k, 0] = c * x - s * y
+            pts[i, j + 1, k, 1] = s * x + c * y
+
+
+@_jit
+def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, pw, theta, search, fast, escape,
+            first_stage, still_ok, probe):
+    """The selection rule of ``_VOBatch.select`` on the robots' kept discs and static context.
+
+    ``pref_pts`` ``(N, K+1, 2)`` the preferred twists' trajectories; ``trajectories`` the grid's,
+    ``(body, cos_t, sin_t, every)``: the arc model's body-frame trajectories ``(G, K+1, 2)`` and the
+    cosine and sine of each robot's heading, or (``body`` empty) ``every`` candidate's world-frame
+    trajectory ``(N, G+1, K+1, 2)`` (the chord model); ``grid`` the candidate twists; ``search`` the
+    penalty's terms (:func:`_candidates`).
+
+    Returns ``twist`` ``(N, 2)``, ``feasible``, ``n_safe``, ``ttc_out``, ``escaped``, ``accepted``,
+    ``pref_safe`` (see :class:`~swarm_env.guidance.VOBatchResult`).
+    """
+    has_goal = search[9]
+    body, cos_t, sin_t, every = trajectories
+    n = pv.shape[0]
+    g1 = grid.shape[0] + 1
+    ttc = np.full((n, g1), np.nan)
+    done = np.ones(n, dtype=np.int64)
+    # Robots that search beyond their preferred twist. With the fast path (pass 1: the preferred twists
+    # alone) a robot whose preferred twist is safe is answered by it (its penalty, 0, is the least: see
+    # _VOBatch.select) and needs neither its candidates nor their trajectories.
+    need = np.ones(n, dtype=np.bool_)
+    if fast and not has_goal:
+        idx = np.arange(n)
+        ttc0 = np.empty(n)
+        for i in range(n):
+            _test(i, pref_pts, idx, i, i + 1, ttc0, times, discs, static, has_static, still_ok)
+            ttc[i, 0] = ttc0[i]
+            need[i] = ttc0[i] != _INF
+        pass_one = True
+    else:
+        pass_one = False
+    twists = np.zeros((n, g1, 2))
+    penalty = np.zeros((n, g1))
+    order = np.zeros((n, g1), dtype=np.int64)
+    arc = body.shape[0] > 0
+    pts = np.empty((n, g1, pref_pts.shape[1], 2)) if arc else every
     for i in range(n):
-        twists[i, 0, 0], twists[i, 0, 1] = pv[i], pw[i]
-        twists[i, 1:] = grid
-        gh = goal[i] if has_goal else theta[i] + pw[i] * tau
-        for c in range(g1):
-            tv, tw = twists[i, c, 0], twists[i, c, 1]
-            dv_ = (tv - pv[i]) / v_scale
-            dw_ = (tw - pw[i]) / w_scale
-            head = abs((theta[i] + tw * tau - gh + math.pi) % _TWO_PI - math.pi) / math.pi
-            pen = w_pref * math.hypot(dv_, dw_) + w_heading * head + side_bias * max(dw_, 0.0)
-            if has_current and c > 0:
-                # (commitment to the twist being driven: see _VOBatch._candidates)
-                pen += w_current * math.hypot((tv - current[i, 0]) / v_scale, (tw - current[i, 1]) / w_scale)
-            penalty[i, c] = pen
-        # Stable insertion sort: ties keep grid order (the preferred twist first), as numpy's stable argsort.
-        for c in range(g1):
-            order[i, c] = c
-            j = c
-            while j > 0 and penalty[i, order[i, j - 1]] > penalty[i, c]:
-                order[i, j] = order[i, j - 1]
-                j -= 1
-            order[i, j] = c
+        if need[i]:
+            _candidates(i, grid, pv, pw, theta, search, twists, penalty, order)
+            if arc:
+                _arc_points(i, pts, pref_pts, body, cos_t, sin_t)
     n_still = 0
     for c in range(grid.shape[0]):
         n_still += grid[c, 0] == 0.0 and grid[c, 1] == 0.0
@@ -423,68 +488,22 @@ def _candidates(grid, pv, pw, theta, search):
         if grid[c, 0] == 0.0 and grid[c, 1] == 0.0:
             still[q] = c + 1
             q += 1
-    return twists, penalty, order, still
 
-
-@_jit
-def _arc_points(pref_pts, body, cos_t, sin_t):
-    """``_VOBatch.all_points`` for the arc model: the preferred twist's trajectory, then the grid's
-    body-frame trajectories rotated by each robot's heading."""
-    n, k1 = pref_pts.shape[0], pref_pts.shape[1]
-    g = body.shape[0]
-    pts = np.empty((n, g + 1, k1, 2))
-    for i in range(n):
-        pts[i, 0] = pref_pts[i]
-        c, s = cos_t[i], sin_t[i]
-        for j in range(g):
-            for k in range(k1):
-                x, y = body[j, k, 0], body[j, k, 1]
-                pts[i, j + 1, k, 0] = c * x - s * y
-                pts[i, j + 1, k, 1] = s * x + c * y
-    return pts
-
-
-@_jit
-def select(world, times, pref_pts, trajectories, ttc0, grid, pv, pw, theta, search, fast, escape, first_stage,
-           still_ok, probe):
-    """The selection rule of ``_VOBatch.select`` after pass 1.
-
-    ``pref_pts`` ``(N, K+1, 2)`` the preferred twists' trajectories; ``trajectories`` the grid's,
-    ``(body, cos_t, sin_t, every)``: the arc model's body-frame trajectories ``(G, K+1, 2)`` and the
-    cosine and sine of each robot's heading, or (``body`` empty) ``every`` candidate's world-frame
-    trajectory ``(N, G+1, K+1, 2)`` (the chord model). ``ttc0`` ``(N,)`` pass 1's contact times of
-    the preferred twists, or empty if pass 1 is still to do (a ``goal_heading`` was given, or not
-    ``fast``); ``grid`` the candidate twists; ``search`` the penalty's terms (:func:`_candidates`).
-
-    Returns ``twist`` ``(N, 2)``, ``feasible``, ``n_safe``, ``ttc_out``, ``escaped``, ``accepted``,
-    ``pref_safe`` (see :class:`~swarm_env.guidance.VOBatchResult`).
-    """
-    twists, penalty, order, still = _candidates(grid, pv, pw, theta, search)
-    body, cos_t, sin_t, every = trajectories
-    pts = _arc_points(pref_pts, body, cos_t, sin_t) if body.shape[0] else every
-    discs = _keep_discs(world)
-    static = _static_context(world)
-    has_static = world[14]
-    n, g1 = order.shape
-    ttc = np.full((n, g1), np.nan)
-    done = np.ones(n, dtype=np.int64)
     if not fast:
         for i in range(n):
-            for c in range(g1):
-                _evaluate(i, c, ttc, times, pts, discs, static, has_static, still_ok)
+            _test(i, pts[i], order[i], 0, g1, ttc[i], times, discs, static, has_static, still_ok)
             done[i] = g1
     else:
-        if ttc0.shape[0]:
+        if not pass_one:
             for i in range(n):
-                ttc[i, 0] = ttc0[i]
-        else:
-            for i in range(n):
-                _evaluate(i, order[i, 0], ttc, times, pts, discs, static, has_static, still_ok)
+                _test(i, pts[i], order[i], 0, 1, ttc[i], times, discs, static, has_static, still_ok)
         pending = np.empty(n, dtype=np.int64)
         for stage in range(2):
             target = min(first_stage, g1) if stage == 0 else g1
             m = 0
             for i in range(n):
+                if not need[i]:
+                    continue
                 safe = False
                 for r in range(done[i]):
                     if ttc[i, order[i, r]] == _INF:
@@ -501,17 +520,17 @@ def select(world, times, pref_pts, trajectories, ttc0, grid, pv, pw, theta, sear
                 i = pending[q]
                 if target <= done[i]:
                     continue
-                for r in range(done[i], target):
-                    _evaluate(i, order[i, r], ttc, times, pts, discs, static, has_static, still_ok)
+                _test(i, pts[i], order[i], done[i], target, ttc[i], times, discs, static, has_static, still_ok)
                 if escape and target < g1:
-                    for c in still:
-                        _evaluate(i, c, ttc, times, pts, discs, static, has_static, still_ok)
+                    _test(i, pts[i], still, 0, n_still, ttc[i], times, discs, static, has_static, still_ok)
                 done[i] = target
             if target == g1:
                 break
 
     # Standing candidates share one trajectory (none), hence one contact time.
     for i in range(n):
+        if not need[i]:
+            continue
         known = False
         tz = -_INF
         for c in range(g1):
@@ -533,6 +552,10 @@ def select(world, times, pref_pts, trajectories, ttc0, grid, pv, pw, theta, sear
     accepted = np.zeros(n, dtype=np.bool_)
     request = np.zeros(n, dtype=np.int64)  # 0: none, 1: escape among the safe, 2: among the least dangerous
     for i in range(n):
+        if not need[i]:  # answered by its preferred twist in pass 1
+            pref_safe[i] = accepted[i] = True
+            n_safe[i] = 1
+            continue
         pref_safe[i] = ttc[i, 0] == _INF
         accepted[i] = pref_safe[i] and done[i] == 1
         best = _INF
@@ -562,7 +585,7 @@ def select(world, times, pref_pts, trajectories, ttc0, grid, pv, pw, theta, sear
         # The escape rule needs every standing candidate's contact time.
         for c in range(g1):
             if math.isnan(ttc[i, c]) and twists[i, c, 0] <= 0.0:
-                _evaluate(i, c, ttc, times, pts, discs, static, has_static, still_ok)
+                _test(i, pts[i], np.array([c]), 0, 1, ttc[i], times, discs, static, has_static, still_ok)
     for i in range(n):
         if request[i] == 0:
             continue
@@ -580,13 +603,182 @@ def select(world, times, pref_pts, trajectories, ttc0, grid, pv, pw, theta, sear
                 best_c, best_t = c, t
         choice[i] = best_c
         escaped[i] = True
+    twist = np.empty((n, 2))
     for i in range(n):
         if n_safe[i] == 0:
             feasible[i] = False
             ttc_out[i] = ttc[i, choice[i]]
         if accepted[i]:
             n_safe[i] = 1
-    twist = np.empty((n, 2))
-    for i in range(n):
-        twist[i, 0], twist[i, 1] = twists[i, choice[i], 0], twists[i, choice[i], 1]
+        if need[i]:
+            twist[i, 0], twist[i, 1] = twists[i, choice[i], 0], twists[i, choice[i], 1]
+        else:
+            twist[i, 0], twist[i, 1] = pv[i], pw[i]
     return twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe
+
+
+@_jit
+def select(world, times, pref_pts, trajectories, grid, pv, pw, theta, search, fast, escape, first_stage, still_ok,
+           probe):
+    """``_VOBatch.select``: the whole search (pass 1 included) of the robots, discs and map of ``world``
+    (as ``_VOBatch._kernel_world`` packs them). The other arguments are :func:`_search`'s."""
+    discs = _keep_discs(world)
+    static = _static_context(world)
+    return _search(discs, static, world[14], times, pref_pts, trajectories, grid, pv, pw, theta, search, fast, escape,
+                   first_stage, still_ok, probe)
+
+
+@_jit
+def _np_max(a, b):
+    """``np.maximum`` of two floats, ties included: ``b`` unless ``a > b`` (or ``a`` is nan)."""
+    return a if (a > b or a != a) else b
+
+
+@_jit
+def _np_min(a, b):
+    """``np.minimum`` of two floats, ties included: ``b`` unless ``a < b`` (or ``a`` is nan)."""
+    return a if (a < b or a != a) else b
+
+
+@_jit
+def _preferred_trajectories(pv, pw, theta, tau, horizon, n_arc):
+    """The preferred twists' trajectories ``(N, K+1, 2)`` of ``_VOBatch.__init__`` (arc model): for one
+    robot ``guidance._trajectory_row``'s plain-Python formula, for several ``_world_trajectories``'
+    numpy one (``np.sinc``, whose rounding differs from ``sin(h) / h``: both are kept)."""
+    n = pv.shape[0]
+    t_hold = horizon if horizon < tau else tau  # Python's min(tau, horizon)
+    extra = horizon > t_hold
+    out = np.empty((n, n_arc + 1 + int(extra), 2))
+    eps = np.finfo(np.float64).eps
+    for i in range(n):
+        v, w, th = pv[i], pw[i], theta[i]
+        for k in range(n_arc + 1):
+            if n == 1:
+                t = t_hold * k / n_arc
+                half = 0.5 * w * t
+                scale = v * t * (math.sin(half) / half if abs(half) > 1e-12 else 1.0)
+            else:
+                t = k * (t_hold / n_arc)
+                half = 0.5 * w * t
+                x = math.pi * (half / math.pi)  # np.sinc(half / pi): sin(pi x) / (pi x), eps for 0
+                y = x if x != 0.0 else eps
+                scale = v * t * (math.sin(y) / y)
+            out[i, k, 0] = scale * math.cos(th + half)
+            out[i, k, 1] = scale * math.sin(th + half)
+        if extra:
+            run = v * (horizon - t_hold)
+            hd = th + w * t_hold
+            out[i, n_arc + 1, 0] = out[i, n_arc, 0] + run * math.cos(hd)
+            out[i, n_arc + 1, 1] = out[i, n_arc, 1] + run * math.sin(hd)
+    return out
+
+
+@_jit
+def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags):
+    """``guidance.vo_select_batch`` as ``safety.safe_follower_twists`` calls it (arc model), from the
+    world's arrays in one call: the discs, the reciprocity and the masks, the preferred twists' clipping
+    and trajectories, then :func:`_search`.
+
+    ``moving`` ``(D, 5)`` ``x, y, radius, vx, vy`` of the moving discs, the ``n`` followers first (each
+    left out of its own list; reciprocal among themselves when ``reciprocal``), then the robot leader
+    and the humans; ``own`` ``(n, 5)`` each follower's heading, current twist ``(v, omega)`` and
+    preferred twist; ``static_map`` as ``guidance._kernel_map`` gives it; ``plan`` ``(grid, times,
+    body)`` the candidate grid and its body-frame trajectories; ``scalars`` ``(margin, horizon,
+    h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias, w_current)``;
+    ``flags`` ``(fast, escape, still_ok, reciprocal, has_current, first_stage)``.
+    Returns what :func:`_search` returns.
+    """
+    grid, times, body = plan
+    (margin, horizon, h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias,
+     w_current) = scalars
+    fast, escape, still_ok, reciprocal, has_current, first_stage = flags
+    n_moving = moving.shape[0]
+    P = np.empty((n, 2))
+    rad = np.empty(n)
+    own_vel = np.empty((n, 2))
+    theta = np.empty(n)
+    current = np.empty((n, 2))
+    pv = np.empty(n)
+    pw = np.empty(n)
+    cos_t = np.empty(n)
+    sin_t = np.empty(n)
+    for i in range(n):
+        P[i, 0], P[i, 1] = moving[i, 0], moving[i, 1]
+        rad[i] = moving[i, 2] + margin
+        own_vel[i, 0], own_vel[i, 1] = moving[i, 3], moving[i, 4]
+        theta[i] = own[i, 0]
+        current[i, 0], current[i, 1] = own[i, 1], own[i, 2]
+        pv[i] = _np_min(_np_max(own[i, 3], v_min), v_max)
+        pw[i] = _np_min(_np_max(own[i, 4], -omega_max), omega_max)
+        cos_t[i], sin_t[i] = math.cos(theta[i]), math.sin(theta[i])
+    d = np.empty((n_moving, 3))
+    dv = np.empty((n_moving, 2))
+    spd_h = np.empty(n_moving)
+    for j in range(n_moving):
+        d[j, 0], d[j, 1], d[j, 2] = moving[j, 0], moving[j, 1], moving[j, 2]
+        dv[j, 0], dv[j, 1] = moving[j, 3], moving[j, 4]
+        spd_h[j] = math.hypot(dv[j, 0], dv[j, 1]) * horizon
+    has_recip = reciprocal and n > 0
+    recip_in = np.zeros((n, n_moving), dtype=np.bool_)
+    own_speed = np.zeros(n)
+    mask = np.ones((n, n_moving), dtype=np.bool_)
+    for i in range(n):
+        mask[i, i] = False  # not itself
+        if has_recip:
+            own_speed[i] = math.hypot(own_vel[i, 0], own_vel[i, 1])
+            for j in range(n):
+                recip_in[i, j] = True  # the other followers; the robot leader and the humans are avoided fully
+    has_mask = n >= 0  # (True, typed bool: see no_goal below)
+    world = (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
+             has_static) + static_map
+    discs = _keep_discs(world)
+    static = _static_context(world)
+    pref_pts = _preferred_trajectories(pv, pw, theta, tau, horizon, n_arc)
+    no_goal = n < 0  # (False, typed bool rather than a literal: select and this entry share one _search)
+    search = (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, no_goal,
+              np.empty(0))
+    return _search(discs, static, has_static, times, pref_pts, (body, cos_t, sin_t, np.empty((0, 1, 1, 2))), grid,
+                   pv, pw, theta, search, fast, escape, first_stage, still_ok, (v_max, tau, horizon))
+
+
+@_jit
+def pursuit(pose, target, heading, v_max, omega_max, time_gap, full_turn, arrive2):
+    """The ``vo`` expert's preferred twists without preview (``VOExpert.preferred_twists``, its numpy
+    reference): :func:`guidance.pure_pursuit` of each follower ``pose[i]`` towards ``target[i]``
+    (``keep_curvature``), then with ``full_turn`` a target behind turned to in place at ``omega_max``,
+    and zero within ``sqrt(arrive2)`` of the target. ``heading`` ``(N,)`` is numpy's
+    ``arctan2(target - pose)``: computed by numpy, as its SIMD ``arctan2`` differs from the C
+    library's in the last bit for some inputs (the other functions here equal numpy's)."""
+    n = pose.shape[0]
+    out = np.empty((n, 2))
+    half_pi = 0.5 * math.pi
+    for i in range(n):
+        dx = target[i, 0] - pose[i, 0]
+        dy = target[i, 1] - pose[i, 1]
+        dist = math.hypot(dx, dy)
+        alpha = (heading[i] - pose[i, 2] + math.pi) % _TWO_PI - math.pi
+        reached = dist < 1e-9
+        safe_l = 1.0 if reached else dist
+        v_nom = 0.0 if reached else _np_min(dist / time_gap, v_max)
+        kappa = 2.0 * math.sin(alpha) / safe_l
+        ahead = abs(alpha) <= half_pi
+        v = v_nom if ahead else 0.0
+        omega = v * kappa
+        if abs(omega) > omega_max:
+            v = omega_max / abs(kappa)
+        # np.clip returns its argument unless it lies outside the bounds (signed zeros kept)
+        if omega < -omega_max:
+            omega = -omega_max
+        elif omega > omega_max:
+            omega = omega_max
+        if not ahead:
+            omega = (1.0 if alpha >= 0.0 else -1.0) * _np_min(omega_max, 2.0 * v_nom / safe_l)
+        if reached:
+            v = omega = 0.0
+        if full_turn and abs(alpha) > half_pi:
+            v = 0.0
+            omega = (1.0 if alpha >= 0.0 else -1.0) * omega_max
+        if dx * dx + dy * dy < arrive2:
+            v = omega = 0.0
+        out[i, 0], out[i, 1] = v, omega
+    return out
