@@ -29,8 +29,6 @@ from pathlib import Path
 from statistics import median
 from typing import Any
 
-from swarm_env.jsonio import dumps
-
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 
@@ -97,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--vs-config", help="instead of --peer: this trainer with these fields changed (JSON), "
                                             "e.g. '{\"env_procs\": 2}'")
     args = parser.parse_args(argv)
+    from swarm_env.jsonio import dumps  # (imports numpy: after the BLAS setting above)
     from swarm_env_baselines import mappo
 
     cfg_kwargs = {"pretrain": "none", "eval_every": 0, "progress": False, **json.loads(args.config)}
