@@ -50,6 +50,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from swarm_env.compiled import compiled_kernels
+from swarm_env_agents.cbs_rrt import kernels
 from swarm_env_agents.cbs_rrt.constraints import ConstraintTable
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
 from swarm_env_agents.cbs_rrt.primitives import MotionPrimitives
@@ -60,6 +62,8 @@ __all__ = ["GoalSpec", "RRTConfig", "RRTResult", "PrimitiveRRT"]
 _WAIT_PRIM = -2
 _JUNCTION_S = np.linspace(0.0, 1.0, 5)  # points checked along the junction move onto the goal
 _VISIBLE_S = np.linspace(0.0, 1.0, 12)[None, :]  # points checked along a line of sight
+_EMPTY = np.empty(0)  # no tail (the compiled _build)
+_EMPTY2 = np.empty((0, 2))
 
 
 @dataclass(frozen=True, eq=False)
@@ -206,6 +210,8 @@ class PrimitiveRRT:
         self._lt = primitives.sample_t.ravel()  # (P*S,) sample time offsets
         self._follow = float(config.follow_speed or primitives.speed)
         self._cos_join = math.cos(math.radians(config.join_angle))
+        self._join_k = np.empty(4, dtype=np.int64)  # the compiled _join's candidates (the first few joinable samples)
+        self._join_dep = np.empty(4)
 
     # ------------------------------------------------------------------ validity
     def _static_ok(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
@@ -245,6 +251,18 @@ class PrimitiveRRT:
         within ``join_angle`` of its motion (a unicycle cannot follow a course sideways; it
         turns in place first, with a spin primitive)."""
         g = self._goal
+        if compiled_kernels():  # the same candidates, see .kernels.join_candidates
+            use_tail = self._cons.count > 0
+            count = kernels.join_candidates(
+                float(x), float(y), float(t), float(th), g.t, g.xy_eff, g.fast, g.dir,
+                self._tail_ok if use_tail else g.fast, use_tail, self.config.max_wait, self.config.goal_tolerance,
+                self._follow, self._cos_join, self._join_k, self._join_dep,
+            )
+            for j in range(count):
+                k, dep = int(self._join_k[j]), float(self._join_dep[j])
+                if not use_tail or self._join_free(x, y, t, dep, k):
+                    return k, dep
+            return None
         k_lo = g.index_after(t)
         K = len(g.t)
         if k_lo >= K:
@@ -282,6 +300,10 @@ class PrimitiveRRT:
         """Where to head from ``(x, y)`` at ``t`` to meet the goal: the course point whose
         time allows reaching it at the primitives' speed (first such sample)."""
         g = self._goal
+        if compiled_kernels():  # the same sample, see .kernels.intercept
+            use_tail = self._cons.count > 0
+            return g.xy_eff[kernels.intercept(float(x), float(y), float(t), g.t, g.xy_eff, self.prims.speed,
+                                              self._tail_ok if use_tail else g.fast, use_tail)]
         k_lo = min(g.index_after(t), len(g.t) - 1)
         G = g.xy_eff[k_lo:]
         reach = (g.t[k_lo:] - t) * self.prims.speed * 0.8
@@ -298,7 +320,7 @@ class PrimitiveRRT:
         if constraints.count:
             # _tail_ok[k]: following the goal course from sample k on respects every constraint.
             free = constraints.free(goal.xy_eff[:, 0], goal.xy_eff[:, 1], goal.t)
-            self._tail_ok = np.flip(np.logical_and.accumulate(np.flip(free)))
+            self._tail_ok = np.ascontiguousarray(np.flip(np.logical_and.accumulate(np.flip(free))))
 
     # ------------------------------------------------------------------ plan
     def plan(
@@ -414,14 +436,28 @@ class PrimitiveRRT:
         gt, gxy = goal.t, goal.xy_eff
         tol2 = cfg.goal_tolerance ** 2
 
-        def explore(b: int) -> tuple[int, tuple[int, float] | None]:
-            """``b`` random expansions in one vectorised pass (the same rule as ``extend`` for
-            each sample): returns the number of nodes added and the first join found."""
-            nonlocal n
-            Q = lo + rng.random((b, 2)) * span
-            qx, qy = Q[:, 0:1], Q[:, 1:2]
-            d = (X[:n, 0] - qx) ** 2 + (X[:n, 1] - qy) ** 2
-            ang = np.abs((np.arctan2(qy - X[:n, 1], qx - X[:n, 0]) - X[:n, 2] + np.pi) % (2.0 * np.pi) - np.pi)
+        compiled = compiled_kernels()
+        if compiled:
+            fld = self.field
+            field_args = (fld._inv, fld._xmax, fld._ymax, fld.nx, fld.values)
+            relax_args = (self.buffer, self._relax, sx, sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor)
+            cons_args = self._cons.kernel_args()
+
+        def expand_batch(
+            qx: np.ndarray, qy: np.ndarray
+        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+            """Nearest nodes of the samples and all primitives from them: ``uniq`` (distinct nodes),
+            ``inv`` (each sample's index into ``uniq``), ``sok``/``cok`` ``(U, P)`` (static /
+            constraint validity), ``ex``/``ey`` ``(U, P)`` end points, ``best`` (each sample's
+            nearest valid primitive end) and ``found`` (it has one)."""
+            qx2, qy2 = qx[:, None], qy[:, None]
+            ang = np.abs((np.arctan2(qy2 - X[:n, 1], qx2 - X[:n, 0]) - X[:n, 2] + np.pi) % (2.0 * np.pi) - np.pi)
+            if compiled:  # the same answers, see .kernels.explore_batch
+                out = kernels.explore_batch(X, n, qx, qy, ang, cfg.heading_weight, lx, ly, lt, P, S, T, *field_args,
+                                            *relax_args, *cons_args)
+                if out[0]:
+                    return out[1:]
+            d = (X[:n, 0] - qx2) ** 2 + (X[:n, 1] - qy2) ** 2
             parents = np.argmin(d + (cfg.heading_weight * ang) ** 2, axis=1)
             uniq, inv = np.unique(parents, return_inverse=True)
             px, py, pth, pt = X[uniq, 0:1], X[uniq, 1:2], X[uniq, 2:3], T[uniq, None]
@@ -435,17 +471,27 @@ class PrimitiveRRT:
                 cok = np.ones_like(sok)
             valid = sok & cok
             ex, ey = xs[:, last::S], ys[:, last::S]  # (U, P) end points
-            dd = (ex[inv] - qx) ** 2 + (ey[inv] - qy) ** 2  # (b, P)
+            dd = (ex[inv] - qx2) ** 2 + (ey[inv] - qy2) ** 2  # (b, P)
             dd[~valid[inv]] = np.inf
             best = np.argmin(dd, axis=1)
+            found = np.isfinite(dd[np.arange(len(best)), best])
+            return uniq, inv, sok, cok, ex, ey, best, found
+
+        def explore(b: int) -> tuple[int, tuple[int, float] | None]:
+            """``b`` random expansions in one vectorised pass (the same rule as ``extend`` for
+            each sample): returns the number of nodes added and the first join found."""
+            nonlocal n
+            Q = lo + rng.random((b, 2)) * span
+            uniq, inv, sok, cok, ex, ey, best, found = expand_batch(Q[:, 0].copy(), Q[:, 1].copy())
+            uniq_l, inv_l, best_l, found_l = uniq.tolist(), inv.tolist(), best.tolist(), found.tolist()
             added = []
             seen: set[tuple[int, int]] = set()
             for j in range(b):
-                u = int(inv[j])
-                k = int(best[j])
-                if not np.isfinite(dd[j, k]):
+                u = inv_l[j]
+                k = best_l[j]
+                if not found_l[j]:
                     k = _WAIT_PRIM
-                    i = int(uniq[u])
+                    i = uniq_l[u]
                     if (u, k) in seen or not (sok[u] & ~cok[u]).any() or T[i] + cfg.wait_step > t_end:
                         continue
                     if not self._still_free(X[i, 0], X[i, 1], T[i], T[i] + cfg.wait_step):
@@ -456,15 +502,18 @@ class PrimitiveRRT:
                 if (u, k) in seen:
                     continue
                 seen.add((u, k))
-                i = int(uniq[u])
+                i = uniq_l[u]
                 added.append(add(i, np.array([ex[u, k], ey[u, k], X[i, 2] + angles[k]]), T[i] + durations[k], k))
             if not added:
                 return 0, None
             # Joins: only nodes within tolerance of some course point in their waiting window.
             new = np.array(added)
-            gx = (gxy[:, 0][None, :] - X[new, 0:1]) ** 2 + (gxy[:, 1][None, :] - X[new, 1:2]) ** 2
-            window = (gt[None, :] > T[new, None]) & (gt[None, :] <= T[new, None] + cfg.max_wait)
-            near = np.flatnonzero(np.where(window, gx, np.inf).min(axis=1) <= tol2)
+            if compiled:
+                near = np.flatnonzero(kernels.near_goal(X, T, new, gt, gxy, cfg.max_wait, tol2))
+            else:
+                gx = (gxy[:, 0][None, :] - X[new, 0:1]) ** 2 + (gxy[:, 1][None, :] - X[new, 1:2]) ** 2
+                window = (gt[None, :] > T[new, None]) & (gt[None, :] <= T[new, None] + cfg.max_wait)
+                near = np.flatnonzero(np.where(window, gx, np.inf).min(axis=1) <= tol2)
             for m in near.tolist():
                 k_new = int(new[m])
                 if T[k_new] <= t_end:
@@ -650,6 +699,49 @@ class PrimitiveRRT:
 
     # ------------------------------------------------------------------ output
     def _build(self, nodes: list[tuple[np.ndarray, float, int]], join: tuple[int, float] | None) -> TimedPath:
+        """The timed path through ``nodes`` (``(pose, time, primitive)``; the first is the start)
+        and, with ``join = (k, depart)``, a wait until ``depart`` and the goal course from sample
+        ``k``: compiled (:func:`.kernels.build_path`, the same bits) unless the kernels are off."""
+        if compiled_kernels():
+            path = self._build_compiled(nodes, join)
+            if path is not None:
+                return path
+        return self._build_reference(nodes, join)
+
+    def _build_compiled(self, nodes: list[tuple[np.ndarray, float, int]], join: tuple[int, float] | None
+                        ) -> TimedPath | None:
+        prims = self.prims
+        pose = np.array([p for p, _, _ in nodes], dtype=np.float64).reshape(-1, 3)
+        ths = pose[:, 2].tolist()
+        # math.cos/sin: what MotionPrimitives.poses uses (Python's libm; numba's is the same C library,
+        # but the values are passed in so that nothing depends on that).
+        cs = np.array([math.cos(v) for v in ths])
+        sn = np.array([math.sin(v) for v in ths])
+        nt = np.array([t for _, t, _ in nodes], dtype=np.float64)
+        nk = np.array([k for _, _, k in nodes], dtype=np.int64)
+        goal_time = math.nan
+        if join is not None:
+            g = self._goal
+            k, depart = join
+            t_last = nodes[-1][1]
+            add_wait = bool(depart > t_last + 1e-6 and g.t[k] > depart + 1e-6)
+            tail_t, tail_xy, tail_h = g.t[k:], g.xy_eff[k:], g.heading[k:]
+            goal_time = float(g.t[k])
+        else:
+            depart, add_wait = 0.0, False
+            tail_t, tail_xy, tail_h = _EMPTY, _EMPTY2, _EMPTY
+        ok, t_all, pose_all, kind_all, node_idx = kernels.build_path(
+            pose[:, 0].copy(), pose[:, 1].copy(), pose[:, 2].copy(), nt, nk, cs, sn, prims.local, prims.sample_t,
+            _WAIT_PRIM, float(depart), add_wait, tail_t, tail_xy, tail_h,
+        )
+        if not ok:
+            return None
+        return TimedPath._trusted(t_all, pose_all, kind_all, node_idx, nk,
+                                  goal_time, join is not None)
+
+    def _build_reference(self, nodes: list[tuple[np.ndarray, float, int]], join: tuple[int, float] | None
+                         ) -> TimedPath:
+        """The numpy reference of :meth:`_build`."""
         prims = self.prims
         S = prims.samples
         ts = [np.array([nodes[0][1]])]
