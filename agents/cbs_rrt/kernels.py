@@ -217,6 +217,125 @@ def _search_left(a, v):  # pragma: no cover - compiled
 
 
 @_jit
+def _expand_node(px, py, c, s, pt, lx, ly, lt, n_prims, n_samp,
+                 f_inv, f_xmax, f_ymax, f_nx, f_values,
+                 buffer, relax, sx, sy, c0, slope, rdist, floor,
+                 has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active, any_active,
+                 sok, cok, ex, ey):  # pragma: no cover - compiled
+    """Every primitive from the pose at ``(px, py)`` with heading cosine/sine ``c``/``s`` at time
+    ``pt``: fills ``sok``/``cok`` (every sample keeps the buffer / the constraints; both start
+    True) and the end points ``ex``/``ey``. The sample ``q`` is at ``(px + c lx - s ly, py + s lx
+    + c ly)`` (``MotionPrimitives.expand``'s arithmetic) and time ``pt + lt[q]``; the buffer rule is
+    ``PrimitiveRRT._static_ok``'s. False for a NaN coordinate."""
+    last = n_samp - 1
+    for k in range(n_prims):
+        for m in range(n_samp):
+            q = k * n_samp + m
+            x = px + c * lx[q] - s * ly[q]
+            y = py + s * lx[q] + c * ly[q]
+            if x != x or y != y:
+                return False
+            if m == last:
+                ex[k] = x
+                ey[k] = y
+            if sok[k]:
+                clear = _clear1(x, y, f_inv, f_xmax, f_ymax, f_nx, f_values)
+                if relax:
+                    d = math.hypot(x - sx, y - sy)
+                    need = c0 + slope * max(d - rdist, 0.0)
+                    sok[k] = clear >= max(min(buffer, need), floor)
+                else:
+                    sok[k] = clear >= buffer
+            if has_cons and cok[k]:
+                cok[k] = _free1(x, y, pt + lt[q], t0, inv_dt, k_max, cpx, cpy, r2, active, any_active)
+    return True
+
+
+@_jit
+def candidates(x, y, c, s, t, lx, ly, lt, n_prims, n_samp,
+               f_inv, f_xmax, f_ymax, f_nx, f_values,
+               buffer, relax, sx, sy, c0, slope, rdist, floor,
+               has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active, any_active):  # pragma: no cover - compiled
+    """``PrimitiveRRT._candidates`` from one pose: ``(ok, sok, cok, ex, ey)`` (see :func:`_expand_node`)."""
+    sok = np.ones(n_prims, dtype=np.bool_)
+    cok = np.ones(n_prims, dtype=np.bool_)
+    ex = np.empty(n_prims)
+    ey = np.empty(n_prims)
+    ok = _expand_node(x, y, c, s, t, lx, ly, lt, n_prims, n_samp, f_inv, f_xmax, f_ymax, f_nx, f_values,
+                      buffer, relax, sx, sy, c0, slope, rdist, floor,
+                      has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active, any_active, sok, cok, ex, ey)
+    return ok, sok, cok, ex, ey
+
+
+@_jit
+def _still_free(x, y, t_from, t_to, has_cons, t0, inv_dt, k_max, px, py, r2, active):  # pragma: no cover - compiled
+    """``PrimitiveRRT._still_free`` (and ``ConstraintTable.still_free``'s grid columns)."""
+    if not has_cons or t_to <= t_from:
+        return True
+    k_last = np.int64(k_max)
+    k0 = min(max(np.int64((t_from - t0) * inv_dt + 0.5), 0), k_last)
+    k1 = min(max(np.int64((t_to - t0) * inv_dt + 0.5), 0), k_last) + 1
+    return constraint_still_free(x, y, k0, k1, px, py, r2, active)
+
+
+@_jit
+def explore_add(X, T, parent, prim, n, uniq, inv, sok, cok, ex, ey, best, found, angles, durations, wait_prim,
+                wait_step, t_end, has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active):  # pragma: no cover - compiled
+    """``explore``'s additions to the tree (``X``, ``T``, ``parent``, ``prim``, ``n`` nodes) from
+    :func:`explore_batch`'s answer, in sample order: each sample's best primitive from its node,
+    or, where constraints block every primitive that the obstacles allow, a wait of ``wait_step``
+    (if the robot may stand there that long and it ends by ``t_end``); a (node, primitive) pair
+    once. Returns ``(n, added)``."""
+    b = len(inv)
+    n_prims = sok.shape[1]
+    added = np.empty(b, dtype=np.int64)
+    n_added = 0
+    seen_u = np.empty(b, dtype=np.int64)
+    seen_k = np.empty(b, dtype=np.int64)
+    n_seen = 0
+    for j in range(b):
+        u = inv[j]
+        k = best[j] if found[j] else wait_prim
+        dup = False
+        for q in range(n_seen):
+            if seen_u[q] == u and seen_k[q] == k:
+                dup = True
+                break
+        if dup:
+            continue
+        i = uniq[u]
+        if k == wait_prim:
+            blocked = False
+            for kk in range(n_prims):
+                if sok[u, kk] and not cok[u, kk]:
+                    blocked = True
+                    break
+            t_to = T[i] + wait_step
+            if not blocked or t_to > t_end:
+                continue
+            if not _still_free(X[i, 0], X[i, 1], T[i], t_to, has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active):
+                continue
+            X[n, 0] = X[i, 0]
+            X[n, 1] = X[i, 1]
+            X[n, 2] = X[i, 2]
+            T[n] = t_to
+        else:
+            X[n, 0] = ex[u, k]
+            X[n, 1] = ey[u, k]
+            X[n, 2] = X[i, 2] + angles[k]
+            T[n] = T[i] + durations[k]
+        seen_u[n_seen] = u
+        seen_k[n_seen] = k
+        n_seen += 1
+        parent[n] = i
+        prim[n] = k
+        added[n_added] = n
+        n_added += 1
+        n += 1
+    return n, added[:n_added]
+
+
+@_jit
 def explore_batch(X, n, qx, qy, ang, hw, lx, ly, lt, n_prims, n_samp, T,
                   f_inv, f_xmax, f_ymax, f_nx, f_values,
                   buffer, relax, sx, sy, c0, slope, rdist, floor,
@@ -266,34 +385,12 @@ def explore_batch(X, n, qx, qy, ang, hw, lx, ly, lt, n_prims, n_samp, T,
     cok = np.ones((n_u, n_prims), dtype=np.bool_)
     ex = np.empty((n_u, n_prims))
     ey = np.empty((n_u, n_prims))
-    last = n_samp - 1
     for u in range(n_u):
         i = uniq[u]
-        px = X[i, 0]
-        py = X[i, 1]
-        c = math.cos(X[i, 2])
-        s = math.sin(X[i, 2])
-        pt = T[i]
-        for k in range(n_prims):
-            for m in range(n_samp):
-                q = k * n_samp + m
-                x = px + c * lx[q] - s * ly[q]
-                y = py + s * lx[q] + c * ly[q]
-                if x != x or y != y:
-                    return False, uniq, inv, sok, cok, ex, ey, parents, sok[0]
-                if m == last:
-                    ex[u, k] = x
-                    ey[u, k] = y
-                if sok[u, k]:
-                    clear = _clear1(x, y, f_inv, f_xmax, f_ymax, f_nx, f_values)
-                    if relax:
-                        d = math.hypot(x - sx, y - sy)
-                        need = c0 + slope * max(d - rdist, 0.0)
-                        sok[u, k] = clear >= max(min(buffer, need), floor)
-                    else:
-                        sok[u, k] = clear >= buffer
-                if has_cons and cok[u, k]:
-                    cok[u, k] = _free1(x, y, pt + lt[q], t0, inv_dt, k_max, cpx, cpy, r2, active, any_active)
+        if not _expand_node(X[i, 0], X[i, 1], math.cos(X[i, 2]), math.sin(X[i, 2]), T[i], lx, ly, lt, n_prims, n_samp,
+                            f_inv, f_xmax, f_ymax, f_nx, f_values, buffer, relax, sx, sy, c0, slope, rdist, floor,
+                            has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active, any_active, sok[u], cok[u], ex[u], ey[u]):
+            return False, uniq, inv, sok, cok, ex, ey, parents, sok[0]
     best_k = np.zeros(b, dtype=np.int64)
     found = np.zeros(b, dtype=np.bool_)
     for j in range(b):
@@ -378,6 +475,6 @@ def intercept(x, y, t, gt, gxy, speed, tail_ok, use_tail):  # pragma: no cover -
 
 
 __all__ = [
-    "build_path", "clearance_xy", "constraint_free", "constraint_still_free", "explore_batch", "intercept",
-    "join_candidates", "near_goal",
+    "build_path", "candidates", "clearance_xy", "constraint_free", "constraint_still_free", "explore_add",
+    "explore_batch", "intercept", "join_candidates", "near_goal",
 ]

@@ -226,8 +226,26 @@ class PrimitiveRRT:
             return clear >= np.maximum(np.minimum(self.buffer, need), self._floor)
         return clear >= self.buffer
 
-    def _candidates(self, x: float, y: float, th: float, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """All primitives from a pose: ``ends (P, 3)``, ``static_ok (P,)``, ``cons_ok (P,)``, samples."""
+    def _candidates(
+        self, x: float, y: float, th: float, t: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """All primitives from a pose: ``ends (P, 3)``, ``static_ok (P,)``, ``cons_ok (P,)``, samples
+        (``None, None`` from the compiled version, :func:`.kernels.candidates`: the same answers)."""
+        if compiled_kernels():
+            x, y, th = float(x), float(y), float(th)
+            fld, cfg = self.field, self.config
+            ok, sok, cok, ex, ey = kernels.candidates(
+                x, y, math.cos(th), math.sin(th), float(t), self.prims._lx, self.prims._ly, self._lt, self._P, self._S,
+                fld._inv, fld._xmax, fld._ymax, fld.nx, fld.values,
+                self.buffer, self._relax, self._sx, self._sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor,
+                *self._cons.kernel_args(),
+            )
+            if ok:
+                ends = np.empty((self._P, 3))
+                ends[:, 0] = ex
+                ends[:, 1] = ey
+                ends[:, 2] = th + self.prims.angles
+                return ends, sok, cok, None, None
         xs, ys, ends = self.prims.expand((x, y, th))
         P, S = self._P, self._S
         sok = self._static_ok(xs, ys).reshape(P, S).all(axis=1)
@@ -442,6 +460,7 @@ class PrimitiveRRT:
             field_args = (fld._inv, fld._xmax, fld._ymax, fld.nx, fld.values)
             relax_args = (self.buffer, self._relax, sx, sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor)
             cons_args = self._cons.kernel_args()
+            still_args = cons_args[:-1]  # what the wait test needs (no any_active)
 
         def expand_batch(
             qx: np.ndarray, qy: np.ndarray
@@ -483,6 +502,10 @@ class PrimitiveRRT:
             nonlocal n
             Q = lo + rng.random((b, 2)) * span
             uniq, inv, sok, cok, ex, ey, best, found = expand_batch(Q[:, 0].copy(), Q[:, 1].copy())
+            if compiled:  # the same nodes in the same order, see .kernels.explore_add
+                n, new = kernels.explore_add(X, T, parent, prim, n, uniq, inv, sok, cok, ex, ey, best, found, angles,
+                                             durations, _WAIT_PRIM, cfg.wait_step, t_end, *still_args)
+                return joins(new)
             uniq_l, inv_l, best_l, found_l = uniq.tolist(), inv.tolist(), best.tolist(), found.tolist()
             added = []
             seen: set[tuple[int, int]] = set()
@@ -504,10 +527,14 @@ class PrimitiveRRT:
                 seen.add((u, k))
                 i = uniq_l[u]
                 added.append(add(i, np.array([ex[u, k], ey[u, k], X[i, 2] + angles[k]]), T[i] + durations[k], k))
-            if not added:
+            return joins(np.array(added, dtype=np.int64))
+
+        def joins(new: np.ndarray) -> tuple[int, tuple[int, float] | None]:
+            """``explore``'s answer for the nodes it added (``new``): their number and the first
+            join found. Only nodes within tolerance of some course point in their waiting window
+            are tried."""
+            if not len(new):
                 return 0, None
-            # Joins: only nodes within tolerance of some course point in their waiting window.
-            new = np.array(added)
             if compiled:
                 near = np.flatnonzero(kernels.near_goal(X, T, new, gt, gxy, cfg.max_wait, tol2))
             else:
@@ -519,8 +546,8 @@ class PrimitiveRRT:
                 if T[k_new] <= t_end:
                     join = self._join(X[k_new, 0], X[k_new, 1], T[k_new], X[k_new, 2])
                     if join is not None:
-                        return len(added), (k_new, join)
-            return len(added), None
+                        return len(new), (k_new, join)
+            return len(new), None
 
         it = 0
         stalled = 0  # consecutive iterations that added nothing
