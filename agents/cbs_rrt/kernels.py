@@ -474,7 +474,103 @@ def intercept(x, y, t, gt, gxy, speed, tail_ok, use_tail):  # pragma: no cover -
     return n_goal - 1
 
 
+@_jit
+def _interp1(x, xp, fp, col):  # pragma: no cover - compiled
+    """``np.interp(x, xp, fp[:, col])`` for one ``x`` and strictly increasing ``xp`` (numpy's
+    ``arr_interp`` step by step, as :func:`.timed_path.interp_scalar`)."""
+    n = len(xp)
+    if n == 1:
+        return fp[0, col]
+    if x != x:
+        return x
+    if x < xp[0]:
+        return fp[0, col]
+    # the last j with xp[j] <= x
+    lo = 0
+    hi = n
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if xp[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    j = lo - 1
+    if j >= n - 1:
+        return fp[n - 1, col]
+    if xp[j] == x:
+        return fp[j, col]
+    slope = (fp[j + 1, col] - fp[j, col]) / (xp[j + 1] - xp[j])
+    out = slope * (x - xp[j]) + fp[j, col]
+    if out != out:
+        out = slope * (x - xp[j + 1]) + fp[j + 1, col]
+        if out != out and fp[j, col] == fp[j + 1, col]:
+            out = fp[j, col]
+    return out
+
+
+@_jit
+def interp_xy(times, xp, fp):  # pragma: no cover - compiled
+    """``(M, 2)``: columns 0 and 1 of ``fp`` (``(K, >= 2)``) interpolated at ``times`` over ``xp``
+    (``np.interp``'s values, :func:`_interp1`): ``TimedPath.position_at`` and ``GoalSpec.at``."""
+    out = np.empty((len(times), 2))
+    for m in range(len(times)):
+        out[m, 0] = _interp1(times[m], xp, fp, 0)
+        out[m, 1] = _interp1(times[m], xp, fp, 1)
+    return out
+
+
+@_jit
+def path_free(times, xp, fp, t0, inv_dt, k_max, px, py, r2, active, any_active):  # pragma: no cover - compiled
+    """``PrimitiveRRT._path_free``'s test: the path ``(xp, fp)`` at every time of ``times`` is
+    outside every constraint (``ConstraintTable.free``); ``-1`` for a NaN time (the caller then
+    runs the reference), else ``1``/``0``."""
+    for m in range(len(times)):
+        t = times[m]
+        if t != t:
+            return -1
+        if not _free1(_interp1(t, xp, fp, 0), _interp1(t, xp, fp, 1), t, t0, inv_dt, k_max, px, py, r2, active,
+                      any_active):
+            return 0
+    return 1
+
+
+@_jit
+def join(x, y, t, th, gt, gxy, fast, gdir, tail_ok, max_wait, tol, follow, cos_join, junction,
+         has_cons, t0, inv_dt, k_max, px, py, r2, active, any_active, n_try):  # pragma: no cover - compiled
+    """``PrimitiveRRT._join``: of the first ``n_try`` goal samples the robot may join
+    (:func:`join_candidates`), the first whose wait at ``(x, y)`` from ``t`` until the departure and
+    straight junction (points at fractions ``junction``) respect the constraints. Returns
+    ``(k, depart)``, ``k = -1`` for none; ``k = -2`` when a junction time is NaN (the caller then
+    runs the reference)."""
+    out_k = np.empty(n_try, dtype=np.int64)
+    out_dep = np.empty(n_try)
+    count = join_candidates(x, y, t, th, gt, gxy, fast, gdir, tail_ok, has_cons, max_wait, tol, follow, cos_join,
+                            out_k, out_dep)
+    for c in range(count):
+        k = out_k[c]
+        dep = out_dep[c]
+        if not has_cons:
+            return k, dep
+        if not _still_free(x, y, t, dep, has_cons, t0, inv_dt, k_max, px, py, r2, active):
+            continue
+        gx = gxy[k, 0] - x
+        gy = gxy[k, 1] - y
+        gtk = gt[k] - dep
+        free = True
+        for q in range(len(junction)):
+            s = junction[q]
+            jt = dep + s * gtk
+            if jt != jt:
+                return -2, dep
+            if not _free1(x + s * gx, y + s * gy, jt, t0, inv_dt, k_max, px, py, r2, active, any_active):
+                free = False
+                break
+        if free:
+            return k, dep
+    return -1, 0.0
+
+
 __all__ = [
     "build_path", "candidates", "clearance_xy", "constraint_free", "constraint_still_free", "explore_add",
-    "explore_batch", "intercept", "join_candidates", "near_goal",
+    "explore_batch", "intercept", "interp_xy", "join", "join_candidates", "near_goal", "path_free",
 ]

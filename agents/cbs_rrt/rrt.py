@@ -116,6 +116,8 @@ class GoalSpec:
     def at(self, times: np.ndarray | float) -> np.ndarray:
         """Effective goal positions at ``times`` (linear between samples, clamped)."""
         tt = np.asarray(times, dtype=np.float64)
+        if compiled_kernels():  # np.interp's values, see .kernels.interp_xy
+            return kernels.interp_xy(np.ascontiguousarray(tt).reshape(-1), self.t, self.xy_eff).reshape(tt.shape + (2,))
         return np.stack([np.interp(tt, self.t, self.xy_eff[:, 0]), np.interp(tt, self.t, self.xy_eff[:, 1])], axis=-1)
 
     def index_after(self, time: float) -> int:
@@ -269,18 +271,18 @@ class PrimitiveRRT:
         within ``join_angle`` of its motion (a unicycle cannot follow a course sideways; it
         turns in place first, with a spin primitive)."""
         g = self._goal
-        if compiled_kernels():  # the same candidates, see .kernels.join_candidates
-            use_tail = self._cons.count > 0
-            count = kernels.join_candidates(
+        if compiled_kernels():  # the same join, see .kernels.join
+            cons = self._cons
+            has_cons = cons.count > 0
+            k, dep = kernels.join(
                 float(x), float(y), float(t), float(th), g.t, g.xy_eff, g.fast, g.dir,
-                self._tail_ok if use_tail else g.fast, use_tail, self.config.max_wait, self.config.goal_tolerance,
-                self._follow, self._cos_join, self._join_k, self._join_dep,
+                self._tail_ok if has_cons else g.fast, self.config.max_wait, self.config.goal_tolerance,
+                self._follow, self._cos_join, _JUNCTION_S, *cons.kernel_args(), 4,
             )
-            for j in range(count):
-                k, dep = int(self._join_k[j]), float(self._join_dep[j])
-                if not use_tail or self._join_free(x, y, t, dep, k):
-                    return k, dep
-            return None
+            if k >= 0:
+                return int(k), float(dep)
+            if k == -1:
+                return None
         k_lo = g.index_after(t)
         K = len(g.t)
         if k_lo >= K:
@@ -666,6 +668,10 @@ class PrimitiveRRT:
             return True
         grid = np.arange(path.t0, path.t_end, cons.dt)
         ts = np.concatenate([path.t, grid])
+        if compiled_kernels():  # the same answer, see .kernels.path_free
+            free = kernels.path_free(ts, path.t, path.pose, *cons.kernel_args()[1:])
+            if free >= 0:
+                return bool(free)
         xy = path.position_at(ts)
         return cons.all_free(xy[:, 0], xy[:, 1], ts)
 

@@ -26,6 +26,9 @@ from functools import cached_property
 
 import numpy as np
 
+from swarm_env.compiled import compiled_kernels
+from swarm_env_agents.cbs_rrt import kernels
+
 __all__ = ["START", "PRIM", "WAIT", "TAIL", "TimedPath", "interp_scalar"]
 
 START, PRIM, WAIT, TAIL = 0, 1, 2, 3
@@ -38,16 +41,18 @@ def interp_scalar(x: float, xp: list[float], fp: list[float]) -> float:
     by step: ``fp[0]`` left of ``xp[0]``, ``fp[-1]`` from ``xp[-1]`` on, ``fp[j]`` at a breakpoint
     ``xp[j]``, otherwise ``slope * (x - xp[j]) + fp[j]`` with ``slope = (fp[j+1] - fp[j]) / (xp[j+1]
     - xp[j])`` (Python floats are the same IEEE doubles, and that C file is built without fused
-    multiply-adds); NaN gives NaN, and a NaN result is retried from ``xp[j+1]`` as numpy does.
+    multiply-adds); NaN gives NaN (``fp[0]`` for one sample, as numpy), and a NaN result is retried from ``xp[j+1]`` as numpy does.
     ``tests/test_cbs_kernels.py`` compares it with ``np.interp`` on millions of points. The
     planner asks for single positions tens of thousands of times per episode, where numpy's
     per-call overhead was most of the cost."""
+    n = len(xp)
+    if n == 1:  # numpy's one-sample branch: fp[0] whatever x is (NaN included)
+        return fp[0]
     if x != x:
         return x
     j = bisect_right(xp, x) - 1  # the last j with xp[j] <= x (numpy's binary search, for strictly increasing xp)
     if j < 0:
         return fp[0]
-    n = len(xp)
     if j >= n - 1:
         return fp[n - 1]
     if xp[j] == x:
@@ -167,6 +172,8 @@ class TimedPath:
             x, y = self.xy_at(float(times))
             return np.array((x, y))
         tt = np.asarray(times, dtype=np.float64)
+        if compiled_kernels():  # np.interp's values, see .kernels.interp_xy
+            return kernels.interp_xy(np.ascontiguousarray(tt).reshape(-1), self.t, self.pose).reshape(tt.shape + (2,))
         return np.stack([np.interp(tt, self.t, self.pose[:, 0]), np.interp(tt, self.t, self.pose[:, 1])], axis=-1)
 
     def xy_at(self, time: float) -> tuple[float, float]:
