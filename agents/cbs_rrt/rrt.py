@@ -212,8 +212,6 @@ class PrimitiveRRT:
         self._lt = primitives.sample_t.ravel()  # (P*S,) sample time offsets
         self._follow = float(config.follow_speed or primitives.speed)
         self._cos_join = math.cos(math.radians(config.join_angle))
-        self._join_k = np.empty(4, dtype=np.int64)  # the compiled _join's candidates (the first few joinable samples)
-        self._join_dep = np.empty(4)
 
     # ------------------------------------------------------------------ validity
     def _static_ok(self, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
