@@ -109,22 +109,25 @@ def test_scalar_and_compiled_interpolation_match_numpy_on_a_million_points() -> 
 
 
 def test_compiled_libm_calls_match_numpy_on_millions_of_inputs() -> None:
-    """The kernels call ``math.cos``/``math.sin``/``math.hypot`` where the numpy references call
-    ``np.cos``/``np.sin``/``np.hypot``: the same bits (``np.arctan2`` is not among them: it differs)."""
+    """The kernels call ``math.cos``/``math.sin``/``math.hypot`` and Python's float ``%`` where the numpy
+    references call ``np.cos``/``np.sin``/``np.hypot``/``np.remainder``: the same bits (``np.arctan2`` is
+    not among them: it differs)."""
     import math
 
     import numba
 
     @numba.njit(cache=False)
-    def libm(a: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def libm(a: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         c = np.empty(len(a))
         s = np.empty(len(a))
         h = np.empty(len(a))
+        r = np.empty(len(a))
         for i in range(len(a)):
             c[i] = math.cos(a[i])
             s[i] = math.sin(a[i])
             h[i] = math.hypot(x[i], y[i])
-        return c, s, h
+            r[i] = a[i] % (2.0 * math.pi)
+        return c, s, h, r
 
     rng = np.random.default_rng(9)
     # Headings (not wrapped along a path: they wander), coordinate differences of points in a world,
@@ -133,7 +136,10 @@ def test_compiled_libm_calls_match_numpy_on_millions_of_inputs() -> None:
                         rng.normal(0.0, 1e-3, 50_000), rng.uniform(-1e4, 1e4, 50_000)])
     x = np.concatenate([rng.uniform(-60.0, 60.0, 1_000_000), rng.normal(0.0, 1e-3, 100_000)])
     y = rng.permutation(np.concatenate([rng.uniform(-60.0, 60.0, 1_000_000), rng.normal(0.0, 1e-3, 100_000)]))
-    c, s, h = libm(a, x, y)
+    a = np.concatenate([a, np.arange(-20, 21) * 2.0 * np.pi, [0.0, -0.0, np.pi, -np.pi]])  # exact multiples
+    x, y = np.resize(x, len(a)), np.resize(y, len(a))
+    c, s, h, r = libm(a, x, y)
+    assert (_bits(r) == _bits(a % (2.0 * np.pi))).all()
     assert (_bits(c) == _bits(np.cos(a))).all()
     assert (_bits(s) == _bits(np.sin(a))).all()
     assert (_bits(h) == _bits(np.hypot(x, y))).all()

@@ -16,7 +16,8 @@ The RRT kernels follow their numpy references operation for operation (``a - b``
 plans bit for bit; the plan-identity test of ``tests/test_cbs_kernels.py`` checks whole episodes.
 Two libm functions are called here: ``math.cos``/``math.sin`` (numpy's float64 ``np.cos``/``np.sin``
 and Python's ``math`` call the same C library) and ``math.hypot`` (numba calls the C library's
-``hypot``, as numpy's ``np.hypot`` does); the test module checks both against numpy on millions of
+``hypot``, as numpy's ``np.hypot`` does); and the float ``%`` (numba's is Python's, ``fmod`` and a
+sign fix-up, as numpy's ``remainder``). The test module checks them against numpy on millions of
 inputs. ``np.arctan2`` is not one of them: numpy's own vectorised version differs from the C
 library's in the last bit for a few per cent of inputs on this machine, so it stays in numpy and
 its results are passed in.
@@ -336,13 +337,15 @@ def explore_add(X, T, parent, prim, n, uniq, inv, sok, cok, ex, ey, best, found,
 
 
 @_jit
-def explore_batch(X, n, qx, qy, ang, hw, lx, ly, lt, n_prims, n_samp, T,
+def explore_batch(X, n, qx, qy, atan, hw, lx, ly, lt, n_prims, n_samp, T,
                   f_inv, f_xmax, f_ymax, f_nx, f_values,
                   buffer, relax, sx, sy, c0, slope, rdist, floor,
                   has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active, any_active):  # pragma: no cover - compiled
     """The vectorised part of ``PrimitiveRRT.plan``'s ``explore`` for samples ``(qx, qy)`` (``b``
-    of them) and the tree ``X[:n]``, ``T[:n]``; ``ang[j, i]``: the reference's wrapped angle between
-    node ``i``'s heading and the direction to sample ``j`` (numpy's arctan2, computed by the caller).
+    of them) and the tree ``X[:n]``, ``T[:n]``; ``atan[j, i]``: the direction from node ``i`` to
+    sample ``j`` (numpy's arctan2, computed by the caller), wrapped against the node's heading here
+    as the reference does (``(atan - th + pi) % (2 pi) - pi``: Python's float ``%``, which is numpy's
+    ``remainder``: ``fmod`` and the sign fix-up).
 
     Returns ``(ok, uniq, inv, sok, cok, ex, ey, best, found)``: the distinct nearest nodes ``uniq``
     (sorted) and each sample's index into them (``np.unique``'s ``inverse``); per distinct node and
@@ -358,7 +361,7 @@ def explore_batch(X, n, qx, qy, ang, hw, lx, ly, lt, n_prims, n_samp, T,
         for i in range(n):
             dx = X[i, 0] - qx[j]
             dy = X[i, 1] - qy[j]
-            a = hw * ang[j, i]
+            a = hw * abs((atan[j, i] - X[i, 2] + math.pi) % (2.0 * math.pi) - math.pi)
             v = (dx * dx + dy * dy) + a * a
             if v != v:  # argmin's first NaN
                 best = i

@@ -470,12 +470,13 @@ class PrimitiveRRT:
             constraint validity), ``ex``/``ey`` ``(U, P)`` end points, ``best`` (each sample's
             nearest valid primitive end) and ``found`` (it has one)."""
             qx2, qy2 = qx[:, None], qy[:, None]
-            ang = np.abs((np.arctan2(qy2 - X[:n, 1], qx2 - X[:n, 0]) - X[:n, 2] + np.pi) % (2.0 * np.pi) - np.pi)
+            atan = np.arctan2(qy2 - X[:n, 1], qx2 - X[:n, 0])  # numpy's (not the C library's) bits, see .kernels
             if compiled:  # the same answers, see .kernels.explore_batch
-                out = kernels.explore_batch(X, n, qx, qy, ang, cfg.heading_weight, lx, ly, lt, P, S, T, *field_args,
+                out = kernels.explore_batch(X, n, qx, qy, atan, cfg.heading_weight, lx, ly, lt, P, S, T, *field_args,
                                             *relax_args, *cons_args)
                 if out[0]:
                     return out[1:]
+            ang = np.abs((atan - X[:n, 2] + np.pi) % (2.0 * np.pi) - np.pi)
             d = (X[:n, 0] - qx2) ** 2 + (X[:n, 1] - qy2) ** 2
             parents = np.argmin(d + (cfg.heading_weight * ang) ** 2, axis=1)
             uniq, inv = np.unique(parents, return_inverse=True)
