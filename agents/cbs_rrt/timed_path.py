@@ -40,11 +40,11 @@ def interp_scalar(x: float, xp: list[float], fp: list[float]) -> float:
     as long), in plain Python: the same bits. It is numpy's ``arr_interp`` (``compiled_base.c``) step
     by step: ``fp[0]`` left of ``xp[0]``, ``fp[-1]`` from ``xp[-1]`` on, ``fp[j]`` at a breakpoint
     ``xp[j]``, otherwise ``slope * (x - xp[j]) + fp[j]`` with ``slope = (fp[j+1] - fp[j]) / (xp[j+1]
-    - xp[j])`` (Python floats are the same IEEE doubles, and that C file is built without fused
-    multiply-adds); NaN gives NaN (``fp[0]`` for one sample, as numpy), and a NaN result is retried from ``xp[j+1]`` as numpy does.
-    ``tests/test_cbs_kernels.py`` compares it with ``np.interp`` on millions of points. The
-    planner asks for single positions tens of thousands of times per episode, where numpy's
-    per-call overhead was most of the cost."""
+    - xp[j])`` (Python floats are the same IEEE doubles); NaN gives NaN (``fp[0]`` for one sample, as
+    numpy), and a NaN result is retried from ``xp[j+1]`` as numpy does. ``tests/test_cbs_kernels.py``
+    compares it with ``np.interp`` on over a million points (a numpy built to fuse the multiply-add
+    would fail it). The planner asks for single positions tens of thousands of times per episode,
+    where numpy's per-call overhead was most of the cost."""
     n = len(xp)
     if n == 1:  # numpy's one-sample branch: fp[0] whatever x is (NaN included)
         return fp[0]
