@@ -233,13 +233,7 @@ class PrimitiveRRT:
         (``None, None`` from the compiled version, :func:`.kernels.candidates`: the same answers)."""
         if compiled_kernels():
             x, y, th = float(x), float(y), float(th)
-            fld, cfg = self.field, self.config
-            ok, sok, cok, ex, ey = kernels.candidates(
-                x, y, math.cos(th), math.sin(th), float(t), self.prims._lx, self.prims._ly, self._lt, self._P, self._S,
-                fld._inv, fld._xmax, fld._ymax, fld.nx, fld.values,
-                self.buffer, self._relax, self._sx, self._sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor,
-                *self._cons.kernel_args(),
-            )
+            ok, sok, cok, ex, ey = kernels.candidates(x, y, math.cos(th), math.sin(th), float(t), *self._cand_args)
             if ok:
                 ends = np.empty((self._P, 3))
                 ends[:, 0] = ex
@@ -270,13 +264,7 @@ class PrimitiveRRT:
         turns in place first, with a spin primitive)."""
         g = self._goal
         if compiled_kernels():  # the same join, see .kernels.join
-            cons = self._cons
-            has_cons = cons.count > 0
-            k, dep = kernels.join(
-                float(x), float(y), float(t), float(th), g.t, g.xy_eff, g.fast, g.dir,
-                self._tail_ok if has_cons else g.fast, self.config.max_wait, self.config.goal_tolerance,
-                self._follow, self._cos_join, _JUNCTION_S, *cons.kernel_args(), 4,
-            )
+            k, dep = kernels.join(float(x), float(y), float(t), float(th), *self._join_args)
             if k >= 0:
                 return int(k), float(dep)
             if k == -1:
@@ -319,9 +307,7 @@ class PrimitiveRRT:
         time allows reaching it at the primitives' speed (first such sample)."""
         g = self._goal
         if compiled_kernels():  # the same sample, see .kernels.intercept
-            use_tail = self._cons.count > 0
-            return g.xy_eff[kernels.intercept(float(x), float(y), float(t), g.t, g.xy_eff, self.prims.speed,
-                                              self._tail_ok if use_tail else g.fast, use_tail)]
+            return g.xy_eff[kernels.intercept(float(x), float(y), float(t), *self._intercept_args)]
         k_lo = min(g.index_after(t), len(g.t) - 1)
         G = g.xy_eff[k_lo:]
         reach = (g.t[k_lo:] - t) * self.prims.speed * 0.8
@@ -339,6 +325,12 @@ class PrimitiveRRT:
             # _tail_ok[k]: following the goal course from sample k on respects every constraint.
             free = constraints.free(goal.xy_eff[:, 0], goal.xy_eff[:, 1], goal.t)
             self._tail_ok = np.ascontiguousarray(np.flip(np.logical_and.accumulate(np.flip(free))))
+        # The compiled _join's and _intercept's arguments after the robot's state (bound once per call).
+        tail = self._tail_ok if constraints.count else goal.fast  # (a placeholder of the same type)
+        cfg = self.config
+        self._join_args = (goal.t, goal.xy_eff, goal.fast, goal.dir, tail, cfg.max_wait, cfg.goal_tolerance,
+                           self._follow, self._cos_join, _JUNCTION_S, *constraints.kernel_args(), 4)
+        self._intercept_args = (goal.t, goal.xy_eff, self.prims.speed, tail, constraints.count > 0)
 
     # ------------------------------------------------------------------ plan
     def plan(
@@ -370,6 +362,13 @@ class PrimitiveRRT:
         # Below the floor already (pushed there): it may not get any worse.
         self._floor = min(self.floor, c0 - 0.005)
         t_end = float(goal.t[-1])
+        # The compiled _candidates' arguments after the pose and time: primitives, field, buffer rule, constraints.
+        fld = self.field
+        self._cand_args = (
+            self.prims._lx, self.prims._ly, self._lt, self._P, self._S, fld._inv, fld._xmax, fld._ymax, fld.nx,
+            fld.values, self.buffer, self._relax, sx, sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor,
+            *constraints.kernel_args(),
+        )
 
         cap = 64 + budget * (cfg.connect_steps + 2)
         X = np.empty((cap, 3))
