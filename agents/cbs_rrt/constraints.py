@@ -30,6 +30,12 @@ from swarm_env_agents.cbs_rrt.timed_path import START, TimedPath
 
 __all__ = ["Constraint", "ConstraintTable"]
 
+# Placeholders of a table without constraints, for the kernels' fixed argument types.
+_NO_XY = np.zeros((1, 1))
+_NO_R2 = np.zeros(1)
+_NO_ACTIVE = np.zeros((1, 1), dtype=bool)
+_NO_ANY = np.zeros(1, dtype=bool)
+
 
 @dataclass(frozen=True, eq=False)
 class Constraint:
@@ -138,6 +144,15 @@ class ConstraintTable:
         self._r2_flat = np.ascontiguousarray(self.r2[:, 0])
         # Grid columns where some constraint is active: points at other times skip the test.
         self.any_active = self.active.any(axis=0)
+
+    def kernel_args(self) -> tuple[bool, float, float, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The table as the compiled kernels take it (:mod:`.kernels`): ``(any constraints, t0, 1 / dt,
+        last grid index, px, py, r2, active, any_active)``; without constraints, placeholders of the
+        same types (never read)."""
+        if self.count == 0:
+            return (False, self.t0, self._inv_dt, float(self.k - 1), _NO_XY, _NO_XY, _NO_R2, _NO_ACTIVE, _NO_ANY)
+        return (True, self.t0, self._inv_dt, float(self.k - 1), self.px, self.py, self._r2_flat, self.active,
+                self.any_active)
 
     def free(self, x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
         """``(M,)`` booleans: point ``m`` at ``(x[m], y[m])`` and time ``t[m]`` is outside every

@@ -50,6 +50,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from swarm_env.compiled import compiled_kernels
+from swarm_env_agents.cbs_rrt import kernels
 from swarm_env_agents.cbs_rrt.constraints import ConstraintTable
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
 from swarm_env_agents.cbs_rrt.primitives import MotionPrimitives
@@ -60,6 +62,8 @@ __all__ = ["GoalSpec", "RRTConfig", "RRTResult", "PrimitiveRRT"]
 _WAIT_PRIM = -2
 _JUNCTION_S = np.linspace(0.0, 1.0, 5)  # points checked along the junction move onto the goal
 _VISIBLE_S = np.linspace(0.0, 1.0, 12)[None, :]  # points checked along a line of sight
+_EMPTY = np.empty(0)  # no tail (the compiled _build)
+_EMPTY2 = np.empty((0, 2))
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,6 +116,8 @@ class GoalSpec:
     def at(self, times: np.ndarray | float) -> np.ndarray:
         """Effective goal positions at ``times`` (linear between samples, clamped)."""
         tt = np.asarray(times, dtype=np.float64)
+        if compiled_kernels():  # np.interp's values, see .kernels.interp_xy
+            return kernels.interp_xy(np.ascontiguousarray(tt).reshape(-1), self.t, self.xy_eff).reshape(tt.shape + (2,))
         return np.stack([np.interp(tt, self.t, self.xy_eff[:, 0]), np.interp(tt, self.t, self.xy_eff[:, 1])], axis=-1)
 
     def index_after(self, time: float) -> int:
@@ -220,8 +226,20 @@ class PrimitiveRRT:
             return clear >= np.maximum(np.minimum(self.buffer, need), self._floor)
         return clear >= self.buffer
 
-    def _candidates(self, x: float, y: float, th: float, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """All primitives from a pose: ``ends (P, 3)``, ``static_ok (P,)``, ``cons_ok (P,)``, samples."""
+    def _candidates(
+        self, x: float, y: float, th: float, t: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None, np.ndarray | None]:
+        """All primitives from a pose: ``ends (P, 3)``, ``static_ok (P,)``, ``cons_ok (P,)``, samples
+        (``None, None`` from the compiled version, :func:`.kernels.candidates`: the same answers)."""
+        if compiled_kernels():
+            x, y, th = float(x), float(y), float(th)
+            ok, sok, cok, ex, ey = kernels.candidates(x, y, math.cos(th), math.sin(th), float(t), *self._cand_args)
+            if ok:
+                ends = np.empty((self._P, 3))
+                ends[:, 0] = ex
+                ends[:, 1] = ey
+                ends[:, 2] = th + self.prims.angles
+                return ends, sok, cok, None, None
         xs, ys, ends = self.prims.expand((x, y, th))
         P, S = self._P, self._S
         sok = self._static_ok(xs, ys).reshape(P, S).all(axis=1)
@@ -245,6 +263,12 @@ class PrimitiveRRT:
         within ``join_angle`` of its motion (a unicycle cannot follow a course sideways; it
         turns in place first, with a spin primitive)."""
         g = self._goal
+        if compiled_kernels():  # the same join, see .kernels.join
+            k, dep = kernels.join(float(x), float(y), float(t), float(th), *self._join_args)
+            if k >= 0:
+                return int(k), float(dep)
+            if k == -1:
+                return None
         k_lo = g.index_after(t)
         K = len(g.t)
         if k_lo >= K:
@@ -282,6 +306,8 @@ class PrimitiveRRT:
         """Where to head from ``(x, y)`` at ``t`` to meet the goal: the course point whose
         time allows reaching it at the primitives' speed (first such sample)."""
         g = self._goal
+        if compiled_kernels():  # the same sample, see .kernels.intercept
+            return g.xy_eff[kernels.intercept(float(x), float(y), float(t), *self._intercept_args)]
         k_lo = min(g.index_after(t), len(g.t) - 1)
         G = g.xy_eff[k_lo:]
         reach = (g.t[k_lo:] - t) * self.prims.speed * 0.8
@@ -298,7 +324,13 @@ class PrimitiveRRT:
         if constraints.count:
             # _tail_ok[k]: following the goal course from sample k on respects every constraint.
             free = constraints.free(goal.xy_eff[:, 0], goal.xy_eff[:, 1], goal.t)
-            self._tail_ok = np.flip(np.logical_and.accumulate(np.flip(free)))
+            self._tail_ok = np.ascontiguousarray(np.flip(np.logical_and.accumulate(np.flip(free))))
+        # The compiled _join's and _intercept's arguments after the robot's state (bound once per call).
+        tail = self._tail_ok if constraints.count else goal.fast  # (a placeholder of the same type)
+        cfg = self.config
+        self._join_args = (goal.t, goal.xy_eff, goal.fast, goal.dir, tail, cfg.max_wait, cfg.goal_tolerance,
+                           self._follow, self._cos_join, _JUNCTION_S, *constraints.kernel_args(), 4)
+        self._intercept_args = (goal.t, goal.xy_eff, self.prims.speed, tail, constraints.count > 0)
 
     # ------------------------------------------------------------------ plan
     def plan(
@@ -330,6 +362,13 @@ class PrimitiveRRT:
         # Below the floor already (pushed there): it may not get any worse.
         self._floor = min(self.floor, c0 - 0.005)
         t_end = float(goal.t[-1])
+        # The compiled _candidates' arguments after the pose and time: primitives, field, buffer rule, constraints.
+        fld = self.field
+        self._cand_args = (
+            self.prims._lx, self.prims._ly, self._lt, self._P, self._S, fld._inv, fld._xmax, fld._ymax, fld.nx,
+            fld.values, self.buffer, self._relax, sx, sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor,
+            *constraints.kernel_args(),
+        )
 
         cap = 64 + budget * (cfg.connect_steps + 2)
         X = np.empty((cap, 3))
@@ -414,14 +453,30 @@ class PrimitiveRRT:
         gt, gxy = goal.t, goal.xy_eff
         tol2 = cfg.goal_tolerance ** 2
 
-        def explore(b: int) -> tuple[int, tuple[int, float] | None]:
-            """``b`` random expansions in one vectorised pass (the same rule as ``extend`` for
-            each sample): returns the number of nodes added and the first join found."""
-            nonlocal n
-            Q = lo + rng.random((b, 2)) * span
-            qx, qy = Q[:, 0:1], Q[:, 1:2]
-            d = (X[:n, 0] - qx) ** 2 + (X[:n, 1] - qy) ** 2
-            ang = np.abs((np.arctan2(qy - X[:n, 1], qx - X[:n, 0]) - X[:n, 2] + np.pi) % (2.0 * np.pi) - np.pi)
+        compiled = compiled_kernels()
+        if compiled:
+            fld = self.field
+            field_args = (fld._inv, fld._xmax, fld._ymax, fld.nx, fld.values)
+            relax_args = (self.buffer, self._relax, sx, sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor)
+            cons_args = self._cons.kernel_args()
+            still_args = cons_args[:-1]  # what the wait test needs (no any_active)
+
+        def expand_batch(
+            qx: np.ndarray, qy: np.ndarray
+        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+            """Nearest nodes of the samples and all primitives from them: ``uniq`` (distinct nodes),
+            ``inv`` (each sample's index into ``uniq``), ``sok``/``cok`` ``(U, P)`` (static /
+            constraint validity), ``ex``/``ey`` ``(U, P)`` end points, ``best`` (each sample's
+            nearest valid primitive end) and ``found`` (it has one)."""
+            qx2, qy2 = qx[:, None], qy[:, None]
+            atan = np.arctan2(qy2 - X[:n, 1], qx2 - X[:n, 0])  # numpy's (not the C library's) bits, see .kernels
+            if compiled:  # the same answers, see .kernels.explore_batch
+                out = kernels.explore_batch(X, n, qx, qy, atan, cfg.heading_weight, lx, ly, lt, P, S, T, *field_args,
+                                            *relax_args, *cons_args)
+                if out[0]:
+                    return out[1:]
+            ang = np.abs((atan - X[:n, 2] + np.pi) % (2.0 * np.pi) - np.pi)
+            d = (X[:n, 0] - qx2) ** 2 + (X[:n, 1] - qy2) ** 2
             parents = np.argmin(d + (cfg.heading_weight * ang) ** 2, axis=1)
             uniq, inv = np.unique(parents, return_inverse=True)
             px, py, pth, pt = X[uniq, 0:1], X[uniq, 1:2], X[uniq, 2:3], T[uniq, None]
@@ -435,17 +490,31 @@ class PrimitiveRRT:
                 cok = np.ones_like(sok)
             valid = sok & cok
             ex, ey = xs[:, last::S], ys[:, last::S]  # (U, P) end points
-            dd = (ex[inv] - qx) ** 2 + (ey[inv] - qy) ** 2  # (b, P)
+            dd = (ex[inv] - qx2) ** 2 + (ey[inv] - qy2) ** 2  # (b, P)
             dd[~valid[inv]] = np.inf
             best = np.argmin(dd, axis=1)
+            found = np.isfinite(dd[np.arange(len(best)), best])
+            return uniq, inv, sok, cok, ex, ey, best, found
+
+        def explore(b: int) -> tuple[int, tuple[int, float] | None]:
+            """``b`` random expansions in one vectorised pass (the same rule as ``extend`` for
+            each sample): returns the number of nodes added and the first join found."""
+            nonlocal n
+            Q = lo + rng.random((b, 2)) * span
+            uniq, inv, sok, cok, ex, ey, best, found = expand_batch(Q[:, 0].copy(), Q[:, 1].copy())
+            if compiled:  # the same nodes in the same order, see .kernels.explore_add
+                n, new = kernels.explore_add(X, T, parent, prim, n, uniq, inv, sok, cok, ex, ey, best, found, angles,
+                                             durations, _WAIT_PRIM, cfg.wait_step, t_end, *still_args)
+                return joins(new)
+            uniq_l, inv_l, best_l, found_l = uniq.tolist(), inv.tolist(), best.tolist(), found.tolist()
             added = []
             seen: set[tuple[int, int]] = set()
             for j in range(b):
-                u = int(inv[j])
-                k = int(best[j])
-                if not np.isfinite(dd[j, k]):
+                u = inv_l[j]
+                k = best_l[j]
+                if not found_l[j]:
                     k = _WAIT_PRIM
-                    i = int(uniq[u])
+                    i = uniq_l[u]
                     if (u, k) in seen or not (sok[u] & ~cok[u]).any() or T[i] + cfg.wait_step > t_end:
                         continue
                     if not self._still_free(X[i, 0], X[i, 1], T[i], T[i] + cfg.wait_step):
@@ -456,22 +525,29 @@ class PrimitiveRRT:
                 if (u, k) in seen:
                     continue
                 seen.add((u, k))
-                i = int(uniq[u])
+                i = uniq_l[u]
                 added.append(add(i, np.array([ex[u, k], ey[u, k], X[i, 2] + angles[k]]), T[i] + durations[k], k))
-            if not added:
+            return joins(np.array(added, dtype=np.int64))
+
+        def joins(new: np.ndarray) -> tuple[int, tuple[int, float] | None]:
+            """``explore``'s answer for the nodes it added (``new``): their number and the first
+            join found. Only nodes within tolerance of some course point in their waiting window
+            are tried."""
+            if not len(new):
                 return 0, None
-            # Joins: only nodes within tolerance of some course point in their waiting window.
-            new = np.array(added)
-            gx = (gxy[:, 0][None, :] - X[new, 0:1]) ** 2 + (gxy[:, 1][None, :] - X[new, 1:2]) ** 2
-            window = (gt[None, :] > T[new, None]) & (gt[None, :] <= T[new, None] + cfg.max_wait)
-            near = np.flatnonzero(np.where(window, gx, np.inf).min(axis=1) <= tol2)
+            if compiled:
+                near = np.flatnonzero(kernels.near_goal(X, T, new, gt, gxy, cfg.max_wait, tol2))
+            else:
+                gx = (gxy[:, 0][None, :] - X[new, 0:1]) ** 2 + (gxy[:, 1][None, :] - X[new, 1:2]) ** 2
+                window = (gt[None, :] > T[new, None]) & (gt[None, :] <= T[new, None] + cfg.max_wait)
+                near = np.flatnonzero(np.where(window, gx, np.inf).min(axis=1) <= tol2)
             for m in near.tolist():
                 k_new = int(new[m])
                 if T[k_new] <= t_end:
                     join = self._join(X[k_new, 0], X[k_new, 1], T[k_new], X[k_new, 2])
                     if join is not None:
-                        return len(added), (k_new, join)
-            return len(added), None
+                        return len(new), (k_new, join)
+            return len(new), None
 
         it = 0
         stalled = 0  # consecutive iterations that added nothing
@@ -590,6 +666,10 @@ class PrimitiveRRT:
             return True
         grid = np.arange(path.t0, path.t_end, cons.dt)
         ts = np.concatenate([path.t, grid])
+        if compiled_kernels():  # the same answer, see .kernels.path_free
+            free = kernels.path_free(ts, path.t, path.pose, *cons.kernel_args()[1:])
+            if free >= 0:
+                return bool(free)
         xy = path.position_at(ts)
         return cons.all_free(xy[:, 0], xy[:, 1], ts)
 
@@ -650,6 +730,49 @@ class PrimitiveRRT:
 
     # ------------------------------------------------------------------ output
     def _build(self, nodes: list[tuple[np.ndarray, float, int]], join: tuple[int, float] | None) -> TimedPath:
+        """The timed path through ``nodes`` (``(pose, time, primitive)``; the first is the start)
+        and, with ``join = (k, depart)``, a wait until ``depart`` and the goal course from sample
+        ``k``: compiled (:func:`.kernels.build_path`, the same bits) unless the kernels are off."""
+        if compiled_kernels():
+            path = self._build_compiled(nodes, join)
+            if path is not None:
+                return path
+        return self._build_reference(nodes, join)
+
+    def _build_compiled(self, nodes: list[tuple[np.ndarray, float, int]], join: tuple[int, float] | None
+                        ) -> TimedPath | None:
+        prims = self.prims
+        pose = np.array([p for p, _, _ in nodes], dtype=np.float64).reshape(-1, 3)
+        ths = pose[:, 2].tolist()
+        # math.cos/sin: what MotionPrimitives.poses uses (Python's libm; numba's is the same C library,
+        # but the values are passed in so that nothing depends on that).
+        cs = np.array([math.cos(v) for v in ths])
+        sn = np.array([math.sin(v) for v in ths])
+        nt = np.array([t for _, t, _ in nodes], dtype=np.float64)
+        nk = np.array([k for _, _, k in nodes], dtype=np.int64)
+        goal_time = math.nan
+        if join is not None:
+            g = self._goal
+            k, depart = join
+            t_last = nodes[-1][1]
+            add_wait = bool(depart > t_last + 1e-6 and g.t[k] > depart + 1e-6)
+            tail_t, tail_xy, tail_h = g.t[k:], g.xy_eff[k:], g.heading[k:]
+            goal_time = float(g.t[k])
+        else:
+            depart, add_wait = 0.0, False
+            tail_t, tail_xy, tail_h = _EMPTY, _EMPTY2, _EMPTY
+        ok, t_all, pose_all, kind_all, node_idx = kernels.build_path(
+            pose[:, 0].copy(), pose[:, 1].copy(), pose[:, 2].copy(), nt, nk, cs, sn, prims.local, prims.sample_t,
+            _WAIT_PRIM, float(depart), add_wait, tail_t, tail_xy, tail_h,
+        )
+        if not ok:
+            return None
+        return TimedPath._trusted(t_all, pose_all, kind_all, node_idx, nk,
+                                  goal_time, join is not None)
+
+    def _build_reference(self, nodes: list[tuple[np.ndarray, float, int]], join: tuple[int, float] | None
+                         ) -> TimedPath:
+        """The numpy reference of :meth:`_build`."""
         prims = self.prims
         S = prims.samples
         ts = [np.array([nodes[0][1]])]
