@@ -188,6 +188,21 @@ def test_inputs_are_checked_before_any_episode(monkeypatch: pytest.MonkeyPatch) 
         run_leaderboard(["zero", "zero"], ["paper_vo_0"], [0], progress=False)
 
 
+def test_an_episode_that_raises_carries_a_note_naming_its_job(monkeypatch: pytest.MonkeyPatch) -> None:
+    real = lb.record_episode
+
+    def fails_on_seed_1(env: Any, policy: Any, seed: int, **kwargs: Any) -> Any:
+        if seed == 1:
+            raise RuntimeError("boom")
+        return real(env, policy, seed, **kwargs)
+
+    monkeypatch.setattr(lb, "record_episode", fails_on_seed_1)
+    with pytest.raises(RuntimeError, match="boom") as info:
+        run_leaderboard(["zero"], ["paper_vo_0"], [0, 1], env_kwargs={"max_cycles": 5}, progress=False)
+    # the same on Python 3.10, which has no BaseException.add_note (swarm_env._compat.add_note)
+    assert info.value.__notes__ == ["while evaluating policy 'zero' on scenario 'paper_vo_0', seed 1"]
+
+
 # --------------------------------------------------------------------------- worst episodes and videos
 def fake_episode(policy: str, seed: int, collisions: int, success: bool, error: float) -> dict[str, Any]:
     metrics = {"seed": seed, "success": success, "collisions": {"total": collisions}, "formation_error": {"mean": error}}

@@ -114,8 +114,9 @@ def test_a_module_command_without_its_extra_fails_in_one_line(tmp_path: Path, mo
 
 def test_list_marks_the_policies_whose_extra_is_missing(monkeypatch: pytest.MonkeyPatch,
                                                         capsys: pytest.CaptureFixture[str]) -> None:
-    installed = extras._installed
-    monkeypatch.setattr(extras, "_installed", lambda dist: dist != "stable-baselines3" and installed(dist))
+    # Only stable-baselines3 is missing; every other distribution counts as installed, so that the lines are the
+    # same on a core install without torch (the Python 3.10/3.12/3.13 checks) as with the rl extra.
+    monkeypatch.setattr(extras, "_installed", lambda dist: dist != "stable-baselines3")
     assert main(["list"]) == 0
     lines = {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith("  ")}
     for name in ("ppo", "sac", "bc", "mappo", "residual_vo"):
@@ -185,6 +186,9 @@ def test_the_wheel_and_sdist_install_unique_names_and_the_license(tmp_path: Path
     entry points into the installed names, and the LICENSE; the sdist holds the LICENSE too."""
     if not (ROOT / ".git").exists():
         pytest.skip("needs a git checkout")
+    # The backend is imported from this environment (no isolated build): it must meet [build-system] requires
+    # (the dev extra installs it; torch and tensorboard require it too).
+    pytest.importorskip("setuptools", minversion="77")
     # Built from a copy of the checkout's files (tracked or not ignored), so that the build leaves no build/
     # or egg-info behind in the checkout and sees no stray build products.
     source = tmp_path / "src"

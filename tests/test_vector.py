@@ -104,7 +104,10 @@ def test_shielded_worlds_match_safety_shield_bitwise() -> None:
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/PID/maps")
 def test_workers_load_neither_torch_nor_numba_and_end_with_the_engine() -> None:
-    import torch  # noqa: F401 - loaded here, in the parent: the workers must still not load it
+    try:
+        import torch  # noqa: F401 - loaded here, in the parent: the workers must still not load it
+    except ModuleNotFoundError:  # a core install (no `rl` extra, e.g. Python 3.10/3.12 here): numba's half still holds
+        pass
 
     venv = SwarmVectorEnv("paper_vo_0", 2, n_procs=2)
     venv.reset(seed=0)

@@ -71,6 +71,7 @@ from typing import Any, cast
 
 import numpy as np
 
+from swarm_env._compat import add_note
 from swarm_env.env import SwarmEnv, env_kwargs_for
 from swarm_env.harness.evaluation import mean_ci95_t, summarize
 from swarm_env.harness.policies import (
@@ -277,7 +278,7 @@ def _play_job(job: _Job) -> Generator[tuple[Any, ...], None, None]:
                 yield ("done", str(exc))
                 return
             except Exception as exc:
-                exc.add_note(f"while evaluating policy {job.policy!r} on scenario {job.scenario!r}, seed {seed}")
+                add_note(exc, f"while evaluating policy {job.policy!r} on scenario {job.scenario!r}, seed {seed}")
                 raise
             ran += 1
             yield ("episode", seed, metrics, rec)
@@ -399,9 +400,9 @@ class _Sweep:
             if entry["status"] == "n/a":
                 self.na[key] = entry["reason"]
             elif entry["status"] == "ok":
-                self.ok[(*key, int(entry["seed"]))] = entry["metrics"]
+                self.ok[key + (int(entry["seed"]),)] = entry["metrics"]
             else:
-                self.failed[(*key, int(entry["seed"]))] = entry
+                self.failed[key + (int(entry["seed"]),)] = entry
             good_until += len(raw) + (1 if i < len(lines) - 1 else 0)
         if good_until < len(data):
             from swarm_env.outputs import atomic_write_bytes
@@ -883,8 +884,8 @@ def _board(policies: list[str], scenarios: list[str], seed_map: dict[str, list[i
         rec = sweep.worst.get(key)
         if rec is not None:
             records[(job.policy, job.scenario, int(rec.seed))] = rec  # type: ignore[arg-type]
-        done = [sweep.ok[(*key, s)] for s in job.seeds if (*key, s) in sweep.ok]
-        lost = [sweep.failed[(*key, s)] for s in job.seeds if (*key, s) in sweep.failed]
+        done = [sweep.ok[key + (s,)] for s in job.seeds if key + (s,) in sweep.ok]
+        lost = [sweep.failed[key + (s,)] for s in job.seeds if key + (s,) in sweep.failed]
         pending = len(job.seeds) - len(done) - len(lost)
         extra = {"method": method} if method else {}
         episodes.extend({"policy": job.policy, **extra, "scenario": job.scenario, "seed": ep["seed"], "metrics": ep}
