@@ -71,7 +71,7 @@ from swarm_env_agents.cbs_rrt.goals import FormationGoals, GoalWindow
 from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
 from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
-from swarm_env_agents.cbs_rrt.timed_path import TimedPath
+from swarm_env_agents.cbs_rrt.timed_path import START, TAIL, TimedPath
 
 if TYPE_CHECKING:
     from swarm_env.env import SwarmEnv
@@ -204,6 +204,10 @@ class CBSRRTExpert:
         strong_constraints: bool = True,
         reuse_approach: bool = True,
         lookahead_time: float = 1.0,
+        jump_window: float = 1.0,
+        jump_lag: float = 0.6,
+        formation_keeping: bool = True,
+        keep_tolerance: float = 0.15,
         shield_margin: float = 0.05,
         field_resolution: float = 0.05,
         record: bool = False,
@@ -264,6 +268,10 @@ class CBSRRTExpert:
         self.strong_constraints = bool(strong_constraints)
         self.reuse_approach = bool(reuse_approach)
         self.lookahead_time = float(lookahead_time)
+        self.jump_window = float(jump_window)
+        self.jump_lag = float(jump_lag)
+        self.formation_keeping = bool(formation_keeping)
+        self.keep_tolerance = float(keep_tolerance)
         self.shield_margin = float(shield_margin)
         self.field_resolution = float(field_resolution)
         self.record = bool(record)
@@ -282,6 +290,7 @@ class CBSRRTExpert:
         self._goals_now: GoalWindow | None = None
         self._specs: list[GoalSpec] = []
         self._fallback_robots: set[int] = set()
+        self._keeping: frozenset[int] = frozenset()
         self._retry_streak = 0
         self._retry_delay = self.min_replan_interval
         self._times: list[float] = []
@@ -348,6 +357,10 @@ class CBSRRTExpert:
             separation=self.separation + 0.05,
             dt=goal_dt,
             jump_speed=0.8 * robots.max_speed,
+            jump_window=self.jump_window,
+            window_speed=robots.max_speed,
+            jump_lag=self.jump_lag,
+            chord_clearance=self._radius + self.shield_margin,
         )
         config = RRTConfig(
             max_iterations=self.rrt_iterations,
@@ -471,17 +484,23 @@ class CBSRRTExpert:
                                strong=self.strong_constraints, t_plan=float(gw.t[-1]), until=until,
                                min_radius=2.0 * self._radius + 0.01, start_room=_CONSTRAINT_SLACK + 0.01)
         initial = self._reusable(state, specs, t1, reasons)
+        keep = self._keepers(state, gw, t1, reasons)
+        if keep:
+            initial = list(initial) if initial is not None else [None] * n
+            for i, path in keep.items():
+                initial[i] = path
+        self._keeping = frozenset(keep)
         if self.use_cbs:
             cbs = CBS(
                 low, model, max_nodes=self.cbs_nodes, max_low_level_calls=self.cbs_low_level_calls,
                 suboptimality=self.cbs_suboptimality,
             )
-            result = cbs.solve(n, initial)
+            result = cbs.solve(n, initial, fixed=sorted(keep))
         else:
             paths = []
             stationary = []
             for i in range(n):
-                p = low.plan(i, ())
+                p = keep.get(i) or low.plan(i, ())
                 if p is None:
                     p = low.stationary(i)
                     stationary.append(i)
@@ -580,6 +599,42 @@ class CBSRRTExpert:
                 g_old = old.at(new.t[sel])
                 ok = bool(np.all(np.abs(g_old - new.xy_eff[sel]) < 1e-6))
             out.append(plan if ok else None)
+        return out
+
+    def _keepers(self, state: WorldState, gw: GoalWindow, t1: float, reasons: list[str]) -> dict[int, TimedPath]:
+        """Formation keeping: the robots that hold their slot keep following their slot course.
+
+        A robot is *in formation* at a replan (not at a formation switch, and only with
+        ``formation_keeping``) when its last plan was a full plan that had joined its goal
+        course by now, it is within ``keep_tolerance`` of its new goal course, and that course
+        runs without a jump up to the end of the window CBS resolves (``t1``). Its new plan is
+        the course itself from now (a :data:`~swarm_env_agents.cbs_rrt.timed_path.TAIL` path up
+        to the course's first jump, then parked) — no RRT call — and it is *fixed* in the CBS
+        search: the other robots plan round it, and a replan (a neighbour's course jumping, a
+        robot falling behind) never hands it a detour or a wait. The formation layer keeps the
+        courses apart (their separation), so robots in formation do not conflict with each other.
+        Returns ``{robot: path}``.
+        """
+        if not self.formation_keeping or self.plans is None or "switch" in reasons:
+            return {}
+        t0 = state.time
+        pos = state.follower_pose[:, :2]
+        out: dict[int, TimedPath] = {}
+        for i, plan in enumerate(self.plans):
+            end = int(gw.piece_end[i])
+            if (
+                i in self._fallback_robots
+                or not plan.reached
+                or not plan.goal_time <= t0 + 1e-9
+                or float(gw.t[end]) < t1 - 1e-9
+                or math.hypot(pos[i, 0] - gw.xy[i, 0, 0], pos[i, 1] - gw.xy[i, 0, 1]) > self.keep_tolerance
+            ):
+                continue
+            k = end + 1
+            pose = np.column_stack([gw.xy[i, :k], gw.heading[:k]])
+            kind = np.full(k, TAIL, dtype=np.int8)
+            kind[0] = START
+            out[i] = TimedPath(gw.t[:k], pose, kind, [0], [-1], t0, True)
         return out
 
     def _track(self, state: WorldState) -> np.ndarray:
