@@ -219,7 +219,7 @@ class CBSRRTExpert:
         jump_window: float = 0.0,
         jump_lag: float = 0.6,
         formation_keeping: bool = False,
-        keep_tolerance: float = 0.15,
+        keep_tolerance: float = 0.3,
         shield_margin: float = 0.05,
         field_resolution: float = 0.05,
         record: bool = False,
@@ -429,6 +429,8 @@ class CBSRRTExpert:
         if t >= self._next_replan - 1e-9:
             out.append(self._next_reason)
         dev = np.hypot(*(state.follower_pose[:, :2] - self._plan_positions(t)).T)
+        if self._keeping:  # robots in formation: the wider keep_tolerance (hysteresis)
+            dev[list(self._keeping)] -= max(self.keep_tolerance - self.deviation_tolerance, 0.0)
         if np.any(dev > self.deviation_tolerance):
             out.append("deviation")
         if t - self._last_replan >= self.min_replan_interval - 1e-9:
@@ -495,19 +497,40 @@ class CBSRRTExpert:
         model = TimedConflicts(self._thresholds(poses), t0, t1, window_after=self.constraint_window,
                                strong=self.strong_constraints, t_plan=float(gw.t[-1]), until=until,
                                min_radius=2.0 * self._radius + 0.01, start_room=_CONSTRAINT_SLACK + 0.01)
-        initial = self._reusable(state, specs, t1, reasons)
+        reused = self._reusable(state, specs, t1, reasons)
         keep = self._keepers(state, gw, t1, reasons)
-        if keep:
-            initial = list(initial) if initial is not None else [None] * n
-            for i, path in keep.items():
-                initial[i] = path
-        self._keeping = frozenset(keep)
         if self.use_cbs:
             cbs = CBS(
                 low, model, max_nodes=self.cbs_nodes, max_low_level_calls=self.cbs_low_level_calls,
                 suboptimality=self.cbs_suboptimality,
             )
-            result = cbs.solve(n, initial, fixed=sorted(keep))
+            while True:
+                initial = list(reused) if reused is not None else [None] * n
+                for i, path in keep.items():
+                    initial[i] = path
+                result = cbs.solve(n, initial, fixed=sorted(keep))
+                if not keep:
+                    break
+                # A robot in formation that still conflicts with another robot's final plan (one
+                # CBS could not route round it and left standing) is planned with the rest after all.
+                clash = {a for c in model.all_conflicts(result.paths) for a in c.agents if a in keep}
+                if clash:
+                    keep = {i: p for i, p in keep.items() if i not in clash}
+                else:
+                    failed = set(result.stationary) | set(result.dropped) | {
+                        i for i, p in enumerate(result.paths) if not p.reached and i not in keep}
+                    if not failed:
+                        break
+                    # Some robot found no way round the fixed ones (it would stand and wait for
+                    # them, maybe for ever): release the robots in formation that its own plan
+                    # (planned as if alone) runs into — all of them if it has none.
+                    roots = result.root_paths
+                    if any(i in result.stationary or not roots[i].reached for i in failed):
+                        keep = {}
+                    else:
+                        hit = {a for c in model.all_conflicts(roots) for a in c.agents
+                               if a in keep and (set(c.agents) & failed)}
+                        keep = {i: p for i, p in keep.items() if i not in hit} if hit else {}
         else:
             paths = []
             stationary = []
@@ -520,6 +543,7 @@ class CBSRRTExpert:
             remaining = len(model.all_conflicts(paths))
             result = CBSResult(paths, remaining == 0, sum(low.cost(i, p) for i, p in enumerate(paths)), list(paths),
                                low_level_calls=n, stationary=tuple(stationary), remaining_conflicts=remaining)
+        self._keeping = frozenset(keep)
         self.plans = list(result.paths)
         self._plan_formation = state.formation_index
         self._next_replan = t_next
