@@ -367,3 +367,32 @@ def test_goal_course_jumps_with_a_window_keep_only_what_cannot_be_driven() -> No
     assert 178.5 <= flip_plain.t[flip_plain.piece_end[0]] <= flip_win.t[flip_win.piece_end[0]] <= 179.0
     np.testing.assert_array_equal(plain.window(100.0, 130.0).piece_end,
                                   FormationGoals(scn, static, **common, jump_window=0.0).window(100.0, 130.0).piece_end)
+
+
+def test_formation_keeping_fixes_the_robots_in_formation() -> None:
+    """With ``formation_keeping`` a robot in formation gets its goal course as its plan (a tail,
+    no RRT call) and CBS never changes it; the episode stays collision-free and settles."""
+    env = SwarmEnv(_small_switch_scenario())
+    policy = CBSRRTExpert(formation_keeping=True, jump_window=1.0, record=True)
+    kept: list[tuple[float, dict[int, TimedPath]]] = []
+    keepers = policy._keepers
+
+    def spy(*args: object) -> dict[int, TimedPath]:
+        out = keepers(*args)  # type: ignore[arg-type]
+        kept.append((float(args[0].time), out))  # type: ignore[attr-defined]
+        return out
+
+    policy._keepers = spy  # type: ignore[method-assign]
+    result = run_episode(env, policy, seed=0)
+    assert result["collisions"]["total"] == 0
+    assert result["settle_times"][0]["settle_time"] is not None
+    assert any(out for _, out in kept)
+    by_time = {rec.time: rec for rec in policy.history}
+    for t, out in kept:
+        for p in out.values():
+            assert np.all(p.kind[1:] == TAIL) and p.goal_time == t
+    kept_steps = sum(len(out) for _, out in kept)
+    fixed_steps = sum(sum(by_time[t].result.paths[i] is p for i, p in out.items()) for t, out in kept)
+    assert fixed_steps >= kept_steps // 2  # most robots in formation keep their course
+    # Off by default: the default expert never keeps.
+    assert CBSRRTExpert().formation_keeping is False
