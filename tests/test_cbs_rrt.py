@@ -334,3 +334,65 @@ def test_policy_holds_the_paper_formation() -> None:
     assert settle["settle_time"] is not None and settle["settle_time"] <= 87.0
     assert settle["hold_fraction"] >= 0.9
     assert result["success"]
+
+
+def test_cbs_never_replans_a_fixed_robot() -> None:
+    # The corridor swap again, robot 0 fixed on its run (after two waits, so the bay can be reached
+    # in time): CBS must send robot 1 into the bay rather than make robot 0 give way.
+    grid = parse_grid([".......", "###.###"])
+    starts, goals = [(0, 0), (0, 6)], [(0, 6), (0, 0)]
+    planner = GridAStar(grid, starts, goals)
+    straight = [(0, 0), (0, 0)] + [(0, c) for c in range(7)]
+    result = CBS(planner, GridConflicts()).solve(2, [straight, None], fixed=[0])
+    assert result.solved and not result.fallback_used
+    assert result.paths[0] == straight
+    assert (1, 3) in result.paths[1]
+    assert_grid_conflict_free(result.paths)
+
+
+def test_goal_course_jumps_with_a_window_keep_only_what_cannot_be_driven() -> None:
+    # paper_cbs_switch after the switch: slot 0 sweeps round the circle at (19.2, 10.5) near
+    # t = 145 (about 0.9 m in 1 s, drivable) and flips across the circle at (23.1, 11.5) at
+    # t = 179.25 (1.4 m in one sample, through the obstacle).
+    scn = load_scenario("paper_cbs_switch")
+    static = StaticMap.from_obstacles(scn.world.size, scn.obstacles)
+    common = dict(clearance=0.37, separation=0.8, dt=0.25, jump_speed=0.4)
+    plain = FormationGoals(scn, static, **common)
+    windowed = FormationGoals(scn, static, **common, jump_window=1.0, jump_lag=0.6, window_speed=0.5,
+                              chord_clearance=0.3)
+    w_plain, w_win = plain.window(140.0, 150.0), windowed.window(140.0, 150.0)
+    assert w_plain.piece_end[0] < len(w_plain.t) - 1  # the sweep is a jump without the window
+    assert w_win.piece_end[0] == len(w_win.t) - 1  # and followable with it
+    flip_plain, flip_win = plain.window(175.0, 185.0), windowed.window(175.0, 185.0)
+    assert 178.5 <= flip_plain.t[flip_plain.piece_end[0]] <= flip_win.t[flip_win.piece_end[0]] <= 179.0
+    np.testing.assert_array_equal(plain.window(100.0, 130.0).piece_end,
+                                  FormationGoals(scn, static, **common, jump_window=0.0).window(100.0, 130.0).piece_end)
+
+
+def test_formation_keeping_fixes_the_robots_in_formation() -> None:
+    """With ``formation_keeping`` a robot in formation gets its goal course as its plan (a tail,
+    no RRT call) and CBS never changes it; the episode stays collision-free and settles."""
+    env = SwarmEnv(_small_switch_scenario())
+    policy = CBSRRTExpert(formation_keeping=True, jump_window=1.0, record=True)
+    kept: list[tuple[float, dict[int, TimedPath]]] = []
+    keepers = policy._keepers
+
+    def spy(*args: object) -> dict[int, TimedPath]:
+        out = keepers(*args)  # type: ignore[arg-type]
+        kept.append((float(args[0].time), out))  # type: ignore[attr-defined]
+        return out
+
+    policy._keepers = spy  # type: ignore[method-assign]
+    result = run_episode(env, policy, seed=0)
+    assert result["collisions"]["total"] == 0
+    assert result["settle_times"][0]["settle_time"] is not None
+    assert any(out for _, out in kept)
+    by_time = {rec.time: rec for rec in policy.history}
+    for t, out in kept:
+        for p in out.values():
+            assert np.all(p.kind[1:] == TAIL) and p.goal_time == t
+    kept_steps = sum(len(out) for _, out in kept)
+    fixed_steps = sum(sum(by_time[t].result.paths[i] is p for i, p in out.items()) for t, out in kept)
+    assert fixed_steps >= kept_steps // 2  # most robots in formation keep their course
+    # Off by default: the default expert never keeps.
+    assert CBSRRTExpert().formation_keeping is False

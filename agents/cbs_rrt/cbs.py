@@ -176,11 +176,16 @@ class CBS(Generic[P, C]):
             raise ValueError(f"suboptimality must be >= 1, got {suboptimality!r}")
         self.suboptimality = float(suboptimality)
 
-    def solve(self, n_agents: int, initial_paths: Sequence[P | None] | None = None) -> CBSResult[P]:
+    def solve(
+        self, n_agents: int, initial_paths: Sequence[P | None] | None = None, fixed: Sequence[int] = ()
+    ) -> CBSResult[P]:
         """Plan ``n_agents`` robots (ids ``0..n-1``).
 
         ``initial_paths``: optional per-robot root paths (``None`` entries are planned);
         a caller reuses still-valid plans this way (the root needs no low-level call for them).
+        ``fixed``: robots whose root path (given in ``initial_paths``) CBS never changes: the
+        others keep clear of them, and conflicts among fixed robots are not searched (as for
+        robots on a fallback plan).
         """
         planner, model = self.planner, self.model
         calls = 0
@@ -195,7 +200,7 @@ class CBS(Generic[P, C]):
                 path = planner.stationary(a)
                 stationary.append(a)
             root_paths.append(path)
-        fixed = frozenset(stationary)
+        fixed = frozenset(stationary) | frozenset(fixed)
         root = _Node(list(root_paths), [planner.cost(a, p) for a, p in enumerate(root_paths)], {}, 0)
 
         expanded = generated = resolved = 0

@@ -20,7 +20,11 @@ window. Then, as the paper does for the current slot targets:
 A course *jumps* where its goal moves faster than a robot can follow
 (``jump_speed``): at a formation switch, where the leader's polyline turns (the
 whole formation rotates at once) and where a projected slot flips to the other
-side of an obstacle. The part before the first jump is what a robot can track;
+side of an obstacle. With ``jump_window > 0`` a fast step is only a jump if the
+course also moves farther than ``window_speed * jump_window + jump_lag`` within
+some stretch of at most ``jump_window``: a slot that briefly sweeps round an
+obstacle a little faster than a robot drives is followed by a tracker that
+aims ahead (it lags by less than ``jump_lag``), not replanned as a jump. The part before the first jump is what a robot can track;
 :attr:`GoalWindow.piece_end` marks it and the planner replans when it ends.
 """
 
@@ -79,6 +83,13 @@ class FormationGoals:
         separation: minimum distance between two goals at one time (m).
         dt: grid step (s).
         jump_speed: a goal moving faster than this between two samples jumps (m/s).
+        jump_window: ``0``: every such fast step is a jump; ``> 0``: only one inside a
+            stretch of at most this long (s) over which the goal moves farther than
+            ``window_speed * jump_window + jump_lag`` (see the module docstring).
+        jump_lag: the lag (m) a tracker may take on a short fast stretch of a course.
+        window_speed: the robot's top speed for that test (m/s; ``None``: ``jump_speed``).
+        chord_clearance: with ``jump_window > 0``, a fast step whose straight chord comes closer
+            than this to an obstacle is a jump whatever its length (m; ``None``: ``clearance - 0.05``).
         separation_rounds: push-apart rounds.
     """
 
@@ -91,6 +102,10 @@ class FormationGoals:
         separation: float,
         dt: float = 0.25,
         jump_speed: float = 0.4,
+        jump_window: float = 0.0,
+        jump_lag: float = 0.3,
+        window_speed: float | None = None,
+        chord_clearance: float | None = None,
         separation_rounds: int = 8,
     ) -> None:
         self.scenario = scenario
@@ -99,6 +114,10 @@ class FormationGoals:
         self.separation = float(separation)
         self.dt = float(dt)
         self.jump_speed = float(jump_speed)
+        self.jump_window = float(jump_window)
+        self.jump_lag = float(jump_lag)
+        self.chord_clearance = self.clearance - 0.05 if chord_clearance is None else float(chord_clearance)
+        self.window_speed = self.jump_speed if window_speed is None else float(window_speed)
         self.rounds = int(separation_rounds)
         self.n = scenario.robots.count
         self.path = PolylinePath(scenario.leader.path)
@@ -175,12 +194,37 @@ class FormationGoals:
         xy = np.ascontiguousarray(xy.transpose(1, 0, 2))  # (N, K, 2)
         raw = np.ascontiguousarray(raw.transpose(1, 0, 2))
         step = np.hypot(*np.moveaxis(np.diff(xy, axis=1), 2, 0))  # (N, K-1)
-        jump = step > self.jump_speed * self.dt
+        jump = self._jumps(xy, step)
         has = jump.any(axis=1)
         piece_end = np.where(has, jump.argmax(axis=1), len(t) - 1)
         for a in (t, xy, raw, leader, form, piece_end):
             a.flags.writeable = False
         return GoalWindow(t, xy, raw, leader[:, 2].copy(), leader, form, piece_end)
+
+    def _jumps(self, xy: np.ndarray, step: np.ndarray) -> np.ndarray:
+        """``(N, K-1)`` whether the step from each sample to the next is a jump (module docstring)."""
+        jump = step > self.jump_speed * self.dt
+        m_max = int(round(self.jump_window / self.dt))
+        if m_max < 1 or not jump.any():
+            return jump
+        reach = self.window_speed * m_max * self.dt + self.jump_lag
+        K1 = step.shape[1]
+        far = np.zeros_like(jump)  # the step lies inside a stretch the course covers too fast
+        for m in range(1, min(m_max, K1) + 1):
+            d = xy[:, m:, :] - xy[:, :-m, :]  # (N, K-m, 2): stretch k..k+m
+            over = np.sqrt(np.add.reduce(d * d, axis=2)) > reach
+            for j in range(m):  # steps k+j, j < m, lie inside stretch k..k+m
+                far[:, j:j + K1 - m + 1] |= over
+        # A fast step whose straight chord cuts into the clearance a goal keeps (a slot flipping
+        # to the other side of an obstacle) cannot be driven whatever its length.
+        i, k = np.nonzero(jump & ~far)
+        if len(i):
+            a, b = xy[i, k], xy[i, k + 1]
+            f = np.array([0.25, 0.5, 0.75])[:, None, None]
+            pts = (a[None] + f * (b - a)[None]).reshape(-1, 2)
+            clear = self.static.distance(pts).reshape(3, -1).min(axis=0)
+            far[i[clear < self.chord_clearance], k[clear < self.chord_clearance]] = True
+        return jump & far
 
     def _adjust(self, slots: np.ndarray, heading: np.ndarray) -> np.ndarray:
         """Move ``(K, N, 2)`` slots out of obstacles and apart from each other."""
