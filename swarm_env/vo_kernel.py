@@ -203,7 +203,7 @@ def _keep_discs(world):
     """Each robot's discs that some of its candidates can meet (``_VOBatch.prepare``): the moving discs,
     then the static circles, kept in that order and padded to the longest list (``valid`` False)."""
     (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
-     has_static, W, H, circ, A, Nn, L, eux, euy, centre, bound) = world
+     has_static, W, H, circ, A, Nn, L, eux, euy, centre, bound, recip_gap) = world
     n = P.shape[0]
     n_moving = d.shape[0]
     n_all = n_moving + circ.shape[0]
@@ -254,8 +254,9 @@ def _keep_discs(world):
             hk[i, q] = horizon if moving else h_static
             valid[i, q] = True
             moving_k[i, q] = moving
-            # Within the combined radius of a reciprocal disc already: avoided plainly (see guidance).
-            recip[i, q] = has_recip and moving and recip_in[i, j] and relx * relx + rely * rely > R * R
+            # Within the combined radius (plus recip_gap) of a reciprocal disc already: avoided plainly (see guidance).
+            near = R + recip_gap
+            recip[i, q] = has_recip and moving and recip_in[i, j] and relx * relx + rely * rely > near * near
             q += 1
     return rel, Rk, dvk, hk, valid, recip, own_vel, moving_k
 
@@ -266,7 +267,7 @@ def _static_context(world):
     some robot, the polygons each robot is free of (``free`` ``(N, P)``, ``fcols``), and the robots
     already within their margin of a polygon with the outward normal there (``over_rn``, ``over_nrm``)."""
     (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
-     has_static, W, H, circ, A, Nn, L, eux, euy, centre, bound) = world
+     has_static, W, H, circ, A, Nn, L, eux, euy, centre, bound, _recip_gap) = world
     n = P.shape[0]
     wall_ax = np.array([0.0, -1.0, 0.0, 1.0])
     wall_ay = np.array([1.0, 0.0, -1.0, 0.0])
@@ -392,10 +393,15 @@ def _candidates(i, grid, pv, pw, theta, search, twists, penalty, order):
     """``_VOBatch._candidates`` for robot ``i``: its candidates (its preferred twist first, then
     ``grid``) into ``twists[i]``, their penalties into ``penalty[i]`` and their stable penalty order
     into ``order[i]``."""
-    tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, has_goal, goal = search
+    (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, has_goal, goal,
+     cost_velocity, gvel, _move_first) = search
     g1 = grid.shape[0] + 1
     v_scale = v_max if v_max > 0 else 1.0
     w_scale = omega_max if omega_max > 0 else 1.0
+    # cost="velocity": the preferred twist's mean body-frame velocity over tau (guidance._body_velocity)
+    half = 0.5 * tau * pw[i]
+    scale = pv[i] * (math.sin(half) / half if half != 0.0 else 1.0)
+    ux, uy = scale * math.cos(half), scale * math.sin(half)
     twists[i, 0, 0], twists[i, 0, 1] = pv[i], pw[i]
     for c in range(g1 - 1):  # (element by element: an array slice assignment compiles numba's shape-error
         twists[i, c + 1, 0], twists[i, c + 1, 1] = grid[c, 0], grid[c, 1]  # formatting, seconds of compile time)
@@ -405,7 +411,12 @@ def _candidates(i, grid, pv, pw, theta, search, twists, penalty, order):
         dv_ = (tv - pv[i]) / v_scale
         dw_ = (tw - pw[i]) / w_scale
         head = abs((theta[i] + tw * tau - gh + math.pi) % _TWO_PI - math.pi) / math.pi
-        pen = w_pref * math.hypot(dv_, dw_) + w_heading * head + side_bias * max(dw_, 0.0)
+        if cost_velocity:
+            cx, cy = (ux, uy) if c == 0 else (gvel[c - 1, 0], gvel[c - 1, 1])
+            near = math.hypot((cx - ux) / v_scale, (cy - uy) / v_scale)
+        else:
+            near = math.hypot(dv_, dw_)
+        pen = w_pref * near + w_heading * head + side_bias * max(dw_, 0.0)
         if has_current and c > 0:
             # (commitment to the twist being driven: see _VOBatch._candidates)
             pen += w_current * math.hypot((tv - current[i, 0]) / v_scale, (tw - current[i, 1]) / w_scale)
@@ -444,12 +455,14 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
     ``(body, cos_t, sin_t, every)``: the arc model's body-frame trajectories ``(G, K+1, 2)`` and the
     cosine and sine of each robot's heading, or (``body`` empty) ``every`` candidate's world-frame
     trajectory ``(N, G+1, K+1, 2)`` (the chord model); ``grid`` the candidate twists; ``search`` the
-    penalty's terms (:func:`_candidates`).
+    penalty's terms (:func:`_candidates`; after the goal headings, ``cost_velocity`` and the grid's mean body-frame
+    velocities select and feed ``VOParams.cost="velocity"``, and ``move_first`` is ``VOParams.move_first``).
 
     Returns ``twist`` ``(N, 2)``, ``feasible``, ``n_safe``, ``ttc_out``, ``escaped``, ``accepted``,
     ``pref_safe`` (see :class:`~swarm_env.guidance.VOBatchResult`).
     """
     has_goal = search[9]
+    move_first = search[13]
     body, cos_t, sin_t, every = trajectories
     n = pv.shape[0]
     g1 = grid.shape[0] + 1
@@ -566,6 +579,27 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
                     best = penalty[i, c]
                     choice[i] = c
         if n_safe[i] > 0:
+            if move_first and twists[i, choice[i], 0] <= 0.0 and pv[i] > 0.0:
+                # Blocked: the least-penalty safe candidate that moves, if any (every candidate tested).
+                m_un = 0
+                for c in range(g1):
+                    m_un += math.isnan(ttc[i, c])
+                if m_un:
+                    cols = np.empty(m_un, dtype=np.int64)
+                    q = 0
+                    for c in range(g1):
+                        if math.isnan(ttc[i, c]):
+                            cols[q] = c
+                            q += 1
+                    _test(i, pts[i], cols, 0, m_un, ttc[i], times, discs, static, has_static, still_ok)
+                best = _INF
+                alt = -1
+                for c in range(g1):
+                    if ttc[i, c] == _INF and twists[i, c, 0] > 0.0 and penalty[i, c] < best:
+                        best = penalty[i, c]
+                        alt = c
+                if alt >= 0:
+                    choice[i] = alt
             if escape and twists[i, choice[i], 0] <= 0.0 and pv[i] > 0.0:
                 request[i] = 1
             continue
@@ -683,15 +717,16 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     left out of its own list; reciprocal among themselves when ``reciprocal``), then the robot leader
     and the humans; ``own`` ``(n, 5)`` each follower's heading, current twist ``(v, omega)`` and
     preferred twist; ``static_map`` as ``guidance._kernel_map`` gives it; ``plan`` ``(grid, times,
-    body)`` the candidate grid and its body-frame trajectories; ``scalars`` ``(margin, horizon,
-    h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias, w_current)``;
-    ``flags`` ``(fast, escape, still_ok, reciprocal, has_current, first_stage)``.
+    body, gvel)`` the candidate grid, its body-frame trajectories and (``cost="velocity"``) mean
+    body-frame velocities (``guidance._grid_velocities``); ``scalars`` ``(margin, horizon,
+    h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias, w_current, recip_gap)``;
+    ``flags`` ``(fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first)``.
     Returns what :func:`_search` returns.
     """
-    grid, times, body = plan
+    grid, times, body, gvel = plan
     (margin, horizon, h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias,
-     w_current) = scalars
-    fast, escape, still_ok, reciprocal, has_current, first_stage = flags
+     w_current, recip_gap) = scalars
+    fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first = flags
     n_moving = moving.shape[0]
     P = np.empty((n, 2))
     rad = np.empty(n)
@@ -730,13 +765,13 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
                 recip_in[i, j] = True  # the other followers; the robot leader and the humans are avoided fully
     has_mask = n >= 0  # (True, typed bool: see no_goal below)
     world = (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
-             has_static) + static_map
+             has_static) + static_map + (recip_gap,)
     discs = _keep_discs(world)
     static = _static_context(world)
     pref_pts = _preferred_trajectories(pv, pw, theta, tau, horizon, n_arc)
     no_goal = n < 0  # (False, typed bool rather than a literal: select and this entry share one _search)
     search = (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, no_goal,
-              np.empty(0))
+              np.empty(0), cost_velocity, gvel, move_first)
     return _search(discs, static, has_static, times, pref_pts, (body, cos_t, sin_t, np.empty((0, 1, 1, 2))), grid,
                    pv, pw, theta, search, fast, escape, first_stage, still_ok, (v_max, tau, horizon))
 

@@ -480,3 +480,60 @@ def test_sim_human_walking_at_robot():
     # human walks at a standing robot
     _, _, min_rh = _run_vo_sim([(8.0, 10.0, 0.0)], [(8.0, 10.0)], [((14.0, 10.0), (-0.5, 0.0))], empty, steps=200)
     assert min_rh >= 0.55
+
+
+def test_vo_select_move_first_takes_a_safe_detour_before_the_escape_turn(static_map):
+    # 0.55 m from the rectangle's left face (centre to face), goal behind it: every forward twist is
+    # unsafe and standing is the cheapest safe candidate, so by default the robot turns in place.
+    # With move_first it creeps off on a turning arc instead, and that arc is itself safe (a safe
+    # preferred twist comes back unchanged).
+    pose = np.array([8.45, 6.5, 0.0])
+    pref = np.array([0.65, 0.0])
+    turn = vo_select(pose, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0)
+    assert turn.feasible and turn.twist[0] == 0.0 and turn.twist[1] != 0.0
+    for fast in (True, False):
+        detour = vo_select(pose, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0, move_first=True, fast=fast)
+        assert detour.feasible and detour.twist[0] > 0.0 and detour.twist[1] != 0.0
+        again = vo_select(pose, 0.25, detour.twist, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0)
+        np.testing.assert_array_equal(again.twist, detour.twist)
+    # Nothing that moves is safe (closer to the face): move_first changes nothing.
+    near = np.array([8.5, 6.5, 0.0])
+    np.testing.assert_array_equal(vo_select(near, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0).twist,
+                                  vo_select(near, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0,
+                                            move_first=True).twist)
+
+
+def test_vo_select_recip_gap_avoids_a_close_robot_plainly():
+    # Two robots 0.7 m apart (centres; combined radius with margin 0.55 m) closing at 0.6 m/s. Reciprocally
+    # (each takes half) standing still is safe; within recip_gap the other is avoided plainly: nothing is.
+    pose = np.array([0.0, 0.0, 0.0])
+    other, other_vel = np.array([[0.7, 0.0, 0.25]]), np.array([[-0.3, 0.0]])
+    args = (pose, 0.25, np.array([0.5, 0.0]), other, other_vel, None, 0.65, 1.0)
+    kw = {"velocity": np.array([0.3, 0.0])}
+    shared = vo_select(*args, reciprocal=True, **kw)
+    plain = vo_select(*args, reciprocal=False, **kw)
+    assert shared.feasible and not plain.feasible
+    for gap, expect in ((0.1, shared), (0.2, plain), (0.5, plain)):
+        res = vo_select(*args, reciprocal=True, recip_gap=gap, **kw)
+        assert (res.feasible, res.n_safe, res.min_time_to_collision) == (expect.feasible, expect.n_safe,
+                                                                         expect.min_time_to_collision), gap
+        np.testing.assert_array_equal(res.twist, expect.twist)
+
+
+def test_vo_select_velocity_cost_measures_mean_velocities():
+    # cost="velocity": the penalty's distance is between mean world-frame velocities (the chord of the
+    # arc over tau), whatever the heading; guidance's plain-Python velocities are twist_velocities'.
+    from swarm_env.guidance import _body_velocity, _grid_velocities
+
+    grid = sample_twists(0.65, 1.0, 7, 11)
+    mine = _grid_velocities(0.65, 1.0, 7, 11, 0.0, 1.0)
+    np.testing.assert_allclose(mine, twist_velocities(0.0, grid, 1.0), rtol=0, atol=1e-15)
+    assert _body_velocity(0.5, 0.0, 1.0) == (0.5, 0.0)
+    # A disc ahead: the twist cost slows down more than the velocity cost (which turns instead).
+    pose = np.array([0.0, 0.0, 0.3])
+    disc = np.array([[1.6 * math.cos(0.3), 1.6 * math.sin(0.3), 0.3]])
+    a = vo_select(pose, 0.25, np.array([0.65, 0.0]), disc, np.zeros((1, 2)), None, 0.65, 1.0)
+    b = vo_select(pose, 0.25, np.array([0.65, 0.0]), disc, np.zeros((1, 2)), None, 0.65, 1.0, cost="velocity")
+    assert a.feasible and b.feasible and b.twist[0] > a.twist[0]
+    with pytest.raises(ValueError, match="cost"):
+        vo_select(pose, 0.25, np.array([0.65, 0.0]), disc, np.zeros((1, 2)), None, 0.65, 1.0, cost="speed")

@@ -38,7 +38,9 @@ CASES: dict[str, dict[str, Any]] = {
     "shield_execute": {"shield": "execute", "intervention_coef": 1.0},
     "shield_teach": {"shield": "teach", "intervention_coef": 1.0, "imitation_coef": 1.0, "imitation_anneal": 0.5,
                      "teach_w_current": 0.2},
-    "residual_vo": {"residual": "vo", "shield": "execute", "critic": "local", "intervention_coef": 0.5},
+    # (the expert the reference was recorded with: vo before move_first/recip_gap were its defaults)
+    "residual_vo": {"residual": "vo:move_first=false,recip_gap=0", "shield": "execute", "critic": "local",
+                    "intervention_coef": 0.5},
 }
 
 

@@ -136,7 +136,9 @@ def test_the_safety_layer_gives_the_same_bits(switch_states: list[WorldState]) -
     rng = np.random.default_rng(3)
     variants = [AvoidanceParams(), AvoidanceParams(reciprocal=False, w_current=0.3, side_bias=0.1),
                 AvoidanceParams(v_min=-0.2, margin=0.0, allow_still_overlap=False, escape=False, horizon_static=1.5),
-                AvoidanceParams(fast=False, n_v=4, n_w=7, tau=0.5, n_arc=3)]
+                AvoidanceParams(fast=False, n_v=4, n_w=7, tau=0.5, n_arc=3),
+                AvoidanceParams(cost="velocity", recip_gap=0.2), AvoidanceParams(move_first=True, recip_gap=0.2),
+                AvoidanceParams(cost="velocity", w_current=0.3, tau=0.5, v_min=-0.2, recip_gap=0.5, move_first=True)]
     sizes = set()
     for k, full in enumerate(switch_states):
         n_all = full.n_followers
@@ -282,6 +284,9 @@ def test_synthetic_calls_give_the_same_bits(clutter: StaticMap) -> None:
             allow_still_overlap=bool(rng.random() < 0.5),
             fast=bool(rng.random() < 0.7),
             w_current=float(rng.choice([0.0, 0.3])),
+            cost=str(rng.choice(["twist", "velocity"])),
+            recip_gap=float(rng.choice([0.0, 0.3])),
+            move_first=bool(rng.random() < 0.5),
         )
         kwargs = dict(
             disc_mask=mask,
