@@ -60,12 +60,40 @@ class PackedHumans:
         return _states(float(t), self.points, self.cum, self.unit, self.headings, self.pt_start, self.seg_start,
                        self.speed, self.delay, self.mode, self.length)
 
+    def states_at(self, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(positions (K, H, 2), velocities (K, H, 2))`` at each of the ``(K,)`` times: row ``k``
+        is :meth:`states` ``(times[k])``, bit for bit, for all of a control step's substeps in one
+        call (a world asks for ``substeps + 1`` times per step)."""
+        return _states_many(np.ascontiguousarray(times, dtype=np.float64), self.points, self.cum, self.unit,
+                            self.headings, self.pt_start, self.seg_start, self.speed, self.delay, self.mode,
+                            self.length)
+
 
 @_jit
 def _states(t, points, cum, unit, headings, pt_start, seg_start, speed, delay, mode, length):  # pragma: no cover
     n = len(speed)
     pos = np.zeros((n, 2))
     vel = np.zeros((n, 2))
+    _fill_states(t, points, cum, unit, headings, pt_start, seg_start, speed, delay, mode, length, pos, vel)
+    return pos, vel
+
+
+@_jit
+def _states_many(times, points, cum, unit, headings, pt_start, seg_start, speed, delay, mode, length):  # pragma: no cover
+    n = len(speed)
+    pos = np.zeros((len(times), n, 2))
+    vel = np.zeros((len(times), n, 2))
+    for r in range(len(times)):
+        _fill_states(times[r], points, cum, unit, headings, pt_start, seg_start, speed, delay, mode, length,
+                     pos[r], vel[r])
+    return pos, vel
+
+
+@_jit
+def _fill_states(t, points, cum, unit, headings, pt_start, seg_start, speed, delay, mode, length, pos, vel
+                 ):  # pragma: no cover
+    """Write the humans' positions and velocities at time ``t`` into the zeroed ``pos``, ``vel`` (H, 2)."""
+    n = len(speed)
     for k in range(n):
         p0 = pt_start[k]
         n_cum = pt_start[k + 1] - p0
@@ -121,7 +149,6 @@ def _states(t, points, cum, unit, headings, pt_start, seg_start, speed, delay, m
             h = headings[g0 + j]
         vel[k, 0] = sign * speed[k] * math.cos(h)
         vel[k, 1] = sign * speed[k] * math.sin(h)
-    return pos, vel
 
 
 __all__ = ["PackedHumans"]

@@ -209,6 +209,76 @@ def _install_drive(body: pymunk.Body, compiled: bool = True) -> None:
     _install_fast_drive(body)
 
 
+#: The most slots the compiled slot kernel screens (project_free's fast path takes up to this many).
+_SLOT_KERNEL_MAX = 32
+
+#: Whether :func:`_space_step` mirrors this pymunk's ``Space.step`` (written against pymunk 7).
+_FAST_SPACE_STEP = _CP_LIB is not None and str(pymunk.version).split(".")[0] == "7"
+
+if _CP_LIB is not None:
+    _CP_SPACE_STEP = _CP_LIB.cpSpaceStep
+    _CP_SET_POSITION = _CP_LIB.cpBodySetPosition
+    _CP_SET_VELOCITY = _CP_LIB.cpBodySetVelocity
+
+
+def _set_kinematic(bodies: list[pymunk.Body], pos: list[list[float]], vel: list[list[float]]) -> None:
+    """Set each body's position and velocity (rows of ``pos``, ``vel``) as pymunk's property setters
+    do (the same chipmunk calls), without their Python wrappers."""
+    if _CP_LIB is None:
+        for body, p, v in zip(bodies, pos, vel):
+            _SET_BODY_POSITION(body, (p[0], p[1]))
+            _SET_BODY_VELOCITY(body, (v[0], v[1]))
+        return
+    set_position, set_velocity = _CP_SET_POSITION, _CP_SET_VELOCITY
+    for body, p, v in zip(bodies, pos, vel):
+        handle = body._body
+        set_position(handle, p)
+        set_velocity(handle, v)
+
+
+def _snap_kinematic(bodies: list[pymunk.Body], pos: list[list[float]]) -> None:
+    """Set each body's position (rows of ``pos``) as pymunk's property setter does."""
+    if _CP_LIB is None:
+        for body, p in zip(bodies, pos):
+            _SET_BODY_POSITION(body, (p[0], p[1]))
+        return
+    set_position = _CP_SET_POSITION
+    for body, p in zip(bodies, pos):
+        set_position(body._body, p)
+
+
+def _space_step(space: pymunk.Space, dt: float) -> None:
+    """``space.step(dt)`` for a space with no bodies left to check (``space._bodies_to_check``
+    empty) that is not threaded: what pymunk 7's ``Space.step`` does, with its Python work
+    skipped where there is none (nothing added or removed during the step, no post-step
+    callbacks). The space is locked during chipmunk's step, so collision callbacks that add or
+    remove objects defer them as they do under ``Space.step``."""
+    space._locked = True
+    try:
+        _CP_SPACE_STEP(space._space, dt)
+        space._removed_shapes.clear()
+    finally:
+        space._locked = False
+    if space._add_later or space._remove_later or space._post_step_callbacks:
+        _finish_step(space)
+
+
+def _finish_step(space: pymunk.Space) -> None:
+    """The end of pymunk 7's ``Space.step``: add and remove what callbacks deferred, then run the
+    post-step callbacks (the same order as pymunk)."""
+    space.add(*space._add_later)
+    space._add_later.clear()
+    removed = set()
+    while space._remove_later:
+        to_remove, _ = space._remove_later.popitem()
+        if to_remove not in removed:
+            removed.add(to_remove)
+            space._remove(to_remove)
+    for key in space._post_step_callbacks:
+        space._post_step_callbacks[key](space)
+    space._post_step_callbacks.clear()
+
+
 # pymunk.batch.Buffer never frees its C arrays, so there is one per thread (a buffer is
 # filled and copied out within one read; cffi releases the GIL during the C call).
 _BATCH_BUFFERS = threading.local()
@@ -327,7 +397,10 @@ class World:
         self.n = robots.count
 
         self._leader_path = PolylinePath(scenario.leader.path)
-        self._offsets = [formation_lib.formation_offsets(f, self.n) for f in scenario.formations]
+        self._offsets = [np.ascontiguousarray(formation_lib.formation_offsets(f, self.n), dtype=np.float64).reshape(-1, 2)
+                         for f in scenario.formations]
+        self._slot_screen: tuple[np.ndarray, np.ndarray] | None = None  # StaticMap.slot_screen, at first use
+        self._leader_packed: np.ndarray | None = None  # slot_kernel.pack_path of the leader's path, at first use
         self._slot_clearance = robots.radius + SLOT_MARGIN
 
         self.space = pymunk.Space()
@@ -414,6 +487,8 @@ class World:
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
+        state.setdefault("_slot_screen", None)  # worlds pickled before these caches existed
+        state.setdefault("_leader_packed", None)
         self.__dict__.update(state)
         self._reader = _BodyReader(self.space, self._bodies)
         for body in self._bodies + ([self._leader_body] if self._leader_body is not None else []):
@@ -492,29 +567,67 @@ class World:
             self._leader_body.drive[0:2] = self._leader_command().tolist()
         self._touched_step = set(self._touching)
         t0 = self.time
-        if len(self._reactive):
-            self._react_vel = self._reactive_velocities()
-            self._react_start = self._human_pos[self._reactive].copy()
-        space_step, sub_dt = self.space.step, self.sub_dt
+        humans = self._human_bodies
+        if humans:
+            if len(self._reactive):
+                self._react_vel = self._reactive_velocities()
+                self._react_start = self._human_pos[self._reactive].copy()
+            # Every substep's human positions and velocities, and the end of the step's, at once.
+            hpos, hvel = self._human_substates(t0)
+            hpos_l, hvel_l = hpos.tolist(), hvel.tolist()
+        space, sub_dt = self.space, self.sub_dt
+        fast = _FAST_SPACE_STEP and not space.threaded
         for k in range(self.substeps):
-            if self._human_bodies:
-                self._move_humans(t0 + k * sub_dt, k * sub_dt)
-            space_step(sub_dt)
+            if humans:
+                _set_kinematic(humans, hpos_l[k], hvel_l[k])
+            if fast and not space._bodies_to_check:
+                _space_step(space, sub_dt)
+            else:
+                space.step(sub_dt)
 
         self.step_count += 1
         self.time = self.step_count * self.dt  # no accumulated float drift
-        if self._human_bodies:
-            self._human_pos, self._human_vel = self._human_states(self.time, self.dt)
-            for body, p in zip(self._human_bodies, self._human_pos.tolist()):
-                _SET_BODY_POSITION(body, (p[0], p[1]))  # snap to the exact path (kinematic bodies integrate with round-off)
-        self._advance_leader()
+        if humans:
+            self._human_pos, self._human_vel = hpos[self.substeps], hvel[self.substeps]
+            _snap_kinematic(humans, hpos_l[self.substeps])  # to the exact path (kinematic bodies integrate with round-off)
         self.formation_index = formation_lib.active_formation(self.scenario.formations, self.time)
-        self._slots = self._compute_slots()
+        if self._leader_body is None and compiled_kernels():
+            self._slots = self._advance_virtual_leader_and_slots()
+        else:
+            self._advance_leader()
+            self._slots = self._compute_slots()
 
-        new = self._touched_step - self._touched_prev
-        self._touched_prev = self._touched_step
-        self._onsets = tuple(Contact(kind, i, j) for kind, i, j in sorted(new))  # type: ignore[arg-type]
-        self._touching_step = tuple(Contact(kind, i, j) for kind, i, j in sorted(self._touched_step))  # type: ignore[arg-type]
+        touched = self._touched_step
+        if touched == self._touched_prev:  # the same pairs as the last step: no onset, the same list
+            self._onsets = ()
+        else:
+            new = touched - self._touched_prev
+            self._onsets = tuple(Contact(kind, i, j) for kind, i, j in sorted(new))  # type: ignore[arg-type]
+            self._touching_step = tuple(Contact(kind, i, j) for kind, i, j in sorted(touched))  # type: ignore[arg-type]
+        self._touched_prev = touched
+
+    def _human_substates(self, t0: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(positions, velocities)``, each ``(substeps + 1, H, 2)``: row ``k < substeps`` is
+        :meth:`_human_states` at substep ``k`` of the step starting at ``t0``; the last row is at
+        the end of the step (``(step_count + 1) * dt``). Scripted humans in one kernel call."""
+        sub_dt = self.sub_dt
+        times = [t0 + k * sub_dt for k in range(self.substeps)] + [(self.step_count + 1) * self.dt]
+        since = [k * sub_dt for k in range(self.substeps)] + [self.dt]
+        if compiled_kernels():  # the same bits, see swarm_env.human_kernel
+            if self._packed_humans is None:
+                from swarm_env.human_kernel import PackedHumans
+
+                self._packed_humans = PackedHumans(self.scenario.humans, self._human_paths)
+            pos, vel = self._packed_humans.states_at(np.array(times))
+        else:
+            rows = [human_states(self.scenario.humans, t, self._human_paths) for t in times]
+            pos = np.stack([p for p, _ in rows])
+            vel = np.stack([v for _, v in rows])
+        if len(self._reactive):
+            r = self._reactive
+            pos[:, r] = self._react_start + self._react_vel * np.array(since)[:, None, None]
+            vel[:, r] = self._react_vel
+        return pos, vel
 
     def _human_states(self, t: float, since_step: float) -> tuple[np.ndarray, np.ndarray]:
         """Every human's position and velocity at time ``t``, ``since_step`` s into the current
@@ -571,12 +684,11 @@ class World:
         return out
 
     def _move_humans(self, t: float, since_step: float) -> None:
+        """Put the humans where :meth:`_human_states` says they are at ``t``."""
         if not self._human_bodies:
             return
         pos, vel = self._human_states(t, since_step)
-        for body, p, v in zip(self._human_bodies, pos.tolist(), vel.tolist()):
-            _SET_BODY_POSITION(body, (p[0], p[1]))
-            _SET_BODY_VELOCITY(body, (v[0], v[1]))
+        _set_kinematic(self._human_bodies, pos.tolist(), vel.tolist())
 
     def _leader_command(self) -> np.ndarray:
         """Paper 003 Fig. 1: pure pursuit along the path, then a velocity-obstacle check."""
@@ -621,8 +733,43 @@ class World:
         # formation.slot_targets(..., static, clearance) screens the targets with
         # static.distance() and projects the bad ones; project_free() does both (a free point
         # comes back unchanged, each point independently of the others), with a cheaper screen.
-        targets = formation_lib.slot_targets(self.leader_pose(), self._offsets[self.formation_index], None, 0.0)
-        slots = self.static.project_free(targets, self._slot_clearance)  # a new array, shared read-only
+        offsets = self._offsets[self.formation_index]
+        if compiled_kernels() and len(offsets) <= _SLOT_KERNEL_MAX:  # the same bits, see swarm_env.slot_kernel
+            from swarm_env import slot_kernel
+
+            screen, size_reach = self._screen()
+            targets, free = slot_kernel.slots(self.leader_pose(), offsets, screen, size_reach)
+            slots = targets if free else self.static.project_free(targets, self._slot_clearance)
+        else:
+            targets = formation_lib.slot_targets(self.leader_pose(), offsets, None, 0.0)
+            slots = self.static.project_free(targets, self._slot_clearance)  # a new array, shared read-only
+        slots.flags.writeable = False  # by the snapshots
+        return slots
+
+    def _screen(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`StaticMap.slot_screen` of the slots' clearance (built at first use, per world)."""
+        if self._slot_screen is None:
+            self._slot_screen = self.static.slot_screen(self._slot_clearance)
+        return self._slot_screen
+
+    def _advance_virtual_leader_and_slots(self) -> np.ndarray:
+        """:meth:`_advance_leader` then :meth:`_compute_slots` for a virtual leader, compiled: one
+        kernel call (:func:`swarm_env.slot_kernel.virtual_slots`) gives the same bits."""
+        offsets = self._offsets[self.formation_index]
+        if len(offsets) > _SLOT_KERNEL_MAX:
+            self._advance_leader()
+            return self._compute_slots()
+        from swarm_env import slot_kernel
+
+        if self._leader_packed is None:
+            self._leader_packed = slot_kernel.pack_path(self._leader_path)
+        spec = self.scenario.leader
+        screen, size_reach = self._screen()
+        leader, targets, free = slot_kernel.virtual_slots(self._leader_packed, self._leader_path.length, spec.speed,
+                                                          spec.start_delay, self.time, offsets, screen, size_reach)
+        self._virtual_pose, self._virtual_vel = leader[0:3], leader[3:5]
+        self._leader_done = bool(leader[5])
+        slots = targets if free else self.static.project_free(targets, self._slot_clearance)
         slots.flags.writeable = False  # by the snapshots
         return slots
 
