@@ -470,6 +470,8 @@ class World:
                     continue  # handled as (follower, leader)
                 self.space.on_collision(robot_type, other, begin=self._on_begin, separate=self._on_separate)
 
+        self._own_handlers = len(self.space._handlers)  # collision handlers: only this world's (see step)
+        self._phys_addresses: Any = None  # physics_kernel.addresses of the space and humans, at first use
         self._slots = self._compute_slots()
         self._reader = _BodyReader(self.space, self._bodies)
         # Constant per-episode arrays, shared read-only by every snapshot.
@@ -484,11 +486,14 @@ class World:
         del state["_reader"]
         state["_crowd"] = None  # RVO2's simulator does not pickle; it is rebuilt at the next step
         state["_packed_humans"] = None  # rebuilt at first use (and a copy may land where numba is not loaded)
+        state["_phys_addresses"] = None  # C addresses: the copy's bodies live elsewhere
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
         state.setdefault("_slot_screen", None)  # worlds pickled before these caches existed
         state.setdefault("_leader_packed", None)
+        state.setdefault("_phys_addresses", None)
+        state.setdefault("_own_handlers", len(state["space"]._handlers))
         self.__dict__.update(state)
         self._reader = _BodyReader(self.space, self._bodies)
         for body in self._bodies + ([self._leader_body] if self._leader_body is not None else []):
@@ -574,22 +579,40 @@ class World:
                 self._react_start = self._human_pos[self._reactive].copy()
             # Every substep's human positions and velocities, and the end of the step's, at once.
             hpos, hvel = self._human_substates(t0)
-            hpos_l, hvel_l = hpos.tolist(), hvel.tolist()
         space, sub_dt = self.space, self.sub_dt
-        fast = _FAST_SPACE_STEP and not space.threaded
-        for k in range(self.substeps):
+        if self._compiled_substeps_ok():  # the same C calls, see swarm_env.physics_kernel
+            from swarm_env import physics_kernel
+
+            if self._phys_addresses is None:
+                self._phys_addresses = physics_kernel.addresses(space, humans)
+            space_ptr, handles = self._phys_addresses
+            if not humans:
+                hpos = hvel = np.zeros((self.substeps, 0, 2))
+            space._locked = True
+            try:
+                physics_kernel.substeps(space_ptr, sub_dt, handles, hpos, hvel, self.substeps)
+                space._removed_shapes.clear()
+            finally:
+                space._locked = False
+            if space._add_later or space._remove_later or space._post_step_callbacks:
+                _finish_step(space)
+        else:
             if humans:
-                _set_kinematic(humans, hpos_l[k], hvel_l[k])
-            if fast and not space._bodies_to_check:
-                _space_step(space, sub_dt)
-            else:
-                space.step(sub_dt)
+                hpos_l, hvel_l = hpos.tolist(), hvel.tolist()
+            fast = _FAST_SPACE_STEP and not space.threaded
+            for k in range(self.substeps):
+                if humans:
+                    _set_kinematic(humans, hpos_l[k], hvel_l[k])
+                if fast and not space._bodies_to_check:
+                    _space_step(space, sub_dt)
+                else:
+                    space.step(sub_dt)
 
         self.step_count += 1
         self.time = self.step_count * self.dt  # no accumulated float drift
         if humans:
             self._human_pos, self._human_vel = hpos[self.substeps], hvel[self.substeps]
-            _snap_kinematic(humans, hpos_l[self.substeps])  # to the exact path (kinematic bodies integrate with round-off)
+            _snap_kinematic(humans, hpos[self.substeps].tolist())  # to the exact path (kinematic bodies integrate with round-off)
         self.formation_index = formation_lib.active_formation(self.scenario.formations, self.time)
         if self._leader_body is None and compiled_kernels():
             self._slots = self._advance_virtual_leader_and_slots()
@@ -605,6 +628,22 @@ class World:
             self._onsets = tuple(Contact(kind, i, j) for kind, i, j in sorted(new))  # type: ignore[arg-type]
             self._touching_step = tuple(Contact(kind, i, j) for kind, i, j in sorted(touched))  # type: ignore[arg-type]
         self._touched_prev = touched
+
+    def _compiled_substeps_ok(self) -> bool:
+        """Whether :func:`swarm_env.physics_kernel.substeps` may run this step's substeps: the
+        compiled kernels are on and work here, and pymunk's ``Space.step`` would do nothing but
+        chipmunk's step in each substep (no new bodies to check, nothing deferred, no post-step
+        callback, only this world's collision handlers, which defer nothing)."""
+        space = self.space
+        if not (_FAST_SPACE_STEP and compiled_kernels()) or space.threaded:
+            return False
+        if space._bodies_to_check or space._add_later or space._remove_later or space._post_step_callbacks:
+            return False
+        if len(space._handlers) != self._own_handlers:
+            return False
+        from swarm_env import physics_kernel
+
+        return physics_kernel.available()
 
     def _human_substates(self, t0: float) -> tuple[np.ndarray, np.ndarray]:
         """``(positions, velocities)``, each ``(substeps + 1, H, 2)``: row ``k < substeps`` is
