@@ -60,8 +60,31 @@ def _call_set_vect(typingctx: Any, fn: Any, body: Any, x: Any, y: Any) -> Any:  
     return types.void(types.int64, types.int64, types.float64, types.float64), codegen
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def clip_commands(command, v_max, w_max, drives):  # pragma: no cover - compiled
+    """``drives[i, 0:2] = min(max(v, -v_max), v_max), min(max(w, -w_max), w_max)`` for each row
+    ``(v, w)`` of ``command``: Python's ``min``/``max`` (the later argument wins only when strictly
+    smaller / larger), as :meth:`swarm_env.world.World.step` clips on Python floats."""
+    for i in range(command.shape[0]):
+        v = command[i, 0]
+        lo = -v_max
+        if lo > v:
+            v = lo
+        if v_max < v:
+            v = v_max
+        w = command[i, 1]
+        lo = -w_max
+        if lo > w:
+            w = lo
+        if w_max < w:
+            w = w_max
+        drives[i, 0] = v
+        drives[i, 1] = w
+
+
 @numba.njit(cache=True, error_model="numpy")  # not nogil: chipmunk calls back into Python
-def _substeps(fns, space, dt, count, bodies, pos, vel):  # pragma: no cover - compiled
+def _substeps(fns, space, dt, count, bodies, pos, vel, command, v_max, w_max, drives):  # pragma: no cover - compiled
+    clip_commands(command, v_max, w_max, drives)
     step_fn, set_pos, set_vel = fns[0], fns[1], fns[2]
     for k in range(count):
         for j in range(bodies.shape[0]):
@@ -88,12 +111,17 @@ def addresses(space: Any, bodies: list[Any]) -> tuple[int, np.ndarray]:
     return _address(space._space), np.array([_address(b._body) for b in bodies], dtype=np.int64)
 
 
-def substeps(space: int, dt: float, bodies: np.ndarray, pos: np.ndarray, vel: np.ndarray, count: int) -> None:
-    """For ``k`` in ``range(count)``: set body ``j`` (addresses from :func:`addresses`) to position
-    ``pos[k, j]`` and velocity ``vel[k, j]`` (``cpBodySetPosition``, ``cpBodySetVelocity``, body by
-    body), then ``cpSpaceStep(space, dt)``. The caller locks the pymunk space (as ``Space.step``
-    does) and checks that nothing else is due between substeps. Only where :func:`available`."""
-    _substeps(_STATE["fns"], space, float(dt), int(count), bodies, pos, vel)
+def substeps(space: int, dt: float, bodies: np.ndarray, pos: np.ndarray, vel: np.ndarray, count: int,
+             command: np.ndarray, v_max: float, w_max: float, drives: np.ndarray) -> None:
+    """A control step's physics: first :func:`clip_commands` ``(command, v_max, w_max, drives)``
+    (the robots' drive states, float64 ``(>= len(command), 6)``), then for ``k`` in ``range(count)``:
+    set body ``j`` (addresses from :func:`addresses`) to position ``pos[k, j]`` and velocity
+    ``vel[k, j]`` (``cpBodySetPosition``, ``cpBodySetVelocity``, body by body), then
+    ``cpSpaceStep(space, dt)``. ``command``, ``pos``, ``vel``: C-contiguous float64. The caller locks
+    the pymunk space (as ``Space.step`` does) and checks that nothing else is due between
+    substeps. Only where :func:`available`."""
+    _substeps(_STATE["fns"], space, float(dt), int(count), bodies, pos, vel, command, float(v_max), float(w_max),
+              drives)
 
 
 def available() -> bool:
@@ -145,10 +173,10 @@ def _self_test() -> bool:
         bodies_py[0].velocity = tuple(vel[k, 0])
         space_py.step(0.025)
     space_ptr, handles = addresses(space_c, bodies_c[:1])
-    _substeps(_STATE["fns"], space_ptr, 0.025, 12, handles, pos, vel)
+    _substeps(_STATE["fns"], space_ptr, 0.025, 12, handles, pos, vel, np.zeros((0, 2)), 1.0, 1.0, np.zeros((0, 6)))
     a = [(tuple(b.position), b.angle, tuple(b.velocity), b.angular_velocity) for b in bodies_py]
     b = [(tuple(b.position), b.angle, tuple(b.velocity), b.angular_velocity) for b in bodies_c]
     return a == b and len(hits_py) == len(hits_c) > 0 and any(p[0] != (0.0, 0.0) for p in a[1:])
 
 
-__all__ = ["addresses", "available", "substeps"]
+__all__ = ["addresses", "available", "clip_commands", "substeps"]

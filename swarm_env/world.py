@@ -221,6 +221,20 @@ if _CP_LIB is not None:
     _CP_SET_VELOCITY = _CP_LIB.cpBodySetVelocity
 
 
+_PHYSICS_KERNEL: Any = None
+
+
+def _physics_kernel() -> Any:
+    """:mod:`swarm_env.physics_kernel`, imported at first use (it imports numba, which the
+    numpy-reference workers of the batched engine never load)."""
+    global _PHYSICS_KERNEL
+    if _PHYSICS_KERNEL is None:
+        from swarm_env import physics_kernel
+
+        _PHYSICS_KERNEL = physics_kernel
+    return _PHYSICS_KERNEL
+
+
 def _set_kinematic(bodies: list[pymunk.Body], pos: list[list[float]], vel: list[list[float]]) -> None:
     """Set each body's position and velocity (rows of ``pos``, ``vel``) as pymunk's property setters
     do (the same chipmunk calls), without their Python wrappers."""
@@ -433,6 +447,8 @@ class World:
             self.space.add(body, shape)
             self._bodies.append(body)
 
+        self._drives = self._pack_drives()
+
         self._human_bodies: list[pymunk.Body] = []
         self._human_paths = human_paths(scenario.humans)
         self._packed_humans: Any = None  # swarm_env.human_kernel.PackedHumans, built at first use
@@ -487,6 +503,7 @@ class World:
         state["_crowd"] = None  # RVO2's simulator does not pickle; it is rebuilt at the next step
         state["_packed_humans"] = None  # rebuilt at first use (and a copy may land where numba is not loaded)
         state["_phys_addresses"] = None  # C addresses: the copy's bodies live elsewhere
+        state["_drives"] = None  # the bodies' drive rows, packed again by __setstate__
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
@@ -496,8 +513,19 @@ class World:
         state.setdefault("_own_handlers", len(state["space"]._handlers))
         self.__dict__.update(state)
         self._reader = _BodyReader(self.space, self._bodies)
-        for body in self._bodies + ([self._leader_body] if self._leader_body is not None else []):
+        self._drives = self._pack_drives()
+
+    def _pack_drives(self) -> np.ndarray:
+        """Make the robots' drive states (``body.drive``, see :func:`_drive`) rows of one
+        ``(n + leader, 6)`` array (followers first), so a step writes every command at once, and
+        give each robot its velocity callback on its row. The world owns ``body.drive``."""
+        robots = self._bodies + ([self._leader_body] if self._leader_body is not None else [])
+        rows = [np.asarray([math.nan if x is None else float(x) for x in b.drive], dtype=np.float64) for b in robots]
+        packed = np.array(rows, dtype=np.float64).reshape(len(robots), 6)
+        for k, body in enumerate(robots):
+            body.drive = packed[k]
             _install_drive(body)
+        return packed
 
     # ------------------------------------------------------------------ building
     @staticmethod
@@ -564,10 +592,12 @@ class World:
         """
         robots = self.scenario.robots
         v_max, w_max = float(robots.max_speed), float(robots.max_turn_rate)
-        for body, (v, w) in zip(self._bodies, command.tolist()):
-            drive = body.drive
-            drive[0] = min(max(v, -v_max), v_max)  # = np.clip, on Python floats
-            drive[1] = min(max(w, -w_max), w_max)
+        compiled = self._compiled_substeps_ok() and np.shape(command) == (self.n, 2)
+        if not compiled:  # (compiled: physics_kernel.substeps clips them, the same way)
+            for body, (v, w) in zip(self._bodies, command.tolist()):
+                drive = body.drive
+                drive[0] = min(max(v, -v_max), v_max)  # = np.clip, on Python floats
+                drive[1] = min(max(w, -w_max), w_max)
         if self._leader_body is not None:
             self._leader_body.drive[0:2] = self._leader_command().tolist()
         self._touched_step = set(self._touching)
@@ -580,17 +610,17 @@ class World:
             # Every substep's human positions and velocities, and the end of the step's, at once.
             hpos, hvel = self._human_substates(t0)
         space, sub_dt = self.space, self.sub_dt
-        if self._compiled_substeps_ok():  # the same C calls, see swarm_env.physics_kernel
-            from swarm_env import physics_kernel
-
+        if compiled:  # the same C calls, see swarm_env.physics_kernel
+            kernel = _physics_kernel()
             if self._phys_addresses is None:
-                self._phys_addresses = physics_kernel.addresses(space, humans)
+                self._phys_addresses = kernel.addresses(space, humans)
             space_ptr, handles = self._phys_addresses
             if not humans:
                 hpos = hvel = np.zeros((self.substeps, 0, 2))
             space._locked = True
             try:
-                physics_kernel.substeps(space_ptr, sub_dt, handles, hpos, hvel, self.substeps)
+                kernel.substeps(space_ptr, sub_dt, handles, hpos, hvel, self.substeps,
+                                np.ascontiguousarray(command, dtype=np.float64), v_max, w_max, self._drives)
                 space._removed_shapes.clear()
             finally:
                 space._locked = False
@@ -641,9 +671,7 @@ class World:
             return False
         if len(space._handlers) != self._own_handlers:
             return False
-        from swarm_env import physics_kernel
-
-        return physics_kernel.available()
+        return _physics_kernel().available()
 
     def _human_substates(self, t0: float) -> tuple[np.ndarray, np.ndarray]:
         """``(positions, velocities)``, each ``(substeps + 1, H, 2)``: row ``k < substeps`` is
