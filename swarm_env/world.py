@@ -521,7 +521,9 @@ class World:
         give each robot its velocity callback on its row. The world owns ``body.drive``."""
         robots = self._bodies + ([self._leader_body] if self._leader_body is not None else [])
         rows = [np.asarray([math.nan if x is None else float(x) for x in b.drive], dtype=np.float64) for b in robots]
-        packed = np.array(rows, dtype=np.float64).reshape(len(robots), 6)
+        packed = np.empty((len(robots), 6), dtype=np.float64)
+        for k, row in enumerate(rows):
+            packed[k] = row
         for k, body in enumerate(robots):
             body.drive = packed[k]
             _install_drive(body)
