@@ -91,6 +91,9 @@ def _substeps(fns, space, dt, count, bodies, pos, vel, command, v_max, w_max, dr
             _call_set_vect(set_pos, bodies[j], pos[k, j, 0], pos[k, j, 1])
             _call_set_vect(set_vel, bodies[j], vel[k, j, 0], vel[k, j, 1])
         _call_step(step_fn, space, dt)
+    if pos.shape[0] > count:  # the end of the step's positions: snap the bodies there
+        for j in range(bodies.shape[0]):
+            _call_set_vect(set_pos, bodies[j], pos[count, j, 0], pos[count, j, 1])
 
 
 def _address(ptr: Any) -> int:
@@ -117,7 +120,8 @@ def substeps(space: int, dt: float, bodies: np.ndarray, pos: np.ndarray, vel: np
     (the robots' drive states, float64 ``(>= len(command), 6)``), then for ``k`` in ``range(count)``:
     set body ``j`` (addresses from :func:`addresses`) to position ``pos[k, j]`` and velocity
     ``vel[k, j]`` (``cpBodySetPosition``, ``cpBodySetVelocity``, body by body), then
-    ``cpSpaceStep(space, dt)``. ``command``, ``pos``, ``vel``: C-contiguous float64. The caller locks
+    ``cpSpaceStep(space, dt)``; where ``pos`` has a row ``count``, last set each body's position to
+    it (``cpBodySetPosition``). ``command``, ``pos``, ``vel``: C-contiguous float64. The caller locks
     the pymunk space (as ``Space.step`` does) and checks that nothing else is due between
     substeps. Only where :func:`available`."""
     _substeps(_STATE["fns"], space, float(dt), int(count), bodies, pos, vel, command, float(v_max), float(w_max),

@@ -261,6 +261,12 @@ def _snap_kinematic(bodies: list[pymunk.Body], pos: list[list[float]]) -> None:
         set_position(body._body, p)
 
 
+def _plain_step(space: pymunk.Space) -> bool:
+    """Whether ``space.step`` is pymunk's own (not replaced on the instance or in a subclass, as a
+    test that watches every substep does): only then may :func:`_space_step` stand in for it."""
+    return getattr(space.step, "__func__", None) is pymunk.Space.step
+
+
 def _space_step(space: pymunk.Space, dt: float) -> None:
     """``space.step(dt)`` for a space with no bodies left to check (``space._bodies_to_check``
     empty) that is not threaded: what pymunk 7's ``Space.step`` does, with its Python work
@@ -618,7 +624,7 @@ class World:
                 self._phys_addresses = kernel.addresses(space, humans)
             space_ptr, handles = self._phys_addresses
             if not humans:
-                hpos = hvel = np.zeros((self.substeps, 0, 2))
+                hpos = hvel = np.zeros((self.substeps + 1, 0, 2))
             space._locked = True
             try:
                 kernel.substeps(space_ptr, sub_dt, handles, hpos, hvel, self.substeps,
@@ -631,7 +637,7 @@ class World:
         else:
             if humans:
                 hpos_l, hvel_l = hpos.tolist(), hvel.tolist()
-            fast = _FAST_SPACE_STEP and not space.threaded
+            fast = _FAST_SPACE_STEP and not space.threaded and _plain_step(space)
             for k in range(self.substeps):
                 if humans:
                     _set_kinematic(humans, hpos_l[k], hvel_l[k])
@@ -644,7 +650,8 @@ class World:
         self.time = self.step_count * self.dt  # no accumulated float drift
         if humans:
             self._human_pos, self._human_vel = hpos[self.substeps], hvel[self.substeps]
-            _snap_kinematic(humans, hpos[self.substeps].tolist())  # to the exact path (kinematic bodies integrate with round-off)
+            if not compiled:  # (compiled: the physics kernel did it)
+                _snap_kinematic(humans, hpos[self.substeps].tolist())  # to the exact path (kinematic bodies integrate with round-off)
         self.formation_index = formation_lib.active_formation(self.scenario.formations, self.time)
         if self._leader_body is None and compiled_kernels():
             self._slots = self._advance_virtual_leader_and_slots()
@@ -667,7 +674,7 @@ class World:
         chipmunk's step in each substep (no new bodies to check, nothing deferred, no post-step
         callback, only this world's collision handlers, which defer nothing)."""
         space = self.space
-        if not (_FAST_SPACE_STEP and compiled_kernels()) or space.threaded:
+        if not (_FAST_SPACE_STEP and compiled_kernels()) or space.threaded or not _plain_step(space):
             return False
         if space._bodies_to_check or space._add_later or space._remove_later or space._post_step_callbacks:
             return False
