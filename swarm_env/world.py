@@ -222,6 +222,7 @@ if _CP_LIB is not None:
 
 
 _PHYSICS_KERNEL: Any = None
+_SLOT_KERNEL: Any = None
 
 
 def _physics_kernel() -> Any:
@@ -233,6 +234,16 @@ def _physics_kernel() -> Any:
 
         _PHYSICS_KERNEL = physics_kernel
     return _PHYSICS_KERNEL
+
+
+def _slot_kernel() -> Any:
+    """:mod:`swarm_env.slot_kernel`, imported at first use (as :func:`_physics_kernel`)."""
+    global _SLOT_KERNEL
+    if _SLOT_KERNEL is None:
+        from swarm_env import slot_kernel
+
+        _SLOT_KERNEL = slot_kernel
+    return _SLOT_KERNEL
 
 
 def _set_kinematic(bodies: list[pymunk.Body], pos: list[list[float]], vel: list[list[float]]) -> None:
@@ -811,10 +822,8 @@ class World:
         # comes back unchanged, each point independently of the others), with a cheaper screen.
         offsets = self._offsets[self.formation_index]
         if compiled_kernels() and len(offsets) <= _SLOT_KERNEL_MAX:  # the same bits, see swarm_env.slot_kernel
-            from swarm_env import slot_kernel
-
             screen, size_reach = self._screen()
-            targets, free = slot_kernel.slots(self.leader_pose(), offsets, screen, size_reach)
+            targets, free = _slot_kernel().slots(self.leader_pose(), offsets, screen, size_reach)
             slots = targets if free else self.static.project_free(targets, self._slot_clearance)
         else:
             targets = formation_lib.slot_targets(self.leader_pose(), offsets, None, 0.0)
@@ -835,8 +844,7 @@ class World:
         if len(offsets) > _SLOT_KERNEL_MAX:
             self._advance_leader()
             return self._compute_slots()
-        from swarm_env import slot_kernel
-
+        slot_kernel = _slot_kernel()
         if self._leader_packed is None:
             self._leader_packed = slot_kernel.pack_path(self._leader_path)
         spec = self.scenario.leader
