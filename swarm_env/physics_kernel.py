@@ -29,6 +29,8 @@ from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
+from swarm_env.human_kernel import fill_states
+
 _STATE: dict[str, Any] = {}
 
 _I8P = ir.IntType(8).as_pointer()
@@ -83,6 +85,20 @@ def clip_commands(command, v_max, w_max, drives):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, error_model="numpy")  # not nogil: chipmunk calls back into Python
+def _scripted_step(ptrs, consts, t0, step_count, count, table, vertices, segments, command, drives
+                   ):  # pragma: no cover - compiled
+    n = table.shape[0]
+    sub_dt, dt = consts[0], consts[1]
+    pos = np.zeros((count + 1, n, 2))
+    vel = np.zeros((count + 1, n, 2))
+    for k in range(count):  # the times World._human_substates asks for, the same float operations
+        fill_states(t0 + k * sub_dt, table, vertices, segments, pos[k], vel[k])
+    fill_states((step_count + 1) * dt, table, vertices, segments, pos[count], vel[count])
+    _substeps(ptrs[0:3], ptrs[3], sub_dt, count, ptrs[4:], pos, vel, command, consts[2], consts[3], drives)
+    return pos, vel
+
+
+@numba.njit(cache=True, error_model="numpy")  # not nogil: chipmunk calls back into Python
 def _substeps(fns, space, dt, count, bodies, pos, vel, command, v_max, w_max, drives):  # pragma: no cover - compiled
     clip_commands(command, v_max, w_max, drives)
     step_fn, set_pos, set_vel = fns[0], fns[1], fns[2]
@@ -126,6 +142,25 @@ def substeps(space: int, dt: float, bodies: np.ndarray, pos: np.ndarray, vel: np
     substeps. Only where :func:`available`."""
     _substeps(_STATE["fns"], space, float(dt), int(count), bodies, pos, vel, command, float(v_max), float(w_max),
               drives)
+
+
+def scripted_step(ptrs: np.ndarray, consts: np.ndarray, t0: float, step_count: int, count: int, humans: Any,
+                  command: np.ndarray, drives: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`substeps` for a world whose humans are all scripted, with their positions and
+    velocities computed in the same call: at ``t0 + k * sub_dt`` for substep ``k`` and at
+    ``(step_count + 1) * dt`` (the end of the step), as :meth:`PackedHumans.states_at` gives them.
+
+    ``ptrs`` int64: ``cpSpaceStep``, ``cpBodySetPosition``, ``cpBodySetVelocity`` (:func:`functions`),
+    the space, then the humans' bodies (:func:`addresses`); ``consts``: ``(sub_dt, dt, v_max, w_max)``;
+    ``humans``: their :class:`~swarm_env.human_kernel.PackedHumans`. Returns ``(positions,
+    velocities)``, each ``(count + 1, H, 2)``."""
+    return _scripted_step(ptrs, consts, float(t0), int(step_count), int(count), humans.table, humans.vertices,
+                          humans.segments, command, drives)
+
+
+def functions() -> np.ndarray:
+    """The addresses of ``cpSpaceStep``, ``cpBodySetPosition``, ``cpBodySetVelocity`` (int64)."""
+    return _STATE["fns"].copy()
 
 
 def available() -> bool:
@@ -183,4 +218,4 @@ def _self_test() -> bool:
     return a == b and len(hits_py) == len(hits_c) > 0 and any(p[0] != (0.0, 0.0) for p in a[1:])
 
 
-__all__ = ["addresses", "available", "clip_commands", "substeps"]
+__all__ = ["addresses", "available", "clip_commands", "functions", "scripted_step", "substeps"]

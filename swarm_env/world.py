@@ -505,6 +505,7 @@ class World:
 
         self._own_handlers = len(self.space._handlers)  # collision handlers: only this world's (see step)
         self._phys_addresses: Any = None  # physics_kernel.addresses of the space and humans, at first use
+        self._phys_scripted: Any = None  # physics_kernel.scripted_step's (ptrs, consts), at first use
         self._slots = self._compute_slots()
         self._reader = _BodyReader(self.space, self._bodies)
         # Constant per-episode arrays, shared read-only by every snapshot.
@@ -519,7 +520,7 @@ class World:
         del state["_reader"]
         state["_crowd"] = None  # RVO2's simulator does not pickle; it is rebuilt at the next step
         state["_packed_humans"] = None  # rebuilt at first use (and a copy may land where numba is not loaded)
-        state["_phys_addresses"] = None  # C addresses: the copy's bodies live elsewhere
+        state["_phys_addresses"] = state["_phys_scripted"] = None  # C addresses: the copy's bodies live elsewhere
         state["_drives"] = None  # the bodies' drive rows, packed again by __setstate__
         return state
 
@@ -527,6 +528,7 @@ class World:
         state.setdefault("_slot_screen", None)  # worlds pickled before these caches existed
         state.setdefault("_leader_packed", None)
         state.setdefault("_phys_addresses", None)
+        state.setdefault("_phys_scripted", None)
         state.setdefault("_own_handlers", len(state["space"]._handlers))
         self.__dict__.update(state)
         self._reader = _BodyReader(self.space, self._bodies)
@@ -622,14 +624,35 @@ class World:
         self._touched_step = set(self._touching)
         t0 = self.time
         humans = self._human_bodies
-        if humans:
+        scripted = compiled and not len(self._reactive)
+        if humans and not scripted:
             if len(self._reactive):
                 self._react_vel = self._reactive_velocities()
                 self._react_start = self._human_pos[self._reactive].copy()
             # Every substep's human positions and velocities, and the end of the step's, at once.
             hpos, hvel = self._human_substates(t0)
         space, sub_dt = self.space, self.sub_dt
-        if compiled:  # the same C calls, see swarm_env.physics_kernel
+        if scripted:  # humans and physics in one call, see swarm_env.physics_kernel
+            kernel = _physics_kernel()
+            if self._phys_scripted is None:
+                space_ptr, handles = kernel.addresses(space, humans)
+                self._phys_scripted = (np.concatenate([kernel.functions(), [space_ptr], handles]).astype(np.int64),
+                                       np.array([sub_dt, self.dt, v_max, w_max]))
+            if self._packed_humans is None:
+                from swarm_env.human_kernel import PackedHumans
+
+                self._packed_humans = PackedHumans(self.scenario.humans, self._human_paths)
+            ptrs, consts = self._phys_scripted
+            space._locked = True
+            try:
+                hpos, hvel = kernel.scripted_step(ptrs, consts, t0, self.step_count, self.substeps, self._packed_humans,
+                                                  np.ascontiguousarray(command, dtype=np.float64), self._drives)
+                space._removed_shapes.clear()
+            finally:
+                space._locked = False
+            if space._add_later or space._remove_later or space._post_step_callbacks:
+                _finish_step(space)
+        elif compiled:  # the same C calls, see swarm_env.physics_kernel
             kernel = _physics_kernel()
             if self._phys_addresses is None:
                 self._phys_addresses = kernel.addresses(space, humans)

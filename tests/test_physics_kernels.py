@@ -150,6 +150,8 @@ def test_compiled_step_matches_the_python_step(name: str, kwargs: dict, monkeypa
     plain = copy.deepcopy(fast)
     a = _trace(fast, 120, 5)
     assert fast._compiled_substeps_ok()
+    reactive = any(h.behavior != "scripted" for h in fast.scenario.humans)
+    assert (fast._phys_scripted is None) == reactive  # scripted humans: physics_kernel.scripted_step
     monkeypatch.setattr(world_mod.World, "_compiled_substeps_ok", lambda self: False)
     monkeypatch.setattr(world_mod.World, "_advance_virtual_leader_and_slots",
                         lambda self: (self._advance_leader(), self._compute_slots())[1])
