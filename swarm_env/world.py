@@ -717,9 +717,11 @@ class World:
         return _physics_kernel().available()
 
     def _human_substates(self, t0: float) -> tuple[np.ndarray, np.ndarray]:
-        """``(positions, velocities)``, each ``(substeps + 1, H, 2)``: row ``k < substeps`` is
-        :meth:`_human_states` at substep ``k`` of the step starting at ``t0``; the last row is at
-        the end of the step (``(step_count + 1) * dt``). Scripted humans in one kernel call."""
+        """``(positions, velocities)``, each ``(substeps + 1, H, 2)``: row ``k < substeps`` at
+        substep ``k`` of the step starting at ``t0``, the last row at the end of the step
+        (``(step_count + 1) * dt``). Scripted humans on their paths (one kernel call, or
+        :func:`~swarm_env.paths.human_states` per time); reactive ones from their position at the
+        step's start at their step velocity."""
         sub_dt = self.sub_dt
         times = [t0 + k * sub_dt for k in range(self.substeps)] + [(self.step_count + 1) * self.dt]
         since = [k * sub_dt for k in range(self.substeps)] + [self.dt]
@@ -737,22 +739,6 @@ class World:
             r = self._reactive
             pos[:, r] = self._react_start + self._react_vel * np.array(since)[:, None, None]
             vel[:, r] = self._react_vel
-        return pos, vel
-
-    def _human_states(self, t: float, since_step: float) -> tuple[np.ndarray, np.ndarray]:
-        """Every human's position and velocity at time ``t``, ``since_step`` s into the current
-        control step: scripted humans on their paths, reactive ones at their step velocity."""
-        if compiled_kernels():  # the same bits, see swarm_env.human_kernel
-            if self._packed_humans is None:
-                from swarm_env.human_kernel import PackedHumans
-
-                self._packed_humans = PackedHumans(self.scenario.humans, self._human_paths)
-            pos, vel = self._packed_humans.states(t)
-        else:
-            pos, vel = human_states(self.scenario.humans, t, self._human_paths)
-        if len(self._reactive):
-            pos[self._reactive] = self._react_start + self._react_vel * since_step
-            vel[self._reactive] = self._react_vel
         return pos, vel
 
     def _reactive_velocities(self) -> np.ndarray:
@@ -792,13 +778,6 @@ class World:
                                                preferred_velocities(pos[orca], self._human_vel[idx[orca]], goals[orca],
                                                                     speed[orca], walking[orca]))
         return out
-
-    def _move_humans(self, t: float, since_step: float) -> None:
-        """Put the humans where :meth:`_human_states` says they are at ``t``."""
-        if not self._human_bodies:
-            return
-        pos, vel = self._human_states(t, since_step)
-        _set_kinematic(self._human_bodies, pos.tolist(), vel.tolist())
 
     def _leader_command(self) -> np.ndarray:
         """Paper 003 Fig. 1: pure pursuit along the path, then a velocity-obstacle check."""
