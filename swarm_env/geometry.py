@@ -637,6 +637,20 @@ class StaticMap:
             self._memo[key] = out.copy()
         return out.reshape(shape)
 
+    def slot_screen(self, clearance: float) -> tuple[np.ndarray, np.ndarray]:
+        """The first screen of :meth:`project_free` for up to ``_FAST_MAX_POINTS`` points, as arrays
+        for :mod:`swarm_env.slot_kernel`: ``(B, 3)`` rows ``(x, y, r2)`` (an obstacle's bounding disc
+        centre and its squared screening radius) and ``(W, H, reach)``. A finite point with
+        ``reach <= min(x, W - x, y, H - y)`` and ``(x - bx)**2 + (y - by)**2 >= r2`` for every row is
+        one :meth:`_project_fast` leaves unchanged, computed with the same operations."""
+        c = float(clearance)
+        reach = c + _SCREEN_MARGIN
+        bx, by, brad = (col[:, 0] for col in self._bound_cols)
+        r = brad + reach
+        table = np.ascontiguousarray(np.column_stack([bx, by, r * r]), dtype=np.float64).reshape(-1, 3)
+        W, H = self.size
+        return table, np.array([W, H, reach], dtype=np.float64)
+
     def _project_fast(self, pts: np.ndarray, c: float, out: np.ndarray) -> np.ndarray:
         """project_free() for a few points, writing into ``out`` the points it settles.
 

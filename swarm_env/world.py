@@ -209,6 +209,107 @@ def _install_drive(body: pymunk.Body, compiled: bool = True) -> None:
     _install_fast_drive(body)
 
 
+#: The most slots the compiled slot kernel screens (project_free's fast path takes up to this many).
+_SLOT_KERNEL_MAX = 32
+
+#: Whether :func:`_space_step` mirrors this pymunk's ``Space.step`` (written against pymunk 7).
+_FAST_SPACE_STEP = _CP_LIB is not None and str(pymunk.version).split(".")[0] == "7"
+
+if _CP_LIB is not None:
+    _CP_SPACE_STEP = _CP_LIB.cpSpaceStep
+    _CP_SET_POSITION = _CP_LIB.cpBodySetPosition
+    _CP_SET_VELOCITY = _CP_LIB.cpBodySetVelocity
+
+
+_PHYSICS_KERNEL: Any = None
+_SLOT_KERNEL: Any = None
+
+
+def _physics_kernel() -> Any:
+    """:mod:`swarm_env.physics_kernel`, imported at first use (it imports numba, which the
+    numpy-reference workers of the batched engine never load)."""
+    global _PHYSICS_KERNEL
+    if _PHYSICS_KERNEL is None:
+        from swarm_env import physics_kernel
+
+        _PHYSICS_KERNEL = physics_kernel
+    return _PHYSICS_KERNEL
+
+
+def _slot_kernel() -> Any:
+    """:mod:`swarm_env.slot_kernel`, imported at first use (as :func:`_physics_kernel`)."""
+    global _SLOT_KERNEL
+    if _SLOT_KERNEL is None:
+        from swarm_env import slot_kernel
+
+        _SLOT_KERNEL = slot_kernel
+    return _SLOT_KERNEL
+
+
+def _set_kinematic(bodies: list[pymunk.Body], pos: list[list[float]], vel: list[list[float]]) -> None:
+    """Set each body's position and velocity (rows of ``pos``, ``vel``) as pymunk's property setters
+    do (the same chipmunk calls), without their Python wrappers."""
+    if _CP_LIB is None:
+        for body, p, v in zip(bodies, pos, vel):
+            _SET_BODY_POSITION(body, (p[0], p[1]))
+            _SET_BODY_VELOCITY(body, (v[0], v[1]))
+        return
+    set_position, set_velocity = _CP_SET_POSITION, _CP_SET_VELOCITY
+    for body, p, v in zip(bodies, pos, vel):
+        handle = body._body
+        set_position(handle, p)
+        set_velocity(handle, v)
+
+
+def _snap_kinematic(bodies: list[pymunk.Body], pos: list[list[float]]) -> None:
+    """Set each body's position (rows of ``pos``) as pymunk's property setter does."""
+    if _CP_LIB is None:
+        for body, p in zip(bodies, pos):
+            _SET_BODY_POSITION(body, (p[0], p[1]))
+        return
+    set_position = _CP_SET_POSITION
+    for body, p in zip(bodies, pos):
+        set_position(body._body, p)
+
+
+def _plain_step(space: pymunk.Space) -> bool:
+    """Whether ``space.step`` is pymunk's own (not replaced on the instance or in a subclass, as a
+    test that watches every substep does): only then may :func:`_space_step` stand in for it."""
+    return getattr(space.step, "__func__", None) is pymunk.Space.step
+
+
+def _space_step(space: pymunk.Space, dt: float) -> None:
+    """``space.step(dt)`` for a space with no bodies left to check (``space._bodies_to_check``
+    empty) that is not threaded: what pymunk 7's ``Space.step`` does, with its Python work
+    skipped where there is none (nothing added or removed during the step, no post-step
+    callbacks). The space is locked during chipmunk's step, so collision callbacks that add or
+    remove objects defer them as they do under ``Space.step``."""
+    space._locked = True
+    try:
+        _CP_SPACE_STEP(space._space, dt)
+        space._removed_shapes.clear()
+    finally:
+        space._locked = False
+    if space._add_later or space._remove_later or space._post_step_callbacks:
+        _finish_step(space)
+
+
+def _finish_step(space: pymunk.Space) -> None:
+    """The end of pymunk 7's ``Space.step``: add and remove what callbacks deferred, then run the
+    post-step callbacks (the same order as pymunk)."""
+    space.add(*space._add_later)
+    space._add_later.clear()
+    removed = set()
+    while space._remove_later:
+        to_remove, _ = space._remove_later.popitem()
+        if to_remove not in removed:
+            removed.add(to_remove)
+            space._remove(to_remove)
+    for key in space._post_step_callbacks:
+        space._post_step_callbacks[key](space)
+    space._post_step_callbacks.clear()
+
+
 # pymunk.batch.Buffer never frees its C arrays, so there is one per thread (a buffer is
 # filled and copied out within one read; cffi releases the GIL during the C call).
 _BATCH_BUFFERS = threading.local()
@@ -327,7 +428,10 @@ class World:
         self.n = robots.count
 
         self._leader_path = PolylinePath(scenario.leader.path)
-        self._offsets = [formation_lib.formation_offsets(f, self.n) for f in scenario.formations]
+        self._offsets = [np.ascontiguousarray(formation_lib.formation_offsets(f, self.n), dtype=np.float64).reshape(-1, 2)
+                         for f in scenario.formations]
+        self._slot_screen: tuple[np.ndarray, np.ndarray] | None = None  # StaticMap.slot_screen, at first use
+        self._leader_packed: np.ndarray | None = None  # slot_kernel.pack_path of the leader's path, at first use
         self._slot_clearance = robots.radius + SLOT_MARGIN
 
         self.space = pymunk.Space()
@@ -359,6 +463,8 @@ class World:
             self._init_shape(shape, _FOLLOWER, i)
             self.space.add(body, shape)
             self._bodies.append(body)
+
+        self._drives = self._pack_drives()
 
         self._human_bodies: list[pymunk.Body] = []
         self._human_paths = human_paths(scenario.humans)
@@ -397,6 +503,9 @@ class World:
                     continue  # handled as (follower, leader)
                 self.space.on_collision(robot_type, other, begin=self._on_begin, separate=self._on_separate)
 
+        self._own_handlers = len(self.space._handlers)  # collision handlers: only this world's (see step)
+        self._phys_addresses: Any = None  # physics_kernel.addresses of the space and humans, at first use
+        self._phys_scripted: Any = None  # physics_kernel.scripted_step's (ptrs, consts), at first use
         self._slots = self._compute_slots()
         self._reader = _BodyReader(self.space, self._bodies)
         # Constant per-episode arrays, shared read-only by every snapshot.
@@ -411,13 +520,33 @@ class World:
         del state["_reader"]
         state["_crowd"] = None  # RVO2's simulator does not pickle; it is rebuilt at the next step
         state["_packed_humans"] = None  # rebuilt at first use (and a copy may land where numba is not loaded)
+        state["_phys_addresses"] = state["_phys_scripted"] = None  # C addresses: the copy's bodies live elsewhere
+        state["_drives"] = None  # the bodies' drive rows, packed again by __setstate__
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
+        state.setdefault("_slot_screen", None)  # worlds pickled before these caches existed
+        state.setdefault("_leader_packed", None)
+        state.setdefault("_phys_addresses", None)
+        state.setdefault("_phys_scripted", None)
+        state.setdefault("_own_handlers", len(state["space"]._handlers))
         self.__dict__.update(state)
         self._reader = _BodyReader(self.space, self._bodies)
-        for body in self._bodies + ([self._leader_body] if self._leader_body is not None else []):
+        self._drives = self._pack_drives()
+
+    def _pack_drives(self) -> np.ndarray:
+        """Make the robots' drive states (``body.drive``, see :func:`_drive`) rows of one
+        ``(n + leader, 6)`` array (followers first), so a step writes every command at once, and
+        give each robot its velocity callback on its row. The world owns ``body.drive``."""
+        robots = self._bodies + ([self._leader_body] if self._leader_body is not None else [])
+        rows = [np.asarray([math.nan if x is None else float(x) for x in b.drive], dtype=np.float64) for b in robots]
+        packed = np.empty((len(robots), 6), dtype=np.float64)
+        for k, row in enumerate(rows):
+            packed[k] = row
+        for k, body in enumerate(robots):
+            body.drive = packed[k]
             _install_drive(body)
+        return packed
 
     # ------------------------------------------------------------------ building
     @staticmethod
@@ -484,52 +613,132 @@ class World:
         """
         robots = self.scenario.robots
         v_max, w_max = float(robots.max_speed), float(robots.max_turn_rate)
-        for body, (v, w) in zip(self._bodies, command.tolist()):
-            drive = body.drive
-            drive[0] = min(max(v, -v_max), v_max)  # = np.clip, on Python floats
-            drive[1] = min(max(w, -w_max), w_max)
+        compiled = self._compiled_substeps_ok() and np.shape(command) == (self.n, 2)
+        if not compiled:  # (compiled: physics_kernel.substeps clips them, the same way)
+            for body, (v, w) in zip(self._bodies, command.tolist()):
+                drive = body.drive
+                drive[0] = min(max(v, -v_max), v_max)  # = np.clip, on Python floats
+                drive[1] = min(max(w, -w_max), w_max)
         if self._leader_body is not None:
             self._leader_body.drive[0:2] = self._leader_command().tolist()
         self._touched_step = set(self._touching)
         t0 = self.time
-        if len(self._reactive):
-            self._react_vel = self._reactive_velocities()
-            self._react_start = self._human_pos[self._reactive].copy()
-        space_step, sub_dt = self.space.step, self.sub_dt
-        for k in range(self.substeps):
-            if self._human_bodies:
-                self._move_humans(t0 + k * sub_dt, k * sub_dt)
-            space_step(sub_dt)
+        humans = self._human_bodies
+        scripted = compiled and not len(self._reactive)
+        if humans and not scripted:
+            if len(self._reactive):
+                self._react_vel = self._reactive_velocities()
+                self._react_start = self._human_pos[self._reactive].copy()
+            # Every substep's human positions and velocities, and the end of the step's, at once.
+            hpos, hvel = self._human_substates(t0)
+        space, sub_dt = self.space, self.sub_dt
+        if scripted:  # humans and physics in one call, see swarm_env.physics_kernel
+            kernel = _physics_kernel()
+            if self._phys_scripted is None:
+                space_ptr, handles = kernel.addresses(space, humans)
+                self._phys_scripted = (np.concatenate([kernel.functions(), [space_ptr], handles]).astype(np.int64),
+                                       np.array([sub_dt, self.dt, v_max, w_max]))
+            if self._packed_humans is None:
+                from swarm_env.human_kernel import PackedHumans
+
+                self._packed_humans = PackedHumans(self.scenario.humans, self._human_paths)
+            ptrs, consts = self._phys_scripted
+            space._locked = True
+            try:
+                hpos, hvel = kernel.scripted_step(ptrs, consts, t0, self.step_count, self.substeps, self._packed_humans,
+                                                  np.ascontiguousarray(command, dtype=np.float64), self._drives)
+                space._removed_shapes.clear()
+            finally:
+                space._locked = False
+            if space._add_later or space._remove_later or space._post_step_callbacks:
+                _finish_step(space)
+        elif compiled:  # the same C calls, see swarm_env.physics_kernel
+            kernel = _physics_kernel()
+            if self._phys_addresses is None:
+                self._phys_addresses = kernel.addresses(space, humans)
+            space_ptr, handles = self._phys_addresses
+            if not humans:
+                hpos = hvel = np.zeros((self.substeps + 1, 0, 2))
+            space._locked = True
+            try:
+                kernel.substeps(space_ptr, sub_dt, handles, hpos, hvel, self.substeps,
+                                np.ascontiguousarray(command, dtype=np.float64), v_max, w_max, self._drives)
+                space._removed_shapes.clear()
+            finally:
+                space._locked = False
+            if space._add_later or space._remove_later or space._post_step_callbacks:
+                _finish_step(space)
+        else:
+            if humans:
+                hpos_l, hvel_l = hpos.tolist(), hvel.tolist()
+            fast = _FAST_SPACE_STEP and not space.threaded and _plain_step(space)
+            for k in range(self.substeps):
+                if humans:
+                    _set_kinematic(humans, hpos_l[k], hvel_l[k])
+                if fast and not space._bodies_to_check:
+                    _space_step(space, sub_dt)
+                else:
+                    space.step(sub_dt)
 
         self.step_count += 1
         self.time = self.step_count * self.dt  # no accumulated float drift
-        if self._human_bodies:
-            self._human_pos, self._human_vel = self._human_states(self.time, self.dt)
-            for body, p in zip(self._human_bodies, self._human_pos.tolist()):
-                _SET_BODY_POSITION(body, (p[0], p[1]))  # snap to the exact path (kinematic bodies integrate with round-off)
-        self._advance_leader()
+        if humans:
+            self._human_pos, self._human_vel = hpos[self.substeps], hvel[self.substeps]
+            if not compiled:  # (compiled: the physics kernel did it)
+                _snap_kinematic(humans, hpos[self.substeps].tolist())  # to the exact path (kinematic bodies integrate with round-off)
         self.formation_index = formation_lib.active_formation(self.scenario.formations, self.time)
-        self._slots = self._compute_slots()
+        if self._leader_body is None and compiled_kernels():
+            self._slots = self._advance_virtual_leader_and_slots()
+        else:
+            self._advance_leader()
+            self._slots = self._compute_slots()
 
-        new = self._touched_step - self._touched_prev
-        self._touched_prev = self._touched_step
-        self._onsets = tuple(Contact(kind, i, j) for kind, i, j in sorted(new))  # type: ignore[arg-type]
-        self._touching_step = tuple(Contact(kind, i, j) for kind, i, j in sorted(self._touched_step))  # type: ignore[arg-type]
+        touched = self._touched_step
+        if touched == self._touched_prev:  # the same pairs as the last step: no onset, the same list
+            self._onsets = ()
+        else:
+            new = touched - self._touched_prev
+            self._onsets = tuple(Contact(kind, i, j) for kind, i, j in sorted(new))  # type: ignore[arg-type]
+            self._touching_step = tuple(Contact(kind, i, j) for kind, i, j in sorted(touched))  # type: ignore[arg-type]
+        self._touched_prev = touched
 
-    def _human_states(self, t: float, since_step: float) -> tuple[np.ndarray, np.ndarray]:
-        """Every human's position and velocity at time ``t``, ``since_step`` s into the current
-        control step: scripted humans on their paths, reactive ones at their step velocity."""
+    def _compiled_substeps_ok(self) -> bool:
+        """Whether :func:`swarm_env.physics_kernel.substeps` may run this step's substeps: the
+        compiled kernels are on and work here, and pymunk's ``Space.step`` would do nothing but
+        chipmunk's step in each substep (no new bodies to check, nothing deferred, no post-step
+        callback, only this world's collision handlers, which defer nothing)."""
+        space = self.space
+        if not (_FAST_SPACE_STEP and compiled_kernels()) or space.threaded or not _plain_step(space):
+            return False
+        if space._bodies_to_check or space._add_later or space._remove_later or space._post_step_callbacks:
+            return False
+        if len(space._handlers) != self._own_handlers:
+            return False
+        return _physics_kernel().available()
+
+    def _human_substates(self, t0: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(positions, velocities)``, each ``(substeps + 1, H, 2)``: row ``k < substeps`` at
+        substep ``k`` of the step starting at ``t0``, the last row at the end of the step
+        (``(step_count + 1) * dt``). Scripted humans on their paths (one kernel call, or
+        :func:`~swarm_env.paths.human_states` per time); reactive ones from their position at the
+        step's start at their step velocity."""
+        sub_dt = self.sub_dt
+        times = [t0 + k * sub_dt for k in range(self.substeps)] + [(self.step_count + 1) * self.dt]
+        since = [k * sub_dt for k in range(self.substeps)] + [self.dt]
         if compiled_kernels():  # the same bits, see swarm_env.human_kernel
             if self._packed_humans is None:
                 from swarm_env.human_kernel import PackedHumans
 
                 self._packed_humans = PackedHumans(self.scenario.humans, self._human_paths)
-            pos, vel = self._packed_humans.states(t)
+            pos, vel = self._packed_humans.states_at(np.array(times))
         else:
-            pos, vel = human_states(self.scenario.humans, t, self._human_paths)
+            rows = [human_states(self.scenario.humans, t, self._human_paths) for t in times]
+            pos = np.stack([p for p, _ in rows])
+            vel = np.stack([v for _, v in rows])
         if len(self._reactive):
-            pos[self._reactive] = self._react_start + self._react_vel * since_step
-            vel[self._reactive] = self._react_vel
+            r = self._reactive
+            pos[:, r] = self._react_start + self._react_vel * np.array(since)[:, None, None]
+            vel[:, r] = self._react_vel
         return pos, vel
 
     def _reactive_velocities(self) -> np.ndarray:
@@ -569,14 +778,6 @@ class World:
                                                preferred_velocities(pos[orca], self._human_vel[idx[orca]], goals[orca],
                                                                     speed[orca], walking[orca]))
         return out
-
-    def _move_humans(self, t: float, since_step: float) -> None:
-        if not self._human_bodies:
-            return
-        pos, vel = self._human_states(t, since_step)
-        for body, p, v in zip(self._human_bodies, pos.tolist(), vel.tolist()):
-            _SET_BODY_POSITION(body, (p[0], p[1]))
-            _SET_BODY_VELOCITY(body, (v[0], v[1]))
 
     def _leader_command(self) -> np.ndarray:
         """Paper 003 Fig. 1: pure pursuit along the path, then a velocity-obstacle check."""
@@ -621,8 +822,40 @@ class World:
         # formation.slot_targets(..., static, clearance) screens the targets with
         # static.distance() and projects the bad ones; project_free() does both (a free point
         # comes back unchanged, each point independently of the others), with a cheaper screen.
-        targets = formation_lib.slot_targets(self.leader_pose(), self._offsets[self.formation_index], None, 0.0)
-        slots = self.static.project_free(targets, self._slot_clearance)  # a new array, shared read-only
+        offsets = self._offsets[self.formation_index]
+        if compiled_kernels() and len(offsets) <= _SLOT_KERNEL_MAX:  # the same bits, see swarm_env.slot_kernel
+            screen, size_reach = self._screen()
+            targets, free = _slot_kernel().slots(self.leader_pose(), offsets, screen, size_reach)
+            slots = targets if free else self.static.project_free(targets, self._slot_clearance)
+        else:
+            targets = formation_lib.slot_targets(self.leader_pose(), offsets, None, 0.0)
+            slots = self.static.project_free(targets, self._slot_clearance)  # a new array, shared read-only
+        slots.flags.writeable = False  # by the snapshots
+        return slots
+
+    def _screen(self) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`StaticMap.slot_screen` of the slots' clearance (built at first use, per world)."""
+        if self._slot_screen is None:
+            self._slot_screen = self.static.slot_screen(self._slot_clearance)
+        return self._slot_screen
+
+    def _advance_virtual_leader_and_slots(self) -> np.ndarray:
+        """:meth:`_advance_leader` then :meth:`_compute_slots` for a virtual leader, compiled: one
+        kernel call (:func:`swarm_env.slot_kernel.virtual_slots`) gives the same bits."""
+        offsets = self._offsets[self.formation_index]
+        if len(offsets) > _SLOT_KERNEL_MAX:
+            self._advance_leader()
+            return self._compute_slots()
+        slot_kernel = _slot_kernel()
+        if self._leader_packed is None:
+            self._leader_packed = slot_kernel.pack_path(self._leader_path)
+        spec = self.scenario.leader
+        screen, size_reach = self._screen()
+        leader, targets, free = slot_kernel.virtual_slots(self._leader_packed, self._leader_path.length, spec.speed,
+                                                          spec.start_delay, self.time, offsets, screen, size_reach)
+        self._virtual_pose, self._virtual_vel = leader[0:3], leader[3:5]
+        self._leader_done = bool(leader[5])
+        slots = targets if free else self.static.project_free(targets, self._slot_clearance)
         slots.flags.writeable = False  # by the snapshots
         return slots
 
