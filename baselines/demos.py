@@ -35,11 +35,12 @@ Cache: the file pair ``<cache_dir>/<expert>_<scenario>_<key>.npz`` (compressed
 arrays) and ``.json`` (metadata: the request, the number of transitions, the
 per-episode metrics from :meth:`SwarmEnv.episode_metrics` and their
 :func:`swarm_env.harness.evaluation.summarize`). ``key`` is a hash of the request:
-expert spec, scenario, seeds, env kwargs, the ``swarm_env`` version and the file
-format version. The same request reuses the file (said on stderr); any
-difference regenerates it. The hash does not see code changes under an
-unchanged version, nor the contents of a scenario given as a YAML path: delete
-the cache (or use another ``cache_dir``) after editing an expert or a file.
+expert spec, the expert's default parameters, scenario, seeds, env kwargs, the
+``swarm_env`` version and the file format version. The same request reuses the
+file (said on stderr); any difference regenerates it. The hash does not see
+other code changes under an unchanged version, nor the contents of a scenario
+given as a YAML path: delete the cache (or use another ``cache_dir``) after
+editing an expert's code or a file.
 
 Episodes are independent (a fresh env and a fresh expert per seed), so
 ``workers > 1`` (a process pool over seeds) writes exactly the arrays that
@@ -256,13 +257,16 @@ def _jsonable(value: Any) -> Any:
 
 
 def demo_request(expert: str, scenario: str, seeds: Sequence[int], env_kwargs: dict[str, Any] | None = None) -> dict[str, Any]:
-    """The metadata that identifies a demonstration set (its hash is the cache key)."""
+    """The metadata that identifies a demonstration set (its hash is the cache key): the request, the
+    expert's default parameters (:func:`swarm_env.harness.policies.policy_defaults`) and the versions."""
     from swarm_env import __version__
+    from swarm_env.harness.policies import policy_defaults
 
     return _jsonable(
         {
             "format": FORMAT_VERSION,
             "expert": str(expert),
+            "expert_defaults": policy_defaults(str(expert)),
             "scenario": str(scenario),
             "seeds": [int(s) for s in seeds],
             "env_kwargs": dict(env_kwargs or {}),

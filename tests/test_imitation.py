@@ -13,7 +13,7 @@ pytest.importorskip("stable_baselines3")
 import swarm_env_baselines.demos as demos_mod
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.evaluation import run_episode
-from swarm_env.harness.policies import load_policy
+from swarm_env.harness.policies import load_policy, policy_defaults
 from swarm_env_baselines.bc import (
     BCConfig,
     dagger_rollouts,
@@ -22,7 +22,7 @@ from swarm_env_baselines.bc import (
     split_episodes,
     train_bc,
 )
-from swarm_env_baselines.demos import ARRAYS, generate_demos, load_demos
+from swarm_env_baselines.demos import ARRAYS, demo_path, generate_demos, load_demos
 from swarm_env_baselines.model_io import load_model
 
 TINY = {"n_followers": 2, "max_cycles": 30}
@@ -213,3 +213,21 @@ def test_bc_config_rejects_bad_input(cache, tmp_path):
 
     assert main(["--out", str(tmp_path / "x"), "--expert", "nope", "--train-seeds", "0", "--cache-dir", str(cache), "--no-progress"]) == 2
     assert main(["--out", str(tmp_path / "x"), "--train-seeds", "0-399", "--cache-dir", str(cache)]) == 2  # overlaps dagger seeds
+
+
+def test_demo_cache_key_follows_the_experts_defaults(monkeypatch):
+    """Changing an expert's default parameters (here the ``vo`` expert's avoidance rules) changes the
+    cache key, so demonstrations made with the earlier defaults are not reused; an explicit override
+    in the spec is part of the key too."""
+    import swarm_env_agents.vo_expert as vo_expert
+
+    before = demo_path("vo", "random", [0, 1], env_kwargs=TINY)
+    assert policy_defaults("vo")["move_first"] is vo_expert.EXPERT_AVOIDANCE["move_first"]
+    assert policy_defaults("shield:vo") == policy_defaults("vo")
+    assert policy_defaults("pursuit") == {}
+    assert policy_defaults("cbs_rrt")["lookahead_time"] == 1.0
+    monkeypatch.setattr(vo_expert, "EXPERT_AVOIDANCE", {**vo_expert.EXPERT_AVOIDANCE, "recip_gap": 0.3})
+    assert demo_path("vo", "random", [0, 1], env_kwargs=TINY) != before
+    monkeypatch.undo()
+    assert demo_path("vo", "random", [0, 1], env_kwargs=TINY) == before
+    assert demo_path("vo:recip_gap=0.3", "random", [0, 1], env_kwargs=TINY) != before

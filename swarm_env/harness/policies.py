@@ -198,6 +198,7 @@ def expert_factory(name: str, cls: type) -> Callable[..., Any]:
         return policy
 
     factory.acts_on = STATE  # type: ignore[attr-defined]
+    factory.policy_class = cls  # type: ignore[attr-defined]  # policy_defaults() reads it
     factory.__name__ = factory.__qualname__ = f"make_{name}"
     factory.__doc__ = f"Entry point ``{name}[:KEY=VALUE,...]``: :class:`{cls.__module__}.{cls.__name__}`."
     return factory
@@ -397,6 +398,30 @@ def training_runs(spec: str) -> tuple[str, ...]:
     if arg or not runs:
         return (spec,)
     return tuple(f"{name}:{r}" for r in runs)
+
+
+def policy_defaults(spec: str) -> dict[str, Any]:
+    """The default parameters of the scripted expert that ``spec`` names, what its behaviour depends on
+    besides the code and ``spec``'s own ``KEY=VALUE`` overrides: the class's ``policy_parameters()``
+    when it has one (the ``vo`` expert's include its avoidance defaults), else the keyword defaults of
+    its constructor. ``shield:SPEC`` gives ``SPEC``'s. ``{}`` for a policy that is not an expert class
+    (learned models, the built-in baselines). Raises :class:`UnknownPolicyError` for an unknown name.
+
+    Caches keyed on a policy spec (``swarm_env_baselines.demos``) include it, so that changing an
+    expert's defaults does not reuse what the earlier defaults produced.
+    """
+    name, _, arg = spec.partition(":")
+    factory = _factory(name)
+    if factory is ShieldedPolicy:
+        return policy_defaults(arg) if arg else {}
+    cls = getattr(factory, "policy_class", None)
+    if cls is None:
+        return {}
+    parameters = getattr(cls, "policy_parameters", None)
+    if callable(parameters):
+        return dict(parameters())
+    return {p.name: p.default for p in inspect.signature(cls.__init__).parameters.values()
+            if p.default is not inspect.Parameter.empty}
 
 
 def acts_on(spec: str) -> str:
