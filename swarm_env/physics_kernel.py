@@ -84,6 +84,9 @@ def clip_commands(command, v_max, w_max, drives):  # pragma: no cover - compiled
         drives[i, 1] = w
 
 
+# numba checks its on-disk cache of this function against this file only: after editing
+# human_kernel.fill_states (compiled into it), delete swarm_env/__pycache__/physics_kernel*.nb* or the
+# old code keeps running. (An installed upgrade replaces every file, so users are not affected.)
 @numba.njit(cache=True, error_model="numpy")  # not nogil: chipmunk calls back into Python
 def _scripted_step(ptrs, consts, t0, step_count, count, table, vertices, segments, command, drives
                    ):  # pragma: no cover - compiled
