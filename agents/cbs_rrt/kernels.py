@@ -84,21 +84,10 @@ def constraint_free(x, y, t, t0, inv_dt, k_max, px, py, r2, active, any_active):
     """``ConstraintTable.free`` of flat ``x``/``y``/``t``: outside every active inflated disc at the
     nearest grid time; ``None`` if a time is NaN (the caller then runs the reference)."""
     out = np.ones(len(x), dtype=np.bool_)
-    c_count = px.shape[0]
     for m in range(len(x)):
         if t[m] != t[m]:
             return None
-        g = (t[m] - t0) * inv_dt + 0.5
-        k = np.int64(min(max(g, 0.0), k_max))
-        if not any_active[k]:
-            continue
-        for c in range(c_count):
-            if active[c, k]:
-                dx = px[c, k] - x[m]
-                dy = py[c, k] - y[m]
-                if dx * dx + dy * dy < r2[c]:
-                    out[m] = False
-                    break
+        out[m] = _free1(x[m], y[m], t[m], t0, inv_dt, k_max, px, py, r2, active, any_active)
     return out
 
 
