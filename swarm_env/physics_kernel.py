@@ -63,25 +63,24 @@ def _call_set_vect(typingctx: Any, fn: Any, body: Any, x: Any, y: Any) -> Any:  
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
+def _clip(x, limit):  # pragma: no cover - compiled
+    """``min(max(x, -limit), limit)`` with Python's ``min``/``max`` semantics (see :func:`clip_commands`)."""
+    lo = -limit
+    if lo > x:
+        x = lo
+    if limit < x:
+        x = limit
+    return x
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
 def clip_commands(command, v_max, w_max, drives):  # pragma: no cover - compiled
     """``drives[i, 0:2] = min(max(v, -v_max), v_max), min(max(w, -w_max), w_max)`` for each row
     ``(v, w)`` of ``command``: Python's ``min``/``max`` (the later argument wins only when strictly
     smaller / larger), as :meth:`swarm_env.world.World.step` clips on Python floats."""
     for i in range(command.shape[0]):
-        v = command[i, 0]
-        lo = -v_max
-        if lo > v:
-            v = lo
-        if v_max < v:
-            v = v_max
-        w = command[i, 1]
-        lo = -w_max
-        if lo > w:
-            w = lo
-        if w_max < w:
-            w = w_max
-        drives[i, 0] = v
-        drives[i, 1] = w
+        drives[i, 0] = _clip(command[i, 0], v_max)
+        drives[i, 1] = _clip(command[i, 1], w_max)
 
 
 # numba checks its on-disk cache of this function against this file only: after editing
