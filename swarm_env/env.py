@@ -24,7 +24,7 @@ from swarm_env.rewards import (
     INFO_CONTACT_KEYS,
     INFO_REWARD_KEYS,
     REWARD_TERMS,
-    compute_rewards,
+    reward_table,
     slot_distance,
     touching_per_follower,
 )
@@ -395,17 +395,15 @@ class SwarmEnv(ParallelEnv):
         self._world.step(norm * self._speed)
         state = self._world.snapshot()
         self._state = state
-        dist = slot_distance(state)
         touching = touching_per_follower(state)
-        reward, terms = compute_rewards(
-            state, state.scenario.reward, dist, self._prev_dist, norm, self._prev_action, touching
-        )
+        dist, table, reward = reward_table(state, state.scenario.reward, self._prev_dist, norm, self._prev_action, touching)
+        terms = dict(zip(REWARD_TERMS, table))
         self._prev_dist, self._prev_action = dist, norm
         settled = bool((dist <= state.scenario.world.settle_tolerance).all())
         collided = self.terminate_on_collision and bool(touching.any())
         terminated = bool((state.leader_done and settled) or collided)
         truncated = bool(not terminated and state.step >= self.max_steps)
-        return StepOutcome(state, reward, terms, dist, touching, collided, terminated, truncated)
+        return StepOutcome(state, reward, terms, dist, touching, collided, terminated, truncated, table)
 
     def _account(self, out: StepOutcome, wall_time: float) -> None:
         """Metrics, episode bookkeeping and the renderer's record of the step :meth:`_advance` made."""
@@ -573,6 +571,7 @@ class StepOutcome:
     collided: bool  # the step ended the episode by a collision (terminate_on_collision)
     terminated: bool
     truncated: bool
+    table: np.ndarray  # (len(REWARD_TERMS), N): the rows of ``terms``
 
 
 _INFO_KEYS = (*INFO_REWARD_KEYS, "slot_distance", *INFO_CONTACT_KEYS, "collision_terminated")

@@ -35,11 +35,13 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.compiled import compiled_kernels
 from swarm_env.rewards import slot_distance
 from swarm_env.state import CONTACT_KINDS, LEADER_ID, WorldState
 
 # Slack (m) per step of the carried clearance bounds: covers rounding, far below any clearance that matters.
 _LIPSCHITZ_SLACK = 1e-9
+_NO_VALUES = np.zeros(0)
 
 
 def _norm(v: np.ndarray, axis: int) -> np.ndarray:
@@ -112,6 +114,9 @@ class EpisodeMetrics:
             if c.kind == "robot_robot":
                 self.robot_collisions[c.other if c.other != LEADER_ID else self.n] += 1
         err = slot_distance(state) if slot_dist is None else slot_dist
+        if compiled_kernels():  # the same bits, see swarm_env.step_kernel
+            self._update_compiled(state, err)
+            return
         self.err_sum += err
         self.err_max = max(self.err_max, float(err.max(initial=0.0)))
         twist_sum = self.twist_sum
@@ -124,6 +129,36 @@ class EpisodeMetrics:
         if state.leader_done and self.leader_arrival is None:
             self.leader_arrival = state.time
         self._observe_proximity(state, moved[: self.n])
+        self._observe_settling(state, err)
+
+    def _update_compiled(self, state: WorldState, err: np.ndarray) -> None:
+        """The rest of :meth:`update` with :func:`swarm_env.step_kernel.metrics_step`: the same
+        operations as the numpy code below, in one call."""
+        from swarm_env.step_kernel import metrics_step
+
+        n = self.n
+        pos = state.follower_pose
+        r = state.follower_radius
+        lb = self._static_lb
+        carry = lb is not None and len(lb) == n
+        robot = state.leader_is_robot
+        err_max, moved, sep, hum, lb_new, carried = metrics_step(
+            err, self.err_sum, self.twist_sum, self.dist, state.follower_twist, state.leader_twist, self.prev_pos,
+            pos, r, state.leader_pose, float(state.leader_radius) if robot else 0.0, robot, state.human_pos,
+            state.human_radius, lb if carry else _NO_VALUES, self.min_clear + _LIPSCHITZ_SLACK, _LIPSCHITZ_SLACK)
+        self.err_max = max(self.err_max, err_max)
+        if state.leader_done and self.leader_arrival is None:
+            self.leader_arrival = state.time
+        self.min_sep = min(self.min_sep, sep)
+        if n:
+            if carried:
+                self._static_lb = lb_new
+            else:
+                xy = pos[:, :2]
+                lb = self._static_lb = state.static.distance_lower_bound(xy)
+                self.min_clear = state.static.min_distance(xy, r, self.min_clear, lower=lb)
+            if len(state.human_pos):
+                self.min_clear = min(self.min_clear, hum)
         self._observe_settling(state, err)
 
     def _observe_proximity(self, state: WorldState, moved: np.ndarray | None = None) -> None:
