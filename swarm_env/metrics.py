@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from swarm_env.compiled import compiled_kernels
+from swarm_env.geometry import _FAST_MAX_POINTS, _SCREEN_MARGIN
 from swarm_env.rewards import slot_distance
 from swarm_env.state import CONTACT_KINDS, LEADER_ID, WorldState
 
@@ -136,27 +137,26 @@ class EpisodeMetrics:
         operations as the numpy code below, in one call."""
         from swarm_env.step_kernel import metrics_step
 
-        n = self.n
         pos = state.follower_pose
         r = state.follower_radius
         lb = self._static_lb
-        carry = lb is not None and len(lb) == n
         robot = state.leader_is_robot
-        err_max, moved, sep, hum, lb_new, carried = metrics_step(
+        static = state.static
+        err_max, sep, hum, lb_out, status, clear = metrics_step(
             err, self.err_sum, self.twist_sum, self.dist, state.follower_twist, state.leader_twist, self.prev_pos,
             pos, r, state.leader_pose, float(state.leader_radius) if robot else 0.0, robot, state.human_pos,
-            state.human_radius, lb if carry else _NO_VALUES, self.min_clear + _LIPSCHITZ_SLACK, _LIPSCHITZ_SLACK)
+            state.human_radius, _NO_VALUES if lb is None else lb, float(self.min_clear), _LIPSCHITZ_SLACK,
+            _SCREEN_MARGIN, _FAST_MAX_POINTS, *static.kernel_arrays())
         self.err_max = max(self.err_max, err_max)
         if state.leader_done and self.leader_arrival is None:
             self.leader_arrival = state.time
         self.min_sep = min(self.min_sep, sep)
-        if n:
-            if carried:
-                self._static_lb = lb_new
-            else:
-                xy = pos[:, :2]
-                lb = self._static_lb = state.static.distance_lower_bound(xy)
-                self.min_clear = state.static.min_distance(xy, r, self.min_clear, lower=lb)
+        if status < 3:
+            self._static_lb = lb_out
+            if status == 1:
+                self.min_clear = clear
+            elif status == 2:
+                self.min_clear = static.min_distance(pos[:, :2], r, self.min_clear, lower=lb_out)
             if len(state.human_pos):
                 self.min_clear = min(self.min_clear, hum)
         self._observe_settling(state, err)

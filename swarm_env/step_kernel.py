@@ -24,6 +24,8 @@ import math
 import numba
 import numpy as np
 
+from swarm_env.clearance_kernel import lower_bounds, static_min_distance
+
 _jit = numba.njit(cache=True, nogil=True, error_model="numpy")
 
 #: Rows of :func:`reward_table`'s table (= ``len(swarm_env.rewards.REWARD_TERMS)``).
@@ -102,17 +104,28 @@ def reward_table(pose, slots, dist_in, prev_dist, action, prev_action, touching,
 
 @_jit
 def metrics_step(err, err_sum, twist_sum, dist_sum, f_twist, l_twist, prev_pos, pose, radius, l_pose, l_radius, leader_robot,
-                 h_pos, h_radius, lb, threshold, slack):  # pragma: no cover - compiled
+                 h_pos, h_radius, lb, min_clear, slack, screen, fast_max, W, H, bound, circles, n_poly, n_edge, ax, ay,
+                 ex, ey, inv_ee, nx, ny):  # pragma: no cover - compiled
     """One :meth:`EpisodeMetrics.update` of the arrays, in place, and what its proximity needs.
 
     Adds ``err`` (N,) to ``err_sum``, the twists to ``twist_sum`` ``(N + 1, 2)`` (leader last),
-    each robot's displacement to ``dist_sum`` ``(N + 1,)``, and moves ``prev_pos`` ``(N + 1, 2)`` to the new positions. Returns ``(err_max, moved (N + 1,),
-    sep, hum, lb_new, carried)``: the step's largest error (``max(0, err)``), each robot's
-    displacement, the smallest robot-robot surface gap (followers, then the robot leader when
-    ``leader_robot``; ``inf`` with one robot), the smallest follower-human gap (``inf`` without
-    humans), and the static lower bounds ``lb`` carried over the displacement
-    (``lb - moved - slack``) with whether they all stay at or above ``threshold``
-    (``carried``; ``lb`` empty: ``lb_new`` empty and ``carried`` False).
+    each robot's displacement to ``dist_sum`` ``(N + 1,)``, and moves ``prev_pos`` ``(N + 1, 2)``
+    to the new positions. Returns ``(err_max, sep, hum, lb_out, status, static)``: the step's
+    largest error (``max(0, err)``), the smallest robot-robot surface gap (followers, then the
+    robot leader when ``leader_robot``; ``inf`` with one robot), the smallest follower-human gap
+    (``inf`` without humans), and the static clearance part:
+
+    * ``status 0``: the lower bounds ``lb`` carried over the displacement (``lb - moved - slack``,
+      ``lb_out``) all stay at or above ``min_clear + slack``: nothing else to do;
+    * ``status 1``: ``lb_out`` are fresh lower bounds (``StaticMap.distance_lower_bound``) and
+      ``static`` is ``StaticMap.min_distance(pos, radius, min_clear, lower=lb_out)``;
+    * ``status 2``: as 1, but ``static`` is left to the caller (``min_clear`` infinite or more
+      than ``fast_max`` followers: ``min_distance``'s numpy path);
+    * ``status 3``: no followers.
+
+    ``lb`` empty means no bounds to carry; the map is :meth:`StaticMap.kernel_arrays` (without
+    ``bound`` before ``circles``'s place: ``W, H, bound, circles, ...``), ``screen`` its screening
+    margin.
     """
     n = len(err)
     nan = False
@@ -179,14 +192,25 @@ def metrics_step(err, err_sum, twist_sum, dist_sum, f_twist, l_twist, prev_pos, 
                 hum = d
     if nan:
         hum = np.nan
-    lb_new = np.empty(len(lb))
-    carried = len(lb) > 0
-    for i in range(len(lb)):
-        lb_new[i] = (lb[i] - moved[i]) - slack
-        # (lb - r).min() >= threshold, NaN failing it like numpy's min would
-        if not lb_new[i] - radius[i] >= threshold:
-            carried = False
-    return err_max, moved, sep, hum, lb_new, carried
+    if n == 0:
+        return err_max, sep, hum, np.empty(0), 3, min_clear
+    if len(lb) == n:
+        lb_out = np.empty(n)
+        carried = True
+        threshold = min_clear + slack
+        for i in range(n):
+            lb_out[i] = (lb[i] - moved[i]) - slack
+            # (lb - r).min() >= threshold, NaN failing it like numpy's min would
+            if not lb_out[i] - radius[i] >= threshold:
+                carried = False
+        if carried:
+            return err_max, sep, hum, lb_out, 0, min_clear
+    lb_out = lower_bounds(pose, W, H, bound)
+    if not math.isfinite(min_clear) or n > fast_max:
+        return err_max, sep, hum, lb_out, 2, min_clear
+    static = static_min_distance(pose, radius, min_clear, lb_out, screen, W, H, circles, n_poly, n_edge, ax, ay, ex,
+                                 ey, inv_ee, nx, ny)
+    return err_max, sep, hum, lb_out, 1, static
 
 
 __all__ = ["N_TERMS", "metrics_step", "reward_table"]
