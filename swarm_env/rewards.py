@@ -107,13 +107,12 @@ def clearance(state: WorldState, below: float = np.inf) -> np.ndarray:
     if compiled_kernels():  # the same bits, see swarm_env.clearance_kernel
         from swarm_env.clearance_kernel import clearance as compiled
 
-        n = state.n_followers
         if state.leader_is_robot:
             leader = np.array([[state.leader_pose[0], state.leader_pose[1], state.leader_radius]])
         else:
             leader = _NO_LEADER
         return compiled(state.follower_pose, state.follower_radius, float(below),
-                        state.follower_distances() if n > 1 else _NO_DISTANCES, leader, state.human_pos,
+                        _NO_DISTANCES, leader, state.human_pos,  # the kernel computes the distances
                         state.human_radius, *state.static.kernel_arrays())
     pos = state.follower_pose[:, :2]
     r = state.follower_radius

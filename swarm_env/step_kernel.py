@@ -103,15 +103,15 @@ def reward_table(pose, slots, dist_in, prev_dist, action, prev_action, touching,
 
 
 @_jit
-def metrics_step(err, err_sum, twist_sum, dist_sum, f_twist, l_twist, prev_pos, pose, radius, l_pose, l_radius, leader_robot,
+def metrics_step(err, tolerance, err_sum, twist_sum, dist_sum, f_twist, l_twist, prev_pos, pose, radius, l_pose, l_radius, leader_robot,
                  h_pos, h_radius, lb, min_clear, slack, screen, fast_max, W, H, bound, circles, n_poly, n_edge, ax, ay,
                  ex, ey, inv_ee, nx, ny):  # pragma: no cover - compiled
     """One :meth:`EpisodeMetrics.update` of the arrays, in place, and what its proximity needs.
 
     Adds ``err`` (N,) to ``err_sum``, the twists to ``twist_sum`` ``(N + 1, 2)`` (leader last),
     each robot's displacement to ``dist_sum`` ``(N + 1,)``, and moves ``prev_pos`` ``(N + 1, 2)``
-    to the new positions. Returns ``(err_max, sep, hum, lb_out, status, static)``: the step's
-    largest error (``max(0, err)``), the smallest robot-robot surface gap (followers, then the
+    to the new positions. Returns ``(err_max, within, sep, hum, lb_out, status, static)``: the
+    step's largest error (``max(0, err)``), whether every ``err <= tolerance``, the smallest robot-robot surface gap (followers, then the
     robot leader when ``leader_robot``; ``inf`` with one robot), the smallest follower-human gap
     (``inf`` without humans), and the static clearance part:
 
@@ -130,9 +130,12 @@ def metrics_step(err, err_sum, twist_sum, dist_sum, f_twist, l_twist, prev_pos, 
     n = len(err)
     nan = False
     err_max = 0.0
+    within = True
     for i in range(n):
         e = err[i]
         err_sum[i] += e
+        if not e <= tolerance:  # NaN is not within, as in numpy
+            within = False
         if e != e:
             nan = True
         elif e > err_max:
@@ -193,7 +196,7 @@ def metrics_step(err, err_sum, twist_sum, dist_sum, f_twist, l_twist, prev_pos, 
     if nan:
         hum = np.nan
     if n == 0:
-        return err_max, sep, hum, np.empty(0), 3, min_clear
+        return err_max, within, sep, hum, np.empty(0), 3, min_clear
     if len(lb) == n:
         lb_out = np.empty(n)
         carried = True
@@ -204,13 +207,13 @@ def metrics_step(err, err_sum, twist_sum, dist_sum, f_twist, l_twist, prev_pos, 
             if not lb_out[i] - radius[i] >= threshold:
                 carried = False
         if carried:
-            return err_max, sep, hum, lb_out, 0, min_clear
+            return err_max, within, sep, hum, lb_out, 0, min_clear
     lb_out = lower_bounds(pose, W, H, bound)
     if not math.isfinite(min_clear) or n > fast_max:
-        return err_max, sep, hum, lb_out, 2, min_clear
+        return err_max, within, sep, hum, lb_out, 2, min_clear
     static = static_min_distance(pose, radius, min_clear, lb_out, screen, W, H, circles, n_poly, n_edge, ax, ay, ex,
                                  ey, inv_ee, nx, ny)
-    return err_max, sep, hum, lb_out, 1, static
+    return err_max, within, sep, hum, lb_out, 1, static
 
 
 __all__ = ["N_TERMS", "metrics_step", "reward_table"]
