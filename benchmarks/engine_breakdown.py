@@ -5,8 +5,8 @@
 Steps ``swarm_env.vector.SwarmVectorEnv("random", M, **swarm_env.harness.bench.BATCH_WORLD)`` with random
 actions, timing each stage separately (median over repeats, microseconds per world-step):
 ``physics`` (pymunk substeps with the drive callbacks, the humans and the leader, the slot
-targets: ``World.step``), ``snapshot`` (``World.snapshot``), ``rewards`` (slot distances,
-contacts, ``compute_rewards``), ``metrics`` (``EpisodeMetrics.update`` and the episode
+targets: ``World.step``), ``snapshot`` (``World.snapshot``), ``rewards`` (contacts, then slot
+distances and reward terms: ``reward_table``), ``metrics`` (``EpisodeMetrics.update`` and the episode
 bookkeeping), ``observations`` (everything but the lidar), ``lidar`` (one kernel call for all
 ``M x N`` followers, divided by M). The stages run the engine's code in its order; auto-resets
 are done outside the clock.
@@ -22,7 +22,7 @@ import numpy as np
 
 from swarm_env.harness.bench import BATCH_WORLD
 from swarm_env.observations import lidar_input
-from swarm_env.rewards import compute_rewards, slot_distance, touching_per_follower
+from swarm_env.rewards import reward_table, touching_per_follower
 from swarm_env.vector import SwarmVectorEnv
 
 STAGES = ("physics", "snapshot", "rewards", "metrics", "observations", "lidar")
@@ -41,9 +41,8 @@ def one_repeat(venv: SwarmVectorEnv, actions: np.ndarray, steps: int) -> dict[st
             t1 = clock()
             state = env._world.snapshot()
             t2 = clock()
-            dist = slot_distance(state)
             touching = touching_per_follower(state)
-            compute_rewards(state, state.scenario.reward, dist, env._prev_dist, act, env._prev_action, touching)
+            dist, _, _ = reward_table(state, state.scenario.reward, env._prev_dist, act, env._prev_action, touching)
             t3 = clock()
             env._state = state
             env._prev_dist, env._prev_action = dist, act

@@ -113,7 +113,7 @@ def clearance(pos, r, below, fdist, leader, human_pos, human_r, W, H, bound, cir
               ey, inv_ee, nx, ny):  # pragma: no cover - compiled
     """``swarm_env.rewards.clearance``: ``(N,)`` free distance of each follower's disc.
 
-    ``fdist`` the followers' centre distances ``(N, N)``; ``leader`` ``(1, 3)`` ``(x, y, radius)``
+    ``fdist`` the followers' centre distances ``(N, N)`` (or ``(0, 0)``: computed here); ``leader`` ``(1, 3)`` ``(x, y, radius)``
     of a robot leader or ``(0, 3)``; exact where below ``below`` (``inf``: everywhere)."""
     n = len(pos)
     out = np.empty(n)
@@ -127,7 +127,13 @@ def clearance(pos, r, below, fdist, leader, human_pos, human_r, W, H, bound, cir
             gap = math.inf
             for j in range(n):
                 if j != i:
-                    gap = min(gap, fdist[i, j] - ri - r[j])
+                    if len(fdist):
+                        c = fdist[i, j]
+                    else:  # WorldState.follower_distances' arithmetic, without the (N, N) array
+                        dx = x - pos[j, 0]
+                        dy = y - pos[j, 1]
+                        c = math.sqrt(dx * dx + dy * dy)
+                    gap = min(gap, c - ri - r[j])
             best = min(best, gap)
         for q in range(len(leader)):
             dx = x - leader[q, 0]

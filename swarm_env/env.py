@@ -24,7 +24,7 @@ from swarm_env.rewards import (
     INFO_CONTACT_KEYS,
     INFO_REWARD_KEYS,
     REWARD_TERMS,
-    compute_rewards,
+    reward_table,
     slot_distance,
     touching_per_follower,
 )
@@ -377,7 +377,7 @@ class SwarmEnv(ParallelEnv):
         t0 = time.perf_counter()
         out = self._advance(norm)
         obs = self._obs.build(out.state)
-        infos = self._infos(out.dist, out.terms, out.touching, out.collided)
+        infos = self._infos(out.dist, out.table, out.touching, out.collided)
         self._account(out, time.perf_counter() - t0)
         observations = dict(zip(agents, obs))  # row views of one fresh array
         rewards = dict(zip(agents, out.reward.tolist()))  # Python floats
@@ -395,17 +395,14 @@ class SwarmEnv(ParallelEnv):
         self._world.step(norm * self._speed)
         state = self._world.snapshot()
         self._state = state
-        dist = slot_distance(state)
         touching = touching_per_follower(state)
-        reward, terms = compute_rewards(
-            state, state.scenario.reward, dist, self._prev_dist, norm, self._prev_action, touching
-        )
+        dist, table, reward = reward_table(state, state.scenario.reward, self._prev_dist, norm, self._prev_action, touching)
         self._prev_dist, self._prev_action = dist, norm
         settled = bool((dist <= state.scenario.world.settle_tolerance).all())
         collided = self.terminate_on_collision and bool(touching.any())
         terminated = bool((state.leader_done and settled) or collided)
         truncated = bool(not terminated and state.step >= self.max_steps)
-        return StepOutcome(state, reward, terms, dist, touching, collided, terminated, truncated)
+        return StepOutcome(state, reward, table, dist, touching, collided, terminated, truncated)
 
     def _account(self, out: StepOutcome, wall_time: float) -> None:
         """Metrics, episode bookkeeping and the renderer's record of the step :meth:`_advance` made."""
@@ -419,7 +416,8 @@ class SwarmEnv(ParallelEnv):
         if self._renderer is not None:
             self._renderer.record(out.state)
 
-    def _infos(self, dist: np.ndarray, terms: dict[str, np.ndarray], touching: np.ndarray, collided: bool) -> dict:
+    def _infos(self, dist: np.ndarray, terms: dict[str, np.ndarray] | np.ndarray, touching: np.ndarray,
+               collided: bool) -> dict:
         """Per-agent infos; reset and step infos have the same keys (see the class docstring)."""
         columns = [c.tolist() for c in info_columns(dist, terms, touching, collided)]
         return {a: dict(zip(_INFO_KEYS, row)) for a, row in zip(self.agents, zip(*columns))}
@@ -561,27 +559,34 @@ def primitive_table(max_turn_rate: float) -> np.ndarray:
     return out
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(slots=True)  # not frozen: its __init__ is a fifth of a frozen one's, once per world-step
 class StepOutcome:
     """What one step produced besides the observations (see :meth:`SwarmEnv._advance`)."""
 
     state: WorldState
     reward: np.ndarray  # (N,)
-    terms: dict[str, np.ndarray]  # REWARD_TERMS -> (N,)
+    table: np.ndarray  # (len(REWARD_TERMS), N): each weighted reward term, in REWARD_TERMS order
     dist: np.ndarray  # (N,) slot distances (m)
     touching: np.ndarray  # (N, len(CONTACT_GROUPS)) bodies in touch during the step
     collided: bool  # the step ended the episode by a collision (terminate_on_collision)
     terminated: bool
     truncated: bool
 
+    @property
+    def terms(self) -> dict[str, np.ndarray]:
+        """``{term: (N,)}`` of :data:`~swarm_env.rewards.REWARD_TERMS` (rows of ``table``)."""
+        return dict(zip(REWARD_TERMS, self.table))
+
 
 _INFO_KEYS = (*INFO_REWARD_KEYS, "slot_distance", *INFO_CONTACT_KEYS, "collision_terminated")
 
 
-def info_columns(dist: np.ndarray, terms: dict[str, np.ndarray], touching: np.ndarray, collided: bool) -> list[np.ndarray]:
+def info_columns(dist: np.ndarray, terms: dict[str, np.ndarray] | np.ndarray, touching: np.ndarray,
+                 collided: bool) -> list[np.ndarray]:
     """The per-agent infos of a step as ``(N,)`` arrays, one per key of ``_INFO_KEYS`` in order:
-    reward terms and slot distance (float64), contacts per group (int64), the collision flag (bool)."""
-    columns = [terms[t] for t in REWARD_TERMS]
+    reward terms and slot distance (float64), contacts per group (int64), the collision flag (bool).
+    ``terms``: ``{term: (N,)}`` or the ``(len(REWARD_TERMS), N)`` table of the terms in order."""
+    columns = [terms[t] for t in REWARD_TERMS] if isinstance(terms, dict) else list(terms)
     columns.append(dist)
     columns += list(touching.T.astype(np.int64))
     columns.append(np.full(len(dist), collided))

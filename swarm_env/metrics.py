@@ -35,11 +35,14 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.compiled import compiled_kernels
+from swarm_env.geometry import _FAST_MAX_POINTS, _SCREEN_MARGIN
 from swarm_env.rewards import slot_distance
 from swarm_env.state import CONTACT_KINDS, LEADER_ID, WorldState
 
 # Slack (m) per step of the carried clearance bounds: covers rounding, far below any clearance that matters.
 _LIPSCHITZ_SLACK = 1e-9
+_NO_VALUES = np.zeros(0)
 
 
 def _norm(v: np.ndarray, axis: int) -> np.ndarray:
@@ -73,6 +76,7 @@ class EpisodeMetrics:
         self.min_clear = math.inf
         self.leader_arrival: float | None = None
         self.settle: list[dict[str, Any]] = []
+        self._switches: set[int] = set()  # the formation indices in settle
         self._pending: dict[str, Any] | None = None
         self._hold: dict[int, list[int]] = {}  # formation index -> [steps since reached, steps held]
         self.terminated = False
@@ -112,6 +116,9 @@ class EpisodeMetrics:
             if c.kind == "robot_robot":
                 self.robot_collisions[c.other if c.other != LEADER_ID else self.n] += 1
         err = slot_distance(state) if slot_dist is None else slot_dist
+        if compiled_kernels():  # the same bits, see swarm_env.step_kernel
+            self._update_compiled(state, err)
+            return
         self.err_sum += err
         self.err_max = max(self.err_max, float(err.max(initial=0.0)))
         twist_sum = self.twist_sum
@@ -125,6 +132,35 @@ class EpisodeMetrics:
             self.leader_arrival = state.time
         self._observe_proximity(state, moved[: self.n])
         self._observe_settling(state, err)
+
+    def _update_compiled(self, state: WorldState, err: np.ndarray) -> None:
+        """The rest of :meth:`update` with :func:`swarm_env.step_kernel.metrics_step`: the same
+        operations as the numpy code below, in one call."""
+        from swarm_env.step_kernel import metrics_step
+
+        pos = state.follower_pose
+        r = state.follower_radius
+        lb = self._static_lb
+        robot = state.leader_is_robot
+        static = state.static
+        err_max, within, sep, hum, lb_out, status, clear = metrics_step(
+            err, float(self.tolerance), self.err_sum, self.twist_sum, self.dist, state.follower_twist,
+            state.leader_twist, self.prev_pos, pos, r, state.leader_pose, float(state.leader_radius) if robot else 0.0,
+            robot, state.human_pos, state.human_radius, _NO_VALUES if lb is None else lb, float(self.min_clear),
+            _LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS, *static.kernel_arrays())
+        self.err_max = max(self.err_max, err_max)
+        if state.leader_done and self.leader_arrival is None:
+            self.leader_arrival = state.time
+        self.min_sep = min(self.min_sep, sep)
+        if status < 3:
+            self._static_lb = lb_out
+            if status == 1:
+                self.min_clear = clear
+            elif status == 2:
+                self.min_clear = static.min_distance(pos[:, :2], r, self.min_clear, lower=lb_out)
+            if len(state.human_pos):
+                self.min_clear = min(self.min_clear, hum)
+        self._observe_settling(state, err, within)
 
     def _observe_proximity(self, state: WorldState, moved: np.ndarray | None = None) -> None:
         """Lower ``min_sep`` / ``min_clear``; ``moved``: each follower's displacement since the last call."""
@@ -165,16 +201,17 @@ class EpisodeMetrics:
             dh = _norm(pos[:, None, :] - state.human_pos[None, :, :], 2) - r[:, None] - state.human_radius
             self.min_clear = min(self.min_clear, float(dh.min()))
 
-    def _observe_settling(self, state: WorldState, err: np.ndarray) -> None:
+    def _observe_settling(self, state: WorldState, err: np.ndarray, within: bool | None = None) -> None:
+        """``within``: ``all(err <= tolerance)`` if the caller has it already."""
         formations = state.scenario.formations
         k = state.formation_index
-        if k > 0 and (self._pending is None or self._pending["index"] != k) and not any(
-            s["index"] == k for s in self.settle
-        ):
+        if k > 0 and (self._pending is None or self._pending["index"] != k) and k not in self._switches:
             entry = {"index": k, "at": formations[k].at, "shape": formations[k].shape, "settle_time": None}
             self.settle.append(entry)
+            self._switches.add(k)
             self._pending = entry
-        within = bool(np.all(err <= self.tolerance))
+        if within is None:
+            within = bool(np.all(err <= self.tolerance))
         if self._pending is not None and self._pending["index"] == k and within:
             self._pending["settle_time"] = round(state.time - self._pending["at"], 9)
             self._pending = None

@@ -69,7 +69,7 @@ def assemble(
     ``cos_th``/``sin_th`` the followers' heading cosines/sines and ``cos_rel``/``sin_rel`` those of
     the leader's heading relative to theirs (numpy's, as in the reference); ``speed_scale``
     ``(max_speed, max_turn_rate)``; ``switch`` the capped time to the next switch; ``fdist`` the
-    followers' centre distances ``(N, N)``; ``k``/``hk`` neighbour/human entity rows (0: none)
+    followers' centre distances ``(N, N)`` (or ``(0, 0)``: computed here); ``k``/``hk`` neighbour/human entity rows (0: none)
     starting at columns ``nb_start``/``hu_start``.
     """
     n = len(pose)
@@ -98,7 +98,14 @@ def assemble(
         vx, vy = vel[i, 0], vel[i, 1]
         if k:
             for q in range(n):
-                nd[q] = math.inf if q == i else fdist[i, q]
+                if q == i:
+                    nd[q] = math.inf
+                elif len(fdist):
+                    nd[q] = fdist[i, q]
+                else:  # WorldState.follower_distances' arithmetic, without the (N, N) array
+                    dx = px - pose[q, 0]
+                    dy = py - pose[q, 1]
+                    nd[q] = math.sqrt(dx * dx + dy * dy)
             _entities(out, i, nb_start, k, nd, pose, vel, px, py, vx, vy, c, s)
         if hk:
             for q in range(nh):

@@ -216,7 +216,7 @@ class ObservationBuilder:
             np.cos(th), np.sin(th), np.cos(rel), np.sin(rel),
             float(min(state.next_switch_time - state.time, self.capacity.max_time)),
             state.leader_pose, np.asarray(state.leader_vel, dtype=np.float64), state.slot_targets,
-            state.follower_distances() if k else _NO_DISTANCES, k, self.layout["neighbors"].start,
+            _NO_DISTANCES, k, self.layout["neighbors"].start,  # the kernel computes the distances
             state.human_pos, state.human_vel, hk, self.layout["humans"].start, self.size, self.low, self.high,
         )
 

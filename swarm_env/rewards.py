@@ -40,6 +40,7 @@ from swarm_env.state import LEADER_ID, WorldState
 CONTACT_GROUPS = ("robot", "obstacle", "human", "wall")
 _NO_LEADER = np.zeros((0, 3))  # clearance_kernel's "no robot leader"
 _NO_DISTANCES = np.zeros((0, 0))
+_NO_VALUES = np.zeros(0)  # an unused (N,) input of the reward kernel
 _GROUP_OF_KIND = {"robot_robot": 0, "robot_obstacle": 1, "robot_human": 2, "robot_wall": 3}
 REWARD_TERMS = (
     "formation",
@@ -106,13 +107,12 @@ def clearance(state: WorldState, below: float = np.inf) -> np.ndarray:
     if compiled_kernels():  # the same bits, see swarm_env.clearance_kernel
         from swarm_env.clearance_kernel import clearance as compiled
 
-        n = state.n_followers
         if state.leader_is_robot:
             leader = np.array([[state.leader_pose[0], state.leader_pose[1], state.leader_radius]])
         else:
             leader = _NO_LEADER
         return compiled(state.follower_pose, state.follower_radius, float(below),
-                        state.follower_distances() if n > 1 else _NO_DISTANCES, leader, state.human_pos,
+                        _NO_DISTANCES, leader, state.human_pos,  # the kernel computes the distances
                         state.human_radius, *state.static.kernel_arrays())
     pos = state.follower_pose[:, :2]
     r = state.follower_radius
@@ -186,28 +186,66 @@ def compute_rewards(
     ``dist``/``prev_dist`` are slot distances after/before the step,
     ``action``/``prev_action`` the normalised actions (N, 2) of this and the
     previous step, ``touching`` the (N, 4) :func:`touching_per_follower` counts
-    (computed here when not given).
+    (computed here when not given). A term whose weight is 0 is reported as 0.
     """
     if touching is None:
         touching = touching_per_follower(state)
-    zero = np.zeros_like(dist)
-    zero.flags.writeable = False  # shared by every term whose weight is 0 (they are reported, not summed)
-    terms = {"formation": -spec.formation * dist if spec.formation else zero}
-    terms["collision"] = -spec.collision * new_contacts_per_follower(state) if spec.collision and state.contacts else zero
-    touched = spec.contact and bool(state.touching)
-    for g, name in enumerate(CONTACT_GROUPS):
-        terms[f"contact_{name}"] = -spec.contact * touching[:, g] if touched else zero
-    terms["clearance"] = zero
+    _, table, total = reward_table(state, spec, prev_dist, action, prev_action, touching, dist)
+    return total, dict(zip(REWARD_TERMS, table))
+
+
+def reward_table(
+    state: WorldState,
+    spec: RewardSpec,
+    prev_dist: np.ndarray,
+    action: np.ndarray,
+    prev_action: np.ndarray,
+    touching: np.ndarray,
+    dist: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(dist (N,), table (len(REWARD_TERMS), N), total (N,))``: the slot distances (computed
+    when ``dist`` is None), each weighted term of :data:`REWARD_TERMS` as a row (``+0.0`` where
+    its weight is 0) and their sum, what :func:`compute_rewards` returns as a dict. One compiled
+    call (:func:`swarm_env.step_kernel.reward_table`) or its numpy reference, the same bits."""
+    w_collision = spec.collision if state.contacts else 0.0
+    w_contact = spec.contact if state.touching else 0.0
+    onsets = new_contacts_per_follower(state) if w_collision else _NO_VALUES
+    clear = clearance(state, below=spec.clearance_margin) if spec.clearance else _NO_VALUES
+    gap = approach_gap(state, spec.approach_horizon) if spec.approach else _NO_VALUES
+    if compiled_kernels():
+        from swarm_env.step_kernel import reward_table as compiled
+
+        return compiled(state.follower_pose, state.slot_targets, _NO_VALUES if dist is None else dist, prev_dist,
+                        action, prev_action, touching, onsets, clear, gap, float(spec.formation), float(w_collision),
+                        float(w_contact), float(spec.clearance), float(spec.clearance_margin), float(spec.smoothness),
+                        float(spec.progress), float(spec.approach), float(spec.approach_margin))
+    if dist is None:
+        dist = slot_distance(state)
+    table = np.zeros((len(REWARD_TERMS), len(dist)))
+    active = []  # the rows summed into the total, in REWARD_TERMS order
+    if spec.formation:
+        table[0] = -spec.formation * dist
+        active.append(0)
+    if w_collision:
+        table[1] = -w_collision * onsets
+        active.append(1)
+    if w_contact:
+        for g in range(len(CONTACT_GROUPS)):
+            table[2 + g] = -w_contact * touching[:, g]
+            active.append(2 + g)
     if spec.clearance:
-        intrusion = np.clip(1.0 - clearance(state, below=spec.clearance_margin) / spec.clearance_margin, 0.0, None)
-        terms["clearance"] = -spec.clearance * intrusion
-    terms["smoothness"] = -spec.smoothness * np.add.reduce((action - prev_action) ** 2, axis=1) if spec.smoothness else zero
-    terms["progress"] = spec.progress * (prev_dist - dist) if spec.progress else zero
-    terms["approach"] = zero
+        table[6] = -spec.clearance * np.clip(1.0 - clear / spec.clearance_margin, 0.0, None)
+        active.append(6)
+    if spec.smoothness:
+        table[7] = -spec.smoothness * np.add.reduce((action - prev_action) ** 2, axis=1)
+        active.append(7)
+    if spec.progress:
+        table[8] = spec.progress * (prev_dist - dist)
+        active.append(8)
     if spec.approach:
-        terms["approach"] = -spec.approach * np.clip(1.0 - approach_gap(state, spec.approach_horizon) / spec.approach_margin, 0.0, None)
-    total = zero.copy()
-    for term in terms.values():
-        if term is not zero:
-            total += term
-    return total, terms
+        table[9] = -spec.approach * np.clip(1.0 - gap / spec.approach_margin, 0.0, None)
+        active.append(9)
+    total = np.zeros(len(dist))
+    for k in active:
+        total += table[k]
+    return dist, table, total

@@ -168,7 +168,7 @@ class _WorldBlock:
             outcomes.append(e._advance(act))
         obs = np.stack([e._obs.build_without_lidar(o.state) for e, o in zip(self.envs, outcomes)])
         wall = (time.perf_counter() - t0) / len(self.envs)  # the block's wall time, shared equally
-        infos = _stack_columns([info_columns(o.dist, o.terms, o.touching, o.collided) for o in outcomes], INFO_KEYS)
+        infos = _info_arrays(outcomes)
         if self.shielded:
             infos.update(_stack_columns(shield_cols, SHIELD_INFO_KEYS))
             infos["shield_action"] = np.stack(safe)
@@ -242,6 +242,22 @@ class _WorldBlock:
     def close(self) -> None:
         for w in self.worlds:
             w.close()
+
+
+def _info_arrays(outcomes: Sequence[StepOutcome]) -> dict[str, np.ndarray]:
+    """The step infos of ``B`` worlds as ``(B, N)`` arrays under :data:`INFO_KEYS`: what stacking
+    each world's :func:`~swarm_env.env.info_columns` gives, written into one block per dtype."""
+    b, n = len(outcomes), len(outcomes[0].dist)
+    t = len(REWARD_TERMS)
+    floats = np.empty((t + 1, b, n))  # the reward terms, then the slot distance
+    counts = np.empty((len(CONTACT_GROUPS), b, n), np.int64)
+    collided = np.empty((b, n), bool)
+    for k, o in enumerate(outcomes):
+        floats[:t, k] = o.table
+        floats[t, k] = o.dist
+        counts[:, k] = o.touching.T  # float counts cast to int64, as info_columns' astype
+        collided[k] = o.collided
+    return dict(zip(INFO_KEYS, [*floats, *counts, collided]))
 
 
 def _stack_columns(per_world: list[list[np.ndarray]], keys: Sequence[str]) -> dict[str, np.ndarray]:
