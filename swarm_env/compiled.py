@@ -1,8 +1,10 @@
 """One switch for the compiled (numba) per-step kernels of the core: the observations' assembly
 (:mod:`swarm_env.obs_kernel`), the followers' clearances and static distances
 (:mod:`swarm_env.clearance_kernel`), the snapshot's arrays (:mod:`swarm_env.snapshot_kernel`), the
-scripted humans (:mod:`swarm_env.human_kernel`) and the robots' velocity callback
-(:mod:`swarm_env.drive_kernel`, chosen when a world is built).
+scripted humans (:mod:`swarm_env.human_kernel`), a control step's physics substeps with chipmunk
+called from compiled code (:mod:`swarm_env.physics_kernel`), the virtual leader and the slot targets
+(:mod:`swarm_env.slot_kernel`), the rewards and the metrics of a step (:mod:`swarm_env.step_kernel`),
+and the robots' velocity callback (:mod:`swarm_env.drive_kernel`, chosen when a world is built).
 
 Each kernel has a numpy reference beside it that gives the same bits (their tests compare the
 two on whole episodes). The references import no numba, which is why the batched engine's worker
