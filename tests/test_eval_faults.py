@@ -15,20 +15,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from _fault_boards import SEEDS, SHORT, behaviour, pursuit_reference, same_as_pursuit
 
 from swarm_env.harness.cli import main
 from swarm_env.harness.leaderboard import EPISODES_FILE, TIMING_KEYS, Leaderboard, run_leaderboard
 from swarm_env.outputs import OutputError
-
-SHORT = {"max_cycles": 20}
-SEEDS = [0, 1, 2]
-
-
-def behaviour(board: Leaderboard) -> list[tuple[str, str, int, dict[str, Any]]]:
-    """The episodes without their timings, as JSON stores them (a resumed board reads some back from JSON)."""
-    return [(e["policy"], e["scenario"], e["seed"],
-             json.loads(json.dumps({k: v for k, v in e["metrics"].items() if k not in TIMING_KEYS})))
-            for e in board.episodes]
 
 
 def summaries(board: Leaderboard) -> list[Any]:
@@ -38,14 +29,9 @@ def summaries(board: Leaderboard) -> list[Any]:
 
 @pytest.fixture(scope="module")
 def pursuit_board() -> Leaderboard:
-    return run_leaderboard(["pursuit"], ["paper_vo_0"], SEEDS, env_kwargs=SHORT, progress=False)
+    return pursuit_reference()
 
 
-def same_as_pursuit(board: Leaderboard, policy: str, pursuit_board: Leaderboard, seeds: list[int]) -> None:
-    want = {s: m for (_, _, s, m) in behaviour(pursuit_board)}
-    got = [(s, m) for (p, _, s, m) in behaviour(board) if p == policy]
-    assert [s for s, _ in got] == seeds
-    assert all(m == want[s] for s, m in got)
 
 
 # --------------------------------------------------------------------------- dead and hung workers

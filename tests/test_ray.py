@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from _fault_boards import SEEDS, SHORT, behaviour, pursuit_reference, same_as_pursuit
 
 pytestmark = pytest.mark.ray
 ray = pytest.importorskip("ray")
@@ -24,14 +25,10 @@ pytest.importorskip("ray.rllib")
 
 from swarm_env.harness.leaderboard import (  # noqa: E402
     EPISODES_FILE,
-    TIMING_KEYS,
     Leaderboard,
     _behaviour,
     run_leaderboard,
 )
-
-SHORT = {"max_cycles": 20}  # 20-step episodes: the fault tests time the faults, not the episodes
-SEEDS = [0, 1, 2]
 
 
 def _episodes(board) -> list[dict]:
@@ -109,24 +106,13 @@ def test_the_command_line_runs_on_ray(tmp_path: Path, capsys) -> None:
 
 
 # --------------------------------------------------------------------------- the local pool's fault contract
-def behaviour(board: Leaderboard) -> list[tuple[str, str, int, dict[str, Any]]]:
-    """The episodes without their timings, as JSON stores them (a resumed board reads some back from JSON)."""
-    return [(e["policy"], e["scenario"], e["seed"],
-             json.loads(json.dumps({k: v for k, v in e["metrics"].items() if k not in TIMING_KEYS})))
-            for e in board.episodes]
 
 
 @pytest.fixture(scope="module")
 def pursuit_board() -> Leaderboard:
-    return run_leaderboard(["pursuit"], ["paper_vo_0"], SEEDS, env_kwargs=SHORT, progress=False)
+    return pursuit_reference()
 
 
-def same_as_pursuit(board: Leaderboard, policy: str, pursuit_board: Leaderboard, seeds: list[int]) -> None:
-    """The fault policies play pursuit except where they fail: their finished episodes are pursuit's."""
-    want = {s: m for (_, _, s, m) in behaviour(pursuit_board)}
-    got = [(s, m) for (p, _, s, m) in behaviour(board) if p == policy]
-    assert [s for s, _ in got] == seeds
-    assert all(m == want[s] for s, m in got)
 
 
 def test_ray_a_crashed_or_hung_episode_costs_only_itself(faults: Path, tmp_path: Path, pursuit_board: Leaderboard) -> None:
