@@ -138,7 +138,9 @@ def test_the_safety_layer_gives_the_same_bits(switch_states: list[WorldState]) -
                 AvoidanceParams(v_min=-0.2, margin=0.0, allow_still_overlap=False, escape=False, horizon_static=1.5),
                 AvoidanceParams(fast=False, n_v=4, n_w=7, tau=0.5, n_arc=3),
                 AvoidanceParams(cost="velocity", recip_gap=0.2), AvoidanceParams(move_first=True, recip_gap=0.2),
-                AvoidanceParams(cost="velocity", w_current=0.3, tau=0.5, v_min=-0.2, recip_gap=0.5, move_first=True)]
+                AvoidanceParams(cost="velocity", w_current=0.3, tau=0.5, v_min=-0.2, recip_gap=0.5, move_first=True),
+                AvoidanceParams(move_first=True, recip_gap=0.2, static_reach=True),
+                AvoidanceParams(static_reach=True, horizon_static=2.0, v_min=-0.2, tau=0.5)]
     sizes = set()
     for k, full in enumerate(switch_states):
         n_all = full.n_followers
@@ -288,6 +290,8 @@ def test_synthetic_calls_give_the_same_bits(clutter: StaticMap) -> None:
             recip_gap=float(rng.choice([0.0, 0.3])),
             move_first=bool(rng.random() < 0.5),
         )
+        if params.model == "arc" and rng.random() < 0.5:
+            params = replace(params, static_reach=True)
         kwargs = dict(
             disc_mask=mask,
             goal_heading=rng.uniform(-3.0, 3.0, n) if rng.random() < 0.3 else None,
