@@ -876,7 +876,7 @@ class VOParams:
     cost: str = "twist"
     recip_gap: float = 0.0
     move_first: bool = False
-    static_reach: bool = False
+    static_reach: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("horizon", "tau"):
@@ -895,7 +895,10 @@ class VOParams:
             raise ValueError(f"model must be 'arc' or 'chord', got {self.model!r}")
         if self.cost not in ("twist", "velocity"):
             raise ValueError(f"cost must be 'twist' or 'velocity', got {self.cost!r}")
-        if self.static_reach and self.model != "arc":
+        sr = self.static_reach
+        if not (isinstance(sr, (int, float)) and math.isfinite(sr) and (sr == 0 or sr >= 1)):
+            raise ValueError(f"static_reach must be 0 (off) or a finite number >= 1, got {sr!r}")
+        if sr and self.model != "arc":
             raise ValueError("static_reach needs model='arc'")
 
     @classmethod
@@ -996,18 +999,22 @@ def vo_select(
       random world 1015 standing for ~6 s while their slots moved on). ORCA (its linear
       program finds the nearest safe velocity, usually a slide along the obstacle) never
       stands while it can move.
-    * ``static_reach`` (default ``False``): static obstacles (circles, polygons, walls) are judged by
-      path length rather than time. A candidate of speed ``|v| > 0`` hits one if it reaches it within
-      ``max(h_s, v_p h_s / |v|)`` s, ``h_s`` the static horizon and ``v_p`` the (clipped) preferred
-      speed: within the distance the preferred twist covers in ``h_s``, or ``h_s`` if it is faster
-      than preferred (never less than without the rule). Without it a slow-down "avoids" a static
+    * ``static_reach`` (default 0: off; else a number ``s >= 1``): static obstacles (circles, polygons,
+      walls) are judged by path length rather than time. A candidate of speed ``|v| > 0`` hits one if it
+      reaches it within ``min(max(h_s, v_p h_s / |v|), s h_s)`` s, ``h_s`` the static horizon and ``v_p``
+      the (clipped) preferred speed: within the distance the preferred twist covers in ``h_s``, or
+      ``h_s`` if the candidate is faster (never less than without the rule), but not later than
+      ``s h_s``. Opt-in, off for the ``vo`` expert: the preferred path runs on past the robot's goal,
+      so a follower whose final slot lies just short of an obstacle or wall may find no path there
+      (measured, seed 0: paper_vo_90's formation error 0.119 -> 0.065 m with ``s = 3``, crowd_reactive
+      0.116 -> 0.102, corridor unchanged, but a follower of paper_cbs_switch stood for good 1.3 m from
+      its final slot next to a static disc, and with ``s >= 2`` followers touched there; judging by the
+      lesser of the preferred and the current speed instead did not help). Without it a slow-down "avoids" a static
       obstacle by pushing the contact past the horizon, so a follower whose slot track crosses a
       static disc crawls towards it and lags; with it only a path round the obstacle is safe (ORCA,
       whose static horizon is short, bends round at speed). Standing candidates, moving discs and the
-      escape probes are unchanged. The trajectories run on straight after the horizon for as long as
-      the slowest moving candidate of the grid needs (``h_s v_max / v``, at least ``horizon``), and the
-      limit is cut there (only a preferred twist slower than every grid speed meets that cut, and it
-      is judged within ``h_s`` anyway). Needs ``model="arc"``.
+      escape probes are unchanged. The trajectories run on straight after the horizon until ``s h_s``
+      (if that is later). Needs ``model="arc"``.
     * ``fast``: test the preferred twist alone first and return it if it is safe
       (with ``goal_heading=None`` it has the least penalty, so the answer
       is the same; ``n_safe`` is then reported as 1). ``False`` always
@@ -1170,7 +1177,8 @@ class _VOBatch:
         self.current, self.w_current, self.cost, self.recip_gap = current, w_current, params.cost, params.recip_gap
         self.move_first, self.static_reach = params.move_first, params.static_reach
         # The trajectories' end (static_reach: past the horizon; the moving discs are still cut at the horizon).
-        t_end = self.t_end = _reach_end(params, v_max, omega_max)
+        t_end = self.t_end = _reach_end(params)
+        self.t_cut = _reach_cut(params)
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
         self.poses = poses
         n = self.n = poses.shape[0]
@@ -1278,7 +1286,7 @@ class _VOBatch:
         if self.static_reach:
             assert speed is not None
             pv_rows = self.pv[sub[0]] if len(sub) == 1 else np.repeat(self.pv[sub], per)
-            hs = _static_limits(speed, pv_rows, self.h_static, self.t_end)
+            hs = _static_limits(speed, pv_rows, self.h_static, self.t_cut)
         ttc = np.full(pts.shape[0], np.inf)
         m = len(sub)
         # The robot of each row (None: one robot only, its (1, ...) arrays broadcast as they are).
@@ -1601,7 +1609,7 @@ class _VOBatch:
                   _f64(self.goal_heading).reshape(n) if has_goal else _E1, self.cost == "velocity",
                   _kernel_velocities(float(self.v_max), float(self.omega_max), int(self.n_v), int(self.n_w),
                                      float(self.v_min), float(self.tau)), bool(self.move_first),
-                  bool(self.static_reach), float(self.t_end))
+                  bool(self.static_reach), float(self.t_cut))
         twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe = vo_kernel.select(
             self._kernel_world(), times, _f64(self.pref_pts), trajectories, grid, _f64(self.pv), _f64(self.pw),
             _f64(self.theta), search, bool(fast), bool(self.escape), _FIRST_STAGE, bool(self.allow_still_overlap),
@@ -1631,28 +1639,27 @@ class _VOBatch:
                 + _kernel_map(self.static) + (float(self.recip_gap),))
 
 
-def _reach_end(params: VOParams, v_max: float, omega_max: float) -> float:
-    """How far in time (s) the candidates' trajectories run: ``params.horizon``, or with
-    ``static_reach`` long enough for the slowest moving grid candidate to cover the static horizon's
-    distance at ``v_max``, ``h_s v_max / v_slow`` (``h_s`` the static horizon), if that is longer."""
+def _reach_cut(params: VOParams) -> float:
+    """``static_reach``'s latest static cut (s), ``s h_s`` (``h_s`` the static horizon); ``h_s`` when off."""
     horizon = float(params.horizon)
-    if not params.static_reach:
-        return horizon
     h_static = float(horizon if params.horizon_static is None else min(params.horizon_static, horizon))
-    speeds = np.abs(sample_twists(v_max, omega_max, params.n_v, params.n_w, params.v_min)[:, 0])
-    speeds = speeds[speeds > 0.0]
-    if not len(speeds):
-        return horizon
-    return max(horizon, h_static * float(v_max) / float(speeds.min()))
+    return h_static * float(params.static_reach) if params.static_reach else h_static
 
 
-def _static_limits(speed: np.ndarray, pv: np.ndarray, h_static: float, t_end: float) -> np.ndarray:
+def _reach_end(params: VOParams) -> float:
+    """How far in time (s) the candidates' trajectories run: ``params.horizon``, or with ``static_reach``
+    to its latest cut (:func:`_reach_cut`) if that is later (``vo_kernel.follower_select`` computes the same)."""
+    horizon = float(params.horizon)
+    return max(horizon, _reach_cut(params)) if params.static_reach else horizon
+
+
+def _static_limits(speed: np.ndarray, pv: np.ndarray, h_static: float, t_cut: float) -> np.ndarray:
     """``static_reach``'s static horizon per trajectory (see :func:`vo_select`): ``min(max(h_s,
-    (v_p h_s) / |v|), t_end)`` for ``|v| > 0``, ``h_s`` for a standing one. ``speed`` and ``pv`` (the
+    (v_p h_s) / |v|), t_cut)`` for ``|v| > 0``, ``h_s`` for a standing one. ``speed`` and ``pv`` (the
     robot's clipped preferred speed) broadcast. :mod:`swarm_env.vo_kernel` computes the same bits."""
     v = np.abs(speed)
     moves = v > 0.0
-    lim = np.minimum(np.maximum(h_static, (pv * h_static) / np.where(moves, v, 1.0)), t_end)
+    lim = np.minimum(np.maximum(h_static, (pv * h_static) / np.where(moves, v, 1.0)), t_cut)
     return np.where(moves, lim, h_static)
 
 
@@ -1698,13 +1705,13 @@ def _follower_plan(params: VOParams, v_max: float, omega_max: float) -> tuple:
     horizon = p.horizon
     h_static = float(horizon if p.horizon_static is None else min(p.horizon_static, horizon))
     ext = max(abs(p.v_min), abs(v_max)) * horizon  # as _VOBatch.__init__
-    t_end = _reach_end(p, v_max, omega_max)
+    t_end = _reach_end(p)
     plan = (*_kernel_plan(float(v_max), float(omega_max), int(p.n_v), int(p.n_w), float(p.v_min), float(p.tau),
                           float(t_end), "arc", int(p.n_arc)),
             _kernel_velocities(float(v_max), float(omega_max), int(p.n_v), int(p.n_w), float(p.v_min), float(p.tau)))
     scalars = (float(p.margin), float(horizon), h_static, float(ext), float(p.tau), int(p.n_arc),
                float(p.v_min), float(v_max), float(omega_max), float(p.w_pref), float(p.w_heading),
-               float(p.side_bias), float(p.w_current), float(p.recip_gap), float(t_end))
+               float(p.side_bias), float(p.w_current), float(p.recip_gap), _reach_cut(p))
     reciprocal = bool(getattr(p, "reciprocal", False))  # (safety.AvoidanceParams': the followers avoid each other so)
     flags = (bool(p.fast), bool(p.escape), bool(p.allow_still_overlap), reciprocal, bool(p.w_current), _FIRST_STAGE,
              p.cost == "velocity", bool(p.move_first), bool(p.static_reach))

@@ -361,16 +361,16 @@ def _test(i, traj, cols, lo, hi, out, times, discs, static, has_static, still_ok
     ``c = cols[r]``, ``lo <= r < hi``, into ``out[c]``. The one place the contact test is inlined:
     a call per robot and pass, so the tuples of arrays are unpacked once per call, not per candidate.
     ``speeds[c]``: trajectory ``c``'s speed, ``pv_i`` the robot's preferred speed and ``reach``
-    ``(static_reach, t_end)``: the static cut per trajectory (``guidance._static_limits``)."""
+    ``(static_reach, t_cut)``: the static cut per trajectory (``guidance._static_limits``)."""
     h_static = static[0]
-    on, t_end = reach
+    on, t_cut = reach
     for r in range(lo, hi):
         c = cols[r]
         hs = h_static
         if on:
             v = abs(speeds[c])
             if v > 0.0:
-                hs = min(max(h_static, (pv_i * h_static) / v), t_end)
+                hs = min(max(h_static, (pv_i * h_static) / v), t_cut)
         out[c] = _contact(i, times, traj[c, :, 0], traj[c, :, 1], discs, static, has_static, still_ok, hs)
 
 
@@ -404,7 +404,7 @@ def _candidates(i, grid, pv, pw, theta, search, twists, penalty, order):
     ``grid``) into ``twists[i]``, their penalties into ``penalty[i]`` and their stable penalty order
     into ``order[i]``."""
     (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, has_goal, goal,
-     cost_velocity, gvel, _move_first, _static_reach, _t_end) = search
+     cost_velocity, gvel, _move_first, _static_reach, _t_cut) = search
     g1 = grid.shape[0] + 1
     v_scale = v_max if v_max > 0 else 1.0
     w_scale = omega_max if omega_max > 0 else 1.0
@@ -737,14 +737,14 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     body, gvel)`` the candidate grid, its body-frame trajectories and (``cost="velocity"``) mean
     body-frame velocities (``guidance._grid_velocities``); ``scalars`` ``(margin, horizon,
     h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias, w_current, recip_gap,
-    t_end)`` (``t_end``: where the trajectories end, ``guidance._reach_end``);
+    t_cut)`` (``t_cut``: ``static_reach``'s latest static cut, ``guidance._reach_cut``);
     ``flags`` ``(fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first,
     static_reach)``.
     Returns what :func:`_search` returns.
     """
     grid, times, body, gvel = plan
     (margin, horizon, h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias,
-     w_current, recip_gap, t_end) = scalars
+     w_current, recip_gap, t_cut) = scalars
     fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first, static_reach = flags
     n_moving = moving.shape[0]
     P = np.empty((n, 2))
@@ -787,10 +787,12 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
              has_static) + static_map + (recip_gap,)
     discs = _keep_discs(world)
     static = _static_context(world)
+    # (guidance._reach_end: the trajectories run to static_reach's latest cut if that is later)
+    t_end = max(horizon, t_cut) if static_reach else horizon
     pref_pts = _preferred_trajectories(pv, pw, theta, tau, t_end, n_arc)
     no_goal = n < 0  # (False, typed bool rather than a literal: select and this entry share one _search)
     search = (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, no_goal,
-              np.empty(0), cost_velocity, gvel, move_first, static_reach, t_end)
+              np.empty(0), cost_velocity, gvel, move_first, static_reach, t_cut)
     return _search(discs, static, has_static, times, pref_pts, (body, cos_t, sin_t, np.empty((0, 1, 1, 2))), grid,
                    pv, pw, theta, search, fast, escape, first_stage, still_ok, (v_max, tau, horizon))
 
