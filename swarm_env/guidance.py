@@ -1008,7 +1008,7 @@ def vo_select(
       so a follower whose final slot lies just short of an obstacle or wall may find no path there
       (measured, seed 0: paper_vo_90's formation error 0.119 -> 0.065 m with ``s = 3``, crowd_reactive
       0.116 -> 0.102, corridor unchanged, but a follower of paper_cbs_switch stood for good 1.3 m from
-      its final slot next to a static disc, and with ``s >= 2`` followers touched there; judging by the
+      its final slot next to a static disc, and with ``s >= 2`` two followers touched each other; judging by the
       lesser of the preferred and the current speed instead did not help). Without it a slow-down "avoids" a static
       obstacle by pushing the contact past the horizon, so a follower whose slot track crosses a
       static disc crawls towards it and lags; with it only a path round the obstacle is safe (ORCA,
