@@ -137,7 +137,7 @@ class VOExpert:
     :class:`swarm_env.safety.AvoidanceParams` (the search's
     :class:`~swarm_env.guidance.VOParams` plus ``human_margin`` and ``reciprocal``), e.g.
     ``horizon``, ``margin``, ``n_v``/``n_w``, ``tau``, ``w_pref``/``w_heading``/``side_bias``,
-    ``escape``, ``w_current``, ``cost``, ``recip_gap``, ``move_first``; they are kept in :attr:`avoidance`
+    ``escape``, ``w_current``, ``cost``, ``recip_gap``, ``move_first``, ``static_reach``; they are kept in :attr:`avoidance`
     (and read through: ``expert.horizon``). The expert's defaults are the shared ones except
     :data:`EXPERT_AVOIDANCE`. :meth:`policy_parameters` lists everything ``vo:KEY=VALUE`` accepts.
 

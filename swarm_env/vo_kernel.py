@@ -72,10 +72,11 @@ def _ray_disc(px: float, py: float, R2: float, wx: float, wy: float, limit: floa
 
 
 @_inline
-def _disc_row(i, times, xs, ys, discs, still_ok, probe):
+def _disc_row(i, times, xs, ys, discs, still_ok, probe, hs):
     """Contact time of robot ``i``'s trajectory ``(xs, ys)`` (displacements at ``times``) with its
     kept discs (``guidance._rows_disc_ttc`` and the horizon cut of ``_VOBatch.contact_times``).
-    ``probe``: an escape probe (plain VO, moving discs only: ``_VOBatch.escape_turns``)."""
+    ``probe``: an escape probe (plain VO, moving discs only: ``_VOBatch.escape_turns``). ``hs``: the
+    static circles' cut (the static horizon, or ``static_reach``'s limit for this trajectory)."""
     rel, R, dv, h, valid, recip, own, moving = discs
     best = _INF
     n_pieces = times.shape[0] - 1
@@ -105,7 +106,7 @@ def _disc_row(i, times, xs, ys, discs, still_ok, probe):
             t = _ray_disc(ox - sx, oy - sy, R2, ux - dvx, uy - dvy, dur, still_ok) + tk
             if t < tmin:
                 tmin = t
-        if tmin > h[i, d]:
+        if tmin > (h[i, d] if moving[i, d] else hs):
             tmin = _INF
         if tmin < best:
             best = tmin
@@ -113,11 +114,11 @@ def _disc_row(i, times, xs, ys, discs, still_ok, probe):
 
 
 @_inline
-def _static_row(i, times, xs, ys, static, circles):
+def _static_row(i, times, xs, ys, static, circles, hs):
     """Contact time of robot ``i``'s trajectory with the static map (``guidance._rows_static_ttc``:
     walls, then, with ``circles``, the static circles, then the exact polygon test behind its
-    bounding-circle broad phase), cut at the static horizon."""
-    (h_static, P, rad, wax, way, woff, circ, A, Nn, L, eux, euy, centre, bound, over_rn, over_nrm, free,
+    bounding-circle broad phase), cut at ``hs`` (the static horizon, or ``static_reach``'s limit)."""
+    (_h_static, P, rad, wax, way, woff, circ, A, Nn, L, eux, euy, centre, bound, over_rn, over_nrm, free,
      fcols) = static
     rr = rad[i]
     px0, py0 = P[i, 0], P[i, 1]
@@ -193,7 +194,7 @@ def _static_row(i, times, xs, ys, static, circles):
             best += tk
             if best < out:
                 out = best
-    if out > h_static:
+    if out > hs:
         out = _INF
     return out
 
@@ -342,26 +343,35 @@ def _static_context(world):
 
 
 @_jit
-def _contact(i, times, xs, ys, discs, static, has_static, still_ok):
-    """``_VOBatch.contact_times`` of one trajectory of robot ``i``."""
+def _contact(i, times, xs, ys, discs, static, has_static, still_ok, hs):
+    """``_VOBatch.contact_times`` of one trajectory of robot ``i`` (static obstacles cut at ``hs``)."""
     ttc = _INF
     if discs[0].shape[1]:
-        ttc = _disc_row(i, times, xs, ys, discs, still_ok, False)
+        ttc = _disc_row(i, times, xs, ys, discs, still_ok, False, hs)
     if has_static:
-        ts = _static_row(i, times, xs, ys, static, False)
+        ts = _static_row(i, times, xs, ys, static, False, hs)
         if ts < ttc:
             ttc = ts
     return ttc
 
 
 @_jit
-def _test(i, traj, cols, lo, hi, out, times, discs, static, has_static, still_ok):
+def _test(i, traj, cols, lo, hi, out, times, discs, static, has_static, still_ok, speeds, pv_i, reach):
     """Contact times of robot ``i``'s trajectories ``traj[c]`` ``(K+1, 2)`` for the candidates
     ``c = cols[r]``, ``lo <= r < hi``, into ``out[c]``. The one place the contact test is inlined:
-    a call per robot and pass, so the tuples of arrays are unpacked once per call, not per candidate."""
+    a call per robot and pass, so the tuples of arrays are unpacked once per call, not per candidate.
+    ``speeds[c]``: trajectory ``c``'s speed, ``pv_i`` the robot's preferred speed and ``reach``
+    ``(static_reach, t_cut)``: the static cut per trajectory (``guidance._static_limits``)."""
+    h_static = static[0]
+    on, t_cut = reach
     for r in range(lo, hi):
         c = cols[r]
-        out[c] = _contact(i, times, traj[c, :, 0], traj[c, :, 1], discs, static, has_static, still_ok)
+        hs = h_static
+        if on:
+            v = abs(speeds[c])
+            if v > 0.0:
+                hs = min(max(h_static, (pv_i * h_static) / v), t_cut)
+        out[c] = _contact(i, times, traj[c, :, 0], traj[c, :, 1], discs, static, has_static, still_ok, hs)
 
 
 @_jit
@@ -376,13 +386,13 @@ def _probe(i, c, discs, static, has_static, still_ok, probe):
         times3 = np.array([0.0, tau, max(horizon, tau + 1e-9)])
         xs = np.array([0.0, 0.0, run * cos_h])
         ys = np.array([0.0, 0.0, run * sin_h])
-        ttc = _disc_row(i, times3, xs, ys, discs, still_ok, True)
+        ttc = _disc_row(i, times3, xs, ys, discs, still_ok, True, static[0])
     if has_static:
         t_run = horizon - tau if horizon > 2.0 * tau else horizon
         times2 = np.array([0.0, t_run])
         xs = np.array([0.0, v_max * t_run * cos_h])
         ys = np.array([0.0, v_max * t_run * sin_h])
-        ts = _static_row(i, times2, xs, ys, static, True)
+        ts = _static_row(i, times2, xs, ys, static, True, static[0])
         if ts < ttc:
             ttc = ts
     return ttc
@@ -394,7 +404,7 @@ def _candidates(i, grid, pv, pw, theta, search, twists, penalty, order):
     ``grid``) into ``twists[i]``, their penalties into ``penalty[i]`` and their stable penalty order
     into ``order[i]``."""
     (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, has_goal, goal,
-     cost_velocity, gvel, _move_first) = search
+     cost_velocity, gvel, _move_first, _static_reach, _t_cut) = search
     g1 = grid.shape[0] + 1
     v_scale = v_max if v_max > 0 else 1.0
     w_scale = omega_max if omega_max > 0 else 1.0
@@ -463,6 +473,7 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
     """
     has_goal = search[9]
     move_first = search[13]
+    reach = (search[14], search[15])
     body, cos_t, sin_t, every = trajectories
     n = pv.shape[0]
     g1 = grid.shape[0] + 1
@@ -476,7 +487,7 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
         idx = np.arange(n)
         ttc0 = np.empty(n)
         for i in range(n):
-            _test(i, pref_pts, idx, i, i + 1, ttc0, times, discs, static, has_static, still_ok)
+            _test(i, pref_pts, idx, i, i + 1, ttc0, times, discs, static, has_static, still_ok, pv, pv[i], reach)
             ttc[i, 0] = ttc0[i]
             need[i] = ttc0[i] != _INF
         pass_one = True
@@ -504,12 +515,14 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
 
     if not fast:
         for i in range(n):
-            _test(i, pts[i], order[i], 0, g1, ttc[i], times, discs, static, has_static, still_ok)
+            _test(i, pts[i], order[i], 0, g1, ttc[i], times, discs, static, has_static, still_ok,
+                      twists[i, :, 0], pv[i], reach)
             done[i] = g1
     else:
         if not pass_one:
             for i in range(n):
-                _test(i, pts[i], order[i], 0, 1, ttc[i], times, discs, static, has_static, still_ok)
+                _test(i, pts[i], order[i], 0, 1, ttc[i], times, discs, static, has_static, still_ok,
+                      twists[i, :, 0], pv[i], reach)
         pending = np.empty(n, dtype=np.int64)
         for stage in range(2):
             target = min(first_stage, g1) if stage == 0 else g1
@@ -533,9 +546,11 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
                 i = pending[q]
                 if target <= done[i]:
                     continue
-                _test(i, pts[i], order[i], done[i], target, ttc[i], times, discs, static, has_static, still_ok)
+                _test(i, pts[i], order[i], done[i], target, ttc[i], times, discs, static, has_static, still_ok,
+                      twists[i, :, 0], pv[i], reach)
                 if escape and target < g1:
-                    _test(i, pts[i], still, 0, n_still, ttc[i], times, discs, static, has_static, still_ok)
+                    _test(i, pts[i], still, 0, n_still, ttc[i], times, discs, static, has_static, still_ok,
+                      twists[i, :, 0], pv[i], reach)
                 done[i] = target
             if target == g1:
                 break
@@ -591,7 +606,8 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
                         if math.isnan(ttc[i, c]):
                             cols[q] = c
                             q += 1
-                    _test(i, pts[i], cols, 0, m_un, ttc[i], times, discs, static, has_static, still_ok)
+                    _test(i, pts[i], cols, 0, m_un, ttc[i], times, discs, static, has_static, still_ok,
+                      twists[i, :, 0], pv[i], reach)
                 best = _INF
                 alt = -1
                 for c in range(g1):
@@ -619,7 +635,8 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
         # The escape rule needs every standing candidate's contact time.
         for c in range(g1):
             if math.isnan(ttc[i, c]) and twists[i, c, 0] <= 0.0:
-                _test(i, pts[i], np.array([c]), 0, 1, ttc[i], times, discs, static, has_static, still_ok)
+                _test(i, pts[i], np.array([c]), 0, 1, ttc[i], times, discs, static, has_static, still_ok,
+                      twists[i, :, 0], pv[i], reach)
     for i in range(n):
         if request[i] == 0:
             continue
@@ -719,14 +736,16 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     preferred twist; ``static_map`` as ``guidance._kernel_map`` gives it; ``plan`` ``(grid, times,
     body, gvel)`` the candidate grid, its body-frame trajectories and (``cost="velocity"``) mean
     body-frame velocities (``guidance._grid_velocities``); ``scalars`` ``(margin, horizon,
-    h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias, w_current, recip_gap)``;
-    ``flags`` ``(fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first)``.
+    h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias, w_current, recip_gap,
+    t_cut)`` (``t_cut``: ``static_reach``'s latest static cut, ``guidance._reach_cut``);
+    ``flags`` ``(fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first,
+    static_reach)``.
     Returns what :func:`_search` returns.
     """
     grid, times, body, gvel = plan
     (margin, horizon, h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias,
-     w_current, recip_gap) = scalars
-    fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first = flags
+     w_current, recip_gap, t_cut) = scalars
+    fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first, static_reach = flags
     n_moving = moving.shape[0]
     P = np.empty((n, 2))
     rad = np.empty(n)
@@ -768,10 +787,12 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
              has_static) + static_map + (recip_gap,)
     discs = _keep_discs(world)
     static = _static_context(world)
-    pref_pts = _preferred_trajectories(pv, pw, theta, tau, horizon, n_arc)
+    # (guidance._reach_end: the trajectories run to static_reach's latest cut if that is later)
+    t_end = max(horizon, t_cut) if static_reach else horizon
+    pref_pts = _preferred_trajectories(pv, pw, theta, tau, t_end, n_arc)
     no_goal = n < 0  # (False, typed bool rather than a literal: select and this entry share one _search)
     search = (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, no_goal,
-              np.empty(0), cost_velocity, gvel, move_first)
+              np.empty(0), cost_velocity, gvel, move_first, static_reach, t_cut)
     return _search(discs, static, has_static, times, pref_pts, (body, cos_t, sin_t, np.empty((0, 1, 1, 2))), grid,
                    pv, pw, theta, search, fast, escape, first_stage, still_ok, (v_max, tau, horizon))
 

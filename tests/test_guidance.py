@@ -9,6 +9,7 @@ import pytest
 
 from swarm_env.geometry import StaticMap
 from swarm_env.guidance import (
+    VOParams,
     disc_time_to_collision,
     lookahead_target,
     pure_pursuit,
@@ -537,3 +538,36 @@ def test_vo_select_velocity_cost_measures_mean_velocities():
     assert a.feasible and b.feasible and b.twist[0] > a.twist[0]
     with pytest.raises(ValueError, match="cost"):
         vo_select(pose, 0.25, np.array([0.65, 0.0]), disc, np.zeros((1, 2)), None, 0.65, 1.0, cost="speed")
+
+
+@pytest.mark.parametrize("obstacle", [CircleObstacle(center=(3.3, 4.5), radius=0.5),
+                                      RectangleObstacle(center=(3.3, 4.5), size=(1.0, 1.0), angle=0.0)])
+def test_static_reach_judges_static_obstacles_by_path_length(obstacle) -> None:
+    # A robot driving at 0.6 m/s straight at a static obstacle 1.5 m of path away (margin included):
+    # contact in 2.5 s, within the 3 s horizon. Without static_reach slowing down to 0.43 m/s pushes the
+    # contact to 3.5 s, past the horizon, and is taken (straight on, slower); with it every straight
+    # candidate reaches the obstacle within the 1.8 m the preferred twist covers in 3 s, so it turns.
+    static = StaticMap.from_obstacles((12.0, 9.0), [obstacle])
+    pose, pref = np.array([1.0, 4.5, 0.0]), np.array([0.6, 0.0])
+    no_discs = (np.zeros((0, 3)), np.zeros((0, 2)))
+    plain = vo_select(pose, 0.25, pref, *no_discs, static, 0.65, 1.0, VOParams())
+    assert plain.feasible and plain.twist[1] == 0.0 and 0.0 < plain.twist[0] < 0.6
+    reach = vo_select(pose, 0.25, pref, *no_discs, static, 0.65, 1.0, VOParams(static_reach=6.0))
+    assert reach.feasible and reach.twist[1] != 0.0 and reach.twist[0] > plain.twist[0]
+    assert reach.n_safe < plain.n_safe
+    # A standing robot is not in contact: standing stays safe (the grid's v = 0 candidates).
+    still = vo_select(pose, 0.25, np.array([0.0, 0.0]), *no_discs, static, 0.65, 1.0, VOParams(static_reach=6.0))
+    assert still.feasible and still.twist[0] == 0.0
+    if isinstance(obstacle, CircleObstacle):
+        # The same disc as a (resting) moving disc: judged by time as before, static_reach or not.
+        disc = np.array([[3.3, 4.5, 0.5]])
+        a = vo_select(pose, 0.25, pref, disc, np.zeros((1, 2)), None, 0.65, 1.0, VOParams())
+        b = vo_select(pose, 0.25, pref, disc, np.zeros((1, 2)), None, 0.65, 1.0, VOParams(static_reach=6.0))
+        assert np.array_equal(a.twist, b.twist) and np.array_equal(a.twist, plain.twist)
+    # Cut at s h_s: with s = 1 the slow-down is safe again (contact at 3.5 s > 3 s).
+    capped = vo_select(pose, 0.25, pref, *no_discs, static, 0.65, 1.0, VOParams(static_reach=1.0))
+    assert np.array_equal(capped.twist, plain.twist)
+    with pytest.raises(ValueError, match="static_reach"):
+        VOParams(static_reach=2.0, model="chord")
+    with pytest.raises(ValueError, match="static_reach"):
+        VOParams(static_reach=0.5)
