@@ -1,11 +1,11 @@
 """Memory of the batched engine's worker processes (Linux: reads /proc/PID/smaps_rollup).
 
-    python benchmarks/worker_memory.py [--workers 8] [--worlds 16] [--scenario paper_cbs_switch]
+    python benchmarks/worker_memory.py [--workers 8] [--worlds 16] [--scenario paper_cbs_switch] [--worker-kernels]
 
 Starts :class:`swarm_env.vector.SwarmVectorEnv` with ``--workers`` worker processes, steps it
 20 times, and prints each worker's resident (RSS), proportional (PSS: shared pages split between
 the processes sharing them) and private memory, and their totals. Also says whether any worker
-mapped torch or numba's LLVM (it must not).
+mapped torch or numba's LLVM (it must not, unless ``--worker-kernels`` asks for the compiled kernels).
 """
 
 from __future__ import annotations
@@ -36,10 +36,12 @@ def main() -> int:
     p.add_argument("--workers", type=int, default=8)
     p.add_argument("--worlds", type=int, default=16)
     p.add_argument("--scenario", default="paper_cbs_switch")
+    p.add_argument("--worker-kernels", action="store_true",
+                   help="workers run the compiled kernels (SwarmVectorEnv(worker_kernels=True): numba loaded)")
     args = p.parse_args()
     if not sys.platform.startswith("linux"):
         raise SystemExit("worker_memory.py reads /proc: Linux only")
-    venv = SwarmVectorEnv(args.scenario, args.worlds, n_procs=args.workers)
+    venv = SwarmVectorEnv(args.scenario, args.worlds, n_procs=args.workers, worker_kernels=args.worker_kernels)
     try:
         venv.reset(seed=0)
         for _ in range(20):

@@ -16,7 +16,9 @@ and no per-agent dict is built. What is not: the physics stays pymunk, one space
 stepped world after world, in this process or, with ``n_procs > 1``, in worker processes that
 each own a contiguous block of worlds. Workers import neither torch nor the lidar kernel
 (numba): they return the observations without their lidar columns plus what the lidar needs,
-and this process fills them in (about 30 MiB of private memory per worker).
+and this process fills them in (about 30 MiB of private memory per worker). They run the per-step
+kernels' numpy references unless ``worker_kernels=True``, which loads numba in them (faster, about
+120 MiB more per worker).
 
 Each world runs exactly the code of a ``SwarmEnv`` (``_advance``, ``_account``) and the same
 kernel, so world ``m`` is **bitwise equal** to a ``SwarmEnv`` reset with ``seed + m`` and given
@@ -270,17 +272,17 @@ class _RemoteBlock:
     The worker is started as a fresh interpreter rather than by ``multiprocessing``: a spawned or
     forkserver child re-imports the parent's ``__main__`` (a training script importing torch),
     and a forked one inherits torch's threads. It connects back over an authenticated local
-    socket and never imports torch or numba.
+    socket and imports neither torch nor numba unless ``compiled`` (see ``swarm_env.vector_worker``).
     """
 
-    def __init__(self, factories: Sequence[Callable[[], World]]) -> None:
+    def __init__(self, factories: Sequence[Callable[[], World]], compiled: bool = False) -> None:
         import cloudpickle  # gymnasium's dependency: pickles lambdas and local factories
 
         authkey = os.urandom(32)
         with Listener(authkey=authkey) as listener:
             env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-            self.proc = subprocess.Popen([sys.executable, "-m", "swarm_env.vector_worker", str(listener.address)],
-                                         stdin=subprocess.PIPE, env=env)
+            argv = [sys.executable, "-m", "swarm_env.vector_worker", str(listener.address)]
+            self.proc = subprocess.Popen(argv + (["--compiled"] if compiled else []), stdin=subprocess.PIPE, env=env)
             assert self.proc.stdin is not None
             self.proc.stdin.write(authkey.hex().encode() + b"\n")
             self.proc.stdin.close()
@@ -339,6 +341,11 @@ class SwarmVectorEnv:
         num_envs: the number of worlds ``M`` (>= 1).
         n_procs: worker processes for the physics (1: everything in this process). Worlds are
             split into ``n_procs`` contiguous blocks; the results do not depend on it.
+        worker_kernels: with ``n_procs > 1``, run the compiled per-step kernels in the workers too
+            (the same bits). ``False`` (the default) keeps numba out of the workers (about 30 MiB of
+            private memory each) at the price of their numpy references, which are slower than one
+            process with the kernels; ``True`` costs about 120 MiB more per worker and pays when there
+            are free cores (measured in docs/performance.md).
         shield: put every world in a :class:`~swarm_env.wrappers.SafetyShield`.
         **kwargs: :class:`~swarm_env.env.SwarmEnv` keyword arguments, the same for every world
             (``render_mode`` is not supported: render a world with ``SwarmEnv`` itself).
@@ -347,26 +354,29 @@ class SwarmVectorEnv:
     """
 
     def __init__(self, scenario: Any = "random", num_envs: int = 8, *, n_procs: int = 1, shield: bool = False,
-                 **kwargs: Any) -> None:
+                 worker_kernels: bool = False, **kwargs: Any) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
         if kwargs.get("render_mode") is not None:
             raise ValueError("SwarmVectorEnv does not render; render one world with SwarmEnv(..., render_mode=...)")
-        self._init_from([EnvFactory(scenario, dict(kwargs), shield)] * int(num_envs), n_procs)
+        self._init_from([EnvFactory(scenario, dict(kwargs), shield)] * int(num_envs), n_procs, worker_kernels)
 
     @classmethod
-    def from_factories(cls, factories: Sequence[Callable[[], World]], n_procs: int = 1) -> SwarmVectorEnv:
+    def from_factories(cls, factories: Sequence[Callable[[], World]], n_procs: int = 1,
+                       worker_kernels: bool = False) -> SwarmVectorEnv:
         """Batch the worlds ``factories`` build (each returns a ``SwarmEnv``, or a ``SafetyShield``
         of one; picklable with cloudpickle when ``n_procs > 1``). They must have the same team,
-        spaces and sensors."""
+        spaces and sensors. ``worker_kernels``: as for the constructor."""
         self = cls.__new__(cls)
-        self._init_from(list(factories), n_procs)
+        self._init_from(list(factories), n_procs, worker_kernels)
         return self
 
-    def _init_from(self, factories: list[Callable[[], World]], n_procs: int) -> None:
+    def _init_from(self, factories: list[Callable[[], World]], n_procs: int, worker_kernels: bool = False) -> None:
         m = len(factories)
         if m < 1:
             raise ValueError("SwarmVectorEnv needs at least one world")
+        if not isinstance(worker_kernels, bool):
+            raise ValueError(f"worker_kernels must be a bool, got {worker_kernels!r}")
         if isinstance(n_procs, bool) or not isinstance(n_procs, (int, np.integer)) or not 1 <= n_procs <= m:
             raise ValueError(f"n_procs must be an int in [1, num_envs={m}], got {n_procs!r}")
         bounds = np.linspace(0, m, int(n_procs) + 1).round().astype(int)
@@ -380,7 +390,7 @@ class SwarmVectorEnv:
         else:
             try:
                 for a, b in self._spans:
-                    self._remotes.append(_RemoteBlock(factories[a:b]))
+                    self._remotes.append(_RemoteBlock(factories[a:b], compiled=worker_kernels))
             except BaseException:
                 self.close()
                 raise

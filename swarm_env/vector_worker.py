@@ -1,12 +1,14 @@
 """A worker process of :class:`swarm_env.vector.SwarmVectorEnv` (``n_procs > 1``).
 
-Started by the engine as ``python -m swarm_env.vector_worker ADDRESS`` with the connection's
-authentication key on standard input; receives the pickled world factories, then serves
+Started by the engine as ``python -m swarm_env.vector_worker ADDRESS [--compiled]`` with the
+connection's authentication key on standard input; receives the pickled world factories, then serves
 ``reset`` / ``step`` / ``state`` / ``call`` / ``close`` until told to stop or the engine goes
-away. Imports neither torch nor numba: the engine fills the lidar columns itself, and the
-velocity-obstacle search (robot leaders, the safety layer) and the per-step kernels (observations,
-clearances) run their numpy references here, which give the compiled bits
-(``swarm_env.guidance.use_compiled_search``, ``swarm_env.compiled.use_compiled_kernels``).
+away. Imports neither torch nor numba by default: the engine fills the lidar columns itself, and the
+velocity-obstacle search (robot leaders, the safety layer) and the per-step kernels (physics,
+rewards, metrics, observations, ...) run their numpy references here, which give the compiled bits
+(``swarm_env.guidance.use_compiled_search``, ``swarm_env.compiled.use_compiled_kernels``). With
+``--compiled`` (``SwarmVectorEnv(..., worker_kernels=True)``) they run compiled: faster, with numba
+loaded in the worker (more memory).
 """
 
 from __future__ import annotations
@@ -18,13 +20,14 @@ from multiprocessing.connection import Client
 from typing import Any
 
 
-def serve(address: str, authkey: bytes) -> None:
+def serve(address: str, authkey: bytes, compiled: bool = False) -> None:
+    """Serve one block of worlds; ``compiled``: run the compiled kernels and search (loads numba)."""
     from swarm_env import guidance
     from swarm_env.compiled import use_compiled_kernels
     from swarm_env.vector import _WorldBlock
 
-    guidance.use_compiled_search(False)
-    use_compiled_kernels(False)
+    guidance.use_compiled_search(compiled)
+    use_compiled_kernels(compiled)
 
     conn = Client(address, authkey=authkey)
     block: Any = None
@@ -52,7 +55,7 @@ def serve(address: str, authkey: bytes) -> None:
 
 
 def main() -> None:
-    serve(sys.argv[1], bytes.fromhex(sys.stdin.readline().strip()))
+    serve(sys.argv[1], bytes.fromhex(sys.stdin.readline().strip()), compiled="--compiled" in sys.argv[2:])
 
 
 if __name__ == "__main__":

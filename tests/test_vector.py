@@ -20,12 +20,12 @@ def _rows(d: dict, agents: list[str], key: str | None = None) -> np.ndarray:
 
 
 def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: bool = False, n_procs: int = 1,
-              shield: bool = False, **kwargs) -> int:
+              shield: bool = False, worker_kernels: bool = False, **kwargs) -> int:
     """Step a SwarmVectorEnv and num_envs SwarmEnvs with the same actions; assert every output is
     bitwise equal; return the number of episodes that ended (and were auto-reset)."""
     if discrete:
         kwargs["action_type"] = "discrete"
-    venv = SwarmVectorEnv(scenario, num_envs, n_procs=n_procs, shield=shield, **kwargs)
+    venv = SwarmVectorEnv(scenario, num_envs, n_procs=n_procs, shield=shield, worker_kernels=worker_kernels, **kwargs)
     refs = [EnvFactory(scenario, kwargs, shield)() for _ in range(num_envs)]
     keys = INFO_KEYS + (SHIELD_INFO_KEYS if shield else ())
     agents = refs[0].possible_agents
@@ -95,6 +95,23 @@ def test_random_with_humans_and_robot_leader_and_discrete_actions() -> None:
 
 def test_worker_processes_give_the_same_bits() -> None:
     assert _lockstep("random", 5, 30, seed=40, n_procs=2, max_cycles=25, n_humans=(1, 3)) == 5
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/PID/maps")
+def test_workers_with_compiled_kernels_give_the_same_bits() -> None:
+    """``worker_kernels=True``: the workers run the compiled kernels (numba is loaded in them) and the
+    results are still a ``SwarmEnv``'s bits, shielded worlds (the compiled search) included."""
+    assert _lockstep("random", 4, 30, seed=41, n_procs=2, worker_kernels=True, max_cycles=25, n_humans=(1, 3)) == 4
+    assert _lockstep("paper_vo_45", 2, 12, seed=0, shield=True, n_procs=2, worker_kernels=True, max_cycles=10) == 2
+    venv = SwarmVectorEnv("paper_vo_0", 2, n_procs=2, worker_kernels=True)
+    venv.reset(seed=0)
+    venv.step(np.zeros((2, venv.num_agents, 2)))
+    for remote in venv._remotes:
+        with open(f"/proc/{remote.proc.pid}/maps") as f:
+            assert "llvmlite" in f.read()
+    venv.close()
+    with pytest.raises(ValueError, match="worker_kernels"):
+        SwarmVectorEnv("paper_vo_0", 2, n_procs=2, worker_kernels="yes")
 
 
 def test_shielded_worlds_match_safety_shield_bitwise() -> None:

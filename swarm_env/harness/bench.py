@@ -140,10 +140,11 @@ def _time_steps(step: Callable[[int], Any], steps: int, agent_steps_per_step: in
     return steps * agent_steps_per_step / wall, steps * agent_steps_per_step / max(cpu, 1e-9)
 
 
-def _swarm_batch(num_envs: int, seed: int, n_procs: int = 1) -> tuple[Any, Callable[[int], Any], int]:
+def _swarm_batch(num_envs: int, seed: int, n_procs: int = 1,
+                 worker_kernels: bool = False) -> tuple[Any, Callable[[int], Any], int]:
     from swarm_env.vector import SwarmVectorEnv
 
-    venv = SwarmVectorEnv("random", num_envs, n_procs=n_procs, **BATCH_WORLD)
+    venv = SwarmVectorEnv("random", num_envs, n_procs=n_procs, worker_kernels=worker_kernels, **BATCH_WORLD)
     venv.reset(seed=seed)
     rng = np.random.default_rng(seed)
     actions = rng.uniform(-1.0, 1.0, (8, num_envs, venv.num_agents, 2))  # drawn before the clock starts
@@ -173,15 +174,18 @@ def run_batched_bench(
     peer: str | None = None,
     n_procs: int = 1,
     progress: Callable[[str], None] | None = None,
+    worker_kernels: bool = False,
 ) -> list[BatchResult]:
     """Agent-steps/s of :class:`~swarm_env.vector.SwarmVectorEnv` on :data:`BATCH_WORLD` for each
     batch size (and of VMAS ``navigation`` with 8 agents and 16 lidar rays, with ``peer="vmas"``),
-    interleaved repeat by repeat, ``budget`` world-steps per repeat (at least 5 steps)."""
+    interleaved repeat by repeat, ``budget`` world-steps per repeat (at least 5 steps).
+    ``n_procs`` and ``worker_kernels`` are the engine's arguments."""
     if peer not in (None, "vmas"):
         raise ValueError(f"unknown peer {peer!r} for the batched bench; supported: vmas")
     out = []
     for m in sizes:
-        cases = [("swarm_env.vector" + (f"(n_procs={n_procs})" if n_procs > 1 else ""), *_swarm_batch(m, seed, n_procs))]
+        label = f"(n_procs={n_procs}{', worker_kernels' if worker_kernels else ''})" if n_procs > 1 else ""
+        cases = [("swarm_env.vector" + label, *_swarm_batch(m, seed, n_procs, worker_kernels))]
         if peer == "vmas":
             cases.append(("vmas:navigation", *_vmas_batch(m, seed)))
         steps = _batch_steps(m, budget)

@@ -344,7 +344,7 @@ def _bench_batched(args: argparse.Namespace, progress: Any) -> int:
     if args.vs == "vmas" or args.num_envs:
         sizes = tuple(args.num_envs or bench.BATCH_SIZES)
         results += bench.run_batched_bench(sizes, repeats=args.repeats, seed=args.seed, peer=args.vs,
-                                           n_procs=args.n_procs, progress=progress)
+                                           n_procs=args.n_procs, progress=progress, worker_kernels=args.worker_kernels)
     if args.followers:
         results += bench.run_followers_bench(tuple(args.followers), repeats=args.repeats, seed=args.seed, progress=progress)
     rows = [[r.name, str(r.num_envs), str(r.agents), f"{r.median_wall:,.0f}",
@@ -618,6 +618,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="batched engine (swarm_env.vector) at these batch sizes (default with --vs vmas: 1 8 64 256 1024)")
     b.add_argument("--followers", type=int, nargs="+", metavar="N", help="one env per team size N (cost per follower)")
     b.add_argument("--n-procs", type=int, default=1, help="worker processes of the batched engine (default 1)")
+    b.add_argument("--worker-kernels", action="store_true",
+                   help="with --n-procs > 1: the workers run the compiled kernels (faster, more memory)")
     b.add_argument("--plot", help="with --num-envs/--vs vmas: write agent-steps/s against M to this PNG")
     b.add_argument("--json", help="write the raw figures to this file")
     b.add_argument("--quiet", action="store_true", help="no per-repeat progress on stderr")
