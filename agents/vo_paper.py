@@ -628,8 +628,10 @@ FAILURE_NOTES: dict[int, str] = {
     "has stopped inside the safety margin of follower 6 (0.54 m apart) with the human closing in from the "
     "other side: no candidate is safe, the fallback turns it in place, and the human brushes it.",
     59: "7 followers in a grid (swarm_env_v1 world, 30 m) while a human walks straight through the middle of "
-    "the formation at 22.6 s: follower 4 is boxed in between its neighbours and the human, no candidate is "
-    "safe; the human brushes it and pushes it into followers 6 and 3 (the family of seeds 259 and 297).",
+    "the formation at about 22 s: a follower is boxed in between its neighbours and the human, no candidate "
+    "is safe; the human brushes it and pushes it into a neighbour (the family of seeds 259 and 297). Analysed "
+    "with the expert before its move_first and recip_gap rules (follower 4, pushed into 6 and 3); with them "
+    "the contacts are follower 2 with the human, then with follower 3.",
     297: "8 followers switching wedge -> grid while a human walks straight through the middle of the "
     "formation; follower 5 is boxed in between follower 6 (inside its margin) and the approaching human: "
     "no candidate is safe, contact with the human at walking speed.",
@@ -645,14 +647,15 @@ DISCUSSION = """\
   situation: a follower pinned inside a neighbour's safety margin while a human walks straight at it,
   so no candidate is safe. A prioritised fallback (keep clear of humans first, of robots — who yield —
   second) would address it; it is not implemented.
-* **Formation error.** Per follower 0.14–0.45 m against the paper's 0.19–1.24 m: below the paper's
-  value for every follower but Robot 2 at −45° (0.45 m against 0.194 m), whose track the two humans
-  cross; per scenario (mean of both followers) 0.33, 0.41 and 0.15 m against the paper's 0.93, 0.40 and
-  0.73 m. Without humans both followers stay at 0.16 m (the slot's velocity as feed-forward keeps a
+* **Formation error.** Per follower 0.11–0.43 m against the paper's 0.19–1.24 m: below the paper's
+  value for every follower but Robot 2 at −45° (0.43 m against 0.194 m), whose track the two humans
+  cross; per scenario (mean of both followers) 0.30, 0.39 and 0.12 m against the paper's 0.93, 0.40 and
+  0.73 m. Without humans the followers stay at 0.11 and 0.13 m (0.16 m before the expert's `move_first`
+  and `recip_gap` rules; the slot's velocity as feed-forward keeps a
   follower on its moving slot), so what remains is the giving way to humans and obstacles (see the
   position plots).
-* **Time to target.** Our leader needs 31.1–32.2 s for the 15 m path (paper: 30.4–30.7 s) and drives
-  14.8–15.2 m (paper: 15.2–15.4 m): it gives way to the humans with the same VO, and slows over its last
+* **Time to target.** Our leader needs 31.1–32.3 s for the 15 m path (paper: 30.4–30.7 s) and drives
+  14.8–15.3 m (paper: 15.2–15.4 m): it gives way to the humans with the same VO, and slows over its last
   metre as its pure-pursuit carrot reaches the end of the path. The paper's leader figures are also what
   placed the humans in the `paper_vo_*` files (see their comments): with the pair centred on the
   leader's line and one second later, our leader detoured by up to 3 m and needed 35–37 s, and the
