@@ -17,9 +17,10 @@ the robots' limits, ignoring the other robots, by computing what an *ideal* foll
 2. **Jumps.** Every step after the switch in which a slot moves more than ``max_speed * dt``
    (0.25 m, what a follower can move) is listed with its cause: ``switch`` (the formation changed),
    ``leader turn`` (the leader's heading jumped at a path vertex: the unprojected slot moved),
-   ``obstacle flip`` (the slot is pushed out of an obstacle on the other side than one step
-   before: the push direction turned by > 90 degrees), ``obstacle sweep`` (pushed out on the same
-   side, but the push moved), ``obstacle enter/leave`` (projected in one of the two steps only).
+   ``obstacle flip`` (the slot is pushed out of an obstacle on another side or face than one step
+   before: the push direction turned by > 45 degrees in one step, a discontinuity of the
+   nearest-point projection), ``obstacle sweep`` (pushed out on the same side, but the push moved
+   fast), ``obstacle enter/leave`` (projected in one of the two steps only).
 3. **Point bound (optimal).** A point follower moving at most ``max_speed * dt`` per step, whose
    disc (robot radius) never overlaps an obstacle or wall, starts on its slot at the settle time
    ``S`` and maximises the number of steps within the tolerance until the leader is done
@@ -163,7 +164,7 @@ def slot_jumps(rec: SlotRecord, step_limit: float, k_from: int, k_to: int) -> li
                 cause = "obstacle enter/leave"
             else:
                 turn = math.degrees(math.acos(max(-1.0, min(1.0, float(a @ b) / (na * nb)))))
-                cause = "obstacle flip" if turn > 90.0 else "obstacle sweep"
+                cause = "obstacle flip" if turn > 45.0 else "obstacle sweep"
         dist = rec.static.obstacle_distances(rec.raw[k + 1, i][None])[0]
         if len(dist) and dist.min() < rec.scenario.robots.radius + SLOT_MARGIN + 1e-9:
             obstacle = int(np.argmin(dist))  # the raw slot lies within this obstacle's clearance
@@ -654,7 +655,7 @@ def main() -> None:
     print(f"\nslot jumps > {step_limit} m from the switch to the leader's stop ({len(jumps)}):")
     for jp in jumps:
         extra = f", obstacle {jp.obstacle}" if jp.obstacle is not None else ""
-        extra += f", push turned {jp.push_turn_deg:.0f} deg" if jp.push_turn_deg is not None else ""
+        extra += f", push turned {jp.push_turn_deg:.1f} deg" if jp.push_turn_deg is not None else ""
         print(f"  t = {jp.t:6.1f}  follower {jp.follower}  {jp.size:.2f} m  {jp.cause}{extra}")
     out["jumps"] = [jp.__dict__ for jp in jumps]
 
