@@ -50,6 +50,24 @@ For each settle time ``S`` (the ``cbs_rrt`` expert's per seed, played here unles
 given, plus the ideal follower's own earliest settling and t = 167) the hold fractions of all of
 these are printed beside ``cbs_rrt``'s own, and for ``cbs_rrt`` the steps it lost are split into
 those an ideal follower loses too (slot jumps no follower can follow) and the rest.
+
+Results (2026-12-03, deterministic; ``python benchmarks/hold_bound.py --check-env`` at h = 0.05 m,
+~9 min on the loaded 2-core machine, and ``--settle 33.5,80,84,87 --h 0.025`` for the edge cases):
+
+* The slots are the same bits for every seed and policy; so "per seed" differs only by the settle
+  time ``S`` of the policy played.
+* Slot jumps after the switch: the leader's turn at t = 124.5 (all 8 slots, 0.66-2.04 m), follower
+  0's flip round obstacle 9 at t = 179.5 (1.36 m, push turned 154 deg), face changes of the 45-deg
+  square obstacle 5 at t = 105.5 / 114.0 (0.72 m), sweeps round obstacle 7 at 145.5-146.0 and
+  153.5-154.5 (0.28-0.38 m per step), obstacle 8 at 168.5 (0.26 m).
+* cbs_rrt's settle times (seeds 0, 1, 3, 5, 6, 7: S = 54.5, 64, 58, 56, 15.5, 56.5 s): achievable
+  (point lower / unicycle) 0.951/0.951, 0.940/0.940, 0.947/0.947, 0.949/0.949, 0.928/0.922,
+  0.949/0.949 against cbs_rrt's 0.14, 0.02, 0.09, 0.17, 0.12, 0.07. Seed 2 settled after the leader
+  stopped (held 1.00 trivially), seed 4 never. vo (S = 33.5): point 0.910, unicycle 0.896, upper
+  0.965, vo 0.30.
+* Settling late is what makes 90 % impossible: the flip at t = 179.5 alone costs 4-5 steps, so with
+  S = 87 (t = 167, the latest issue 12 allows) even the relaxed upper bound is 0.892 (h = 0.025;
+  lower 0.865); at S = 80 (t = 160) the point and the unicycle achieve 0.902.
 """
 
 from __future__ import annotations
