@@ -48,11 +48,10 @@ delete ``swarm_env/__pycache__/world_batch*.nb*``.
 
 from __future__ import annotations
 
+import math
 import struct
 from collections.abc import Sequence
-from typing import Any
-
-import math
+from typing import Any, Literal
 
 import numba
 import numpy as np
@@ -275,7 +274,7 @@ class WorldBatch:
 
     def __init__(self, worlds: Sequence[World] = ()) -> None:
         self._worlds: list[World] = []
-        self._records: list[_Record | None | bool] = []  # None: not built yet; False: never batchable
+        self._records: list[_Record | Literal[False] | None] = []  # None: not built yet; False: never batchable
         self._ints = np.zeros((0, _INT_COLS), dtype=np.int64)
         self._flts = np.zeros((0, _FLOAT_COLS), dtype=np.float64)
         for w in worlds:
@@ -323,12 +322,13 @@ class WorldBatch:
         rec = self._records[m]
         if rec is None:
             w = self._worlds[m]
-            rec = _Record(w) if _batchable(w) else False
-            self._records[m] = rec
-            if rec:
-                self._ints[m] = rec.ints
-                self._flts[m] = rec.flts
-        return rec or None
+            if not _batchable(w):
+                self._records[m] = False
+                return None
+            rec = self._records[m] = _Record(w)
+            self._ints[m] = rec.ints
+            self._flts[m] = rec.flts
+        return rec if isinstance(rec, _Record) else None
 
     def step_and_snapshot(self, commands: np.ndarray, worlds: Sequence[World] | None = None) -> list[WorldState]:
         """Step every world with its command and return the worlds' snapshots: what
@@ -349,40 +349,48 @@ class WorldBatch:
         if cmd.ndim != 3 or cmd.shape[0] != len(held) or cmd.shape[2] != 2:
             raise ValueError(f"commands must be (M={len(held)}, N, 2), got shape {np.shape(commands)}")
         states: list[Any] = [None] * len(held)
-        rows: list[int] = []
-        if compiled_kernels() and available():
-            from swarm_env.world import _FAST_SPACE_STEP
+        from swarm_env.world import _FAST_SPACE_STEP
 
-            if _FAST_SPACE_STEP:
-                n_cmd = cmd.shape[1]
-                ints, flts = self._ints, self._flts
-                for m, w in enumerate(held):
-                    rec = self._record(m)
-                    if rec is not None and rec.n == n_cmd and w._space_quiet():
-                        ints[m, _C_STEP] = w.step_count
-                        flts[m, _F_T0] = w.time
-                        rows.append(m)
-        self.last_batched = len(rows)
-        if rows:
-            self._step_rows(rows, cmd, states)
+        if _FAST_SPACE_STEP and compiled_kernels() and available():
+            self._step_batched(cmd, states)
+        else:
+            self.last_batched = 0
         for m, w in enumerate(held):  # the rest: the worlds' own step and snapshot
             if states[m] is None:
                 w.step(cmd[m])
                 states[m] = w.snapshot()
         return states
 
-    def _step_rows(self, rows: list[int], cmd: np.ndarray, states: list[Any]) -> None:
-        held = self._worlds
-        records = self._records
-        n_max = max(records[m].n for m in rows)  # type: ignore[union-attr]
-        h_max = max(records[m].h for m in rows)  # type: ignore[union-attr]
-        for m in rows:  # as World.step before its physics
-            w = held[m]
-            w._touched_step = set(w._touching)
-            w.space._locked = True
+    def _step_batched(self, cmd: np.ndarray, states: list[Any]) -> None:
+        """Step the worlds that can take the batched path and put their snapshots in ``states``."""
+        held, records = self._worlds, self._records
+        n_cmd = cmd.shape[1]
+        rows: list[int] = []
+        clocks: list[int] = []
+        t0s: list[float] = []
+        h_max = 0
         try:
-            out = _batch_step(_STATE["fns"], np.array(rows, dtype=np.int64), self._ints[:len(held)],
-                             self._flts[:len(held)], cmd, n_max, h_max)
+            for m, w in enumerate(held):
+                rec = records[m]
+                if rec is None:
+                    rec = self._record(m)
+                if not rec or rec.n != n_cmd or not w._space_quiet():
+                    continue
+                rows.append(m)
+                clocks.append(w.step_count)
+                t0s.append(w.time)
+                if rec.h > h_max:
+                    h_max = rec.h
+                w._touched_step = set(w._touching)  # as World.step before its physics
+                w.space._locked = True  # as pymunk's Space.step during chipmunk's step
+            self.last_batched = len(rows)
+            if not rows:
+                return
+            idx = np.array(rows, dtype=np.int64)
+            ints, flts = self._ints[:len(held)], self._flts[:len(held)]
+            ints[idx, _C_STEP] = clocks
+            flts[idx, _F_T0] = t0s
+            out = _batch_step(_STATE["fns"], idx, ints, flts, cmd, n_cmd, h_max)
         finally:
             from swarm_env.world import _finish_step
 
@@ -397,49 +405,47 @@ class WorldBatch:
             arr.flags.writeable = False  # the snapshots' arrays are views of these blocks
         pose_l, vel_l, twist_l, slots_l = list(pose), list(vel), list(twist), list(slots)
         lpose_l, lvel_l, ltwist_l, hpos_l, hvel_l = list(lpose), list(lvel), list(ltwist), list(hpos), list(hvel)
-        free_l, done_l, times_l, form_l, next_l = free.tolist(), done.tolist(), times.tolist(), form.tolist(), \
-            next_switch.tolist()
+        free_l, done_l, times_l, form_l = free.tolist(), done.tolist(), times.tolist(), form.tolist()
+        next_l = next_switch.tolist()
         new_state = object.__new__
         for m in rows:
             w = held[m]
-            rec: Any = records[m]
-            n, h = rec.n, rec.h
-            p, v, tw, s, hp, hv = pose_l[m], vel_l[m], twist_l[m], slots_l[m], hpos_l[m], hvel_l[m]
-            if n != n_max:
-                p, v, tw, s = p[:n], v[:n], tw[:n], s[:n]
+            h = records[m].h  # type: ignore[union-attr]
+            hp, hv, s, lp, lv = hpos_l[m], hvel_l[m], slots_l[m], lpose_l[m], lvel_l[m]
             if h != h_max:
                 hp, hv = hp[:h], hv[:h]
             # World.step's end, with the kernel's numbers
-            w.step_count += 1
-            w.time = times_l[m]
+            step_count = w.step_count = w.step_count + 1
+            t = w.time = times_l[m]
             if h:
                 w._human_pos, w._human_vel = hp, hv
-            w.formation_index = form_l[m]
-            w._virtual_pose, w._virtual_vel, w._leader_done = lpose_l[m], lvel_l[m], done_l[m]
-            if not free_l[m]:  # a slot too close to an obstacle: World._advance_virtual_leader_and_slots
+            f = w.formation_index = form_l[m]
+            w._virtual_pose, w._virtual_vel = lp, lv
+            ldone = w._leader_done = done_l[m]
+            if not free_l[m]:  # a slot too close to an obstacle: as World._advance_virtual_leader_and_slots
                 s = w.static.project_free(s, w._slot_clearance)
                 s.flags.writeable = False
             w._slots = s
             w._settle_contacts()
-            # World.snapshot's WorldState
+            # World.snapshot's WorldState (the same fields, the same order)
             state = new_state(WorldState)
             state.__dict__.update(
-                time=w.time,
-                step=w.step_count,
-                follower_pose=p,
-                follower_vel=v,
-                follower_twist=tw,
+                time=t,
+                step=step_count,
+                follower_pose=pose_l[m],
+                follower_vel=vel_l[m],
+                follower_twist=twist_l[m],
                 follower_radius=w._follower_radius,
-                leader_pose=lpose_l[m],
-                leader_vel=lvel_l[m],
+                leader_pose=lp,
+                leader_vel=lv,
                 leader_twist=ltwist_l[m],
                 leader_radius=0.0,
-                leader_done=w._leader_done,
+                leader_done=ldone,
                 human_pos=hp,
                 human_vel=hv,
                 human_radius=w._human_radius,
                 slot_targets=s,
-                formation_index=w.formation_index,
+                formation_index=f,
                 next_switch_time=next_l[m],
                 contacts=w._onsets,
                 static=w.static,
