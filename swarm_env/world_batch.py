@@ -63,7 +63,7 @@ from swarm_env.physics_kernel import _substeps
 from swarm_env.slot_kernel import _place_slots, _screen, _virtual_pose
 from swarm_env.snapshot_kernel import fill_follower
 from swarm_env.state import WorldState
-from swarm_env.world import World
+from swarm_env.world import _FAST_SPACE_STEP, World, _finish_step
 
 __all__ = ["WorldBatch", "available", "step_and_snapshot"]
 
@@ -126,7 +126,15 @@ def available() -> bool:
 
 @numba.njit(cache=True, error_model="numpy")  # not nogil: chipmunk calls back into Python
 def _batch_step(fns, rows, ints, flts, commands, n_max, h_max):  # pragma: no cover - compiled
-    m_count = ints.shape[0]
+    """Step worlds ``rows`` (indices into the tables ``ints`` ``(M, _INT_COLS)`` and ``flts``
+    ``(M, _FLOAT_COLS)``, see :class:`_Record`) with ``commands[m]`` ``(n_max, 2)``, as
+    :meth:`World.step <swarm_env.world.World.step>` does on its scripted-humans compiled path, and read
+    what :meth:`~swarm_env.world.World.snapshot` reads. ``fns``: :func:`swarm_env.physics_kernel.functions`.
+    Returns blocks whose row ``r`` belongs to world ``rows[r]``: the followers' pose, velocity, twist
+    and the unprojected slots ``(R, n_max, .)``, whether the slots passed the screen, the leader's
+    pose, velocity, twist and done flag, the humans' positions and velocities ``(R, h_max, 2)`` (rows
+    beyond a world's own humans are 0), the new time, formation index and next switch time."""
+    m_count = rows.shape[0]
     pose = np.empty((m_count, n_max, 3))
     vel = np.empty((m_count, n_max, 2))
     twist = np.empty((m_count, n_max, 2))
@@ -144,40 +152,41 @@ def _batch_step(fns, rows, ints, flts, commands, n_max, h_max):  # pragma: no co
     leader = np.empty(6)
     for r in range(rows.shape[0]):
         m = rows[r]
-        n = ints[m, 1]
-        h = ints[m, 2]
-        count = ints[m, 3]
-        step_count = ints[m, 4]
-        sub_dt = flts[m, 0]
-        dt = flts[m, 1]
-        t0 = flts[m, 4]
+        n = ints[m, _C_N]
+        h = ints[m, _C_H]
+        count = ints[m, _C_SUBSTEPS]
+        step_count = ints[m, _C_STEP]
+        sub_dt = flts[m, _F_SUB_DT]
+        dt = flts[m, _F_DT]
+        t0 = flts[m, _F_T0]
         # the scripted humans at each substep and at the end of the step (physics_kernel._scripted_step)
-        table = numba.carray(_as_pointer(ints[m, 8]), (h, 7), numba.float64)
-        verts = numba.carray(_as_pointer(ints[m, 9]), (ints[m, 10], 3), numba.float64)
-        segs = numba.carray(_as_pointer(ints[m, 11]), (ints[m, 12], 3), numba.float64)
+        table = numba.carray(_as_pointer(ints[m, _C_HTABLE]), (h, 7), numba.float64)
+        verts = numba.carray(_as_pointer(ints[m, _C_HVERTS]), (ints[m, _C_NVERTS], 3), numba.float64)
+        segs = numba.carray(_as_pointer(ints[m, _C_HSEGS]), (ints[m, _C_NSEGS], 3), numba.float64)
         hpos = np.zeros((count + 1, h, 2))
         hvel = np.zeros((count + 1, h, 2))
         for k in range(count):
             fill_states(t0 + k * sub_dt, table, verts, segs, hpos[k], hvel[k])
         fill_states((step_count + 1) * dt, table, verts, segs, hpos[count], hvel[count])
-        humans = numba.carray(_as_pointer(ints[m, 7]), (h,), numba.int64)
-        drives = numba.carray(_as_pointer(ints[m, 5]), (n, 6), numba.float64)
-        _substeps(fns, ints[m, 0], sub_dt, count, humans, hpos, hvel, commands[m], flts[m, 2], flts[m, 3], drives)
+        humans = numba.carray(_as_pointer(ints[m, _C_HUMANS]), (h,), numba.int64)
+        drives = numba.carray(_as_pointer(ints[m, _C_DRIVES]), (n, 6), numba.float64)
+        _substeps(fns, ints[m, _C_SPACE], sub_dt, count, humans, hpos, hvel, commands[m], flts[m, _F_VMAX],
+                  flts[m, _F_WMAX], drives)
         for j in range(h):
-            hpos_out[m, j, 0] = hpos[count, j, 0]
-            hpos_out[m, j, 1] = hpos[count, j, 1]
-            hvel_out[m, j, 0] = hvel[count, j, 0]
-            hvel_out[m, j, 1] = hvel[count, j, 1]
+            hpos_out[r, j, 0] = hpos[count, j, 0]
+            hpos_out[r, j, 1] = hpos[count, j, 1]
+            hvel_out[r, j, 0] = hvel[count, j, 0]
+            hvel_out[r, j, 1] = hvel[count, j, 1]
         # the followers' bodies (World.snapshot: _BodyReader.read, then snapshot_kernel.follower_arrays)
-        bodies = numba.carray(_as_pointer(ints[m, 6]), (n,), numba.int64)
+        bodies = numba.carray(_as_pointer(ints[m, _C_FOLLOWERS]), (n,), numba.int64)
         for i in range(n):
             b = numba.carray(_as_pointer(bodies[i]), (_BODY_DOUBLES,), numba.float64)
-            fill_follower(b[_I_PX], b[_I_PY], b[_I_A], b[_I_VX], b[_I_VY], b[_I_W], pose[m, i], vel[m, i], twist[m, i])
+            fill_follower(b[_I_PX], b[_I_PY], b[_I_A], b[_I_VX], b[_I_VY], b[_I_W], pose[r, i], vel[r, i], twist[r, i])
         # the clock, the formation schedule, the virtual leader and the slots (World.step's end)
         t = (step_count + 1) * dt
-        times[m] = t
-        n_form = ints[m, 18]
-        at = numba.carray(_as_pointer(ints[m, 19]), (n_form,), numba.float64)
+        times[r] = t
+        n_form = ints[m, _C_NFORM]
+        at = numba.carray(_as_pointer(ints[m, _C_AT]), (n_form,), numba.float64)
         idx = 0
         nxt = np.inf
         for i in range(n_form):
@@ -185,26 +194,25 @@ def _batch_step(fns, rows, ints, flts, commands, n_max, h_max):  # pragma: no co
                 idx = i
             if at[i] > t and at[i] < nxt:
                 nxt = at[i]
-        form[m] = idx
-        next_switch[m] = nxt
-        path = numba.carray(_as_pointer(ints[m, 13]), (ints[m, 14], 6), numba.float64)
-        _virtual_pose(path, flts[m, 5], flts[m, 6], t, flts[m, 7], leader)
-        offsets = numba.carray(_as_pointer(ints[m, 20]), (n_form, n, 2), numba.float64)
-        _place_slots(leader[0], leader[1], leader[2], offsets[idx], slots[m, :n])
-        screen = numba.carray(_as_pointer(ints[m, 15]), (ints[m, 16], 3), numba.float64)
-        size_reach = numba.carray(_as_pointer(ints[m, 17]), (3,), numba.float64)
-        free[m] = _screen(slots[m, :n], screen, size_reach)
-        lpose[m, 0] = leader[0]
-        lpose[m, 1] = leader[1]
-        lpose[m, 2] = leader[2]
-        lvel[m, 0] = leader[3]
-        lvel[m, 1] = leader[4]
-        ltwist[m, 0] = math.hypot(leader[3], leader[4])  # World.snapshot: np.hypot, libm's hypot too
-        ltwist[m, 1] = 0.0
-        done[m] = leader[5] != 0.0
+        form[r] = idx
+        next_switch[r] = nxt
+        path = numba.carray(_as_pointer(ints[m, _C_PATH]), (ints[m, _C_NPATH], 6), numba.float64)
+        _virtual_pose(path, flts[m, _F_LENGTH], flts[m, _F_SPEED], t, flts[m, _F_DELAY], leader)
+        offsets = numba.carray(_as_pointer(ints[m, _C_OFFSETS]), (n_form, n, 2), numba.float64)
+        _place_slots(leader[0], leader[1], leader[2], offsets[idx], slots[r, :n])
+        screen = numba.carray(_as_pointer(ints[m, _C_SCREEN]), (ints[m, _C_NSCREEN], 3), numba.float64)
+        size_reach = numba.carray(_as_pointer(ints[m, _C_SIZE_REACH]), (3,), numba.float64)
+        free[r] = _screen(slots[r, :n], screen, size_reach)
+        lpose[r, 0] = leader[0]
+        lpose[r, 1] = leader[1]
+        lpose[r, 2] = leader[2]
+        lvel[r, 0] = leader[3]
+        lvel[r, 1] = leader[4]
+        ltwist[r, 0] = math.hypot(leader[3], leader[4])  # World.snapshot: np.hypot, libm's hypot too
+        ltwist[r, 1] = 0.0
+        done[r] = leader[5] != 0.0
     return (pose, vel, twist, slots, free, lpose, lvel, ltwist, done, hpos_out, hvel_out, times, form,
             next_switch)
-
 
 
 class _Record:
@@ -266,13 +274,18 @@ class WorldBatch:
 
     Args:
         worlds: the worlds, in order; world ``m`` gets ``commands[m]``.
+        chunk: how many worlds one compiled call steps (the same results for any value).
 
     The batch keeps a record per world (addresses and packed arrays, ~20 µs to build). Replace a
     world with :meth:`replace`, or pass the current list to :meth:`step_and_snapshot` (``worlds=``):
     every world that is not the one the batch holds at its index is taken in and recorded anew.
     """
 
-    def __init__(self, worlds: Sequence[World] = ()) -> None:
+    def __init__(self, worlds: Sequence[World] = (), chunk: int = 64) -> None:
+        if chunk < 1:
+            raise ValueError(f"chunk must be >= 1, got {chunk}")
+        #: Worlds per compiled call (see :meth:`_step_batched`).
+        self.chunk = int(chunk)
         self._worlds: list[World] = []
         self._records: list[_Record | Literal[False] | None] = []  # None: not built yet; False: never batchable
         self._ints = np.zeros((0, _INT_COLS), dtype=np.int64)
@@ -349,8 +362,6 @@ class WorldBatch:
         if cmd.ndim != 3 or cmd.shape[0] != len(held) or cmd.shape[2] != 2:
             raise ValueError(f"commands must be (M={len(held)}, N, 2), got shape {np.shape(commands)}")
         states: list[Any] = [None] * len(held)
-        from swarm_env.world import _FAST_SPACE_STEP
-
         if _FAST_SPACE_STEP and compiled_kernels() and available():
             self._step_batched(cmd, states)
         else:
@@ -362,7 +373,16 @@ class WorldBatch:
         return states
 
     def _step_batched(self, cmd: np.ndarray, states: list[Any]) -> None:
-        """Step the worlds that can take the batched path and put their snapshots in ``states``."""
+        """Step the worlds that can take the batched path and put their snapshots in ``states``,
+        :attr:`chunk` worlds at a time: each world's Python objects are touched just before and just
+        after its physics, while they are still in the CPU's caches (one pass over 1,024 worlds
+        before and one after the physics of all of them ran measurably slower per world than 64)."""
+        self.last_batched = 0
+        for start in range(0, len(self._worlds), self.chunk):
+            self.last_batched += self._step_chunk(range(start, min(start + self.chunk, len(self._worlds))), cmd,
+                                                  states)
+
+    def _step_chunk(self, chunk: range, cmd: np.ndarray, states: list[Any]) -> int:
         held, records = self._worlds, self._records
         n_cmd = cmd.shape[1]
         rows: list[int] = []
@@ -370,7 +390,8 @@ class WorldBatch:
         t0s: list[float] = []
         h_max = 0
         try:
-            for m, w in enumerate(held):
+            for m in chunk:
+                w = held[m]
                 rec = records[m]
                 if rec is None:
                     rec = self._record(m)
@@ -383,17 +404,14 @@ class WorldBatch:
                     h_max = rec.h
                 w._touched_step = set(w._touching)  # as World.step before its physics
                 w.space._locked = True  # as pymunk's Space.step during chipmunk's step
-            self.last_batched = len(rows)
             if not rows:
-                return
+                return 0
             idx = np.array(rows, dtype=np.int64)
-            ints, flts = self._ints[:len(held)], self._flts[:len(held)]
+            ints, flts = self._ints, self._flts
             ints[idx, _C_STEP] = clocks
             flts[idx, _F_T0] = t0s
             out = _batch_step(_STATE["fns"], idx, ints, flts, cmd, n_cmd, h_max)
         finally:
-            from swarm_env.world import _finish_step
-
             for m in rows:  # as World.step after chipmunk's step
                 space = held[m].space
                 space._removed_shapes.clear()
@@ -408,21 +426,21 @@ class WorldBatch:
         free_l, done_l, times_l, form_l = free.tolist(), done.tolist(), times.tolist(), form.tolist()
         next_l = next_switch.tolist()
         new_state = object.__new__
-        for m in rows:
+        for r, m in enumerate(rows):
             w = held[m]
             h = records[m].h  # type: ignore[union-attr]
-            hp, hv, s, lp, lv = hpos_l[m], hvel_l[m], slots_l[m], lpose_l[m], lvel_l[m]
+            hp, hv, s, lp, lv = hpos_l[r], hvel_l[r], slots_l[r], lpose_l[r], lvel_l[r]
             if h != h_max:
                 hp, hv = hp[:h], hv[:h]
             # World.step's end, with the kernel's numbers
             step_count = w.step_count = w.step_count + 1
-            t = w.time = times_l[m]
+            t = w.time = times_l[r]
             if h:
                 w._human_pos, w._human_vel = hp, hv
-            f = w.formation_index = form_l[m]
+            f = w.formation_index = form_l[r]
             w._virtual_pose, w._virtual_vel = lp, lv
-            ldone = w._leader_done = done_l[m]
-            if not free_l[m]:  # a slot too close to an obstacle: as World._advance_virtual_leader_and_slots
+            ldone = w._leader_done = done_l[r]
+            if not free_l[r]:  # a slot too close to an obstacle: as World._advance_virtual_leader_and_slots
                 s = w.static.project_free(s, w._slot_clearance)
                 s.flags.writeable = False
             w._slots = s
@@ -432,13 +450,13 @@ class WorldBatch:
             state.__dict__.update(
                 time=t,
                 step=step_count,
-                follower_pose=pose_l[m],
-                follower_vel=vel_l[m],
-                follower_twist=twist_l[m],
+                follower_pose=pose_l[r],
+                follower_vel=vel_l[r],
+                follower_twist=twist_l[r],
                 follower_radius=w._follower_radius,
                 leader_pose=lp,
                 leader_vel=lv,
-                leader_twist=ltwist_l[m],
+                leader_twist=ltwist_l[r],
                 leader_radius=0.0,
                 leader_done=ldone,
                 human_pos=hp,
@@ -446,7 +464,7 @@ class WorldBatch:
                 human_radius=w._human_radius,
                 slot_targets=s,
                 formation_index=f,
-                next_switch_time=next_l[m],
+                next_switch_time=next_l[r],
                 contacts=w._onsets,
                 static=w.static,
                 scenario=w.scenario,
@@ -454,6 +472,7 @@ class WorldBatch:
                 _derived={},
             )
             states[m] = state
+        return len(rows)
 
 
 def step_and_snapshot(worlds_or_batch: WorldBatch | Sequence[World], commands: np.ndarray) -> list[WorldState]:

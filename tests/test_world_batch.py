@@ -151,14 +151,16 @@ def test_random_worlds_exercise_contacts_projection_humans_and_switches(monkeypa
 
 
 def test_mixed_eligible_and_fallback_worlds_and_replacements() -> None:
-    """Batched and per-world worlds in one call; worlds replaced mid-run (as auto-reset does), both by
-    passing the current worlds and by replace(); a replaced world starts on pymunk's first step."""
+    """Batched and per-world worlds in one call, in chunks of 2; worlds replaced mid-run (as auto-reset
+    does), both by passing the current worlds and by replace(); a replaced world starts on pymunk's
+    first step."""
     specs = [("random", BATCH_WORLD, 1), ("random", {**BATCH_WORLD, "leader_kind": "robot"}, 2),
              ("random", BATCH_WORLD, 3), ("random", {**BATCH_WORLD, "human_behavior": "social_force"}, 4),
              ("random", BATCH_WORLD, 5)]
     ref_envs, bat_envs = _envs(specs), _envs(specs)
     ref = [e._world for e in ref_envs]
-    batch, batched, _ = lockstep(ref, [e._world for e in bat_envs], 12, seed=3)  # type: ignore[misc]
+    batch = WorldBatch([e._world for e in bat_envs], chunk=2)  # type: ignore[misc]  # three compiled calls a step
+    batch, batched, _ = lockstep(ref, batch.worlds, 12, seed=3, batch=batch)
     assert batched[1:] == [3] * 11
     rng = np.random.default_rng(9)
     for step in range(40):
@@ -261,6 +263,11 @@ def test_a_broken_batch_fails_the_comparison(monkeypatch: pytest.MonkeyPatch) ->
         lockstep(ref, bat, 5, seed=3, batch=batch)
 
 
-def test_body_layout_probe() -> None:
+def test_body_layout_probe_and_arguments() -> None:
     assert world_batch.available()
     assert world_batch._probe_layout() == world_batch._EXPECTED
+    with pytest.raises(ValueError, match="chunk"):
+        WorldBatch([], chunk=0)
+    batch = WorldBatch([])
+    with pytest.raises(IndexError):
+        batch.replace(0, _worlds([("random", BATCH_WORLD, 0)])[0])
