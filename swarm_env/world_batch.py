@@ -40,6 +40,15 @@ Body fields are read at their offsets in chipmunk 7's ``struct cpBody`` (64-bit 
 :func:`available` checks once per process by probing a body (as :mod:`swarm_env.drive_kernel`
 does); anything unexpected sends every world down its own ``step()``.
 
+Use from an engine: keep one :class:`WorldBatch` and hand it the current worlds every step (an
+auto-reset's new ``World`` is then taken in by identity)::
+
+    batch = WorldBatch()
+    states = batch.step_and_snapshot(commands, worlds=[env._world for env in envs])  # (M, N, 2) commands
+
+This module imports numba (the kernel compiles at first use, ~8 s, then loads from numba's cache):
+import it lazily where the compiled kernels are off (:func:`swarm_env.compiled.compiled_kernels`).
+
 numba checks its on-disk cache of :func:`_batch_step` against this file only: after editing a
 kernel it calls in another module (``physics_kernel._substeps``, ``human_kernel.fill_states``,
 ``slot_kernel._virtual_pose``/``_place_slots``/``_screen``, ``snapshot_kernel.fill_follower``),
