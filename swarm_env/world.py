@@ -693,6 +693,11 @@ class World:
             self._advance_leader()
             self._slots = self._compute_slots()
 
+        self._settle_contacts()
+
+    def _settle_contacts(self) -> None:
+        """The end of a step's contact bookkeeping: the onsets and the pairs in touch of the step
+        from the pairs its collision callbacks saw (see the module docstring)."""
         touched = self._touched_step
         if touched == self._touched_prev:  # the same pairs as the last step: no onset, the same list
             self._onsets = ()
@@ -707,14 +712,20 @@ class World:
         compiled kernels are on and work here, and pymunk's ``Space.step`` would do nothing but
         chipmunk's step in each substep (no new bodies to check, nothing deferred, no post-step
         callback, only this world's collision handlers, which defer nothing)."""
+        if not (_FAST_SPACE_STEP and compiled_kernels()):
+            return False
+        return self._space_quiet() and _physics_kernel().available()
+
+    def _space_quiet(self) -> bool:
+        """The per-world part of :meth:`_compiled_substeps_ok`: the space is not threaded, steps with
+        pymunk's own ``Space.step``, has no new bodies to check, nothing deferred, no post-step
+        callback and only this world's collision handlers."""
         space = self.space
-        if not (_FAST_SPACE_STEP and compiled_kernels()) or space.threaded or not _plain_step(space):
+        if space.threaded or not _plain_step(space):
             return False
         if space._bodies_to_check or space._add_later or space._remove_later or space._post_step_callbacks:
             return False
-        if len(space._handlers) != self._own_handlers:
-            return False
-        return _physics_kernel().available()
+        return len(space._handlers) == self._own_handlers
 
     def _human_substates(self, t0: float) -> tuple[np.ndarray, np.ndarray]:
         """``(positions, velocities)``, each ``(substeps + 1, H, 2)``: row ``k < substeps`` at
