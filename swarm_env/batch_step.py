@@ -293,8 +293,7 @@ class BatchState:
                 actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(floats (len(REWARD_TERMS) + 1, M, N), rewards (M, N), touching (M, N, 4))``: the weighted
         terms then the slot distances (the infos' float rows), their sums, and the bodies in touch;
-        the rows' ``prev_dist``/``prev_action`` move on. Counts the worlds' contact onsets in their
-        ``EpisodeMetrics`` (Python, only in worlds with contacts)."""
+        the rows' ``prev_dist``/``prev_action`` move on (Python only in worlds with contacts)."""
         from swarm_env.batch_kernel import rewards_batch
 
         m, n = self.m, self.n
@@ -312,10 +311,8 @@ class BatchState:
             touching[b] = touching_per_follower(s)
             if not s.contacts:
                 weights[b, 1] = 0.0
-            else:
-                envs[b]._metrics.count_contacts(s)
-                if weights[b, 1]:
-                    onsets[b] = new_contacts_per_follower(s)
+            elif weights[b, 1]:
+                onsets[b] = new_contacts_per_follower(s)
         gap = np.zeros((m, n))
         for b in np.flatnonzero(weights[:, 7]).tolist():
             gap[b] = approach_gap(states[b], float(self.horizon[b]))
@@ -347,6 +344,8 @@ class BatchState:
             self.min_clear, self.min_sep, self.err_max, self.steps, self.sim_time, self.wall_time, a.time, float(wall),
             _LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS, *self.maps.kernel_arrays(), a.k, self.last_k,
             self.pending_k, self.hold_key, self.hold_n, self.hold_in, within, event, status, hum)
+        for b in [b for b, s in enumerate(states) if s.contacts]:  # collision counts stay in the objects
+            envs[b]._metrics.count_contacts(states[b])
         for b in np.flatnonzero(status == 2).tolist():  # EpisodeMetrics._update_compiled's numpy static clearance
             s = states[b]
             self.min_clear[b] = s.static.min_distance(a.pose[b, :, :2], self.radius[b], float(self.min_clear[b]),

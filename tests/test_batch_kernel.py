@@ -179,3 +179,60 @@ def test_numpy_reference_path_of_the_block_gives_the_batched_bits(n_procs: int) 
     assert [_metrics(m) for m in a.call("episode_metrics")] == [_metrics(m) for m in b.call("episode_metrics")]
     a.close()
     b.close()
+
+
+def test_batched_metrics_follow_switches_settling_holding_and_arrival_like_episode_metrics() -> None:
+    """Snapshots edited so that formations switch, are reached, held, left and reached again, and the
+    leader arrives, in a different rhythm per world: BatchState.metrics (the rows, Python only at the
+    events) against EpisodeMetrics.update with the numpy references, result() for result()."""
+    import dataclasses
+
+    from swarm_env.batch_step import BatchState
+    from swarm_env.metrics import EpisodeMetrics
+    from swarm_env.rewards import slot_distance
+
+    envs = [SwarmEnv("random", n_followers=4, n_switches=2, n_humans=(0, 2)) for _ in range(4)]
+    episodes = []
+    for m, env in enumerate(envs):
+        env.reset(seed=next(s for s in range(100 * m, 100 * m + 100) if env.reset(seed=s) and
+                            len(env.scenario.formations) == 3))  # an episode with two switches
+        rng = np.random.default_rng(m)
+        tol = env.scenario.world.settle_tolerance
+        states = [env.world_state()]
+        for t in range(60):
+            env.step(dict(zip(env.agents, rng.uniform(-1, 1, (4, 2)))))
+            s = env.world_state()
+            k = 0 if t < 5 + m else 1 if t < 30 else 2
+            near = (t // (2 + m)) % 3 != 0  # within the tolerance two steps in three (per world rhythm)
+            offset = rng.uniform(-0.5, 0.5, (4, 2)) * (tol if near else 20 * tol)
+            states.append(dataclasses.replace(s, formation_index=k, leader_done=t >= 40 + 3 * m,
+                                              slot_targets=s.follower_pose[:, :2] + offset))
+        episodes.append(states)
+    refs = []
+    use_compiled_kernels(False)
+    try:
+        for states in episodes:
+            met = EpisodeMetrics()
+            met.start(states[0])
+            for s in states[1:]:
+                met.update(s, 0.0, slot_distance(s))
+            refs.append(met.result())
+    finally:
+        use_compiled_kernels(True)
+    for env, states in zip(envs, episodes):
+        env._state = states[0]
+        env._metrics = EpisodeMetrics()
+        env._metrics.start(states[0])
+    rows = BatchState(envs)
+    for b, env in enumerate(envs):
+        rows.load(b, env)
+    for t in range(1, 61):
+        states = [ep[t] for ep in episodes]
+        a = rows.gather(states)
+        rows.metrics(envs, states, a, np.stack([slot_distance(s) for s in states]), 0.0)
+    for b, (env, ref) in enumerate(zip(envs, refs)):
+        rows.store(b, env)
+        got = env._metrics.result()
+        assert got == ref
+        assert any(s["hold_fraction"] not in (None, 1.0) for s in got["settle_times"]), got["settle_times"]
+        assert got["per_robot"][0]["time_to_target"] is not None
