@@ -16,6 +16,9 @@ Inputs that vary in size between worlds are padded with counts: humans ``(M, Hma
 world's static map as :class:`swarm_env.batch_step.PaddedMaps` (the arrays of
 :meth:`StaticMap.kernel_arrays <swarm_env.geometry.StaticMap.kernel_arrays>`, row ``m`` world
 ``m``'s, ``nbound``/``ncirc`` counting the used rows and ``n_poly * n_edge`` the used edges).
+
+Numba's cache of these kernels is checked against this file only: after editing a kernel they call
+(``step_kernel``, ``obs_kernel``, ``clearance_kernel``), delete ``swarm_env/__pycache__/batch_kernel*.nb*``.
 """
 
 from __future__ import annotations
