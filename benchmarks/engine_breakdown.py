@@ -5,11 +5,14 @@
 Steps ``swarm_env.vector.SwarmVectorEnv("random", M, **swarm_env.harness.bench.BATCH_WORLD)`` with random
 actions, timing each stage separately (median over repeats, microseconds per world-step):
 ``physics`` (pymunk substeps with the drive callbacks, the humans and the leader, the slot
-targets: ``World.step``), ``snapshot`` (``World.snapshot``), ``rewards`` (contacts, then slot
-distances and reward terms: ``reward_table``), ``metrics`` (``EpisodeMetrics.update`` and the episode
-bookkeeping), ``observations`` (everything but the lidar), ``lidar`` (one kernel call for all
-``M x N`` followers, divided by M). The stages run the engine's code in its order; auto-resets
-are done outside the clock.
+targets: ``World.step``, world by world), ``snapshot`` (``World.snapshot``, world by world), then the
+batched stages of :class:`swarm_env.batch_step.BatchState`, each one call for all ``M`` worlds:
+``rewards`` (contacts, slot distances, reward terms: ``BatchState.rewards``), ``metrics``
+(``EpisodeMetrics.update`` of every world: ``BatchState.metrics``), ``observations`` (everything but
+the lidar: ``BatchState.observations``), ``glue`` (stacking the snapshots' arrays, ``BatchState.gather``,
+and the episode end and infos, ``BatchState.finish``), and ``lidar`` (one kernel call for all
+``M x N`` followers with its per-world inputs, divided by M). The stages run the engine's code in its
+order; auto-resets are done outside the clock.
 """
 
 from __future__ import annotations
@@ -22,44 +25,51 @@ import numpy as np
 
 from swarm_env.harness.bench import BATCH_WORLD
 from swarm_env.observations import lidar_input
-from swarm_env.rewards import reward_table, touching_per_follower
 from swarm_env.vector import SwarmVectorEnv
 
-STAGES = ("physics", "snapshot", "rewards", "metrics", "observations", "lidar")
+STAGES = ("physics", "snapshot", "rewards", "metrics", "observations", "glue", "lidar")
 
 
 def one_repeat(venv: SwarmVectorEnv, actions: np.ndarray, steps: int) -> dict[str, float]:
     block = venv._local
-    assert block is not None
+    assert block is not None and block._rows is not None and block._rows_live  # warmed up by venv.step
+    rows = block._rows
     totals = dict.fromkeys(STAGES, 0.0)
     clock = time.perf_counter
     for k in range(steps):
+        acts = actions[k % len(actions)]
         states = []
-        for env, act in zip(block.envs, actions[k % len(actions)]):
+        for env, act in zip(block.envs, acts):
             t0 = clock()
             env._world.step(act * env._speed)
             t1 = clock()
             state = env._world.snapshot()
             t2 = clock()
-            touching = touching_per_follower(state)
-            dist, _, _ = reward_table(state, state.scenario.reward, env._prev_dist, act, env._prev_action, touching)
-            t3 = clock()
-            env._state = state
-            env._prev_dist, env._prev_action = dist, act
-            env._metrics.update(state, 0.0, dist)
-            t4 = clock()
-            env._obs.build_without_lidar(state)
-            t5 = clock()
             states.append(state)
-            for name, dt in zip(STAGES, (t1 - t0, t2 - t1, t3 - t2, t4 - t3, t5 - t4)):
-                totals[name] += dt
+            totals["physics"] += t1 - t0
+            totals["snapshot"] += t2 - t1
+        t0 = clock()
+        for env, state in zip(block.envs, states):
+            env._state = state
+        a = rows.gather(states)
+        t1 = clock()
+        floats, _, touching = rows.rewards(block.envs, states, a, acts)
+        t2 = clock()
+        within = rows.metrics(block.envs, states, a, floats[-1], 0.0)
+        t3 = clock()
+        rows.observations(block.envs, states, a)
+        t4 = clock()
+        terminated, truncated, _ = rows.finish(block.envs, states, a, floats, touching, within)
+        t5 = clock()
+        for name, dt in (("glue", t1 - t0 + t5 - t4), ("rewards", t2 - t1), ("metrics", t3 - t2),
+                         ("observations", t4 - t3)):
+            totals[name] += dt
         t0 = clock()
         venv._scan([lidar_input(s) for s in states], range(venv.num_envs))
         totals["lidar"] += clock() - t0
-        for b, env in enumerate(block.envs):  # auto-reset, off the clock
-            if env._state.step >= env.max_steps:
-                block._restart(b, None)
-                venv._maps[b] = env._state.static
+        for b in np.flatnonzero(terminated | truncated).tolist():  # auto-reset, off the clock
+            block._restart(int(b), None)
+            venv._maps[b] = block.envs[b]._state.static
     return {name: 1e6 * total / (steps * venv.num_envs) for name, total in totals.items()}
 
 

@@ -407,14 +407,19 @@ class SwarmEnv(ParallelEnv):
     def _account(self, out: StepOutcome, wall_time: float) -> None:
         """Metrics, episode bookkeeping and the renderer's record of the step :meth:`_advance` made."""
         self._metrics.update(out.state, wall_time, out.dist)
-        self._metrics.terminated = out.terminated
-        if out.terminated or out.truncated:
-            self.termination = "collision" if out.collided else "formation" if out.terminated else "time_limit"
-            if out.collided:
-                self.terminal_contacts = tuple(c for c in out.state.touching if c.robot != LEADER_ID)
+        self._close_step(out.state, out.terminated, out.truncated, out.collided)
+
+    def _close_step(self, state: WorldState, terminated: bool, truncated: bool, collided: bool) -> None:
+        """The episode bookkeeping of :meth:`_account` after the metrics (the batched engine, which
+        updates the metrics of all its worlds at once, calls it for the worlds that need it)."""
+        self._metrics.terminated = terminated
+        if terminated or truncated:
+            self.termination = "collision" if collided else "formation" if terminated else "time_limit"
+            if collided:
+                self.terminal_contacts = tuple(c for c in state.touching if c.robot != LEADER_ID)
             self.agents = []
         if self._renderer is not None:
-            self._renderer.record(out.state)
+            self._renderer.record(state)
 
     def _infos(self, dist: np.ndarray, terms: dict[str, np.ndarray] | np.ndarray, touching: np.ndarray,
                collided: bool) -> dict:

@@ -110,11 +110,7 @@ class EpisodeMetrics:
         self.steps += 1
         self.sim_time = state.time
         self.wall_time += wall_time
-        for c in state.contacts:
-            self.collisions[c.kind] += 1
-            self.robot_collisions[c.robot if c.robot != LEADER_ID else self.n] += 1
-            if c.kind == "robot_robot":
-                self.robot_collisions[c.other if c.other != LEADER_ID else self.n] += 1
+        self.count_contacts(state)
         err = slot_distance(state) if slot_dist is None else slot_dist
         if compiled_kernels():  # the same bits, see swarm_env.step_kernel
             self._update_compiled(state, err)
@@ -132,6 +128,15 @@ class EpisodeMetrics:
             self.leader_arrival = state.time
         self._observe_proximity(state, moved[: self.n])
         self._observe_settling(state, err)
+
+    def count_contacts(self, state: WorldState) -> None:
+        """Count the contact onsets of ``state`` (part of :meth:`update`; the batched engine, which
+        does the rest of the update for all its worlds at once, calls it for worlds with contacts)."""
+        for c in state.contacts:
+            self.collisions[c.kind] += 1
+            self.robot_collisions[c.robot if c.robot != LEADER_ID else self.n] += 1
+            if c.kind == "robot_robot":
+                self.robot_collisions[c.other if c.other != LEADER_ID else self.n] += 1
 
     def _update_compiled(self, state: WorldState, err: np.ndarray) -> None:
         """The rest of :meth:`update` with :func:`swarm_env.step_kernel.metrics_step`: the same

@@ -74,6 +74,21 @@ def assemble(
     """
     n = len(pose)
     out = np.zeros((n, size))
+    fill_rows(out, pose, vel, twist, speed_scale, cos_th, sin_th, cos_rel, sin_rel, switch, leader_pose, leader_vel,
+              slots, fdist, k, nb_start, human_pos, human_vel, hk, hu_start)
+    res = np.empty((n, size), dtype=np.float32)
+    clip_cast(res, out, low, high)
+    return res
+
+
+@_jit
+def fill_rows(
+    out, pose, vel, twist, speed_scale, cos_th, sin_th, cos_rel, sin_rel, switch, leader_pose, leader_vel, slots, fdist,
+    k, nb_start, human_pos, human_vel, hk, hu_start,
+):  # pragma: no cover - compiled
+    """:func:`assemble`'s float64 rows, unclipped, written into ``out`` ``(N, size)``, which must
+    hold zeros (the columns not written stay 0: the lidar and absent entities' padding)."""
+    n = len(pose)
     nh = len(human_pos)
     hd = np.empty(nh)
     nd = np.empty(n)
@@ -113,9 +128,15 @@ def assemble(
                 dy = human_pos[q, 1] - py
                 hd[q] = math.sqrt(dx * dx + dy * dy)
             _entities(out, i, hu_start, hk, hd, human_pos, human_vel, px, py, vx, vy, c, s)
-    res = np.empty((n, size), dtype=np.float32)
-    for i in range(n):
-        for j in range(size):
+
+
+@_jit
+def clip_cast(res, out, low, high):  # pragma: no cover - compiled
+    """``res[:] = float32(clip(out, low, high))`` entry by entry (``out`` ``(N, size)`` float64,
+    ``res`` float32 of the same shape, ``low``/``high`` ``(size,)`` float32): the reference's
+    ``np.clip`` then ``astype(np.float32)``."""
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
             x = out[i, j]
             lo = np.float64(low[j])
             hi = np.float64(high[j])
@@ -124,7 +145,6 @@ def assemble(
             if x > hi:
                 x = hi
             res[i, j] = np.float32(x)
-    return res
 
 
-__all__ = ["assemble"]
+__all__ = ["assemble", "clip_cast", "fill_rows"]

@@ -46,6 +46,22 @@ def reward_table(pose, slots, dist_in, prev_dist, action, prev_action, touching,
     """
     n = len(pose)
     dist = np.empty(n)
+    table = np.empty((N_TERMS, n))
+    total = np.empty(n)
+    reward_into(dist, table, total, pose, slots, dist_in, prev_dist, action, prev_action, touching, onsets, clear, gap,
+                w_formation, w_collision, w_contact, w_clearance, clearance_margin, w_smoothness, w_progress,
+                w_approach, approach_margin)
+    return dist, table, total
+
+
+@_jit
+def reward_into(dist, table, total, pose, slots, dist_in, prev_dist, action, prev_action, touching, onsets, clear, gap,
+                w_formation, w_collision, w_contact, w_clearance, clearance_margin, w_smoothness, w_progress,
+                w_approach, approach_margin):  # pragma: no cover - compiled
+    """:func:`reward_table` written into ``dist`` ``(N,)``, ``table`` ``(N_TERMS, N)`` and ``total``
+    ``(N,)`` (any contents before; views into larger arrays are fine): one world's row of the
+    batched engine's kernel (:func:`swarm_env.batch_kernel.rewards_batch`) and ``reward_table``'s body."""
+    n = len(pose)
     if len(dist_in) == n:
         for i in range(n):
             dist[i] = dist_in[i]
@@ -54,8 +70,11 @@ def reward_table(pose, slots, dist_in, prev_dist, action, prev_action, touching,
             dx = pose[i, 0] - slots[i, 0]
             dy = pose[i, 1] - slots[i, 1]
             dist[i] = math.sqrt(dx * dx + dy * dy)
-    table = np.zeros((N_TERMS, n))
-    total = np.zeros(n)
+    for t in range(N_TERMS):
+        for i in range(n):
+            table[t, i] = 0.0
+    for i in range(n):
+        total[i] = 0.0
     if w_formation != 0.0:
         w = -w_formation
         for i in range(n):
@@ -99,7 +118,6 @@ def reward_table(pose, slots, dist_in, prev_dist, action, prev_action, touching,
                 x = 0.0
             table[9, i] = w * x
             total[i] += table[9, i]
-    return dist, table, total
 
 
 @_jit
@@ -216,4 +234,4 @@ def metrics_step(err, tolerance, err_sum, twist_sum, dist_sum, f_twist, l_twist,
     return err_max, within, sep, hum, lb_out, 1, static
 
 
-__all__ = ["N_TERMS", "metrics_step", "reward_table"]
+__all__ = ["N_TERMS", "metrics_step", "reward_into", "reward_table"]

@@ -11,19 +11,27 @@ PPO loops want::
     obs, rew, term, trunc, infos = venv.step(actions)  # actions: (M, N, 2) in [-1, 1]
 
 What is batched: the lidar of all ``M x N`` followers is one call of the compiled kernel
-(:mod:`swarm_env.lidar`), in this process; observations, rewards and infos come back as arrays
-and no per-agent dict is built. What is not: the physics stays pymunk, one space per world,
-stepped world after world, in this process or, with ``n_procs > 1``, in worker processes that
-each own a contiguous block of worlds. Workers import neither torch nor the lidar kernel
-(numba): they return the observations without their lidar columns plus what the lidar needs,
-and this process fills them in (about 30 MiB of private memory per worker). They run the per-step
-kernels' numpy references unless ``worker_kernels=True``, which loads numba in them (faster, about
-120 MiB more per worker).
+(:mod:`swarm_env.lidar`), in this process; with the compiled kernels on, the rewards, the metrics
+and the observations (without the lidar) of a block's worlds are one compiled call per stage too
+(:mod:`swarm_env.batch_step`, :mod:`swarm_env.batch_kernel`), with Python only in the worlds where
+something happens (contacts, a formation switch, an episode's end); observations, rewards and
+infos come back as arrays and no per-agent dict is built. What is not: the physics stays pymunk,
+one space per world, stepped world after world (``_physics_stage``), in this process or, with
+``n_procs > 1``, in worker processes that each own a contiguous block of worlds. Workers import
+neither torch nor the lidar kernel (numba): they return the observations without their lidar
+columns plus what the lidar needs, and this process fills them in (about 30 MiB of private memory
+per worker). They run the per-step kernels' numpy references world by world (``SwarmEnv._advance``,
+``_account``) unless ``worker_kernels=True``, which loads numba in them and runs the batched stages
+(faster, about 120 MiB more per worker).
 
-Each world runs exactly the code of a ``SwarmEnv`` (``_advance``, ``_account``) and the same
-kernel, so world ``m`` is **bitwise equal** to a ``SwarmEnv`` reset with ``seed + m`` and given
-the same actions, for any ``n_procs`` (tested on every built-in scenario and 50 ``random`` seeds
-in ``tests/test_vector.py``).
+Either way each world gets the arithmetic of a ``SwarmEnv`` (the batched stages call the per-world
+kernels on each world's rows), so world ``m`` is **bitwise equal** to a ``SwarmEnv`` reset with
+``seed + m`` and given the same actions, for any ``n_procs`` (tested on every built-in scenario and
+50 ``random`` seeds in ``tests/test_vector.py``, against the numpy references in
+``tests/test_batch_kernel.py``). While the engine steps, a world's ``EpisodeMetrics`` and previous
+distances/actions live in the engine's rows; ``call``, ``get_attr`` and ``set_attr`` write them back
+into the worlds first (a ``SwarmEnv`` object taken out with ``get_attr("unwrapped")`` shows metrics as
+of that call).
 
 Contract:
 
@@ -66,10 +74,13 @@ from typing import Any
 import gymnasium
 import numpy as np
 
+from swarm_env.batch_step import BatchState
+from swarm_env.compiled import compiled_kernels
 from swarm_env.env import _INFO_KEYS, StepOutcome, SwarmEnv, clip_to_action_space, info_columns, primitive_table
 from swarm_env.geometry import StaticMap
 from swarm_env.observations import lidar_input
 from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS
+from swarm_env.state import WorldState
 from swarm_env.wrappers import SHIELD_INFO_KEYS, SafetyShield
 
 __all__ = ["SwarmVectorEnv", "EnvFactory", "INFO_KEYS"]
@@ -133,6 +144,11 @@ class _WorldBlock:
         # How each world's current episode began (episode_starts): {"seed": s, "rng": None} for a seeded
         # reset, {"seed": None, "rng": generator state} for an unseeded one.
         self.starts: list[dict[str, Any]] = [{} for _ in self.worlds]
+        # The batched stages' rows (swarm_env.batch_step), made on the first batched step. While
+        # `_rows_live`, they hold the truth of the worlds' metrics and previous distances/actions
+        # (the worlds' own copies lag; _sync_out writes them back).
+        self._rows: BatchState | None = None
+        self._rows_live = False
 
     def describe(self) -> dict[str, Any]:
         e = self.envs[0]
@@ -157,6 +173,68 @@ class _WorldBlock:
         return out
 
     def step(self, norm: np.ndarray) -> _BlockResult:
+        """Step every world with the ``(B, N, 2)`` normalised actions ``norm``: the batched stages
+        (:meth:`_step_batched`) with the compiled kernels on, else world by world (the numpy references)."""
+        if compiled_kernels():
+            return self._step_batched(norm)
+        self._sync_out()
+        return self._step_per_world(norm)
+
+    def _step_batched(self, norm: np.ndarray) -> _BlockResult:
+        """:meth:`_step_per_world`'s results with the rewards, metrics and observations of all worlds in
+        one compiled call per stage (:class:`swarm_env.batch_step.BatchState`): the same bits."""
+        if self._rows is None:
+            self._rows = BatchState(self.envs)
+        rows = self._rows
+        if not self._rows_live:
+            for b, e in enumerate(self.envs):
+                rows.load(b, e)
+            self._rows_live = True
+        t0 = time.perf_counter()
+        shield_cols = []
+        safe = []
+        if self.shielded:
+            acts = np.empty_like(norm, dtype=np.float64)
+            for b, (w, act) in enumerate(zip(self.worlds, norm)):
+                res = w.protect(act)
+                acts[b] = res.actions  # what SafetyShield.step hands the env, as float64
+                shield_cols.append([res.intervened, res.correction, res.feasible])
+                safe.append(res.actions)
+        else:
+            acts = np.ascontiguousarray(norm, dtype=np.float64)
+        states = _physics_stage(self.envs, acts)
+        for e, st in zip(self.envs, states):
+            e._state = st
+        wall = (time.perf_counter() - t0) / len(self.envs)  # the physics' share; the rest is counted below
+        t1 = time.perf_counter()
+        obs, rewards, terminated, truncated, infos = rows.step(self.envs, states, acts, wall)
+        if self.shielded:
+            infos.update(_stack_columns(shield_cols, SHIELD_INFO_KEYS))
+            infos["shield_action"] = np.stack(safe)
+        rows.wall_time += (time.perf_counter() - t1) / len(self.envs)
+        final = []
+        for b in np.flatnonzero(terminated | truncated).tolist():
+            w, e, st = self.worlds[b], self.envs[b], states[b]
+            rows.store(b, e)
+            final.append((b, obs[b].copy(), lidar_input(st), w.episode_metrics(), e.state(), st))
+            self._restart(b, None)
+            assert e._state is not None
+            obs[b] = e._obs.build_without_lidar(e._state)
+        return _BlockResult(
+            obs, [lidar_input(e._state) for e in self.envs], self._changed_maps(),  # type: ignore[arg-type]
+            rewards=rewards, terminated=terminated, truncated=truncated, infos=infos, final=final,
+        )
+
+    def _sync_out(self) -> None:
+        """Write the batched rows back into the worlds (before anything reads or steps them one by one);
+        the rows are read again before the next batched step."""
+        if self._rows_live:
+            assert self._rows is not None
+            for b, e in enumerate(self.envs):
+                self._rows.store(b, e)
+            self._rows_live = False
+
+    def _step_per_world(self, norm: np.ndarray) -> _BlockResult:
         shield_cols = []
         safe = []
         outcomes: list[StepOutcome] = []
@@ -196,6 +274,9 @@ class _WorldBlock:
         self.envs[b]._start(seed)
         if self.shielded:
             self.worlds[b].start_episode()
+        if self._rows_live:
+            assert self._rows is not None
+            self._rows.load(b, self.envs[b])
 
     def _changed_maps(self) -> dict[int, StaticMap]:
         out = {}
@@ -222,6 +303,9 @@ class _WorldBlock:
         self.worlds[b].close()
         self.worlds[b], self.envs[b], self.starts[b] = world, e, dict(start)
         self._sent[b] = e._state.static
+        if self._rows_live:
+            assert self._rows is not None
+            self._rows.load(b, e)
         return e._state.static
 
     def set_world_pickled(self, b: int, data: bytes, start: dict[str, Any]) -> StaticMap:
@@ -231,12 +315,16 @@ class _WorldBlock:
         return self.set_world(b, pickle.loads(data), start)
 
     def call(self, indices: Sequence[int], method: str, args: tuple, kwargs: dict) -> list[Any]:
+        if method not in _STATE_READERS:  # anything else may read or change the metrics: the worlds are the truth
+            self._sync_out()
         return [getattr(self.worlds[b], method)(*args, **kwargs) for b in indices]
 
     def get_attr(self, indices: Sequence[int], name: str) -> list[Any]:
+        self._sync_out()
         return [getattr(self.worlds[b], name) for b in indices]
 
     def set_attr(self, indices: Sequence[int], name: str, value: Any) -> list[None]:
+        self._sync_out()
         for b in indices:
             setattr(self.worlds[b], name, value)
         return [None] * len(indices)
@@ -244,6 +332,23 @@ class _WorldBlock:
     def close(self) -> None:
         for w in self.worlds:
             w.close()
+
+
+#: World methods that read only the current WorldState (``_state``, set every step): a ``call`` of
+#: them needs no write-back of the batched rows.
+_STATE_READERS = frozenset({"world_state", "state"})
+
+
+def _physics_stage(envs: Sequence[SwarmEnv], norm: np.ndarray) -> list[WorldState]:
+    """Step every world's physics with its ``(N, 2)`` row of the normalised actions ``norm`` and
+    return the snapshots, world by world: what ``SwarmEnv._advance`` does before the rewards."""
+    out = []
+    for e, act in zip(envs, norm):
+        world = e._world
+        assert world is not None
+        world.step(act * e._speed)
+        out.append(world.snapshot())
+    return out
 
 
 def _info_arrays(outcomes: Sequence[StepOutcome]) -> dict[str, np.ndarray]:
