@@ -15,9 +15,10 @@ What is batched: the lidar of all ``M x N`` followers is one call of the compile
 and the observations (without the lidar) of a block's worlds are one compiled call per stage too
 (:mod:`swarm_env.batch_step`, :mod:`swarm_env.batch_kernel`), with Python only in the worlds where
 something happens (contacts, a formation switch, an episode's end); observations, rewards and
-infos come back as arrays and no per-agent dict is built. What is not: the physics stays pymunk,
-one space per world, stepped world after world (``_physics_stage``), in this process or, with
-``n_procs > 1``, in worker processes that each own a contiguous block of worlds. Workers import
+infos come back as arrays and no per-agent dict is built. The physics stays pymunk, one space per
+world; one compiled call steps all of a block's spaces and takes their snapshots (``_physics_stage``,
+:mod:`swarm_env.world_batch`; worlds it cannot take, e.g. with reactive humans, step by themselves),
+in this process or, with ``n_procs > 1``, in worker processes that each own a contiguous block of worlds. Workers import
 neither torch nor the lidar kernel (numba): they return the observations without their lidar
 columns plus what the lidar needs, and this process fills them in (about 30 MiB of private memory
 per worker). They run the per-step kernels' numpy references world by world (``SwarmEnv._advance``,
@@ -149,6 +150,9 @@ class _WorldBlock:
         # (the worlds' own copies lag; _sync_out writes them back).
         self._rows: BatchState | None = None
         self._rows_live = False
+        # The batched physics and snapshot (swarm_env.world_batch, which imports numba: built on the first
+        # batched step); the worlds' current ``World`` objects are handed to it every step.
+        self._physics: Any = None
 
     def describe(self) -> dict[str, Any]:
         e = self.envs[0]
@@ -202,7 +206,10 @@ class _WorldBlock:
                 safe.append(res.actions)
         else:
             acts = np.ascontiguousarray(norm, dtype=np.float64)
-        states = _physics_stage(self.envs, acts)
+        if self._physics is None:
+            from swarm_env.world_batch import WorldBatch  # numba: only where the compiled kernels are on
+            self._physics = WorldBatch()
+        states = _physics_stage(self.envs, acts, self._physics)
         for e, st in zip(self.envs, states):
             e._state = st
         wall = (time.perf_counter() - t0) / len(self.envs)  # the physics' share; the rest is counted below
@@ -339,9 +346,15 @@ class _WorldBlock:
 _STATE_READERS = frozenset({"world_state", "state"})
 
 
-def _physics_stage(envs: Sequence[SwarmEnv], norm: np.ndarray) -> list[WorldState]:
+def _physics_stage(envs: Sequence[SwarmEnv], norm: np.ndarray, batch: Any = None) -> list[WorldState]:
     """Step every world's physics with its ``(N, 2)`` row of the normalised actions ``norm`` and
-    return the snapshots, world by world: what ``SwarmEnv._advance`` does before the rewards."""
+    return the snapshots: what ``SwarmEnv._advance`` does before the rewards. With a
+    :class:`swarm_env.world_batch.WorldBatch` ``batch``, in one compiled call for the worlds it can
+    take (the same bits); without, world by world."""
+    if batch is not None:
+        speed = np.stack([e._speed for e in envs])[:, None, :]
+        worlds = [e._world for e in envs]
+        return batch.step_and_snapshot(norm * speed, worlds=worlds)  # type: ignore[no-any-return]
     out = []
     for e, act in zip(envs, norm):
         world = e._world
