@@ -354,7 +354,7 @@ def _physics_stage(envs: Sequence[SwarmEnv], norm: np.ndarray, batch: Any = None
     if batch is not None:
         speed = np.stack([e._speed for e in envs])[:, None, :]
         worlds = [e._world for e in envs]
-        return batch.step_and_snapshot(norm * speed, worlds=worlds)  # type: ignore[no-any-return]
+        return batch.step_and_snapshot(norm * speed, worlds=worlds)
     out = []
     for e, act in zip(envs, norm):
         world = e._world
