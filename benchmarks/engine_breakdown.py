@@ -5,8 +5,8 @@
 Steps ``swarm_env.vector.SwarmVectorEnv("random", M, **swarm_env.harness.bench.BATCH_WORLD)`` with random
 actions, timing each stage separately (median over repeats, microseconds per world-step):
 ``physics`` (pymunk substeps with the drive callbacks, the humans and the leader, the slot
-targets: ``World.step``, world by world), ``snapshot`` (``World.snapshot``, world by world), then the
-batched stages of :class:`swarm_env.batch_step.BatchState`, each one call for all ``M`` worlds:
+targets and the snapshots: ``World.step`` + ``World.snapshot`` of all worlds in one compiled call,
+:mod:`swarm_env.world_batch`, as the engine's ``_physics_stage``), then the batched stages of :class:`swarm_env.batch_step.BatchState`, each one call for all ``M`` worlds:
 ``rewards`` (contacts, slot distances, reward terms: ``BatchState.rewards``), ``metrics``
 (``EpisodeMetrics.update`` of every world: ``BatchState.metrics``), ``observations`` (everything but
 the lidar: ``BatchState.observations``), ``glue`` (stacking the snapshots' arrays, ``BatchState.gather``,
@@ -25,9 +25,9 @@ import numpy as np
 
 from swarm_env.harness.bench import BATCH_WORLD
 from swarm_env.observations import lidar_input
-from swarm_env.vector import SwarmVectorEnv
+from swarm_env.vector import SwarmVectorEnv, _physics_stage
 
-STAGES = ("physics", "snapshot", "rewards", "metrics", "observations", "glue", "lidar")
+STAGES = ("physics", "rewards", "metrics", "observations", "glue", "lidar")
 
 
 def one_repeat(venv: SwarmVectorEnv, actions: np.ndarray, steps: int) -> dict[str, float]:
@@ -38,16 +38,9 @@ def one_repeat(venv: SwarmVectorEnv, actions: np.ndarray, steps: int) -> dict[st
     clock = time.perf_counter
     for k in range(steps):
         acts = actions[k % len(actions)]
-        states = []
-        for env, act in zip(block.envs, acts):
-            t0 = clock()
-            env._world.step(act * env._speed)
-            t1 = clock()
-            state = env._world.snapshot()
-            t2 = clock()
-            states.append(state)
-            totals["physics"] += t1 - t0
-            totals["snapshot"] += t2 - t1
+        t0 = clock()
+        states = _physics_stage(block.envs, acts, block._physics)
+        totals["physics"] += clock() - t0
         t0 = clock()
         for env, state in zip(block.envs, states):
             env._state = state
