@@ -3,13 +3,21 @@
 One kernel serves a single :class:`~swarm_env.env.SwarmEnv` and the batched engine
 (:mod:`swarm_env.vector`) alike, so both give the same bits: a scan is computed robot by robot,
 and a robot's rays never see another world's geometry. Worlds are packed into flat arrays
-(:class:`PackedMaps`, :func:`pack_discs`) with a start index per world.
+(:class:`PackedMaps`, :func:`pack_discs` or :func:`pack_inputs`) with a start index per world.
 
 Why numba and not numpy: every robot's rays share one origin, so the geometry that can matter
 to a robot (within ``max_range`` of it) is found once per robot and only those primitives are
 tested against its rays. The cost per robot then stays flat as the team grows (numpy's
 all-rays-against-all-discs matmul grows with N^2: its slope was 2.5 from 32 to 64 followers),
 and there are no large temporaries. Measured with ``python benchmarks/lidar_bench.py``.
+
+Issue 11 (1,024 worlds per call) made :func:`scan` ~2x faster again with the same bits
+(``benchmarks/lidar_fast.py``; :func:`scan_reference` keeps the previous kernel, which
+tests/test_lidar_fast.py compares bit for bit): a polygon's edges are skipped when its
+bounding disc is certainly out of range, each robot's candidates go to small contiguous
+arrays with their per-robot terms computed once, and the ray-circle test has no branches.
+The batched engine gathers its worlds with :func:`pack_inputs` (a few concatenations and
+one compiled loop) instead of one ``moving_discs`` array per world.
 
 Semantics (per ray, distance from the origin along the unit direction, clipped to
 ``max_range``; ``max_range`` where nothing is hit):
@@ -153,7 +161,7 @@ def _pack(poses, radii, humans, human_radii, n_fol, n_hum, leaders, world, own, 
             discs[d, 1] = leaders[w, 1]
             discs[d, 2] = leaders[w, 2]
             d += 1
-        for i in range(n_hum[w]):
+        for _i in range(n_hum[w]):
             discs[d, 0] = humans[h, 0]
             discs[d, 1] = humans[h, 1]
             discs[d, 2] = human_radii[h]
