@@ -150,6 +150,7 @@ class ObservationBuilder:
         self._ray_angles = 2.0 * np.pi * np.arange(k) / k
         self._columns: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self._packed_map: tuple[StaticMap, PackedMaps] | None = None
+        self._single_index: dict[int, tuple[np.ndarray, np.ndarray]] = {}  # team size -> (world, own disc) of scan()
         self.state_layout = state_layout(capacity)
         self.state_size = self.state_layout["occupancy"].stop
         self._grid: tuple[StaticMap, np.ndarray] | None = None  # (map, its occupancy grid), see _occupancy
@@ -324,6 +325,21 @@ class ObservationBuilder:
         world ``w`` in the map ``w`` of ``maps``."""
         from swarm_env.lidar import pack_inputs, scan
 
+        if len(inputs) == 1:  # one env's step: the discs laid out here, the index arrays kept per team size
+            poses, radii, humans, human_radii, leader = inputs[0]
+            n = len(poses)
+            index = self._single_index.get(n)
+            if index is None:
+                index = self._single_index[n] = (np.zeros(n, dtype=np.int64), np.arange(n, dtype=np.int64))
+            discs = np.empty((n + (leader is not None) + len(humans), 3))  # as moving_discs
+            discs[:n, :2] = poses[:, :2]
+            discs[:n, 2] = radii
+            if leader is not None:
+                discs[n] = leader
+            discs[len(discs) - len(humans):, :2] = humans
+            discs[len(discs) - len(humans):, 2] = human_radii
+            disc_start = np.array([0, len(discs)], dtype=np.int64)
+            return scan(poses, index[0], index[1], self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
         poses, world, own, disc_start, discs = pack_inputs(inputs)
         return scan(poses, world, own, self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
 
