@@ -3,13 +3,21 @@
 One kernel serves a single :class:`~swarm_env.env.SwarmEnv` and the batched engine
 (:mod:`swarm_env.vector`) alike, so both give the same bits: a scan is computed robot by robot,
 and a robot's rays never see another world's geometry. Worlds are packed into flat arrays
-(:class:`PackedMaps`, :func:`pack_discs`) with a start index per world.
+(:class:`PackedMaps`, :func:`pack_discs` or :func:`pack_inputs`) with a start index per world.
 
 Why numba and not numpy: every robot's rays share one origin, so the geometry that can matter
 to a robot (within ``max_range`` of it) is found once per robot and only those primitives are
 tested against its rays. The cost per robot then stays flat as the team grows (numpy's
 all-rays-against-all-discs matmul grows with N^2: its slope was 2.5 from 32 to 64 followers),
 and there are no large temporaries. Measured with ``python benchmarks/lidar_bench.py``.
+
+Issue 11 (1,024 worlds per call) made :func:`scan` ~2x faster again with the same bits
+(``benchmarks/lidar_fast.py``; :func:`scan_reference` keeps the previous kernel, which
+tests/test_lidar_fast.py compares bit for bit): a polygon's edges are skipped when its
+bounding disc is certainly out of range, each robot's candidates go to small contiguous
+arrays with their per-robot terms computed once, and the ray-circle test has no branches.
+The batched engine gathers its worlds with :func:`pack_inputs` (a few concatenations and
+one compiled loop) instead of one ``moving_discs`` array per world.
 
 Semantics (per ray, distance from the origin along the unit direction, clipped to
 ``max_range``; ``max_range`` where nothing is hit):
@@ -25,11 +33,15 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
 
 from swarm_env.geometry import StaticMap
+
+if TYPE_CHECKING:
+    from swarm_env.observations import LidarInput
 
 
 @dataclass(frozen=True)
@@ -40,7 +52,11 @@ class PackedMaps:
     ``segments`` ``(S, 4)`` edges and walls; ``circles`` ``(K, 3)``; ``poly_normals`` ``(P, Mmax, 2)``
     and ``poly_offsets`` ``(P, Mmax)`` (a point is inside polygon ``p`` iff every
     ``normal . point - offset < 0``; padded as in :class:`~swarm_env.geometry.StaticMap`);
-    ``poly_bound`` ``(P, 3)`` a disc around each polygon (screens the inside test).
+    ``poly_bound`` ``(P, 3)`` a disc around each polygon (screens the inside test and, with a
+    margin, the polygon's edges); ``poly_edges`` ``(P, 2)`` the rows ``[first, stop)`` of ``segments``
+    that are polygon ``p``'s edges; ``wall_start`` ``(W,)`` the first of world ``w``'s walls (its rows
+    of ``segments`` are its polygons' edges, polygon by polygon, then its walls up to
+    ``seg_start[w + 1]``).
     """
 
     seg_start: np.ndarray
@@ -51,6 +67,8 @@ class PackedMaps:
     poly_normals: np.ndarray
     poly_offsets: np.ndarray
     poly_bound: np.ndarray
+    poly_edges: np.ndarray
+    wall_start: np.ndarray
 
     @classmethod
     def of(cls, maps: Sequence[StaticMap]) -> PackedMaps:
@@ -65,8 +83,10 @@ class PackedMaps:
                    for a in arrays]
             return np.ascontiguousarray(np.concatenate(out))
 
+        seg_start = starts([len(m.segments) for m in maps])
+        edges = [seg_start[w] + starts(list(m.poly_counts)) for w, m in enumerate(maps)]  # per world (P_w + 1,)
         return cls(
-            seg_start=starts([len(m.segments) for m in maps]),
+            seg_start=seg_start,
             segments=np.ascontiguousarray(np.concatenate([m.segments for m in maps])),
             circ_start=starts([len(m.circles) for m in maps]),
             circles=np.ascontiguousarray(np.concatenate([m.circles for m in maps])),
@@ -74,7 +94,10 @@ class PackedMaps:
             poly_normals=joined([m.poly_normals for m in maps]),
             poly_offsets=joined([m.poly_offsets for m in maps]),
             poly_bound=np.ascontiguousarray(np.concatenate([m._bound[len(m.circles):] for m in maps])),
-    )
+            poly_edges=np.ascontiguousarray(np.concatenate([np.column_stack([e[:-1], e[1:]]) for e in edges]),
+                                            dtype=np.int64).reshape(-1, 2),
+            wall_start=np.array([e[-1] for e in edges], dtype=np.int64),
+        )
 
 
 def pack_discs(per_world: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -83,6 +106,68 @@ def pack_discs(per_world: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]
     start = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
     discs = np.concatenate(per_world).reshape(-1, 3) if per_world else np.zeros((0, 3))
     return start, np.ascontiguousarray(discs, dtype=np.float64)
+
+
+def pack_inputs(
+    inputs: Sequence[LidarInput],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`scan`'s ``(poses, world, own_disc, disc_start, discs)`` for the worlds ``inputs``
+    (:func:`swarm_env.observations.lidar_input` tuples, world ``w`` = ``inputs[w]``), in one pass:
+    a few concatenations over all worlds, then one compiled loop that lays out each world's discs
+    as :func:`swarm_env.observations.moving_discs` does (followers, a robot leader, humans)."""
+    m = len(inputs)
+    if m == 1:  # one env's step: no lists to join
+        poses, radii, humans, human_radii, leader = inputs[0]
+    else:
+        poses = np.concatenate([x[0] for x in inputs])
+        radii = np.concatenate([x[1] for x in inputs])
+        humans = np.concatenate([x[2] for x in inputs])
+        human_radii = np.concatenate([x[3] for x in inputs])
+    n_fol = np.fromiter([len(x[1]) for x in inputs], dtype=np.int64, count=m)
+    n_hum = np.fromiter([len(x[3]) for x in inputs], dtype=np.int64, count=m)
+    leaders = np.full((m, 3), np.nan)  # NaN radius: a virtual leader (no disc)
+    for w, x in enumerate(inputs):
+        if x[4] is not None:
+            leaders[w] = x[4]
+    q = int(n_fol.sum())
+    world = np.empty(q, dtype=np.int64)
+    own = np.empty(q, dtype=np.int64)
+    disc_start = np.empty(m + 1, dtype=np.int64)
+    discs = np.empty((q + int(n_hum.sum()) + m - int(np.isnan(leaders[:, 2]).sum()), 3))
+    _pack(_c(poses, np.float64).reshape(-1, 3), _c(radii, np.float64).reshape(-1),
+          _c(humans, np.float64).reshape(-1, 2), _c(human_radii, np.float64).reshape(-1), n_fol, n_hum, leaders,
+          world, own, disc_start, discs)
+    return _c(poses, np.float64).reshape(-1, 3), world, own, disc_start, discs
+
+
+@numba.njit(cache=True, nogil=True)
+def _pack(poses, radii, humans, human_radii, n_fol, n_hum, leaders, world, own, disc_start,
+          discs):  # pragma: no cover - compiled
+    q = 0
+    h = 0
+    d = 0
+    for w in range(n_fol.shape[0]):
+        disc_start[w] = d
+        for i in range(n_fol[w]):
+            world[q] = w
+            own[q] = i  # followers come first among a world's discs
+            discs[d, 0] = poses[q, 0]
+            discs[d, 1] = poses[q, 1]
+            discs[d, 2] = radii[q]
+            q += 1
+            d += 1
+        if not np.isnan(leaders[w, 2]):
+            discs[d, 0] = leaders[w, 0]
+            discs[d, 1] = leaders[w, 1]
+            discs[d, 2] = leaders[w, 2]
+            d += 1
+        for _i in range(n_hum[w]):
+            discs[d, 0] = humans[h, 0]
+            discs[d, 1] = humans[h, 1]
+            discs[d, 2] = human_radii[h]
+            h += 1
+            d += 1
+    disc_start[n_fol.shape[0]] = d
 
 
 def scan(
@@ -108,7 +193,33 @@ def scan(
         f64, i64 = np.float64, np.int64
         _scan(_c(poses, f64), _c(world, i64), _c(own_disc, i64), _c(ray_angles, f64), float(max_range),
               maps.seg_start, maps.segments, maps.circ_start, maps.circles, maps.poly_start, maps.poly_normals,
-              maps.poly_offsets, maps.poly_bound, _c(disc_start, i64), _c(discs, f64), out)
+              maps.poly_offsets, maps.poly_bound, maps.poly_edges, maps.wall_start, _c(disc_start, i64),
+              _c(discs, f64), out)
+    return out
+
+
+def scan_reference(
+    poses: np.ndarray,
+    world: np.ndarray,
+    own_disc: np.ndarray,
+    ray_angles: np.ndarray,
+    max_range: float,
+    maps: PackedMaps,
+    disc_start: np.ndarray,
+    discs: np.ndarray,
+) -> np.ndarray:
+    """:func:`scan` by the plain kernel it replaced: every primitive of the robot's world within
+    ``max_range`` is tested against every ray, with no further culling. The same bits as
+    :func:`scan` (tests/test_lidar_fast.py checks it); kept as the reference and the benchmarks'
+    "before"."""
+    q = len(poses)
+    out = np.empty((q, len(ray_angles)))
+    if q:
+        f64, i64 = np.float64, np.int64
+        _scan_reference(_c(poses, f64), _c(world, i64), _c(own_disc, i64), _c(ray_angles, f64), float(max_range),
+                        maps.seg_start, maps.segments, maps.circ_start, maps.circles, maps.poly_start,
+                        maps.poly_normals, maps.poly_offsets, maps.poly_bound, _c(disc_start, i64), _c(discs, f64),
+                        out)
     return out
 
 
@@ -141,7 +252,155 @@ def cast_rays(
 
 @numba.njit(cache=True, nogil=True)
 def _scan(poses, world, own_disc, ray_angles, max_range, seg_start, segments, circ_start, circles, poly_start,
+          poly_normals, poly_offsets, poly_bound, poly_edges, wall_start, disc_start, discs,
+          out):  # pragma: no cover - compiled
+    # The same tests with the same arithmetic as _scan_reference, so the same bits; faster by
+    # (1) skipping a polygon's edges when its bounding disc is out of range (a margin far above
+    # rounding keeps the skip conservative: the edges skipped are exactly those the reference's
+    # exact closest-point test rejects), (2) copying each robot's candidate primitives into small
+    # contiguous arrays with the per-robot parts of the ray tests computed once (each ray
+    # recomputed them before: same operations, same operands, so the same values), and (3) a
+    # circle test without branches (the reference's two early exits mispredicted about half the
+    # time). The minimum over primitives is exact, so their order does not matter.
+    n_rays = ray_angles.shape[0]
+    max_seg = 0
+    max_circ = 0
+    for w in range(seg_start.shape[0] - 1):
+        max_seg = max(max_seg, seg_start[w + 1] - seg_start[w])
+        max_circ = max(max_circ, circ_start[w + 1] - circ_start[w] + disc_start[w + 1] - disc_start[w])
+    s_wx = np.empty(max_seg)  # per candidate segment: a - o, e = b - a, and (a - o) x e
+    s_wy = np.empty(max_seg)
+    s_ex = np.empty(max_seg)
+    s_ey = np.empty(max_seg)
+    s_nt = np.empty(max_seg)
+    c_vx = np.empty(max_circ)  # per candidate circle or disc: centre - o and |centre - o|^2 - r^2
+    c_vy = np.empty(max_circ)
+    c_cc = np.empty(max_circ)
+    r2 = max_range * max_range
+    for k in range(poses.shape[0]):
+        w = world[k]
+        ox = poses[k, 0]
+        oy = poses[k, 1]
+        heading = poses[k, 2]
+        # Inside a polygon: every ray reports 0 (as the reference).
+        inside = False
+        for p in range(poly_start[w], poly_start[w + 1]):
+            bx = ox - poly_bound[p, 0]
+            by = oy - poly_bound[p, 1]
+            if bx * bx + by * by > poly_bound[p, 2] * poly_bound[p, 2]:
+                continue
+            worst = -np.inf
+            for m in range(poly_normals.shape[1]):
+                h = poly_normals[p, m, 0] * ox + poly_normals[p, m, 1] * oy - poly_offsets[p, m]
+                if h > worst:
+                    worst = h
+            if worst < 0.0:
+                inside = True
+                break
+        if inside:
+            for r in range(n_rays):
+                out[k, r] = 0.0
+            continue
+        # The segments within max_range of the origin: the reference's exact test, on the walls
+        # and on the edges of the polygons whose bounding disc is not certainly out of range.
+        ns = 0
+        slack = 1e-6 * (1.0 + max_range + abs(ox) + abs(oy))
+        for p in range(poly_start[w], poly_start[w + 1] + 1):
+            if p < poly_start[w + 1]:
+                bx = ox - poly_bound[p, 0]
+                by = oy - poly_bound[p, 1]
+                reach = max_range + poly_bound[p, 2] * (1.0 + 1e-9) + slack
+                if bx * bx + by * by > reach * reach:
+                    continue
+                first = poly_edges[p, 0]
+                stop = poly_edges[p, 1]
+            else:  # the walls
+                first = wall_start[w]
+                stop = seg_start[w + 1]
+            for s in range(first, stop):
+                ax = segments[s, 0]
+                ay = segments[s, 1]
+                ex = segments[s, 2] - ax
+                ey = segments[s, 3] - ay
+                ee = ex * ex + ey * ey
+                t = 0.0
+                if ee > 0.0:
+                    t = ((ox - ax) * ex + (oy - ay) * ey) / ee
+                    t = min(max(t, 0.0), 1.0)
+                fx = ax + t * ex - ox
+                fy = ay + t * ey - oy
+                if fx * fx + fy * fy < r2:
+                    wx = ax - ox
+                    wy = ay - oy
+                    s_wx[ns] = wx
+                    s_wy[ns] = wy
+                    s_ex[ns] = ex
+                    s_ey[ns] = ey
+                    s_nt[ns] = wx * ey - wy * ex
+                    ns += 1
+        nc = 0
+        zero = False  # the origin is inside a circle or another disc: every ray reports 0
+        k0 = circ_start[w]
+        n_circ = circ_start[w + 1] - k0
+        d0 = disc_start[w]
+        n_disc = disc_start[w + 1] - d0
+        for c in range(n_circ + n_disc):
+            if c < n_circ:
+                cx = circles[k0 + c, 0]
+                cy = circles[k0 + c, 1]
+                cr = circles[k0 + c, 2]
+            else:
+                if c - n_circ == own_disc[k]:
+                    continue
+                cx = discs[d0 + c - n_circ, 0]
+                cy = discs[d0 + c - n_circ, 1]
+                cr = discs[d0 + c - n_circ, 2]
+            vx = cx - ox
+            vy = cy - oy
+            cc = vx * vx + vy * vy - cr * cr
+            if cc <= 0.0:
+                zero = True
+                break
+            reach = max_range + cr
+            if vx * vx + vy * vy < reach * reach:
+                c_vx[nc] = vx
+                c_vy[nc] = vy
+                c_cc[nc] = cc
+                nc += 1
+        if zero:
+            for r in range(n_rays):
+                out[k, r] = 0.0
+            continue
+        for r in range(n_rays):
+            ang = heading + ray_angles[r]
+            dx = math.cos(ang)
+            dy = math.sin(ang)
+            best = max_range
+            for j in range(ns):
+                ex = s_ex[j]
+                ey = s_ey[j]
+                den = dx * ey - dy * ex  # d x e
+                if den == 0.0:
+                    continue  # parallel
+                t = s_nt[j] / den
+                u = (s_wx[j] * dy - s_wy[j] * dx) / den
+                if t >= 0.0 and u >= 0.0 and u <= 1.0 and t < best:
+                    best = t
+            for j in range(nc):
+                b = c_vx[j] * dx + c_vy[j] * dy
+                disc = b * b - c_cc[j]
+                # A hit where b > 0 (ahead; the origin is outside) and disc >= 0, at b - sqrt(disc):
+                # max(disc, 0) only keeps the square root of a miss finite.
+                t = b - math.sqrt(max(disc, 0.0))
+                best = t if (b > 0.0) & (disc >= 0.0) & (t < best) else best
+            out[k, r] = best
+
+
+@numba.njit(cache=True, nogil=True)
+def _scan_reference(poses, world, own_disc, ray_angles, max_range, seg_start, segments, circ_start, circles, poly_start,
           poly_normals, poly_offsets, poly_bound, disc_start, discs, out):  # pragma: no cover - compiled
+    # The kernel before the faster one (issue 11), kept verbatim as the reference its results are
+    # compared with bit for bit (tests/test_lidar_fast.py) and timed against (benchmarks/lidar_fast.py).
     n_rays = ray_angles.shape[0]
     cand_seg = np.empty(segments.shape[0], dtype=np.int64)
     cand_circ = np.empty(circles.shape[0] + discs.shape[0], dtype=np.int64)  # circles, then discs (>= K)

@@ -320,24 +320,27 @@ class ObservationBuilder:
             maps = self._packed(states[0].static) if len(states) == 1 else _packed_maps([s.static for s in states])
         return self.scan([lidar_input(s) for s in states], maps)
 
-    def scan(self, inputs: Sequence[tuple[np.ndarray, np.ndarray]], maps: PackedMaps) -> np.ndarray:
-        """``(sum N, rays)`` lidar distances (m) of worlds given as :func:`lidar_input` pairs
-        ``(follower poses (N, 3), moving discs (D, 3))``, world ``w`` in the map ``w`` of ``maps``."""
-        from swarm_env.lidar import pack_discs, scan
+    def scan(self, inputs: Sequence[LidarInput], maps: PackedMaps) -> np.ndarray:
+        """``(sum N, rays)`` lidar distances (m) of worlds given as :func:`lidar_input` tuples,
+        world ``w`` in the map ``w`` of ``maps``."""
+        from swarm_env.lidar import pack_inputs, scan
 
-        if len(inputs) == 1:  # one env's step: no packing to do (the index arrays are kept per team size)
-            poses, discs = inputs[0]
+        if len(inputs) == 1:  # one env's step: the discs laid out here, the index arrays kept per team size
+            poses, radii, humans, human_radii, leader = inputs[0]
             n = len(poses)
             index = self._single_index.get(n)
             if index is None:
                 index = self._single_index[n] = (np.zeros(n, dtype=np.int64), np.arange(n, dtype=np.int64))
+            discs = np.empty((n + (leader is not None) + len(humans), 3))  # as moving_discs
+            discs[:n, :2] = poses[:, :2]
+            discs[:n, 2] = radii
+            if leader is not None:
+                discs[n] = leader
+            discs[len(discs) - len(humans):, :2] = humans
+            discs[len(discs) - len(humans):, 2] = human_radii
             disc_start = np.array([0, len(discs)], dtype=np.int64)
             return scan(poses, index[0], index[1], self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
-        counts = [len(p) for p, _ in inputs]
-        world = np.repeat(np.arange(len(inputs)), counts)
-        poses = np.concatenate([p for p, _ in inputs])
-        own = np.concatenate([np.arange(n) for n in counts])  # followers come first among a world's discs
-        disc_start, discs = pack_discs([d for _, d in inputs])
+        poses, world, own, disc_start, discs = pack_inputs(inputs)
         return scan(poses, world, own, self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
 
     def _packed(self, static: StaticMap) -> PackedMaps:
@@ -399,10 +402,19 @@ def _packed_maps(maps: Sequence[StaticMap]) -> PackedMaps:
     return PackedMaps.of(maps)
 
 
-def lidar_input(state: WorldState) -> tuple[np.ndarray, np.ndarray]:
-    """What the lidar needs of a world besides its static map: the follower poses ``(N, 3)``
-    and :func:`moving_discs`."""
-    return state.follower_pose, moving_discs(state)
+#: What the lidar needs of a world besides its static map (:func:`lidar_input`): follower poses
+#: ``(N, 3)`` and radii ``(N,)``, human positions ``(H, 2)`` and radii ``(H,)``, and the leader's disc
+#: ``(x, y, r)`` if the leader is a robot (else ``None``). References to the state's own arrays: no copy.
+LidarInput = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, "tuple[float, float, float] | None"]
+
+
+def lidar_input(state: WorldState) -> LidarInput:
+    """The :data:`LidarInput` of ``state``: its arrays as they are (the lidar packs many worlds
+    in one pass, :func:`swarm_env.lidar.pack_inputs`; the discs are those of :func:`moving_discs`)."""
+    leader = None
+    if state.leader_is_robot:
+        leader = (float(state.leader_pose[0]), float(state.leader_pose[1]), float(state.leader_radius))
+    return state.follower_pose, state.follower_radius, state.human_pos, state.human_radius, leader
 
 
 def moving_discs(state: WorldState) -> np.ndarray:

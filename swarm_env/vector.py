@@ -79,7 +79,7 @@ from swarm_env.batch_step import BatchState
 from swarm_env.compiled import compiled_kernels
 from swarm_env.env import _INFO_KEYS, StepOutcome, SwarmEnv, clip_to_action_space, info_columns, primitive_table
 from swarm_env.geometry import StaticMap
-from swarm_env.observations import lidar_input
+from swarm_env.observations import LidarInput, lidar_input
 from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS
 from swarm_env.state import WorldState
 from swarm_env.wrappers import SHIELD_INFO_KEYS, SafetyShield
@@ -116,7 +116,7 @@ class _BlockResult:
     """What a block of ``B`` worlds returns from a reset or a step (see :class:`_WorldBlock`)."""
 
     obs: np.ndarray  # (B, N, D) float32, lidar columns still 0
-    scans: list[tuple[np.ndarray, np.ndarray]]  # per world: observations.lidar_input of its current state
+    scans: list[LidarInput]  # per world: observations.lidar_input of its current state
     maps: dict[int, StaticMap]  # worlds (block index) whose map changed since the last result
     rewards: np.ndarray | None = None  # (B, N)
     terminated: np.ndarray | None = None  # (B,)
@@ -124,7 +124,7 @@ class _BlockResult:
     infos: dict[str, np.ndarray] = field(default_factory=dict)  # (B, N) each
     # Worlds whose episode ended in this step: (block index, last obs without lidar, its scan input, metrics,
     # last state() vector, last WorldState).
-    final: list[tuple[int, np.ndarray, tuple[np.ndarray, np.ndarray], dict[str, Any], np.ndarray, Any]] = field(
+    final: list[tuple[int, np.ndarray, LidarInput, dict[str, Any], np.ndarray, Any]] = field(
         default_factory=list)
 
 
@@ -605,7 +605,7 @@ class SwarmVectorEnv:
         self._obs.fill_lidar(obs, self._scan(scans, range(self.num_envs)).reshape(self.num_envs, self.num_agents, -1))
         return obs, infos, final_obs
 
-    def _scan(self, inputs: list[tuple[np.ndarray, np.ndarray]], worlds: Sequence[int]) -> np.ndarray:
+    def _scan(self, inputs: list[LidarInput], worlds: Sequence[int]) -> np.ndarray:
         from swarm_env.lidar import PackedMaps
 
         maps = [self._maps[m] for m in worlds]
