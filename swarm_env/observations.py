@@ -326,18 +326,12 @@ class ObservationBuilder:
         from swarm_env.lidar import pack_inputs, scan
 
         if len(inputs) == 1:  # one env's step: the discs laid out here, the index arrays kept per team size
-            poses, radii, humans, human_radii, leader = inputs[0]
+            poses = inputs[0][0]
             n = len(poses)
             index = self._single_index.get(n)
             if index is None:
                 index = self._single_index[n] = (np.zeros(n, dtype=np.int64), np.arange(n, dtype=np.int64))
-            discs = np.empty((n + (leader is not None) + len(humans), 3))  # as moving_discs
-            discs[:n, :2] = poses[:, :2]
-            discs[:n, 2] = radii
-            if leader is not None:
-                discs[n] = leader
-            discs[len(discs) - len(humans):, :2] = humans
-            discs[len(discs) - len(humans):, 2] = human_radii
+            discs = discs_of(inputs[0])
             disc_start = np.array([0, len(discs)], dtype=np.int64)
             return scan(poses, index[0], index[1], self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
         poses, world, own, disc_start, discs = pack_inputs(inputs)
@@ -420,18 +414,22 @@ def lidar_input(state: WorldState) -> LidarInput:
 def moving_discs(state: WorldState) -> np.ndarray:
     """``(D, 3)`` ``(x, y, r)`` of the moving bodies the lidar sees: the followers (in order,
     first), a robot leader, then the humans."""
-    n = state.n_followers
-    discs = np.empty((n + state.leader_is_robot + len(state.human_pos), 3))
-    discs[:n, :2] = state.follower_pose[:, :2]
-    discs[:n, 2] = state.follower_radius
-    m = n
-    if state.leader_is_robot:
-        discs[m, :2] = state.leader_pose[:2]
-        discs[m, 2] = state.leader_radius
-        m += 1
-    if len(state.human_pos):
-        discs[m:, :2] = state.human_pos
-        discs[m:, 2] = state.human_radius
+    return discs_of(lidar_input(state))
+
+
+def discs_of(lidar: LidarInput) -> np.ndarray:
+    """:func:`moving_discs` of a world given as its :data:`LidarInput` (the one place of the layout;
+    :func:`swarm_env.lidar.pack_inputs` lays out many worlds the same way, tested against this)."""
+    poses, radii, humans, human_radii, leader = lidar
+    n = len(poses)
+    discs = np.empty((n + (leader is not None) + len(humans), 3))
+    discs[:n, :2] = poses[:, :2]
+    discs[:n, 2] = radii
+    if leader is not None:
+        discs[n] = leader
+    if len(humans):
+        discs[len(discs) - len(humans):, :2] = humans
+        discs[len(discs) - len(humans):, 2] = human_radii
     return discs
 
 
