@@ -250,6 +250,25 @@ def cast_rays(
                 disc_start, packed)[:, 0]
 
 
+@numba.njit(cache=True, nogil=True, inline="always")
+def _inside_polygon(ox, oy, w, poly_start, poly_normals, poly_offsets, poly_bound):  # pragma: no cover - compiled
+    """Whether ``(ox, oy)`` lies strictly inside one of world ``w``'s polygons (both kernels: a lidar
+    there reports 0 on every ray)."""
+    for p in range(poly_start[w], poly_start[w + 1]):
+        bx = ox - poly_bound[p, 0]
+        by = oy - poly_bound[p, 1]
+        if bx * bx + by * by > poly_bound[p, 2] * poly_bound[p, 2]:
+            continue
+        worst = -np.inf
+        for m in range(poly_normals.shape[1]):
+            h = poly_normals[p, m, 0] * ox + poly_normals[p, m, 1] * oy - poly_offsets[p, m]
+            if h > worst:
+                worst = h
+        if worst < 0.0:
+            return True
+    return False
+
+
 @numba.njit(cache=True, nogil=True)
 def _scan(poses, world, own_disc, ray_angles, max_range, seg_start, segments, circ_start, circles, poly_start,
           poly_normals, poly_offsets, poly_bound, poly_edges, wall_start, disc_start, discs,
@@ -282,22 +301,7 @@ def _scan(poses, world, own_disc, ray_angles, max_range, seg_start, segments, ci
         ox = poses[k, 0]
         oy = poses[k, 1]
         heading = poses[k, 2]
-        # Inside a polygon: every ray reports 0 (as the reference).
-        inside = False
-        for p in range(poly_start[w], poly_start[w + 1]):
-            bx = ox - poly_bound[p, 0]
-            by = oy - poly_bound[p, 1]
-            if bx * bx + by * by > poly_bound[p, 2] * poly_bound[p, 2]:
-                continue
-            worst = -np.inf
-            for m in range(poly_normals.shape[1]):
-                h = poly_normals[p, m, 0] * ox + poly_normals[p, m, 1] * oy - poly_offsets[p, m]
-                if h > worst:
-                    worst = h
-            if worst < 0.0:
-                inside = True
-                break
-        if inside:
+        if _inside_polygon(ox, oy, w, poly_start, poly_normals, poly_offsets, poly_bound):  # every ray reports 0
             for r in range(n_rays):
                 out[k, r] = 0.0
             continue
@@ -399,7 +403,7 @@ def _scan(poses, world, own_disc, ray_angles, max_range, seg_start, segments, ci
 @numba.njit(cache=True, nogil=True)
 def _scan_reference(poses, world, own_disc, ray_angles, max_range, seg_start, segments, circ_start, circles, poly_start,
           poly_normals, poly_offsets, poly_bound, disc_start, discs, out):  # pragma: no cover - compiled
-    # The kernel before the faster one (issue 11), kept verbatim as the reference its results are
+    # The kernel before the faster one (issue 11), kept (sharing only _inside_polygon) as the reference its results are
     # compared with bit for bit (tests/test_lidar_fast.py) and timed against (benchmarks/lidar_fast.py).
     n_rays = ray_angles.shape[0]
     cand_seg = np.empty(segments.shape[0], dtype=np.int64)
@@ -409,22 +413,7 @@ def _scan_reference(poses, world, own_disc, ray_angles, max_range, seg_start, se
         ox = poses[k, 0]
         oy = poses[k, 1]
         heading = poses[k, 2]
-        # Inside a polygon: every ray reports 0.
-        inside = False
-        for p in range(poly_start[w], poly_start[w + 1]):
-            bx = ox - poly_bound[p, 0]
-            by = oy - poly_bound[p, 1]
-            if bx * bx + by * by > poly_bound[p, 2] * poly_bound[p, 2]:
-                continue
-            worst = -np.inf
-            for m in range(poly_normals.shape[1]):
-                h = poly_normals[p, m, 0] * ox + poly_normals[p, m, 1] * oy - poly_offsets[p, m]
-                if h > worst:
-                    worst = h
-            if worst < 0.0:
-                inside = True
-                break
-        if inside:
+        if _inside_polygon(ox, oy, w, poly_start, poly_normals, poly_offsets, poly_bound):  # every ray reports 0
             for r in range(n_rays):
                 out[k, r] = 0.0
             continue

@@ -435,7 +435,7 @@ class WorldBatch:
         lpose_l, lvel_l, ltwist_l, hpos_l, hvel_l = list(lpose), list(lvel), list(ltwist), list(hpos), list(hvel)
         free_l, done_l, times_l, form_l = free.tolist(), done.tolist(), times.tolist(), form.tolist()
         next_l = next_switch.tolist()
-        new_state = object.__new__
+        build_state = WorldState.build
         for r, m in enumerate(rows):
             w = held[m]
             h = records[m].h  # type: ignore[union-attr]
@@ -456,8 +456,7 @@ class WorldBatch:
             w._slots = s
             w._settle_contacts()
             # World.snapshot's WorldState (the same fields, the same order)
-            state = new_state(WorldState)
-            state.__dict__.update(
+            states[m] = build_state(
                 time=t,
                 step=step_count,
                 follower_pose=pose_l[r],
@@ -479,9 +478,7 @@ class WorldBatch:
                 static=w.static,
                 scenario=w.scenario,
                 touching=w._touching_step,
-                _derived={},
             )
-            states[m] = state
         return len(rows)
 
 
