@@ -17,13 +17,18 @@ privileged :class:`~swarm_env.state.WorldState`:
    ``T = 0.5`` s). ``v_slot`` is the
    rigid-body velocity of the leader's frame at the slot, ``v_L + omega_L x (slot
    - p_L)``. One deviation from Eq. 4: a target behind the robot is turned to
-   in place at the full turn rate (``full_turn``). Optional *preview*
-   (``preview > 0``, off by default): the led point is moved out of obstacles
+   in place at the full turn rate (``full_turn``). *Preview* (``preview``, 0.5 s
+   by default; ``0`` for none): the led point is moved out of obstacles
    by the env's own slot rule (:meth:`~swarm_env.geometry.StaticMap.project_free`
    with clearance ``radius + SLOT_MARGIN``), and the robot steers along the arc
    towards the slot ``preview`` s ahead (also moved out of obstacles) at the
    speed of the law above, so it starts bending around an obstacle that the
-   slot will skirt before the velocity obstacle has to stop it.
+   slot will skirt before the velocity obstacle has to stop it. *Look-ahead cap*
+   (``lookahead``, 0.875 s by default; ``0`` for none): both points are pulled
+   towards the robot to at most ``max_speed * lookahead`` from it, so a robot far
+   from its slot (after a formation switch) turns towards it before it drives
+   instead of leaving on a wide arc (pure pursuit's curvature is ``2 sin(alpha) /
+   l``: small for a far target).
 3. **Velocity obstacle** (Eq. 12): :func:`swarm_env.guidance.vo_select_batch`
    samples candidate twists ``(v, omega)`` within the robot's limits, rejects
    every candidate whose predicted motion enters the velocity obstacle of
@@ -77,19 +82,29 @@ from swarm_env.state import WorldState
 if TYPE_CHECKING:
     from swarm_env.env import SwarmEnv
 
-__all__ = ["EXPERT_AVOIDANCE", "VOExpert", "make_policy"]
+__all__ = ["EXPERT_AVOIDANCE", "LEGACY_SPEC", "VOExpert", "make_policy"]
 
 #: Where the expert's avoidance defaults differ from :class:`~swarm_env.safety.AvoidanceParams`' (which the
-#: safety layer keeps): a blocked follower drives off on a safe detour before it turns in place
-#: (``move_first``), and another follower nearer than the combined radius plus 0.2 m is avoided plainly
-#: (``recip_gap``); see :func:`swarm_env.guidance.vo_select`. Measured (seed 0 of each fixed scenario, random
-#: worlds 1000-1049; mean formation error in m, without -> with): paper_vo_0 0.330 -> 0.295, paper_vo_45
-#: 0.409 -> 0.386, paper_vo_90 0.152 -> 0.119, paper_cbs_switch 0.340 -> 0.261, corridor 0.629 -> 0.301,
-#: crowd_reactive 0.120 -> 0.116, random 0.234 -> 0.229, no collisions in any of them. ``move_first``
-#: alone brought two followers of paper_cbs_switch (dt = 0.5 s) into contact; ``recip_gap`` prevents it.
-#: ``vo:move_first=false,recip_gap=0`` is the earlier expert (the one the shipped ``residual_vo`` runs
-#: were trained with, and which their files name).
-EXPERT_AVOIDANCE: dict[str, Any] = {"move_first": True, "recip_gap": 0.2}
+#: safety layer keeps; see :func:`swarm_env.guidance.vo_select` for each):
+#:
+#: * ``move_first``: a blocked follower drives off on a safe detour before it turns in place;
+#: * ``recip_gap=0.2``: another follower nearer than the combined radius plus 0.2 m is avoided plainly
+#:   (``move_first`` alone brought two followers of paper_cbs_switch, dt = 0.5 s, into contact);
+#: * ``horizon=2.5``, ``horizon_static=1.0``, ``tau=0.7``: shorter horizons (ORCA's are 2 s and 1 s), so a
+#:   follower keeps its speed until an obstacle is near and then bends round it;
+#: * ``w_speed=3``: a change of speed costs three times a change of turn rate, so the follower bends round
+#:   rather than slowing down (a slow-down only pushes the contact past the horizon);
+#: * ``escape_commit=1``: a follower turning in place to escape keeps its direction (no left-right dithering).
+#:
+#: With the tracking defaults ``preview=0.5, lookahead=0.875``. Measured against the earlier expert and
+#: ORCA in docs/vo_expert.md ("Against ORCA"). ``LEGACY_SPEC`` is the earlier expert.
+EXPERT_AVOIDANCE: dict[str, Any] = {"move_first": True, "recip_gap": 0.2, "horizon": 2.5, "horizon_static": 1.0,
+                                    "tau": 0.7, "w_speed": 3.0, "escape_commit": 1.0}
+
+#: The expert before issue 12 (AvoidanceParams' defaults, no preview, no look-ahead cap): the one the
+#: shipped ``residual_vo`` runs were trained with, which their files name as their residual's expert.
+LEGACY_SPEC = ("vo:move_first=false,recip_gap=0,horizon=3,horizon_static=3,tau=1,w_speed=1,escape_commit=0,"
+               "preview=0,lookahead=0")
 
 
 class VOExpert:
@@ -116,22 +131,22 @@ class VOExpert:
             Eq. 4 at 90 degrees), which is slow for a far target and let a
             follower whose slot lay beyond an obstacle alternate for minutes
             between that slow turn and the escape turn (paper_cbs_switch).
-        preview: look-ahead (s) of the steering, ``0`` (default) for none. With
+        preview: look-ahead (s) of the steering (default 0.5), ``0`` for none. With
             ``preview > 0`` (and ``feed_forward``) the pursued point ``slot + v_slot T``
             is moved out of obstacles as the env moves the slots, and the twist
             keeps pure pursuit's speed but takes the curvature of the arc to
             ``slot + v_slot preview`` (moved out of obstacles too), slowing down
-            where that curvature needs more than the turn-rate limit. Measured
-            with ``preview=1`` (seed 0): lower formation error on paper_vo_0/45/90,
-            corridor and crowd_reactive (paper_vo_90 0.152 -> 0.068 m, corridor
-            0.629 -> 0.265 m) without collisions, but paper_cbs_switch no longer
-            finished in its 240 s (a follower left behind an obstacle), and on
-            random worlds 1000-1199 the error was no lower (0.223 vs 0.221 m),
-            one episode had a collision (seed 1121; none without preview) and 6
-            (3 without) ended unsettled; hence off by default. The velocity obstacle still slows a follower
-            down rather than turning it wide when its slot's track is blocked
-            (its penalty is a distance in ``(v, omega)``), which is where most of
-            the remaining gap to the ORCA reference comes from.
+            where that curvature needs more than the turn-rate limit.
+        lookahead: cap (s) on the distance of the pursued points (default 0.875): each is
+            pulled towards the robot to at most ``max_speed * lookahead`` from it. ``0``
+            for none (Eq. 9's distance ``l`` to the slot itself).
+
+        Measured (seed 0; mean formation error in m), the defaults against each left out:
+        paper_vo_90 0.046 (``preview=0``: 0.113, ``lookahead=0``: 0.049, ``w_speed=1``: 0.049),
+        crowd_reactive 0.074 (0.090, 0.098, 0.084), corridor 0.249 (0.249, 0.265, 0.248); on
+        paper_cbs_switch each of those three, and ``escape_commit=0``, brings 1-3 contacts (the
+        defaults: none). The whole comparison with the earlier expert and ORCA is in
+        docs/vo_expert.md ("Against ORCA").
 
     Avoidance (velocity obstacles, Eq. 12): any field of
     :class:`swarm_env.safety.AvoidanceParams` (the search's
@@ -155,7 +170,8 @@ class VOExpert:
         feed_forward: bool = True,
         arrive_radius: float = 0.05,
         full_turn: bool = True,
-        preview: float = 0.0,
+        preview: float = 0.5,
+        lookahead: float = 0.875,
         **avoidance: Any,
     ) -> None:
         if not (isinstance(time_gap, (int, float)) and math.isfinite(time_gap) and time_gap > 0):
@@ -164,6 +180,8 @@ class VOExpert:
             raise ValueError(f"arrive_radius must be a finite number >= 0, got {arrive_radius!r}")
         if not (isinstance(preview, (int, float)) and math.isfinite(preview) and preview >= 0):
             raise ValueError(f"preview must be a finite number >= 0, got {preview!r}")
+        if not (isinstance(lookahead, (int, float)) and math.isfinite(lookahead) and lookahead >= 0):
+            raise ValueError(f"lookahead must be a finite number >= 0, got {lookahead!r}")
         unknown = sorted(set(avoidance) - set(AvoidanceParams.names()))
         if unknown:
             raise TypeError(f"VOExpert got unknown parameter(s) {unknown}; known: {', '.join(self.policy_parameters())}")
@@ -175,6 +193,7 @@ class VOExpert:
         self.arrive_radius = float(arrive_radius)
         self.full_turn = bool(full_turn)
         self.preview = float(preview)
+        self.lookahead = float(lookahead)
         self._index: dict[str, int] = {}
         self._reset_stats()
 
@@ -239,7 +258,7 @@ class VOExpert:
         preview = self.feed_forward and self.preview > 0.0
         if self.feed_forward:
             v_slot = slot_velocities(state.leader_pose, state.leader_vel, float(state.leader_twist[1]), slots)
-            target = slots + v_slot * T
+            target = self._capped(state.follower_pose, slots + v_slot * T, v_max)
             if not preview and guidance.compiled_search():
                 return self._pursuit_compiled(state.follower_pose, target, v_max, omega_max)
             if preview:
@@ -253,7 +272,8 @@ class VOExpert:
                 return self._pursuit_compiled(state.follower_pose, target, v_max, omega_max)
         twist = pure_pursuit(state.follower_pose, target, v_max, omega_max, T)
         if preview:
-            ahead = state.static.project_free(slots + v_slot * self.preview, clearance)
+            ahead = self._capped(state.follower_pose, state.static.project_free(slots + v_slot * self.preview, clearance),
+                                 v_max)
             # Pure pursuit's speed along the arc to the point ahead (its curvature), slowed down
             # where that curvature would need more than the turn-rate limit (as pure pursuit does).
             steer = pure_pursuit(state.follower_pose, ahead, v_max, omega_max, self.preview)
@@ -273,6 +293,17 @@ class VOExpert:
         arrived = d[:, 0] ** 2 + d[:, 1] ** 2 < self.arrive_radius**2
         twist[arrived] = 0.0
         return twist
+
+    def _capped(self, pose: np.ndarray, target: np.ndarray, v_max: float) -> np.ndarray:
+        """``lookahead``: each point of ``target`` ``(N, 2)`` moved towards its robot to at most
+        ``v_max * lookahead`` from it (unchanged with ``lookahead = 0``)."""
+        if self.lookahead <= 0.0:
+            return target
+        d = target - pose[:, :2]
+        dist = np.hypot(d[:, 0], d[:, 1])
+        cap = v_max * self.lookahead
+        scale = np.where(dist > cap, cap / np.maximum(dist, 1e-12), 1.0)
+        return pose[:, :2] + d * scale[:, None]
 
     def _pursuit_compiled(self, pose: np.ndarray, target: np.ndarray, v_max: float, omega_max: float) -> np.ndarray:
         """:meth:`preferred_twists` without preview from the pursued points ``target`` ``(N, 2)``, by

@@ -101,6 +101,12 @@ def compiled_search() -> bool:
     return _COMPILED
 
 
+def _turning_in_place(v: float, omega: float, v_max: float, omega_max: float) -> bool:
+    """Whether a robot driving the twist ``(v, omega)`` is turning in place (``escape_commit``): speed
+    under 10 % of ``v_max``, turn rate over 10 % of ``omega_max``. (The kernel has the same test.)"""
+    return abs(v) < 0.1 * v_max and abs(omega) > 0.1 * omega_max
+
+
 def use_compiled_search(flag: bool) -> None:
     """Run :func:`vo_select_batch` compiled (``True``, the default) or with the numpy reference
     (``False``). Both give the same bits (``tests/test_vo_kernel.py``); the reference imports no
@@ -853,7 +859,9 @@ class VOParams:
     ``cost`` (``"twist"`` or ``"velocity"``: how the distance to the preferred twist is measured),
     ``recip_gap`` (m: how near a reciprocal robot is avoided plainly), ``move_first`` (a blocked
     robot takes a safe candidate that moves before turning in place), ``static_reach`` (static obstacles
-    are judged by the path length a candidate covers, not by time), ``escape``, ``allow_still_overlap`` (:func:`vo_select_batch`) and ``fast``.
+    are judged by the path length a candidate covers, not by time), ``w_speed`` (weight of a change of
+    speed against one of turn rate in the penalty), ``escape_commit`` (s: a robot turning in place to escape
+    keeps its direction), ``escape``, ``allow_still_overlap`` (:func:`vo_select_batch`) and ``fast``.
     Raises ``ValueError`` for values out of range.
     """
 
@@ -877,16 +885,20 @@ class VOParams:
     recip_gap: float = 0.0
     move_first: bool = False
     static_reach: float = 0.0
+    w_speed: float = 1.0
+    escape_commit: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("horizon", "tau"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name in ("margin", "w_pref", "w_heading", "side_bias", "w_current", "recip_gap"):
+        for name in ("margin", "w_pref", "w_heading", "side_bias", "w_current", "recip_gap", "escape_commit"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        if not (isinstance(self.w_speed, (int, float)) and math.isfinite(self.w_speed) and self.w_speed > 0):
+            raise ValueError(f"w_speed must be a finite number > 0, got {self.w_speed!r}")
         if self.horizon_static is not None and not self.horizon_static > 0:
             raise ValueError(f"horizon_static must be > 0 or None, got {self.horizon_static!r}")
         if int(self.n_v) < 1 or int(self.n_w) < 1 or int(self.n_arc) < 1:
@@ -1015,12 +1027,26 @@ def vo_select(
       whose static horizon is short, bends round at speed). Standing candidates, moving discs and the
       escape probes are unchanged. The trajectories run on straight after the horizon until ``s h_s``
       (if that is later). Needs ``model="arc"``.
+    * ``w_speed`` (default 1): weight of a change of speed against a change of turn rate in the
+      penalty (both normalised by their limits). With ``w_speed > 1`` a robot whose preferred twist is
+      unsafe bends round at speed rather than slowing down: a slow-down "avoids" an obstacle ahead by
+      pushing the contact past the horizon, so with equal weights a follower whose slot skirts a static
+      disc crawls towards it and falls behind (ORCA, which takes the nearest safe *velocity*, keeps its
+      speed and slides round). The ``vo`` expert uses 3.
+    * ``escape_commit`` (s, default 0: off; needs ``current``): a robot that is already turning in place
+      (speed under 10 % of ``v_max``, turn rate over 10 % of ``omega_max``) and escapes again keeps
+      turning the same way, unless a turn the other way opens a straight run longer by more than
+      ``escape_commit`` s. Without it a boxed-in robot whose probes rate the two sides alike turns left
+      one step and right the next and never gets out (measured: with the ``vo`` expert's defaults but
+      ``horizon=2, lookahead=0.75, recip_gap=0.3``, a follower of paper_cbs_switch alternated between
+      the two turns in front of an obstacle for the last 90 s of the episode and never settled).
+      Needs ``current`` (:func:`vo_select_batch`). The ``vo`` expert uses 1.
     * ``fast``: test the preferred twist alone first and return it if it is safe
       (with ``goal_heading=None`` it has the least penalty, so the answer
       is the same; ``n_safe`` is then reported as 1). ``False`` always
       evaluates the whole grid (exact ``n_safe``).
 
-    Penalty of a candidate ``(v, w)``: ``w_pref * hypot((v - v_p) / v_max,
+    Penalty of a candidate ``(v, w)``: ``w_pref * hypot(w_speed * (v - v_p) / v_max,
     (w - w_p) / omega_max)`` + ``w_heading * |wrap(theta + w tau - goal_heading)| / pi``
     + ``side_bias * max(w - w_p, 0) / omega_max`` (distance to the optimal
     velocity, consistency with the target direction, keep right).
@@ -1176,6 +1202,7 @@ class _VOBatch:
         self.escape, self.allow_still_overlap, self.goal_heading = escape, allow_still_overlap, goal_heading
         self.current, self.w_current, self.cost, self.recip_gap = current, w_current, params.cost, params.recip_gap
         self.move_first, self.static_reach = params.move_first, params.static_reach
+        self.w_speed, self.escape_commit = params.w_speed, float(params.escape_commit)
         # The trajectories' end (static_reach: past the horizon; the moving discs are still cut at the horizon).
         t_end = self.t_end = _reach_end(params)
         self.t_cut = _reach_cut(params)
@@ -1375,9 +1402,19 @@ class _VOBatch:
             ts[ts > self.h_static] = np.inf
             np.minimum(ttc_p, ts, out=ttc_p)
         pen = self.penalty[ks, cand]
+        cur = None if self.escape_commit <= 0.0 or self.current is None else \
+            np.asarray(self.current, dtype=np.float64).reshape(self.n, 2)
         out = []
         for r in range(len(requests)):
             rows_r = np.flatnonzero(rq == r)
+            if cur is not None:
+                # escape_commit: a robot already turning in place keeps turning that way unless the other way
+                # is open for longer by more than escape_commit s (no left-right dithering in front of a block).
+                k = requests[r][0]
+                if _turning_in_place(float(cur[k, 0]), float(cur[k, 1]), self.v_max, self.omega_max):
+                    same = rows_r[twists[k, cand[rows_r], 1] * cur[k, 1] > 0.0]
+                    if len(same) and ttc_p[same].max() >= ttc_p[rows_r].max() - self.escape_commit:
+                        rows_r = same
             out.append(int(cand[rows_r[np.lexsort((pen[rows_r], -ttc_p[rows_r]))[0]]]))
         return out
 
@@ -1404,7 +1441,7 @@ class _VOBatch:
             uv[:, 1:] = _grid_velocities(v_max, omega_max, self.n_v, self.n_w, self.v_min, tau)
             near = np.hypot((uv[..., 0] - uv[:, :1, 0]) / vs, (uv[..., 1] - uv[:, :1, 1]) / vs)
         else:
-            near = np.hypot(dv_, dw_)
+            near = np.hypot(self.w_speed * dv_, dw_)
         penalty = self.w_pref * near + self.w_heading * head + self.side_bias * np.maximum(dw_, 0.0)
         if self.w_current and self.current is not None:
             # Commitment: among the alternatives to the preferred twist, prefer those close to the twist the
@@ -1602,14 +1639,15 @@ class _VOBatch:
             self._candidates()
             trajectories = (body, _E1, _E1, c(self.all_points(), dtype=np.float64))
         has_current = bool(self.w_current) and self.current is not None
+        commit = self.escape_commit > 0.0 and self.current is not None
         has_goal = self.goal_heading is not None
         search = (float(self.tau), float(self.v_max), float(self.omega_max), float(self.w_pref), float(self.w_heading),
                   float(self.side_bias), float(self.w_current), has_current,
-                  _f64(self.current).reshape(n, 2) if has_current else np.zeros((n, 2)), has_goal,
+                  _f64(self.current).reshape(n, 2) if has_current or commit else np.zeros((n, 2)), has_goal,
                   _f64(self.goal_heading).reshape(n) if has_goal else _E1, self.cost == "velocity",
                   _kernel_velocities(float(self.v_max), float(self.omega_max), int(self.n_v), int(self.n_w),
                                      float(self.v_min), float(self.tau)), bool(self.move_first),
-                  bool(self.static_reach), float(self.t_cut))
+                  bool(self.static_reach), float(self.t_cut), float(self.w_speed), float(self.escape_commit) if commit else 0.0)
         twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe = vo_kernel.select(
             self._kernel_world(), times, _f64(self.pref_pts), trajectories, grid, _f64(self.pv), _f64(self.pw),
             _f64(self.theta), search, bool(fast), bool(self.escape), _FIRST_STAGE, bool(self.allow_still_overlap),
@@ -1711,7 +1749,8 @@ def _follower_plan(params: VOParams, v_max: float, omega_max: float) -> tuple:
             _kernel_velocities(float(v_max), float(omega_max), int(p.n_v), int(p.n_w), float(p.v_min), float(p.tau)))
     scalars = (float(p.margin), float(horizon), h_static, float(ext), float(p.tau), int(p.n_arc),
                float(p.v_min), float(v_max), float(omega_max), float(p.w_pref), float(p.w_heading),
-               float(p.side_bias), float(p.w_current), float(p.recip_gap), _reach_cut(p))
+               float(p.side_bias), float(p.w_current), float(p.recip_gap), _reach_cut(p), float(p.w_speed),
+               float(p.escape_commit))
     reciprocal = bool(getattr(p, "reciprocal", False))  # (safety.AvoidanceParams': the followers avoid each other so)
     flags = (bool(p.fast), bool(p.escape), bool(p.allow_still_overlap), reciprocal, bool(p.w_current), _FIRST_STAGE,
              p.cost == "velocity", bool(p.move_first), bool(p.static_reach))

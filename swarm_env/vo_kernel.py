@@ -404,7 +404,7 @@ def _candidates(i, grid, pv, pw, theta, search, twists, penalty, order):
     ``grid``) into ``twists[i]``, their penalties into ``penalty[i]`` and their stable penalty order
     into ``order[i]``."""
     (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, has_goal, goal,
-     cost_velocity, gvel, _move_first, _static_reach, _t_cut) = search
+     cost_velocity, gvel, _move_first, _static_reach, _t_cut, w_speed, _commit) = search
     g1 = grid.shape[0] + 1
     v_scale = v_max if v_max > 0 else 1.0
     w_scale = omega_max if omega_max > 0 else 1.0
@@ -425,7 +425,7 @@ def _candidates(i, grid, pv, pw, theta, search, twists, penalty, order):
             cx, cy = (ux, uy) if c == 0 else (gvel[c - 1, 0], gvel[c - 1, 1])
             near = math.hypot((cx - ux) / v_scale, (cy - uy) / v_scale)
         else:
-            near = math.hypot(dv_, dw_)
+            near = math.hypot(w_speed * dv_, dw_)
         pen = w_pref * near + w_heading * head + side_bias * max(dw_, 0.0)
         if has_current and c > 0:
             # (commitment to the twist being driven: see _VOBatch._candidates)
@@ -466,7 +466,8 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
     cosine and sine of each robot's heading, or (``body`` empty) ``every`` candidate's world-frame
     trajectory ``(N, G+1, K+1, 2)`` (the chord model); ``grid`` the candidate twists; ``search`` the
     penalty's terms (:func:`_candidates`; after the goal headings, ``cost_velocity`` and the grid's mean body-frame
-    velocities select and feed ``VOParams.cost="velocity"``, and ``move_first`` is ``VOParams.move_first``).
+    velocities select and feed ``VOParams.cost="velocity"``, ``move_first`` is ``VOParams.move_first``, then
+    ``static_reach``'s two terms, ``w_speed`` and ``escape_commit``, whose test reads the ``current`` twists).
 
     Returns ``twist`` ``(N, 2)``, ``feasible``, ``n_safe``, ``ttc_out``, ``escaped``, ``accepted``,
     ``pref_safe`` (see :class:`~swarm_env.guidance.VOBatchResult`).
@@ -474,6 +475,7 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
     has_goal = search[9]
     move_first = search[13]
     reach = (search[14], search[15])
+    v_max, omega_max, current, commit = search[1], search[2], search[8], search[17]
     body, cos_t, sin_t, every = trajectories
     n = pv.shape[0]
     g1 = grid.shape[0] + 1
@@ -643,6 +645,12 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
         j0 = choice[i]
         best_c = -1
         best_t = 0.0
+        # escape_commit (guidance._VOBatch.escape_turns): a robot already turning in place keeps turning that
+        # way unless the other way is open for longer by more than escape_commit s.
+        turning = commit > 0.0 and abs(current[i, 0]) < 0.1 * v_max and abs(current[i, 1]) > 0.1 * omega_max
+        probe_t = np.full(g1, -1.0)
+        best_all = -1.0
+        best_same = -1.0
         for c in range(g1):
             if twists[i, c, 0] > 0.0:
                 continue
@@ -650,6 +658,16 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
             if not eligible:
                 continue
             t = _probe(i, c, discs, static, has_static, still_ok, (twists, theta) + probe)
+            probe_t[c] = t
+            if t > best_all:
+                best_all = t
+            if turning and twists[i, c, 1] * current[i, 1] > 0.0 and t > best_same:
+                best_same = t
+        only_same = turning and best_same >= 0.0 and best_same >= best_all - commit
+        for c in range(g1):
+            if probe_t[c] < 0.0 or (only_same and not twists[i, c, 1] * current[i, 1] > 0.0):
+                continue
+            t = probe_t[c]
             if best_c < 0 or t > best_t or (t == best_t and penalty[i, c] < penalty[i, best_c]):
                 best_c, best_t = c, t
         choice[i] = best_c
@@ -737,14 +755,14 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     body, gvel)`` the candidate grid, its body-frame trajectories and (``cost="velocity"``) mean
     body-frame velocities (``guidance._grid_velocities``); ``scalars`` ``(margin, horizon,
     h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias, w_current, recip_gap,
-    t_cut)`` (``t_cut``: ``static_reach``'s latest static cut, ``guidance._reach_cut``);
+    t_cut, w_speed, escape_commit)`` (``t_cut``: ``static_reach``'s latest static cut, ``guidance._reach_cut``);
     ``flags`` ``(fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first,
     static_reach)``.
     Returns what :func:`_search` returns.
     """
     grid, times, body, gvel = plan
     (margin, horizon, h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias,
-     w_current, recip_gap, t_cut) = scalars
+     w_current, recip_gap, t_cut, w_speed, commit) = scalars
     fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first, static_reach = flags
     n_moving = moving.shape[0]
     P = np.empty((n, 2))
@@ -792,7 +810,7 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     pref_pts = _preferred_trajectories(pv, pw, theta, tau, t_end, n_arc)
     no_goal = n < 0  # (False, typed bool rather than a literal: select and this entry share one _search)
     search = (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, no_goal,
-              np.empty(0), cost_velocity, gvel, move_first, static_reach, t_cut)
+              np.empty(0), cost_velocity, gvel, move_first, static_reach, t_cut, w_speed, commit)
     return _search(discs, static, has_static, times, pref_pts, (body, cos_t, sin_t, np.empty((0, 1, 1, 2))), grid,
                    pv, pw, theta, search, fast, escape, first_stage, still_ok, (v_max, tau, horizon))
 

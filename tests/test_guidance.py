@@ -21,6 +21,7 @@ from swarm_env.guidance import (
     vo_discs_inside,
     vo_polygons_inside,
     vo_select,
+    vo_select_batch,
     wrap_angle,
 )
 from swarm_env.paths import PolylinePath
@@ -502,6 +503,43 @@ def test_vo_select_move_first_takes_a_safe_detour_before_the_escape_turn(static_
     np.testing.assert_array_equal(vo_select(near, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0).twist,
                                   vo_select(near, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0,
                                             move_first=True).twist)
+
+
+def test_vo_select_w_speed_bends_round_instead_of_crawling(static_map):
+    # 0.35 m (centre to face, plus the margin) before the rectangle's left face with a 1 s static horizon:
+    # driving on at full speed is unsafe. With equal weights the cheapest safe twist keeps the heading
+    # and crawls (the contact only moves past the horizon); with w_speed = 3 a slow-down costs more than
+    # a turn and the robot bends away faster.
+    pose = np.array([8.4, 7.6, 0.0])
+    args = (pose, 0.25, np.array([0.65, 0.0]), EMPTY_D, EMPTY_V, static_map, 0.65, 1.0)
+    crawl = vo_select(*args, horizon_static=1.0, tau=0.7)
+    bend = vo_select(*args, horizon_static=1.0, tau=0.7, w_speed=3.0)
+    assert crawl.feasible and bend.feasible
+    assert crawl.twist[1] == 0.0 and crawl.twist[0] < 0.25
+    assert bend.twist[1] != 0.0 and bend.twist[0] > crawl.twist[0]
+    np.testing.assert_array_equal(vo_select(*args, horizon_static=1.0, tau=0.7, w_speed=1.0).twist, crawl.twist)
+    with pytest.raises(ValueError, match="w_speed"):
+        VOParams(w_speed=0.0)
+
+
+def test_vo_select_batch_escape_commit_keeps_the_turn_in_place(static_map):
+    # Facing the rectangle's left face from 0.45 m, goal behind it: the escape rule turns in place, by
+    # default to the right here. A robot already turning left in place keeps turning left with
+    # escape_commit (the two sides are open alike); one that is driving (not turning in place) does not.
+    pose = np.array([[8.55, 6.5, 0.0]])
+    pref = np.array([[0.65, 0.0]])
+
+    def turn(current, commit):
+        res = vo_select_batch(pose, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0,
+                              VOParams(escape_commit=commit), current=np.array([current], dtype=float))
+        assert res.escaped[0] and res.twist[0, 0] == 0.0
+        return res.twist[0, 1]
+
+    assert turn((0.0, 0.8), 0.0) < 0.0 and turn((0.0, -0.8), 0.0) < 0.0
+    assert turn((0.0, 0.8), 100.0) > 0.0 and turn((0.0, -0.8), 100.0) < 0.0
+    assert turn((0.3, 0.8), 100.0) < 0.0  # driving, not turning in place: no commitment
+    with pytest.raises(ValueError, match="escape_commit"):
+        VOParams(escape_commit=-1.0)
 
 
 def test_vo_select_recip_gap_avoids_a_close_robot_plainly():

@@ -23,6 +23,7 @@ import pytest
 pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
+from swarm_env_agents.vo_expert import LEGACY_SPEC  # noqa: E402
 from swarm_env_baselines import mappo  # noqa: E402
 
 DATA = Path(__file__).resolve().parent / "data" / "mappo_reference.json"
@@ -38,8 +39,8 @@ CASES: dict[str, dict[str, Any]] = {
     "shield_execute": {"shield": "execute", "intervention_coef": 1.0},
     "shield_teach": {"shield": "teach", "intervention_coef": 1.0, "imitation_coef": 1.0, "imitation_anneal": 0.5,
                      "teach_w_current": 0.2},
-    # (the expert the reference was recorded with: vo before move_first/recip_gap were its defaults)
-    "residual_vo": {"residual": "vo:move_first=false,recip_gap=0", "shield": "execute", "critic": "local",
+    # (the expert the reference was recorded with: vo before issue 12, LEGACY_SPEC)
+    "residual_vo": {"residual": LEGACY_SPEC, "shield": "execute", "critic": "local",
                     "intervention_coef": 0.5},
 }
 

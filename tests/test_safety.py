@@ -72,7 +72,7 @@ def test_discrete_envs_are_refused() -> None:
 
 
 def test_the_vo_expert_is_the_same_avoidance() -> None:
-    from swarm_env_agents.vo_expert import VOExpert
+    from swarm_env_agents.vo_expert import EXPERT_AVOIDANCE, VOExpert
 
     env = swarm_env.parallel_env("paper_vo_45")
     env.reset(seed=0)
@@ -84,7 +84,8 @@ def test_the_vo_expert_is_the_same_avoidance() -> None:
     direct = safe_follower_twists(state, expert.preferred_twists(state), expert.avoidance)
     np.testing.assert_array_equal(twist, direct.twist)
     np.testing.assert_array_equal(feasible, direct.feasible)
-    assert expert.horizon == expert.avoidance.horizon == AvoidanceParams().horizon
+    # the shared parameters, with the expert's own defaults on top (the safety layer keeps the shared ones)
+    assert expert.avoidance == AvoidanceParams(**EXPERT_AVOIDANCE) and expert.horizon == EXPERT_AVOIDANCE["horizon"]
 
 
 def test_shield_policy_makes_pursuit_collision_free_on_held_out_worlds() -> None:

@@ -77,6 +77,8 @@ def _act_both(ref_policy: VOExpert, policy: VOExpert, obs: dict, state: WorldSta
     ("random", 1003, {}),
     ("paper_vo_90", 0, {"static_reach": 3.0}),  # static obstacles judged by path length (opt-in)
     ("paper_cbs_switch", 0, {"static_reach": 6.0}),
+    # the expert before issue 12 (no preview: the compiled pursuit; no speed weight, no escape commitment)
+    ("paper_cbs_switch", 0, {"preview": 0.0, "lookahead": 0.0, "w_speed": 1.0, "escape_commit": 0.0}),
 ])
 def test_expert_act_gives_the_same_bits(scenario: str, seed: int, avoidance: dict) -> None:
     # Every step of a whole episode: the preferred twists, every field of the search, the actions
@@ -142,7 +144,8 @@ def test_the_safety_layer_gives_the_same_bits(switch_states: list[WorldState]) -
                 AvoidanceParams(cost="velocity", recip_gap=0.2), AvoidanceParams(move_first=True, recip_gap=0.2),
                 AvoidanceParams(cost="velocity", w_current=0.3, tau=0.5, v_min=-0.2, recip_gap=0.5, move_first=True),
                 AvoidanceParams(move_first=True, recip_gap=0.2, static_reach=6.0),
-                AvoidanceParams(static_reach=2.0, horizon_static=2.0, v_min=-0.2, tau=0.5)]
+                AvoidanceParams(static_reach=2.0, horizon_static=2.0, v_min=-0.2, tau=0.5),
+                AvoidanceParams(w_speed=3.0, escape_commit=1.0, move_first=True, recip_gap=0.2, tau=0.7)]
     sizes = set()
     for k, full in enumerate(switch_states):
         n_all = full.n_followers
@@ -189,11 +192,11 @@ def test_the_pursuit_gives_the_same_bits(switch_states: list[WorldState]) -> Non
     limits = replace(rng_state, scenario=replace(base.scenario, robots=replace(robots, max_turn_rate=0.0, max_speed=0.0)))
     for name, state in (("moving leader", rng_state), ("leader at rest", still), ("zero limits", limits)):
         for kw in ({}, {"feed_forward": False}, {"full_turn": False}, {"arrive_radius": 0.5, "time_gap": 0.2},
-                   {"feed_forward": False, "full_turn": False, "arrive_radius": 0.0}):
-            policy = VOExpert(**kw)
+                   {"feed_forward": False, "full_turn": False, "arrive_radius": 0.0}, {"lookahead": 0.0}):
+            policy = VOExpert(**{"preview": 0.0, **kw})  # (the compiled pursuit is the path without preview)
             ref, fast = _both(lambda: policy.preferred_twists(state))
             _same_array(ref, fast, f"pursuit, {name}, {kw}")
-            if name == "leader at rest" and not kw:
+            if name == "leader at rest" and kw == {"lookahead": 0.0}:  # (the plain law: the cases it covers)
                 assert (ref[:200] == 0.0).all()  # on the robot
                 turning = (ref[:, 0] == 0.0) & (np.abs(ref[:, 1]) == robots.max_turn_rate)
                 assert turning[200:400].all() and turning.sum() > m // 5  # behind: full turn in place
@@ -291,6 +294,8 @@ def test_synthetic_calls_give_the_same_bits(clutter: StaticMap) -> None:
             cost=str(rng.choice(["twist", "velocity"])),
             recip_gap=float(rng.choice([0.0, 0.3])),
             move_first=bool(rng.random() < 0.5),
+            w_speed=float(rng.choice([1.0, 3.0])),
+            escape_commit=float(rng.choice([0.0, 0.5, 100.0])),
         )
         if params.model == "arc" and rng.random() < 0.5:
             params = replace(params, static_reach=float(rng.choice([1.0, 2.0, 6.0])))
@@ -299,7 +304,8 @@ def test_synthetic_calls_give_the_same_bits(clutter: StaticMap) -> None:
             goal_heading=rng.uniform(-3.0, 3.0, n) if rng.random() < 0.3 else None,
             velocity=vel[:n] if rng.random() < 0.7 else None,
             reciprocal=rng.random(n + n_d) < 0.5 if rng.random() < 0.5 else bool(rng.random() < 0.5),
-            current=preferred + rng.normal(0.0, 0.2, (n, 2)) if rng.random() < 0.5 else None,
+            current=(preferred + rng.normal(0.0, 0.2, (n, 2)) if rng.random() < 0.5 else
+                     np.column_stack([np.zeros(n), rng.choice([-0.8, 0.8], n)])) if rng.random() < 0.7 else None,
         )
         static = None if rng.random() < 0.2 else clutter
 
