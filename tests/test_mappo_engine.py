@@ -28,6 +28,7 @@ pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
 from _numerics import fingerprint  # noqa: E402
+
 from swarm_env_agents.vo_expert import LEGACY_SPEC  # noqa: E402
 from swarm_env_baselines import mappo  # noqa: E402
 
