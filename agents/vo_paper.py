@@ -697,7 +697,7 @@ DISCUSSION = """\
   0.73 m. What remains is the giving way to the humans and the obstacles (see the position plots): the
   slot's velocity as feed-forward keeps a follower on its moving slot, the preview bends it round an
   obstacle the slot will skirt.
-* **Time to target.** Our leader needs 31.1–32.3 s for the 15 m path (paper: 30.4–30.7 s) and drives
+* **Time to target.** Our leader needs 31.1–32.2 s for the 15 m path (paper: 30.4–30.7 s) and drives
   14.8–15.3 m (paper: 15.2–15.4 m): it gives way to the humans with the same VO, and slows over its last
   metre as its pure-pursuit carrot reaches the end of the path. The paper's leader figures are also what
   placed the humans in the `paper_vo_*` files (see their comments): with the pair centred on the
