@@ -141,7 +141,8 @@ class VOExpert:
             pulled towards the robot to at most ``max_speed * lookahead`` from it. ``0``
             for none (Eq. 9's distance ``l`` to the slot itself).
 
-        Measured (seed 0; mean formation error in m), the defaults against each left out:
+        Measured (``swarm-env run --scenario S --seed 0 --policy vo:KEY=VALUE``; mean formation
+        error in m), the defaults against each left out:
         paper_vo_90 0.046 (``preview=0``: 0.113, ``lookahead=0``: 0.049, ``w_speed=1``: 0.049),
         crowd_reactive 0.074 (0.090, 0.098, 0.084), corridor 0.249 (0.249, 0.265, 0.248); on
         paper_cbs_switch each of those three, and ``escape_commit=0``, brings 1-3 contacts (the

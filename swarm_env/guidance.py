@@ -1039,8 +1039,9 @@ def vo_select(
       ``escape_commit`` s. Without it a boxed-in robot whose probes rate the two sides alike turns left
       one step and right the next and never gets out (measured: with the ``vo`` expert's defaults but
       ``horizon=2, lookahead=0.75, recip_gap=0.3``, a follower of paper_cbs_switch alternated between
-      the two turns in front of an obstacle for the last 90 s of the episode and never settled).
-      Needs ``current`` (:func:`vo_select_batch`). The ``vo`` expert uses 1.
+      the two turns in front of an obstacle for the last 90 s of the episode and never settled:
+      ``swarm-env run --scenario paper_cbs_switch --seed 0 --policy
+      vo:horizon=2,lookahead=0.75,recip_gap=0.3,escape_commit=0``). Needs ``current`` (:func:`vo_select_batch`). The ``vo`` expert uses 1.
     * ``fast``: test the preferred twist alone first and return it if it is safe
       (with ``goal_heading=None`` it has the least penalty, so the answer
       is the same; ``n_safe`` is then reported as 1). ``False`` always
