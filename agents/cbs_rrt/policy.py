@@ -60,6 +60,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm_env.formation import virtual_slot_trajectory
 from swarm_env.guidance import pure_pursuit
 from swarm_env.harness.policies import expert_factory
 from swarm_env.paths import human_states
@@ -68,6 +69,7 @@ from swarm_env_agents.cbs_rrt.cbs import CBS, CBSResult
 from swarm_env_agents.cbs_rrt.constraints import Constraint
 from swarm_env_agents.cbs_rrt.distance_field import distance_field
 from swarm_env_agents.cbs_rrt.goals import FormationGoals, GoalWindow
+from swarm_env_agents.cbs_rrt.hold import SlotHolder
 from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
 from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
@@ -177,6 +179,18 @@ class CBSRRTExpert:
             course a robot must be to count as in formation, and how far it may then fall behind
             before a ``deviation`` replan (m; the others use ``deviation_tolerance``).
 
+    Holding a reached formation (issue 12 item 1; off by default while it falls short of the
+    target):
+        hold_slots: once every follower is within the settle tolerance of its slot, a
+            :class:`~swarm_env_agents.cbs_rrt.hold.SlotHolder` (a short-horizon search over the
+            robots' kinematics towards their moving slots, round obstacles by geodesic distance)
+            drives the swarm instead of the plans, until the next formation switch, when CBS
+            plans again. On ``paper_cbs_switch`` seeds 0-7 (``swarm-env evaluate --policies
+            cbs_rrt:hold_slots=true --scenarios paper_cbs_switch --seeds 0-7``): hold fraction
+            0.55-0.74 after the grid is reached (0.20 without), reached in 7/8, by t = 167 in 6/8,
+            0 collisions; the holder costs about 40 ms of CPU per step for 8 followers.
+        hold_horizon: steps the holder looks ahead.
+
     Tracking:
         lookahead_time: pure pursuit aims at the plan's position this far ahead (s).
         shield_margin: the tracker's safety check (``0`` disables it): a robot does not drive
@@ -224,6 +238,8 @@ class CBSRRTExpert:
         jump_lag: float = 0.6,
         formation_keeping: bool = False,
         keep_tolerance: float = 0.3,
+        hold_slots: bool = False,
+        hold_horizon: int = 5,
         shield_margin: float = 0.05,
         field_resolution: float = 0.05,
         record: bool = False,
@@ -288,6 +304,10 @@ class CBSRRTExpert:
         self.jump_window = float(jump_window)
         self.jump_lag = float(jump_lag)
         self.formation_keeping = bool(formation_keeping)
+        if not isinstance(hold_horizon, int) or hold_horizon < 2:
+            raise ValueError(f"hold_horizon must be an int >= 2 (steps), got {hold_horizon!r}")
+        self.hold_slots = bool(hold_slots)
+        self.hold_horizon = hold_horizon
         self.keep_tolerance = float(keep_tolerance)
         self.shield_margin = float(shield_margin)
         self.field_resolution = float(field_resolution)
@@ -326,6 +346,8 @@ class CBSRRTExpert:
         self._gaps: list[np.ndarray] = []
         self._shield_stops = 0
         self._shield_others: tuple[np.ndarray, ...] | None = None
+        self._held = -1  # the formation index the holder drives (-1: none reached yet)
+        self._hold_steps = 0
 
     def reset(self, env: SwarmEnv, seed: int | None) -> None:
         if env.action_type != "continuous":
@@ -391,6 +413,16 @@ class CBSRRTExpert:
         # where the tracker's shield would stop it.
         floor = self._radius + self.shield_margin + 0.02
         self.rrt = PrimitiveRRT(self.primitives, self.field, self.buffer, config, floor=floor)
+        self.holder = SlotHolder(
+            self.field, radius=self._radius, max_speed=robots.max_speed, max_turn_rate=robots.max_turn_rate,
+            dt=env_dt, sub_dt=env_dt / scn.world.substeps, shield_margin=self.shield_margin,
+            tolerance=scn.world.settle_tolerance, horizon=self.hold_horizon,
+        )
+        self._slot_course: np.ndarray | None = None
+        if self.hold_slots and scn.leader.kind == "virtual":
+            # A virtual leader's slots are a function of time: the env's own, for the whole episode.
+            steps = int(math.ceil(scn.world.max_time / env_dt)) + self.hold_horizon + 1
+            self._slot_course = virtual_slot_trajectory(scn, state.static, steps)[0]
         self._scenario = scn
 
     # ------------------------------------------------------------------ acting
@@ -398,10 +430,13 @@ class CBSRRTExpert:
         if self._scenario is not state.scenario:
             self.setup(state)
             self._reset_episode()
-        reasons = self._triggers(state)
-        if reasons:
-            self._replan(state, reasons)
-        twist = self._track(state)
+        if self.hold_slots and self._holding(state):
+            twist = self._hold(state)
+        else:
+            reasons = self._triggers(state)
+            if reasons:
+                self._replan(state, reasons)
+            twist = self._track(state)
         action = np.clip(twist / self._limits, -1.0, 1.0).astype(np.float32)
         return {a: action[int(a.rsplit("_", 1)[1])] for a in observations}
 
@@ -712,11 +747,37 @@ class CBSRRTExpert:
                 err = (self.plans[i].heading_at(t + T) - pose[i, 2] + math.pi) % (2.0 * math.pi) - math.pi
                 w = math.copysign(min(self._limits[1], abs(err) / dt), err) if abs(err) > 0.05 else 0.0
                 twist[i] = (0.0, w)
-        others = [(state.human_pos, state.human_vel, state.human_radius)]
-        if state.leader_is_robot:
-            others.append((state.leader_pose[None, :2], state.leader_vel[None, :], np.array([state.leader_radius])))
-        self._shield_others = tuple(np.concatenate(parts) for parts in zip(*others))
+        self._shield_others = _movers_now(state)
         return self._shield(pose, twist, dt, state.follower_twist[:, 0], dt / state.scenario.world.substeps)
+
+    def _holding(self, state: WorldState) -> bool:
+        """Whether the holder drives now: the active formation has been reached (every follower
+        within ``settle_tolerance`` of its slot) since it became active."""
+        k = state.formation_index
+        if self._held != k:
+            err = np.hypot(*(state.follower_pose[:, :2] - state.slot_targets).T)
+            if np.all(err <= state.scenario.world.settle_tolerance):
+                self._held = k
+        return self._held == k
+
+    def _hold(self, state: WorldState) -> np.ndarray:
+        """The holder's twists towards the slots of the next ``hold_horizon`` steps (the env's own
+        for a virtual leader, the formation layer's course otherwise), through the shield."""
+        scn = state.scenario
+        dt = scn.world.dt
+        H = self.hold_horizon
+        if self._slot_course is not None:
+            k = int(round(state.time / dt))
+            targets = self._slot_course[k + 1:k + 1 + H]
+        else:
+            per_step = int(round(dt / self._goal_dt))
+            gw = self.formation.window(state.time, state.time + H * dt, state.leader_pose)
+            targets = gw.xy[:, per_step * np.arange(1, H + 1)].transpose(1, 0, 2)
+        movers = _movers_now(state)
+        twist = self.holder.twists(state.follower_pose, state.follower_twist, targets, movers)
+        self._hold_steps += 1
+        self._shield_others = movers
+        return self._shield(state.follower_pose, twist, dt, state.follower_twist[:, 0], dt / scn.world.substeps)
 
     def _shield(
         self, pose: np.ndarray, twist: np.ndarray, dt: float, speed_now: np.ndarray, sub_dt: float
@@ -796,6 +857,7 @@ class CBSRRTExpert:
         this process: what a shared machine does not inflate), ``fallbacks`` (``stationary``: robots whose plan failed,
         ``dropped``: robots removed from active planning, ``partial``: plans that stop short
         of the goal, ``unsolved``: replans that ended with conflicts), and
+        ``hold_steps`` (steps driven by the formation holder, ``hold_slots``), and
         ``tracking_gap_m`` — the distance between each robot and its plan's position at the
         same time, over all steps (mean, p95, max).
         """
@@ -818,12 +880,23 @@ class CBSRRTExpert:
                 "unsolved": self._unsolved,
             },
             "shield_stops": self._shield_stops,
+            "hold_steps": self._hold_steps,
             "tracking_gap_m": {
                 "mean": float(gaps.mean()) if gaps.size else None,
                 "p95": float(np.percentile(gaps, 95)) if gaps.size else None,
                 "max": float(gaps.max()) if gaps.size else None,
             },
         }
+
+
+def _movers_now(state: WorldState) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The moving discs a follower keeps clear of now: ``(pos (M, 2), vel (M, 2), radius (M,))`` of
+    the humans and a robot leader."""
+    others = [(state.human_pos, state.human_vel, state.human_radius)]
+    if state.leader_is_robot:
+        others.append((state.leader_pose[None, :2], state.leader_vel[None, :], np.array([state.leader_radius])))
+    pos, vel, rad = (np.concatenate(parts) for parts in zip(*others))
+    return pos, vel, rad
 
 
 def _timing_ms(seconds: Sequence[float]) -> dict[str, Any]:
