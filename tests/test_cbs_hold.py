@@ -99,6 +99,9 @@ def test_holder_rejects_bad_settings() -> None:
                    shield_margin=0.05, tolerance=0.3, samples=4)
     with pytest.raises(ValueError, match="hold_horizon"):
         CBSRRTExpert(hold_slots=True, hold_horizon=1)
+    with pytest.raises(ValueError, match="hold_capture"):
+        CBSRRTExpert(hold_slots=True, hold_capture=-0.1)
+    assert CBSRRTExpert().hold_slots is False  # experimental: off by default
 
 
 def test_expert_holds_a_reached_formation_and_plans_again_at_the_switch() -> None:
