@@ -191,6 +191,33 @@ class SlotHolder:
                            np.linspace(-max_turn_rate, max_turn_rate, samples), indexing="ij")
         self._v, self._w = v.ravel(), w.ravel()
 
+    def _own_cost(
+        self, i: int, pose: np.ndarray, X: np.ndarray, Y: np.ndarray, targets: np.ndarray, clearance: np.ndarray,
+        clear_now: float, movers: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+    ) -> np.ndarray:
+        """Robot ``i``'s cost of each candidate sequence ``X, Y (S, horizon)`` before the other
+        followers are considered: the distance to its targets (geodesic where the straight way to
+        the last one is blocked), obstacles (``clearance (S,)``: each sequence's smallest) and
+        the moving discs."""
+        d = np.hypot(X - targets[:, i, 0], Y - targets[:, i, 1])
+        goal = targets[-1, i]
+        seg = np.linspace(0.0, 1.0, 12)
+        line = self.field.clearance_xy(pose[i, 0] + seg * (goal[0] - pose[i, 0]), pose[i, 1] + seg * (goal[1] - pose[i, 1]))
+        if line.min() < self.radius + 0.02:  # the straight way is blocked: go round
+            d = GeodesicMap.around(self.field, goal, self.radius + 0.04).lookup(X, Y)
+        inner = self.tolerance * (2.0 / 3.0)
+        cost = (d + 4.0 * np.maximum(d - inner, 0.0)).sum(axis=1) + 0.3 * d[:, 0]
+        cost += _PENALTY * np.maximum(min(self.obstacle_gap, clear_now) - clearance, 0.0)
+        if movers is not None and len(movers[0]):
+            mpos, mvel, mrad = movers
+            ahead = self.dt * np.arange(1, self.horizon + 1)
+            for m in range(len(mpos)):
+                need = self.radius + float(mrad[m]) + self.shield_margin
+                d_now = math.hypot(pose[i, 0] - mpos[m, 0], pose[i, 1] - mpos[m, 1])
+                gap = np.hypot(X - (mpos[m, 0] + mvel[m, 0] * ahead), Y - (mpos[m, 1] + mvel[m, 1] * ahead)).min(axis=1)
+                cost += _PENALTY * np.maximum(min(need, d_now) - gap, 0.0)
+        return cost
+
     def twists(
         self,
         pose: np.ndarray,
@@ -214,25 +241,12 @@ class SlotHolder:
         clearance = self.field.clearance_xy(xs, ys).min(axis=2)  # (N, C*C)
         clear_now = self.field.clearance_xy(pose[:, 0], pose[:, 1])
         now_x, now_y, _ = unicycle_rollout(pose[:, 0], pose[:, 1], pose[:, 2], twist_now[:, 0], twist_now[:, 1], dt, 1)
-        if movers is not None and len(movers[0]):
-            ahead = dt * np.arange(1, H + 1)
-            mpos, mvel, mrad = movers
-            mx = mpos[:, 0:1] + mvel[:, 0:1] * ahead  # (M, H)
-            my = mpos[:, 1:2] + mvel[:, 1:2] * ahead
         err_now = np.hypot(pose[:, 0] - targets[0, :, 0], pose[:, 1] - targets[0, :, 1])
         out = np.zeros((n, 2))
         decided: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for i in np.argsort(-err_now, kind="stable").tolist():
             X, Y = xs[i], ys[i]
-            d = np.hypot(X - targets[:, i, 0], Y - targets[:, i, 1])
-            goal = targets[-1, i]
-            seg = np.linspace(0.0, 1.0, 12)
-            line = self.field.clearance_xy(pose[i, 0] + seg * (goal[0] - pose[i, 0]), pose[i, 1] + seg * (goal[1] - pose[i, 1]))
-            if line.min() < self.radius + 0.02:  # the straight way is blocked: go round
-                d = GeodesicMap.around(self.field, goal, self.radius + 0.04).lookup(X, Y)
-            inner = self.tolerance * (2.0 / 3.0)
-            cost = (d + 4.0 * np.maximum(d - inner, 0.0)).sum(axis=1) + 0.3 * d[:, 0]
-            cost += _PENALTY * np.maximum(min(self.obstacle_gap, float(clear_now[i])) - clearance[i], 0.0)
+            cost = self._own_cost(i, pose, X, Y, targets, clearance[i], float(clear_now[i]), movers)
             for j in range(n):
                 if j == i:
                     continue
@@ -243,12 +257,6 @@ class SlotHolder:
                 else:  # it decides later and gives way: only its next step at its current twist
                     gap = np.hypot(X[:, 0] - now_x[j, 0], Y[:, 0] - now_y[j, 0])
                 cost += _PENALTY * np.maximum(min(self.robot_gap, d_now) - gap, 0.0)
-            if movers is not None and len(movers[0]):
-                for m in range(len(movers[0])):
-                    need = self.radius + float(mrad[m]) + self.shield_margin
-                    d_now = math.hypot(pose[i, 0] - mpos[m, 0], pose[i, 1] - mpos[m, 1])
-                    gap = np.hypot(X - mx[m], Y - my[m]).min(axis=1)
-                    cost += _PENALTY * np.maximum(min(need, d_now) - gap, 0.0)
             b = int(np.argmin(cost))
             out[i] = self._v[b // C], self._w[b // C]
             decided[i] = (X[b], Y[b])
