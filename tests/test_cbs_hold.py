@@ -89,6 +89,30 @@ def test_holder_keeps_two_robots_apart_when_their_slots_cross() -> None:
     assert math.hypot(*(poses[-1][0, :2] - b)) <= 0.3 and math.hypot(*(poses[-1][1, :2] - a)) <= 0.3
 
 
+def test_holder_steps_out_of_the_way_of_a_human_walking_through_its_slot() -> None:
+    """A human (known path, as a scripted one) walks straight through the slot: the robot leaves
+    it in time, keeps clear, and is back once the human has passed."""
+    field = _field([])
+    holder = _holder(field)
+    slot = np.array([5.0, 4.0])
+
+    def human(k: int) -> np.ndarray:  # 0.4 m/s along -x, from 3 m away
+        return np.array([8.0 - 0.2 * k, 4.0])
+
+    pose = np.array([[5.0, 4.0, 0.0]])
+    twist = np.zeros((1, 2))
+    gaps = []
+    for k in range(40):
+        targets = np.repeat(slot[None, None], holder.horizon, axis=0)
+        movers = (np.array([[human(k + j) for j in range(holder.horizon + 1)]]), np.array([0.25]))
+        twist = holder.twists(pose, twist, targets, movers)
+        x, y, th = unicycle_rollout(pose[:, 0], pose[:, 1], pose[:, 2], twist[:, 0], twist[:, 1], 0.5, 1)
+        pose = np.column_stack([x[:, 0], y[:, 0], th[:, 0]])
+        gaps.append(math.hypot(*(pose[0, :2] - human(k + 1))))
+    assert min(gaps) >= 0.5 + 0.1  # the two radii and more
+    assert math.hypot(*(pose[0, :2] - slot)) <= 0.3
+
+
 def test_holder_rejects_bad_settings() -> None:
     field = _field([])
     with pytest.raises(ValueError, match="horizon"):

@@ -1,7 +1,7 @@
 """Holding a reached formation: the CBS + RRT expert's tracker after a switch (issue 12 item 1).
 
-CBS + RRT plans the way into a formation; once every follower is within the settle tolerance of
-its slot, :class:`CBSRRTExpert` (with ``hold_slots=True``) hands the swarm to a
+CBS + RRT plans the way into a formation; once every follower is near its slot (within the
+settle tolerance plus ``hold_capture``), :class:`CBSRRTExpert` (with ``hold_slots=True``) hands the swarm to a
 :class:`SlotHolder` until the next formation switch. Replanning does not hold a formation well:
 the slots keep moving (the leader turns, a slot pushed out of an obstacle sweeps round it or
 flips to its other side) and every replan knocks robots in formation off their courses.
@@ -23,7 +23,8 @@ The holder is a short-horizon search over the robots' own kinematics, robot by r
   of being pushed towards through it;
 * **safety**: a sequence that comes closer than the tracker's shield would allow (radius +
   ``shield_margin`` + one substep's travel) to an obstacle, to a moving disc (human, robot
-  leader; constant velocity) or to another follower is penalised heavily (never below what the
+  leader, with ``mover_margin`` more; a scripted human where its path puts it, the others at
+  constant velocity) or to another follower is penalised heavily (never below what the
   robot has now: a robot already too close may move, just not closer). Robots decide one after
   another, the farthest from its slot first: a later robot keeps clear of the whole horizon of
   the earlier ones' choices, an earlier one only of the later ones' next step (they give way).
@@ -31,8 +32,8 @@ The holder is a short-horizon search over the robots' own kinematics, robot by r
 Afterwards the expert's one-step shield (:meth:`CBSRRTExpert._shield`) still checks every twist.
 Deterministic: no randomness, fixed candidate grids.
 
-Measured (``python benchmarks/cbs_hold_diagnosis.py`` is the per-step tool; the 8-seed figures
-are in :class:`~swarm_env_agents.cbs_rrt.policy.CBSRRTExpert`'s docstring).
+What it achieves, with the command that measures it, is in
+:class:`~swarm_env_agents.cbs_rrt.policy.CBSRRTExpert`'s docstring (``hold_slots``).
 """
 
 from __future__ import annotations
@@ -156,6 +157,8 @@ class SlotHolder:
         tolerance: the formation's settle tolerance (m).
         horizon: steps looked ahead (>= 2).
         samples: speeds and turn rates per candidate grid (odd: zero is one of them).
+        mover_margin: extra gap (m) kept to humans and a robot leader: their predictions are
+            uncertain and they do not give way.
     """
 
     def __init__(
@@ -171,6 +174,7 @@ class SlotHolder:
         tolerance: float,
         horizon: int = 5,
         samples: int = 9,
+        mover_margin: float = 0.2,
     ) -> None:
         if horizon < 2:
             raise ValueError(f"horizon must be >= 2 steps, got {horizon!r}")
@@ -186,14 +190,14 @@ class SlotHolder:
         # twists chosen here do not trip it.
         self.obstacle_gap = self.radius + shield_margin + lag + 0.01
         self.robot_gap = 2.0 * self.radius + shield_margin + 2.0 * lag + 0.01
-        self.shield_margin = float(shield_margin) + lag + 0.01
+        self.mover_gap = float(shield_margin) + lag + 0.01 + float(mover_margin)  # beyond the two radii
         v, w = np.meshgrid(np.linspace(-max_speed, max_speed, samples),
                            np.linspace(-max_turn_rate, max_turn_rate, samples), indexing="ij")
         self._v, self._w = v.ravel(), w.ravel()
 
     def _own_cost(
         self, i: int, pose: np.ndarray, X: np.ndarray, Y: np.ndarray, targets: np.ndarray, clearance: np.ndarray,
-        clear_now: float, movers: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
+        clear_now: float, movers: tuple[np.ndarray, np.ndarray] | None,
     ) -> np.ndarray:
         """Robot ``i``'s cost of each candidate sequence ``X, Y (S, horizon)`` before the other
         followers are considered: the distance to its targets (geodesic where the straight way to
@@ -209,12 +213,11 @@ class SlotHolder:
         cost = (d + 4.0 * np.maximum(d - inner, 0.0)).sum(axis=1) + 0.3 * d[:, 0]
         cost += _PENALTY * np.maximum(min(self.obstacle_gap, clear_now) - clearance, 0.0)
         if movers is not None and len(movers[0]):
-            mpos, mvel, mrad = movers
-            ahead = self.dt * np.arange(1, self.horizon + 1)
-            for m in range(len(mpos)):
-                need = self.radius + float(mrad[m]) + self.shield_margin
-                d_now = math.hypot(pose[i, 0] - mpos[m, 0], pose[i, 1] - mpos[m, 1])
-                gap = np.hypot(X - (mpos[m, 0] + mvel[m, 0] * ahead), Y - (mpos[m, 1] + mvel[m, 1] * ahead)).min(axis=1)
+            mxy, mrad = movers
+            for m in range(len(mxy)):
+                need = self.radius + float(mrad[m]) + self.mover_gap
+                d_now = math.hypot(pose[i, 0] - mxy[m, 0, 0], pose[i, 1] - mxy[m, 0, 1])
+                gap = np.hypot(X - mxy[m, 1:, 0], Y - mxy[m, 1:, 1]).min(axis=1)
                 cost += _PENALTY * np.maximum(min(need, d_now) - gap, 0.0)
         return cost
 
@@ -223,11 +226,12 @@ class SlotHolder:
         pose: np.ndarray,
         twist_now: np.ndarray,
         targets: np.ndarray,
-        movers: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+        movers: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
         """``(N, 2)`` twists for followers at ``pose (N, 3)`` moving at ``twist_now (N, 2)``,
         whose slots will be at ``targets (horizon, N, 2)`` after each of the next steps;
-        ``movers = (pos (M, 2), vel (M, 2), radius (M,))``: humans and a robot leader."""
+        ``movers = (xy (M, horizon + 1, 2), radius (M,))``: humans and a robot leader, now and
+        where they are predicted after each step; kept ``mover_margin`` farther from than the rest."""
         H, dt = self.horizon, self.dt
         n = len(pose)
         C = len(self._v)
