@@ -1371,7 +1371,7 @@ class _VOBatch:
         twists, tau, horizon, v_max = self.twists, self.tau, self.horizon, self.v_max
         req_k, req_c = [], []
         for r, (k, eligible) in enumerate(requests):
-            stop = np.flatnonzero(eligible & (twists[k, :, 0] <= 0.0))
+            stop = np.flatnonzero(eligible & (twists[k, :, 0] == 0.0))
             req_k.append(np.full(len(stop), r))
             req_c.append(stop)
         rq = np.concatenate(req_k)
@@ -1578,7 +1578,9 @@ class _VOBatch:
                 moved = go.any(axis=1)
                 choice[stuck[moved]] = alt[moved]
                 chosen_v = twists[everyone, choice, 0]
-        special = (n_safe == 0) | ((chosen_v <= 0.0) & (pv > 0.0)) if self.escape else n_safe == 0
+        # Escapes turn in place: a robot whose choice stands (v == 0; a reversing choice with v_min < 0 was
+        # tested and is kept) while its preferred twist moves, or which has nothing safe.
+        special = (n_safe == 0) | ((chosen_v == 0.0) & (pv > 0.0)) if self.escape else n_safe == 0
         for k in np.flatnonzero(special).tolist():  # rare: resolved robot by robot
             tw = twists[k]
             j = choice[k]
@@ -1588,14 +1590,14 @@ class _VOBatch:
             # lexsort: last key is primary -> largest ttc, then slowest, then least penalty.
             tt = ttc[k]
             j = choice[k] = int(np.lexsort((penalty[k], np.abs(tw[:, 0]), -tt))[0])
-            if self.escape and tw[j, 0] <= 0.0:
+            if self.escape and tw[j, 0] == 0.0:
                 # Standing still only postpones the contact (something is coming at the
                 # robot): turn in place towards the most open direction, to run next.
-                requests.append((k, (tt == tt[j]) & (tw[:, 0] <= 0.0)))
+                requests.append((k, (tt == tt[j]) & (tw[:, 0] == 0.0)))
         if requests:
             # The escape rule needs to know which standing candidates are safe: test those not tested yet.
             ks = np.array([k for k, _ in requests])
-            untested = np.isnan(ttc[ks]) & (twists[ks, :, 0] <= 0.0)
+            untested = np.isnan(ttc[ks]) & (twists[ks, :, 0] == 0.0)
             if untested.any():
                 cnt = untested.sum(axis=1)
                 h = int(cnt.max())

@@ -618,7 +618,7 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
                         alt = c
                 if alt >= 0:
                     choice[i] = alt
-            if escape and twists[i, choice[i], 0] <= 0.0 and pv[i] > 0.0:
+            if escape and twists[i, choice[i], 0] == 0.0 and pv[i] > 0.0:
                 request[i] = 1
             continue
         # Nothing safe: the largest time to contact, then the slowest, then the least penalty.
@@ -629,14 +629,14 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
                     abs(twists[i, c, 0]) == abs(twists[i, j, 0]) and penalty[i, c] < penalty[i, j]))):
                 j = c
         choice[i] = j
-        if escape and twists[i, j, 0] <= 0.0:
+        if escape and twists[i, j, 0] == 0.0:
             request[i] = 2
     for i in range(n):
         if request[i] == 0:
             continue
         # The escape rule needs every standing candidate's contact time.
         for c in range(g1):
-            if math.isnan(ttc[i, c]) and twists[i, c, 0] <= 0.0:
+            if math.isnan(ttc[i, c]) and twists[i, c, 0] == 0.0:
                 _test(i, pts[i], np.array([c]), 0, 1, ttc[i], times, discs, static, has_static, still_ok,
                       twists[i, :, 0], pv[i], reach)
     for i in range(n):
@@ -652,7 +652,7 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
         best_all = -1.0
         best_same = -1.0
         for c in range(g1):
-            if twists[i, c, 0] > 0.0:
+            if twists[i, c, 0] != 0.0:  # escapes turn in place
                 continue
             eligible = ttc[i, c] == _INF if request[i] == 1 else ttc[i, c] == ttc[i, j0]
             if not eligible:

@@ -341,3 +341,25 @@ def test_the_switch_is_honoured() -> None:
         assert not guidance._COMPILED
     finally:
         guidance.use_compiled_search(True)
+
+
+def test_an_escape_with_reverse_candidates_only_turns_in_place() -> None:
+    """With ``v_min < 0`` the candidate grid has reversing twists; the escape rule turns in place
+    (``v = 0``: the only twists its probes test), never returns a reversing twist it did not
+    probe, and both search paths agree. On random world 5 the rule fires once (before the fix it
+    returned a reversing twist at step 192 of world 27)."""
+    env = SwarmEnv("random")
+    policy = VOExpert(v_min=-0.325, n_v=9)
+    obs, _ = env.reset(seed=5)
+    policy.reset(env, 5)
+    escapes = reversing = 0
+    while env.agents:
+        state = env.world_state()
+        pref = policy.preferred_twists(state)
+        ref, fast = _both(lambda: safe_follower_twists(state, pref, policy.avoidance))
+        _assert_same(ref, fast, f"step {state.step}")
+        escapes += int(ref.escaped.sum())
+        assert np.all(ref.twist[ref.escaped, 0] == 0.0), f"step {state.step}: an escape reverses"
+        reversing += int((ref.twist[:, 0] < 0.0).sum())
+        obs, *_ = env.step(policy.act(obs, state))
+    assert escapes >= 1 and reversing >= 1  # the rule fired, and reversing twists were chosen elsewhere
