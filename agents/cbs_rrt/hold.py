@@ -209,6 +209,9 @@ class SlotHolder:
         line = self.field.clearance_xy(pose[i, 0] + seg * (goal[0] - pose[i, 0]), pose[i, 1] + seg * (goal[1] - pose[i, 1]))
         if line.min() < self.radius + 0.02:  # the straight way is blocked: go round
             d = GeodesicMap.around(self.field, goal, self.radius + 0.04).lookup(X, Y)
+        # Steeper beyond two thirds of the tolerance (the step counts as held or not there, with
+        # a third left for the physics' error); the next step weighs a little more (it is the one
+        # that will be driven). Weights chosen on paper_cbs_switch seed 0.
         inner = self.tolerance * (2.0 / 3.0)
         cost = (d + 4.0 * np.maximum(d - inner, 0.0)).sum(axis=1) + 0.3 * d[:, 0]
         cost += _PENALTY * np.maximum(min(self.obstacle_gap, clear_now) - clearance, 0.0)
@@ -231,7 +234,7 @@ class SlotHolder:
         """``(N, 2)`` twists for followers at ``pose (N, 3)`` moving at ``twist_now (N, 2)``,
         whose slots will be at ``targets (horizon, N, 2)`` after each of the next steps;
         ``movers = (xy (M, horizon + 1, 2), radius (M,))``: humans and a robot leader, now and
-        where they are predicted after each step; kept ``mover_margin`` farther from than the rest."""
+        where they are predicted after each step; kept ``mover_margin`` farther away than the rest."""
         H, dt = self.horizon, self.dt
         n = len(pose)
         C = len(self._v)

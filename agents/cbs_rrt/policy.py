@@ -194,7 +194,8 @@ class CBSRRTExpert:
             random=1000-1049 --seeds 0``) the formation error is lower (paired -0.17 +- 0.12 m) but
             46/50 episodes are collision-free against 49/50: 4 of the 5 contacts (all robot-human;
             seeds 1016, 1021, 1022) came while CBS drove again after a switch, from the state the
-            holder left, one while holding (1034); not analysed further. The holder costs 40-100 ms of CPU per step (8 followers), 20-50x the tracker's.
+            holder left, one while holding (1034); not analysed further. The holder costs
+            40-100 ms of CPU per step (8 followers), 20-50x the tracker's.
         hold_horizon: steps the holder looks ahead.
         hold_capture: the holder takes over once every follower is within ``settle_tolerance +
             hold_capture`` of its slot (m): CBS brings the swarm close, the holder settles it
@@ -779,8 +780,8 @@ class CBSRRTExpert:
         return self._shield(pose, twist, dt, state.follower_twist[:, 0], dt / state.scenario.world.substeps)
 
     def _holding(self, state: WorldState) -> bool:
-        """Whether the holder drives now: the active formation has been reached (every follower
-        within ``settle_tolerance`` of its slot) since it became active."""
+        """Whether the holder drives now: every follower has been within ``settle_tolerance +
+        hold_capture`` of its slot since the active formation became active."""
         k = state.formation_index
         if self._held != k:
             err = np.hypot(*(state.follower_pose[:, :2] - state.slot_targets).T)
@@ -884,9 +885,8 @@ class CBSRRTExpert:
         replan: median, p95, max, mean; ``total_s``), ``planning_cpu_ms`` (the same in CPU time of
         this process: what a shared machine does not inflate), ``fallbacks`` (``stationary``: robots whose plan failed,
         ``dropped``: robots removed from active planning, ``partial``: plans that stop short
-        of the goal, ``unsolved``: replans that ended with conflicts), and
-        ``hold_steps`` (steps driven by the formation holder, ``hold_slots``), and
-        ``tracking_gap_m`` — the distance between each robot and its plan's position at the
+        of the goal, ``unsolved``: replans that ended with conflicts), ``hold_steps`` (steps
+        driven by the formation holder, ``hold_slots``) and ``tracking_gap_m`` — the distance between each robot and its plan's position at the
         same time, over all steps (mean, p95, max).
         """
         gaps = np.concatenate(self._gaps) if self._gaps else np.zeros(0)
