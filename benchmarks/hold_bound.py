@@ -3,6 +3,7 @@
     python benchmarks/hold_bound.py                          # seeds 0-7, ~2 min (cbs_rrt is played)
     python benchmarks/hold_bound.py --settle 95.5,134.5     # bounds for given settle times only (s)
     python benchmarks/hold_bound.py --json /tmp/bound.json --h 0.025
+    python benchmarks/hold_bound.py --settle 12.5 --margins 0.30,0.58 --margins 0.33,0.61
 
 Issue 12's target: after the formation switch is reached (``settle_times[i]["settle_time"]``), every
 follower stays within ``world.settle_tolerance`` (0.3 m) of the env's slot target
@@ -45,6 +46,15 @@ the robots' limits, ignoring the other robots, by computing what an *ideal* foll
    pair of ideal robots is printed).
 5. Also a **greedy point** (each step: the free point within ``v dt`` nearest to the next slot),
    the policy the issue first thought of.
+6. **Robots that keep apart.** ``no-hit``: prioritised point paths (each follower's exact DP treats
+   the ones planned before it as moving discs; best of the orders 0..N-1 and N-1..0) that never
+   touch. ``j FLOOR/SEP`` (:func:`joint_paths`, ``--margins``): point paths whose centres keep
+   ``FLOOR`` m from obstacles and ``SEP`` m from each other at every step, planned for the whole
+   formation: prioritised, then rounds of best responses that count only the steps in which *every*
+   follower is within tolerance. By default twice: contact-free (``r + 0.03``, ``2 r + 0.06``: the
+   chord allowance keeps the discs apart between steps too) and with the ``cbs_rrt`` shield's
+   margin (0.05 m) added to both, the gap the expert keeps. These are achieved by real points (not
+   bounds from above: best responses are not a joint optimum).
 
 For each settle time ``S`` (the ``cbs_rrt`` expert's per seed, played here unless ``--settle`` is
 given, plus the ideal follower's own earliest settling and t = 167) the hold fractions of all of
@@ -65,6 +75,14 @@ Results (2026-12-03, deterministic; ``python benchmarks/hold_bound.py --check-en
   0.949/0.949 against cbs_rrt's 0.14, 0.02, 0.09, 0.17, 0.12, 0.07. Seed 2 settled after the leader
   stopped (held 1.00 trivially), seed 4 never. vo (S = 33.5): point 0.910, unicycle 0.896, upper
   0.965, vo 0.30.
+* Robots that keep apart (2026-12-05, ``python benchmarks/hold_bound.py --settle 12.5,16,20``, 2.5 min;
+  the ``ideal earliest`` row is 5.5 s): the joint point plans hold 0.912-0.925 contact-free but only
+  0.860-0.880 when they keep the shield's 0.05 m to obstacles and to each other (S = 12.5: 0.919 vs
+  0.866). The margins cost the steps at 114-116.5 (obstacle 5: follower 3's slot lies on the
+  margin with neighbours packed beside it), 145.5-146 and 154 (slots pushed within 0.36 m of each
+  other round obstacle 7) besides what every follower loses (105.5, 114, the turn at 123-127, the
+  flip at 179.5-182). A controller that keeps the expert's margins needs joint plans better than
+  these best responses to reach 90 %, and real robots lose more than points.
 * Settling late is what makes 90 % impossible: the flip at t = 179.5 alone costs 4-5 steps, so with
   S = 87 (t = 167, the latest issue 12 allows) even the relaxed upper bound is 0.892 (h = 0.025;
   lower 0.865); at S = 80 (t = 160) the point and the unicycle achieve 0.902.
@@ -192,8 +210,8 @@ def slot_jumps(rec: SlotRecord, step_limit: float, k_from: int, k_to: int) -> li
 
 # --------------------------------------------------------------------------- the lattice DP
 @numba.njit(cache=True)
-def _dp_step(vnext, free, half_widths, gx0, gy0, h, sx, sy, tol2, out, rowmax):  # pragma: no cover - compiled
-    """``out[y, x] = held(y, x) + max over the disc footprint of vnext`` on free cells, else NEG.
+def _dp_step(vnext, free, half_widths, gx0, gy0, h, sx, sy, tol2, gain, out, rowmax):  # pragma: no cover - compiled
+    """``out[y, x] = gain held(y, x) + max over the disc footprint of vnext`` on free cells, else NEG.
 
     The disc footprint is row ``dy`` (``-R..R``) spanning ``|dx| <= half_widths[dy + R]``; the max
     over a row span is built up width by width (``max over [x-w-1, x+w+1] = max(rowmax_w[x-1],
@@ -233,7 +251,7 @@ def _dp_step(vnext, free, half_widths, gx0, gy0, h, sx, sy, tol2, out, rowmax): 
                 out[y, x] = neg
                 continue
             px = gx0 + x * h
-            held = 1 if (px - sx) ** 2 + (py - sy) ** 2 <= tol2 else 0
+            held = gain if (px - sx) ** 2 + (py - sy) ** 2 <= tol2 else 0
             out[y, x] = best + held
 
 
@@ -333,13 +351,17 @@ class PointDP:
 
 
 def point_dp(rec: SlotRecord, i: int, k0: int, k_end: int, h: float, relax: bool,
-             others: np.ndarray | None = None) -> PointDP:
+             others: np.ndarray | None = None, margins: tuple[float, float] | None = None,
+             gain: np.ndarray | None = None) -> PointDP:
     """Solve the point follower ``i``'s DP from step ``k0`` to ``k_end`` (see module docstring).
 
     ``others`` ``(k_end - k0 + 1, M, 2)``: robots already planned (prioritised planning, exact
     constants only): at every step the follower keeps its centre at least ``2 r + 0.06`` m from
     theirs (0.06 m: two 0.25 m moves between two step ends cannot then bring the centres within
-    ``2 r``, the same chord argument as for obstacles)."""
+    ``2 r``, the same chord argument as for obstacles). ``margins = (floor, separation)``
+    replaces the exact constants' smallest centre clearance to obstacles (``r + 0.03``) and that
+    separation. ``gain (k_end - k0 + 1,)``: what a step within tolerance is worth (ints >= 1,
+    default 1: the values count steps)."""
     robots = rec.scenario.robots
     tol = rec.scenario.world.settle_tolerance
     step = robots.max_speed * rec.dt
@@ -349,7 +371,12 @@ def point_dp(rec: SlotRecord, i: int, k0: int, k_end: int, h: float, relax: bool
     if relax:
         tol_c, step_c, free = tol + e, step + 2.0 * e, lat.clearance >= robots.radius - e
     else:
-        tol_c, step_c, free = tol, step, lat.clearance >= robots.radius + _SAGITTA
+        floor = robots.radius + _SAGITTA if margins is None else margins[0]
+        tol_c, step_c, free = tol, step, lat.clearance >= floor
+    sep = 2.0 * robots.radius + 2.0 * _SAGITTA if margins is None else margins[1]
+    g = np.ones(k_end - k0 + 1, dtype=np.int64) if gain is None else np.asarray(gain, dtype=np.int64)
+    if len(g) != k_end - k0 + 1 or g.min() < 1 or g.sum() > 30000:  # int16 values
+        raise ValueError(f"gain: {k_end - k0 + 1} ints >= 1 summing to <= 30000 expected")
     hw = _half_widths(step_c / h)
     H, W = free.shape
     values = np.empty((k_end - k0 + 1, H, W), dtype=np.int16)
@@ -357,11 +384,10 @@ def point_dp(rec: SlotRecord, i: int, k0: int, k_end: int, h: float, relax: bool
     # The last step: only its own hold counts.
     xs = lat.x0 + h * np.arange(W)
     ys = lat.y0 + h * np.arange(H)
-    held = ((xs[None, :] - slots[k_end, 0]) ** 2 + (ys[:, None] - slots[k_end, 1]) ** 2 <= tol_c**2).astype(np.int16)
+    held = ((xs[None, :] - slots[k_end, 0]) ** 2 + (ys[:, None] - slots[k_end, 1]) ** 2 <= tol_c**2) * g[-1]
     def free_at(k: int) -> np.ndarray:
         if others is None or others.shape[1] == 0:
             return free
-        sep = 2.0 * robots.radius + 2.0 * _SAGITTA
         pos = others[k - k0]
         near = np.zeros(free.shape, dtype=bool)
         for q in pos:
@@ -371,21 +397,53 @@ def point_dp(rec: SlotRecord, i: int, k0: int, k_end: int, h: float, relax: bool
     values[-1] = np.where(free_at(k_end), held, _NEG)
     for k in range(k_end - 1, k0 - 1, -1):
         _dp_step(values[k + 1 - k0], free_at(k), hw, lat.x0, lat.y0, h, float(slots[k, 0]), float(slots[k, 1]),
-                 tol_c**2, values[k - k0], rowmax)
+                 tol_c**2, int(g[k - k0]), values[k - k0], rowmax)
     return PointDP(lat, free, hw, k0, values, tol_c, step_c, slots)
 
 
-def prioritised_paths(rec: SlotRecord, k_s: int, k_end: int, h: float, order: list[int]) -> np.ndarray:
+def prioritised_paths(rec: SlotRecord, k_s: int, k_end: int, h: float, order: list[int],
+                      margins: tuple[float, float] | None = None) -> np.ndarray:
     """Collision-free point paths ``(k_end - k_s + 1, N, 2)`` from the slots at ``k_s``: followers
-    in ``order`` each solve the exact DP treating the ones before them as moving discs (see
-    :func:`point_dp`). Achieved by real points; not optimal (prioritised planning)."""
+    in ``order`` each solve the exact DP (``margins`` as in :func:`point_dp`) treating the ones
+    before them as moving discs. Achieved by real points; not optimal (prioritised planning)."""
     n = rec.slots.shape[1]
     paths = np.full((k_end - k_s + 1, n, 2), np.nan)
     done: list[int] = []
     for i in order:
-        dp = point_dp(rec, i, k_s, k_end, h, relax=False, others=paths[:, done])
+        dp = point_dp(rec, i, k_s, k_end, h, relax=False, others=paths[:, done], margins=margins)
         paths[:, i] = dp.path(k_s)
         done.append(i)
+    return paths
+
+
+def joint_paths(rec: SlotRecord, k_s: int, k_end: int, h: float, margins: tuple[float, float],
+                rounds: int = 3, bonus: int = 16) -> np.ndarray:
+    """Point paths ``(k_end - k_s + 1, N, 2)`` from the slots at ``k_s`` that keep ``margins =
+    (floor, separation)`` (see :func:`point_dp`) and hold the *whole* formation in as many steps as
+    this finds: :func:`prioritised_paths` in index order, then up to ``rounds`` rounds of best
+    responses. In a round each follower in turn solves its DP again against all the others' paths,
+    a step within tolerance worth ``1 + bonus`` where every other follower is within tolerance in
+    it and ``1`` elsewhere (what counts is every follower in the same step); its new path is kept
+    only if the number of steps with every follower within tolerance grows. Achieved by real
+    points (a lower bound of what followers keeping those margins can hold)."""
+    tol = rec.scenario.world.settle_tolerance
+    n = rec.slots.shape[1]
+    window = rec.slots[k_s : k_end + 1]
+    paths = prioritised_paths(rec, k_s, k_end, h, list(range(n)), margins)
+    within = np.hypot(*(paths - window).transpose(2, 0, 1)) <= tol  # (steps, N)
+    score = int(within.all(axis=1).sum())
+    for _ in range(rounds):
+        gained = False
+        for i in range(n):
+            rest = [j for j in range(n) if j != i]
+            gain = 1 + bonus * within[:, rest].all(axis=1).astype(np.int64)
+            path = point_dp(rec, i, k_s, k_end, h, relax=False, others=paths[:, rest], margins=margins, gain=gain).path(k_s)
+            mine = np.hypot(*(path - window[:, i]).T) <= tol
+            new = int((within[:, rest].all(axis=1) & mine).sum())
+            if new > score:
+                paths[:, i], within[:, i], score, gained = path, mine, new, True
+        if not gained:
+            break
     return paths
 
 
@@ -554,12 +612,15 @@ class Bound:
     collision_free_min_pair: float | None = None  # their closest centres, sampled between steps too
     lost_collision_free: list[float] = field(default_factory=list)
     per_follower_upper: list[float] = field(default_factory=list)
+    joint: dict[str, float] = field(default_factory=dict)  # "floor/separation" -> joint_paths' hold: achieved
+    lost_joint: dict[str, list[float]] = field(default_factory=dict)
 
 
 def bound_from(rec: SlotRecord, dps_up: list[PointDP], dps_lo: list[PointDP], k_s: int, k_end: int,
-               h: float, collision_free: bool = True) -> Bound:
+               h: float, collision_free: bool = True, margins: tuple[tuple[float, float], ...] = ()) -> Bound:
     """The :class:`Bound` for a formation reached at step ``k_s`` (``collision_free``: also the
-    prioritised collision-free point paths, best of two orders, 0..N-1 and N-1..0)."""
+    prioritised collision-free point paths, best of two orders, 0..N-1 and N-1..0; ``margins``:
+    also :func:`joint_paths` keeping each ``(floor, separation)``)."""
     n_steps = k_end - k_s + 1
     tol = rec.scenario.world.settle_tolerance
     slots = rec.slots[k_s : k_end + 1]
@@ -581,7 +642,13 @@ def bound_from(rec: SlotRecord, dps_up: list[PointDP], dps_lo: list[PointDP], k_
             fine = np.concatenate([paths[:-1] + (paths[1:] - paths[:-1]) * f for f in np.linspace(0, 1, 9)])
             if cf is None or frac > cf[0]:
                 cf = (frac, min_pair_distance(fine), [float(x) for x in t[~mask]])
+    joint: dict[str, float] = {}
+    lost_joint: dict[str, list[float]] = {}
+    for m in margins:
+        frac, mask = hold_of(joint_paths(rec, k_s, k_end, h, m), slots, tol)
+        joint[_margin_key(m)], lost_joint[_margin_key(m)] = frac, [float(x) for x in t[~mask]]
     return Bound(
+        joint=joint, lost_joint=lost_joint,
         settle=round(k_s * rec.dt - float(rec.scenario.formations[int(rec.formation[k_s])].at), 9), steps=n_steps,
         upper=min(per_up), lower=lower, unicycle=unicycle, greedy=greedy,
         lost_lower=[float(x) for x in t[~lo_mask]], lost_unicycle=[float(x) for x in t[~uni_mask]],
@@ -651,6 +718,9 @@ def main() -> None:
     ap.add_argument("--h", type=float, default=0.05, help="lattice pitch (m)")
     ap.add_argument("--check-env", action="store_true", help="check the env's slots equal the recorded trajectory")
     ap.add_argument("--json", default=None, help="write everything here")
+    ap.add_argument("--margins", action="append", default=None, metavar="FLOOR,SEP",
+                    help="joint_paths keeping centres FLOOR m from obstacles and SEP m apart (repeatable; default: "
+                         "contact-free r + 0.03, 2 r + 0.06 and the cbs_rrt shield's margin added to both)")
     args = ap.parse_args()
 
     t0 = time.perf_counter()
@@ -661,6 +731,19 @@ def main() -> None:
     k_end = rec.done_step
     robots = scn.robots
     step_limit = robots.max_speed * dt
+    margins: tuple[tuple[float, float], ...]
+    if args.margins:
+        parsed = [m.split(",") for m in args.margins]
+        if any(len(m) != 2 for m in parsed):
+            ap.error(f"--margins: FLOOR,SEP expected, got {args.margins!r}")
+        margins = tuple((float(a), float(b)) for a, b in parsed)
+    else:
+        from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
+
+        shield = CBSRRTExpert().shield_margin
+        rad = robots.radius
+        margins = ((rad + _SAGITTA, 2 * rad + 2 * _SAGITTA), (rad + shield + _SAGITTA, 2 * rad + shield + 2 * _SAGITTA))
+    margins = tuple((round(a, 6), round(b, 6)) for a, b in margins)
     print(f"paper_cbs_switch: switch at step {k_switch} (t = {k_switch * dt}), leader done at step {k_end} "
           f"(t = {k_end * dt}); a follower moves <= {step_limit} m per step; tolerance {scn.world.settle_tolerance} m")
     out: dict[str, Any] = {"h": args.h, "switch_step": k_switch, "end_step": k_end}
@@ -713,7 +796,8 @@ def main() -> None:
 
     print("\nhold fraction from the settle time S to the leader's stop (t = 185), ideal followers vs the expert:")
     print(f"{'settle time from':28s} {'S (s)':>6s} {'steps':>5s} {'upper':>6s} {'lower':>6s} {'unicyc':>6s} "
-          f"{'greedy':>6s} {'no-hit':>6s} {'expert':>6s}  steps lost by the unicycle (t) | by no-hit")
+          f"{'greedy':>6s} {'no-hit':>6s} " + " ".join(f"{'j' + _margin_key(m):>10s}" for m in margins)
+          + f" {'expert':>6s}  steps lost by the unicycle (t) | by no-hit | by each joint")
     rows = []
     for name, s in settles.items():
         k_s = k_starts[name]
@@ -723,9 +807,11 @@ def main() -> None:
             print(f"{name:28s} {s:6.1f}     -      (settled after the leader stopped: the episode ends at once) {ehold}")
             rows.append({"name": name, "settle": s, "after_end": True, "expert_hold": None if expert is None else expert["hold"]})
             continue
-        b = bound_from(rec, dps_up, dps_lo, k_s, k_end, args.h)
+        b = bound_from(rec, dps_up, dps_lo, k_s, k_end, args.h, margins=margins)
         print(f"{name:28s} {s:6.1f} {b.steps:5d} {b.upper:6.3f} {b.lower:6.3f} {b.unicycle:6.3f} {b.greedy:6.3f} "
-              f"{b.collision_free:6.3f} {ehold:>6s}  {_spans(b.lost_unicycle, dt)} | {_spans(b.lost_collision_free, dt)}")
+              f"{b.collision_free:6.3f} " + " ".join(f"{b.joint[_margin_key(m)]:10.3f}" for m in margins)
+              + f" {ehold:>6s}  {_spans(b.lost_unicycle, dt)} | {_spans(b.lost_collision_free, dt)} | "
+              + " | ".join(_spans(b.lost_joint[_margin_key(m)], dt) for m in margins))
         row: dict[str, Any] = {"name": name, **b.__dict__, "expert_hold": None if expert is None else expert["hold"]}
         if expert is not None:
             row.update(_gap(rec, expert["positions"], k_s, b, dt))
@@ -751,6 +837,11 @@ def main() -> None:
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
     if args.json:
         write_json(args.json, out)
+
+
+def _margin_key(m: tuple[float, float]) -> str:
+    """``(0.33, 0.61)`` -> ``"0.33/0.61"``."""
+    return f"{m[0]:g}/{m[1]:g}"
 
 
 def _spans(times: list[float], dt: float) -> str:

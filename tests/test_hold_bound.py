@@ -94,3 +94,26 @@ def test_prioritised_paths_keep_robots_apart(hb, rec):
     fine = np.concatenate([paths[:-1] + np.diff(paths, axis=0) * f for f in np.linspace(0, 1, 9)])
     assert hb.min_pair_distance(fine) >= 2 * rec.scenario.robots.radius
     assert not np.isnan(paths).any()
+
+
+def test_joint_paths_keep_their_margins_and_never_hold_less(hb, rec):
+    """Best responses over the shield's margins: every path keeps the floor from obstacles and the
+    separation from the others at every step (and between steps the margins less the chord's
+    sagitta), and the whole formation holds at least as often as the prioritised start."""
+    k_s, k_end = 220, 262  # t = 110 .. 131: obstacle 5's face change and the leader's turn
+    floor, sep = 0.33, 0.61
+    start = hb.prioritised_paths(rec, k_s, k_end, 0.05, list(range(8)), (floor, sep))
+    paths = hb.joint_paths(rec, k_s, k_end, 0.05, (floor, sep))
+    assert paths.shape == (k_end - k_s + 1, 8, 2) and not np.isnan(paths).any()
+    assert np.all(np.hypot(*np.diff(paths, axis=0).transpose(2, 0, 1)) <= 0.25 + 1e-9)
+    assert rec.static.distance(paths[1:]).min() >= floor
+    assert hb.min_pair_distance(paths[1:]) >= sep
+    fine = np.concatenate([paths[1:-1] + np.diff(paths[1:], axis=0) * f for f in np.linspace(0, 1, 9)])
+    assert rec.static.distance(fine).min() >= floor - 0.03
+    assert hb.min_pair_distance(fine) >= sep - 0.06
+    window = rec.slots[k_s : k_end + 1]
+    held, _ = hb.hold_of(paths, window, 0.3)
+    before, _ = hb.hold_of(start, window, 0.3)
+    assert before <= held < 1.0  # the turn costs steps, with any plan
+    with pytest.raises(ValueError, match="gain"):
+        hb.point_dp(rec, 0, k_s, k_end, 0.05, relax=False, gain=np.zeros(k_end - k_s + 1, dtype=int))
