@@ -72,10 +72,10 @@ def test_run_shows_policy_stats_as_a_table_and_video_progress(
     lines = captured.out.splitlines()
     head = lines.index(next(line for line in lines if line.startswith("policy stat ")))
     assert lines[head].split() == ["policy", "stat", "value"] and set(lines[head + 1].replace(" ", "")) == {"-"}
-    rows = {line.split()[0]: line.split(None, 1)[1] for line in lines[head + 2 : head + 6]}
+    rows = {line.split()[0]: line.split(None, 1)[1] for line in lines[head + 2 : head + 7]}
     assert rows["decision_time_ms"].startswith("median=") and "calls=5" in rows["decision_time_ms"]
-    assert set(rows) == {"decision_time_ms", "infeasible_events", "infeasible_rate", "escape_turns"}
-    assert max(len(line) for line in lines[head : head + 6]) < 100  # a small table, not one long JSON line
+    assert set(rows) == {"decision_time_ms", "infeasible_events", "infeasible_rate", "escape_turns", "reverse_steps"}
+    assert max(len(line) for line in lines[head : head + 7]) < 100  # a small table, not one long JSON line
 
     monkeypatch.setattr(cli, "_interactive", lambda: True)  # as at a terminal
     assert main(argv + ["--overwrite"]) == 0  # v.mp4 exists now: replaced only on request

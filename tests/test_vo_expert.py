@@ -356,6 +356,26 @@ def test_registry_and_policy_stats():
         assert action.dtype == np.float32 and action.shape == (2,) and np.all(np.abs(action) <= 1.0)
 
 
+@pytest.mark.slow
+def test_a_boxed_in_follower_backs_off_from_a_human():
+    """Random world 31: follower 1 stands inside follower 2's margin while the human walks at it, so
+    no forward or standing twist is safe. Turning in place, the human walks into it; with the
+    ``reverse`` fallback (off by default) it backs off, and the episode ends without a contact."""
+    results = {}
+    for spec in ("vo", "vo:reverse=0.2"):
+        env = SwarmEnv("random")
+        results[spec] = run_episode(env, load_policy(spec, env), seed=31)
+    assert results["vo"]["collisions"]["robot_human"] == 1
+    assert results["vo"]["policy_stats"]["reverse_steps"] == 0
+    assert results["vo:reverse=0.2"]["collisions"]["total"] == 0 and results["vo:reverse=0.2"]["success"]
+    assert results["vo:reverse=0.2"]["policy_stats"]["reverse_steps"] > 0
+    # Worlds without humans never back off: the same episode as without the fallback.
+    env = SwarmEnv("paper_vo_45", max_cycles=60)
+    plain = run_episode(env, load_policy("vo", env), seed=0)
+    on = run_episode(env, load_policy("vo:reverse=0.2", env), seed=0)
+    assert plain["formation_error"] == on["formation_error"] and on["policy_stats"]["reverse_steps"] == 0
+
+
 def test_discrete_action_space_is_refused_clearly():
     env = SwarmEnv("paper_vo_0", action_type="discrete")
     with pytest.raises(ValueError, match="continuous"):
@@ -366,7 +386,7 @@ def test_discrete_action_space_is_refused_clearly():
 
 def test_invalid_parameters():
     for bad in ({"time_gap": 0.0}, {"horizon": -1.0}, {"margin": -0.1}, {"n_v": 0}, {"preview": -1.0},
-                {"preview": float("nan")}):
+                {"preview": float("nan")}, {"reverse": -0.1}, {"reverse": 1.5}):
         with pytest.raises(ValueError):
             VOExpert(**bad)
 
