@@ -118,11 +118,17 @@ def test_holder_rejects_bad_settings() -> None:
     with pytest.raises(ValueError, match="horizon"):
         SlotHolder(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.5, sub_dt=0.125,
                    shield_margin=0.05, tolerance=0.3, horizon=1)
+    with pytest.raises(ValueError, match="every"):
+        SlotHolder(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.1, sub_dt=0.025,
+                   shield_margin=0.05, tolerance=0.3, horizon=4, every=0)
+    spread = SlotHolder(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.1, sub_dt=0.025,
+                        shield_margin=0.05, tolerance=0.3, horizon=4, every=6)
+    assert spread.steps_ahead().tolist() == [1, 7, 13, 19]
     with pytest.raises(ValueError, match="odd"):
         SlotHolder(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.5, sub_dt=0.125,
                    shield_margin=0.05, tolerance=0.3, samples=4)
     with pytest.raises(ValueError, match="hold_horizon"):
-        CBSRRTExpert(hold_slots=True, hold_horizon=1)
+        CBSRRTExpert(hold_slots=True, hold_horizon=0)
     with pytest.raises(ValueError, match="hold_capture"):
         CBSRRTExpert(hold_slots=True, hold_capture=-0.1)
     assert CBSRRTExpert().hold_slots is False  # experimental: off by default
@@ -150,3 +156,8 @@ def test_expert_holds_a_reached_formation_and_plans_again_at_the_switch() -> Non
     assert np.mean(held) >= 0.78, np.mean(held)
     assert stats["replans"] >= 1 and stats["replan_reasons"]["initial"] == 1
     assert env.episode_metrics()["collisions"]["total"] == 0
+    assert policy.holder.steps_ahead().tolist() == [1, 2, 3, 4]  # hold_horizon 2 s at dt = 0.5 s
+    fine = SwarmEnv("random")  # dt = 0.1 s: the same 2 s in four points
+    fine.reset(seed=0)
+    policy.setup(fine.world_state())
+    assert policy.holder.steps_ahead().tolist() == [1, 7, 13, 19]

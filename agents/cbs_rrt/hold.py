@@ -10,12 +10,14 @@ flips to its other side) and every replan knocks robots in formation off their c
 
 The holder is a short-horizon search over the robots' own kinematics, robot by robot:
 
-* **targets**: each follower's slot at the next ``horizon`` steps (for a virtual leader the env's
-  exact slots, :func:`swarm_env.formation.virtual_slot_trajectory`; otherwise the formation
-  layer's predicted course);
+* **targets**: each follower's slot at ``horizon`` points ahead, the next step and then every
+  ``every`` steps (:meth:`SlotHolder.steps_ahead`; the expert spreads four points over two seconds
+  whatever the env's step), for a virtual leader the env's exact slots
+  (:func:`swarm_env.formation.virtual_slot_trajectory`), otherwise the formation layer's predicted
+  course;
 * **candidates**: a grid of twists ``(v, omega)`` (reversing allowed) for the first step, then a
-  second grid held for the remaining steps; each sequence is rolled out on exact unicycle arcs;
-* **cost**: the distance to the target at every step, plus a steeper term beyond two thirds of the
+  second grid held for the rest of the horizon; each sequence is rolled out on exact unicycle arcs;
+* **cost**: the distance to the target at every point, plus a steeper term beyond two thirds of the
   tolerance (being *inside* the tolerance is what counts), with a little extra weight on the first
   step. Where the straight line from the robot to its last target crosses an obstacle's clearance,
   the distance is the *geodesic* one (:func:`geodesic_grid`, Dijkstra on the distance field
@@ -155,7 +157,10 @@ class SlotHolder:
             substep late, so that much travel at top speed is added to every margin.
         shield_margin: the gap (m) kept to obstacles, robots and moving discs, as the shield does.
         tolerance: the formation's settle tolerance (m).
-        horizon: steps looked ahead (>= 2).
+        horizon: points looked ahead (>= 2): one step, then ``horizon - 1`` more, ``every`` steps
+            apart.
+        every: env steps between the later points (a short ``dt`` still looks ahead far enough
+            to see a human coming, at the same cost).
         samples: speeds and turn rates per candidate grid (odd: zero is one of them).
         mover_margin: extra gap (m) kept to humans and a robot leader: their predictions are
             uncertain and they do not give way.
@@ -173,17 +178,21 @@ class SlotHolder:
         shield_margin: float,
         tolerance: float,
         horizon: int = 5,
+        every: int = 1,
         samples: int = 9,
         mover_margin: float = 0.2,
     ) -> None:
         if horizon < 2:
             raise ValueError(f"horizon must be >= 2 steps, got {horizon!r}")
+        if not isinstance(every, int) or every < 1:
+            raise ValueError(f"every must be an int >= 1 (steps), got {every!r}")
         if samples < 3 or samples % 2 == 0:
             raise ValueError(f"samples must be an odd number >= 3, got {samples!r}")
         self.field = field
         self.radius = float(radius)
         self.dt = float(dt)
         self.horizon = int(horizon)
+        self.every = every
         self.tolerance = float(tolerance)
         lag = max_speed * sub_dt
         # The shield's own thresholds (a substep's travel at top speed included) plus a centimetre:
@@ -224,6 +233,11 @@ class SlotHolder:
                 cost += _PENALTY * np.maximum(min(need, d_now) - gap, 0.0)
         return cost
 
+    def steps_ahead(self) -> np.ndarray:
+        """The env steps ``(horizon,)`` after now at which the candidates are scored:
+        ``1, 1 + every, 1 + 2 every, ...``."""
+        return 1 + self.every * np.arange(self.horizon)
+
     def twists(
         self,
         pose: np.ndarray,
@@ -232,9 +246,9 @@ class SlotHolder:
         movers: tuple[np.ndarray, np.ndarray] | None = None,
     ) -> np.ndarray:
         """``(N, 2)`` twists for followers at ``pose (N, 3)`` moving at ``twist_now (N, 2)``,
-        whose slots will be at ``targets (horizon, N, 2)`` after each of the next steps;
+        whose slots will be at ``targets (horizon, N, 2)`` at :meth:`steps_ahead`;
         ``movers = (xy (M, horizon + 1, 2), radius (M,))``: humans and a robot leader, now and
-        where they are predicted after each step; kept ``mover_margin`` farther away than the rest."""
+        where they are predicted then; kept ``mover_margin`` farther away than the rest."""
         H, dt = self.horizon, self.dt
         n = len(pose)
         C = len(self._v)
@@ -242,7 +256,7 @@ class SlotHolder:
         x1, y1, t1 = unicycle_rollout(pose[:, 0:1], pose[:, 1:2], pose[:, 2:3], self._v, self._w, dt, 1)
         v2, w2 = np.tile(self._v, C), np.tile(self._w, C)
         first = np.repeat(np.arange(C), C)
-        later_steps = unicycle_rollout(x1[:, first, 0], y1[:, first, 0], t1[:, first, 0], v2, w2, dt, H - 1)
+        later_steps = unicycle_rollout(x1[:, first, 0], y1[:, first, 0], t1[:, first, 0], v2, w2, dt * self.every, H - 1)
         xs = np.concatenate([x1[:, first], later_steps[0]], axis=2)  # (N, C*C, H)
         ys = np.concatenate([y1[:, first], later_steps[1]], axis=2)
         clearance = self.field.clearance_xy(xs, ys).min(axis=2)  # (N, C*C)
