@@ -78,11 +78,14 @@ Results (2026-12-03, deterministic; ``python benchmarks/hold_bound.py --check-en
 * Robots that keep apart (2026-12-05, ``python benchmarks/hold_bound.py --settle 12.5,16,20``, 2.5 min;
   the ``ideal earliest`` row is 5.5 s): the joint point plans hold 0.912-0.925 contact-free but only
   0.860-0.880 when they keep the shield's 0.05 m to obstacles and to each other (S = 12.5: 0.919 vs
-  0.866). The margins cost the steps at 114-116.5 (obstacle 5: follower 3's slot lies on the
-  margin with neighbours packed beside it), 145.5-146 and 154 (slots pushed within 0.36 m of each
-  other round obstacle 7) besides what every follower loses (105.5, 114, the turn at 123-127, the
-  flip at 179.5-182). A controller that keeps the expert's margins needs joint plans better than
-  these best responses to reach 90 %, and real robots lose more than points.
+  0.866; the obstacle margin alone 0.892, the robots' alone 0.914: ``--margins 0.33,0.56``,
+  ``--margins 0.28,0.61``). The margins cost the steps at 114-116.5 (follower 3's slot flips round
+  a corner of the square obstacle 5: kept 0.05 m off it, the way round is longer) and 145.5-146
+  and 154 (slots pushed within 0.36 m of each other round obstacle 7), besides what every follower
+  loses (105.5, 114, the turn at 123-127, the flip at 179.5-182). Projecting the slots farther out
+  of the obstacles (``SLOT_MARGIN`` 0.10 or 0.15 instead of 0.05, a throwaway script) leaves this
+  unchanged (0.866, 0.860). A controller that keeps the expert's margins needs joint plans better
+  than these best responses to reach 90 %, and real robots lose more than points.
 * Settling late is what makes 90 % impossible: the flip at t = 179.5 alone costs 4-5 steps, so with
   S = 87 (t = 167, the latest issue 12 allows) even the relaxed upper bound is 0.892 (h = 0.025;
   lower 0.865); at S = 80 (t = 160) the point and the unicycle achieve 0.902.
