@@ -273,15 +273,14 @@ class VOExpert:
         """:meth:`twists` and the flags of the followers that back off (``reverse``)."""
         preferred = self.preferred_twists(state)
         res = safe_follower_twists(state, preferred, self.avoidance)
-        none = np.zeros(len(res.twist), dtype=bool)
         if self.reverse <= 0 or res.feasible.all() or not len(state.human_pos):
-            return res.twist, res.feasible, res.escaped, none
+            return res.twist, res.feasible, res.escaped, np.zeros(len(res.twist), dtype=bool)
         # Boxed in (no forward or standing candidate is safe) with a human coming: the other robots
         # give way (reciprocal avoidance), a human does not. Search again with reversing candidates
         # and take their answer for those followers where it is safe.
         boxed = ~res.feasible & self._human_coming(state)
         if not boxed.any():
-            return res.twist, res.feasible, res.escaped, none
+            return res.twist, res.feasible, res.escaped, boxed
         back = safe_follower_twists(state, preferred, self._reverse_params(state.scenario.robots.max_speed))
         take = boxed & back.feasible
         return np.where(take[:, None], back.twist, res.twist), res.feasible, res.escaped & ~take, take

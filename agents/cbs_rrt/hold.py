@@ -183,7 +183,7 @@ class SlotHolder:
         mover_margin: float = 0.2,
     ) -> None:
         if horizon < 2:
-            raise ValueError(f"horizon must be >= 2 steps, got {horizon!r}")
+            raise ValueError(f"horizon must be >= 2 points, got {horizon!r}")
         if not isinstance(every, int) or every < 1:
             raise ValueError(f"every must be an int >= 1 (steps), got {every!r}")
         if samples < 3 or samples % 2 == 0:
