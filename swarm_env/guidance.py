@@ -1132,6 +1132,7 @@ def vo_select_batch(
     velocity: np.ndarray | None = None,
     reciprocal: np.ndarray | bool = False,
     current: np.ndarray | None = None,
+    disc_horizon: np.ndarray | None = None,
     **overrides: Any,
 ) -> VOBatchResult:
     """:func:`vo_select` for ``N`` robots in one vectorised pass (same rules, same answers).
@@ -1152,6 +1153,11 @@ def vo_select_batch(
         velocity: ``(N, 2)`` the robots' current world velocities, or ``None``.
         goal_heading: ``(N,)`` or ``None`` (per robot, as in :func:`vo_select`).
         current: ``(N, 2)`` the twists the robots drive now (for ``params.w_current``).
+        disc_horizon: ``(D,)`` the horizon (s, > 0) of each moving disc in place of
+            ``params.horizon``: a contact with disc ``d`` later than ``disc_horizon[d]`` does
+            not count, and the candidates' trajectories are traced to the longest of them
+            (the escape probes keep ``params.horizon``). ``None``: ``params.horizon`` for all.
+            Used to look further ahead for discs that will not give way (humans).
         params: as for :func:`vo_select`; see ``allow_still_overlap`` below.
         **overrides: as for :func:`vo_select`.
 
@@ -1179,7 +1185,8 @@ def vo_select_batch(
     """
     p = (VOParams() if params is None else params).with_overrides(overrides)
     return _VOBatch(poses, radius, preferred, discs, disc_vel, static, v_max, omega_max, p, disc_mask=disc_mask,
-                    goal_heading=goal_heading, velocity=velocity, reciprocal=reciprocal, current=current).select(p.fast)
+                    goal_heading=goal_heading, velocity=velocity, reciprocal=reciprocal, current=current,
+                    disc_horizon=disc_horizon).select(p.fast)
 
 
 class _VOBatch:
@@ -1191,10 +1198,17 @@ class _VOBatch:
     def __init__(self, poses: np.ndarray, radius: float | np.ndarray, preferred: np.ndarray, discs: np.ndarray,
                  disc_vel: np.ndarray, static: StaticMap | None, v_max: float, omega_max: float, params: VOParams, *,
                  disc_mask: np.ndarray | None, goal_heading: np.ndarray | None, velocity: np.ndarray | None,
-                 reciprocal: np.ndarray | bool, current: np.ndarray | None) -> None:
-        horizon, tau, n_arc, model, margin, v_min = (params.horizon, params.tau, params.n_arc, params.model,
-                                                     params.margin, params.v_min)
-        h_static = float(horizon if params.horizon_static is None else min(params.horizon_static, horizon))
+                 reciprocal: np.ndarray | bool, current: np.ndarray | None,
+                 disc_horizon: np.ndarray | None = None) -> None:
+        tau, n_arc, model, margin, v_min = params.tau, params.n_arc, params.model, params.margin, params.v_min
+        self.d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
+        self.dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
+        h_static = float(params.horizon if params.horizon_static is None else min(params.horizon_static, params.horizon))
+        # Each moving disc's horizon; the trajectories are traced to the longest (`horizon` below), the escape
+        # probes keep the search's own (h_probe).
+        self.h_probe = float(params.horizon)
+        self.h_moving = _disc_horizons(disc_horizon, self.d.shape[0], self.h_probe)
+        horizon = _trace_horizon(self.h_probe, self.h_moving)
         n_v, n_w, w_pref, w_heading, side_bias = params.n_v, params.n_w, params.w_pref, params.w_heading, params.side_bias
         escape, allow_still_overlap, w_current = params.escape, params.allow_still_overlap, params.w_current
         self.static, self.v_max, self.omega_max, self.v_min = static, v_max, omega_max, v_min
@@ -1205,7 +1219,7 @@ class _VOBatch:
         self.move_first, self.static_reach = params.move_first, params.static_reach
         self.w_speed, self.escape_commit = params.w_speed, float(params.escape_commit)
         # The trajectories' end (static_reach: past the horizon; the moving discs are still cut at the horizon).
-        t_end = self.t_end = _reach_end(params)
+        t_end = self.t_end = _reach_end(params, horizon)
         self.t_cut = _reach_cut(params)
         poses = np.asarray(poses, dtype=np.float64).reshape(-1, 3)
         self.poses = poses
@@ -1240,8 +1254,6 @@ class _VOBatch:
         self.vel = vel
         self.poses2 = poses[:, :2]
         self.whole = n == 1  # then every row is robot 0's and the (1, ...) arrays broadcast as they are
-        self.d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
-        self.dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
         self.reciprocal, self.disc_mask = reciprocal, disc_mask
 
     def prepare(self) -> None:
@@ -1258,11 +1270,11 @@ class _VOBatch:
             sc = static.circles
             d = np.concatenate([d, sc])
             dv = np.concatenate([dv, np.zeros((len(sc), 2))])
-        h_disc = np.full(d.shape[0], float(horizon))
-        h_disc[n_moving:] = h_static  # static circles
+        h_disc = np.full(d.shape[0], h_static)  # the static circles'
+        h_disc[:n_moving] = self.h_moving
         rel = d[None, :, :2] - poses[:, None, :2]  # (N, D, 2)
         R = d[:, 2] + rad[:, None]  # (N, D)
-        spd_h = np.hypot(dv[:, 0], dv[:, 1]) * horizon
+        spd_h = np.hypot(dv[:, 0], dv[:, 1]) * h_disc  # (how far each disc gets within its horizon)
         recip = None
         if reciprocal is not False and np.any(reciprocal):
             recip = np.zeros((n, d.shape[0]), dtype=bool)
@@ -1368,7 +1380,7 @@ class _VOBatch:
         towards the obstacle (measured: a follower stuck for the rest of an
         episode of paper_cbs_switch at an obstacle between it and its slot).
         """
-        twists, tau, horizon, v_max = self.twists, self.tau, self.horizon, self.v_max
+        twists, tau, horizon, v_max = self.twists, self.tau, self.h_probe, self.v_max
         req_k, req_c = [], []
         for r, (k, eligible) in enumerate(requests):
             stop = np.flatnonzero(eligible & (twists[k, :, 0] == 0.0))
@@ -1654,7 +1666,7 @@ class _VOBatch:
         twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe = vo_kernel.select(
             self._kernel_world(), times, _f64(self.pref_pts), trajectories, grid, _f64(self.pv), _f64(self.pw),
             _f64(self.theta), search, bool(fast), bool(self.escape), _FIRST_STAGE, bool(self.allow_still_overlap),
-            (float(self.v_max), float(self.tau), float(self.horizon)))
+            (float(self.v_max), float(self.tau), float(self.h_probe)))
         return VOBatchResult(twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe)
 
     def _kernel_world(self) -> tuple:
@@ -1664,7 +1676,7 @@ class _VOBatch:
         n = self.n
         d, dv, vel = self.d, self.dv, self.vel
         n_moving = d.shape[0]
-        spd_h = np.hypot(dv[:, 0], dv[:, 1]) * self.horizon
+        spd_h = np.hypot(dv[:, 0], dv[:, 1]) * self.h_moving
         reciprocal = self.reciprocal
         has_recip = bool(reciprocal is not False and np.any(reciprocal))
         if has_recip:
@@ -1676,7 +1688,7 @@ class _VOBatch:
         mask = np.array(np.asarray(self.disc_mask, dtype=bool).reshape(n, n_moving), order="C") if has_mask else recip_in
         own_vel = np.zeros((n, 2)) if vel is None else _f64(vel)
         return ((_f64(self.poses2), _f64(self.rad), float(self.ext), float(self.horizon), float(self.h_static), _f64(d),
-                 _f64(dv), spd_h, has_recip, recip_in, _f64(own_speed), own_vel, has_mask, mask, self.static is not None)
+                 _f64(dv), spd_h, _f64(self.h_moving), has_recip, recip_in, _f64(own_speed), own_vel, has_mask, mask, self.static is not None)
                 + _kernel_map(self.static) + (float(self.recip_gap),))
 
 
@@ -1687,11 +1699,31 @@ def _reach_cut(params: VOParams) -> float:
     return h_static * float(params.static_reach) if params.static_reach else h_static
 
 
-def _reach_end(params: VOParams) -> float:
-    """How far in time (s) the candidates' trajectories run: ``params.horizon``, or with ``static_reach``
-    to its latest cut (:func:`_reach_cut`) if that is later (``vo_kernel.follower_select`` computes the same)."""
-    horizon = float(params.horizon)
+def _reach_end(params: VOParams, trace: float | None = None) -> float:
+    """How far in time (s) the candidates' trajectories run: ``trace`` (the longest disc horizon,
+    :func:`_trace_horizon`; ``None``: ``params.horizon``), or with ``static_reach`` to its latest cut
+    (:func:`_reach_cut`) if that is later (``vo_kernel.follower_select`` computes the same)."""
+    horizon = float(params.horizon if trace is None else trace)
     return max(horizon, _reach_cut(params)) if params.static_reach else horizon
+
+
+def _trace_horizon(horizon: float, disc_horizon: np.ndarray | None) -> float:
+    """The time (s) the candidates are traced to: the longest of ``horizon`` and the discs' own horizons."""
+    if disc_horizon is None or not len(disc_horizon):
+        return float(horizon)
+    return max(float(horizon), float(np.max(disc_horizon)))
+
+
+def _disc_horizons(disc_horizon: np.ndarray | None, n_discs: int, horizon: float) -> np.ndarray:
+    """``(D,)`` each moving disc's horizon: ``disc_horizon`` checked, or ``horizon`` for all."""
+    if disc_horizon is None:
+        return np.full(n_discs, float(horizon))
+    h = np.array(disc_horizon, dtype=np.float64).reshape(-1)
+    if h.shape[0] != n_discs:
+        raise ValueError(f"disc_horizon must hold one horizon per disc ({n_discs}), got {h.shape[0]}")
+    if not np.all(np.isfinite(h) & (h > 0)):
+        raise ValueError(f"disc_horizon must be finite numbers > 0 (s), got {h.tolist()}")
+    return h
 
 
 def _static_limits(speed: np.ndarray, pv: np.ndarray, h_static: float, t_cut: float) -> np.ndarray:
@@ -1732,35 +1764,38 @@ def _kernel_velocities(v_max: float, omega_max: float, n_v: int, n_w: int, v_min
     return np.array(_grid_velocities(v_max, omega_max, n_v, n_w, v_min, tau), dtype=np.float64, order="C")
 
 
-_FOLLOWER_PLANS: dict[int, tuple] = {}
+_FOLLOWER_PLANS: dict[tuple[int, float], tuple] = {}
 
 
-def _follower_plan(params: VOParams, v_max: float, omega_max: float) -> tuple:
+def _follower_plan(params: VOParams, v_max: float, omega_max: float, trace: float | None = None) -> tuple:
     """What :func:`swarm_env.vo_kernel.follower_select` takes besides the world for ``params`` (arc
-    model) and the limits: ``(plan, scalars, flags)`` (see there), cached per ``params`` object (the
-    values are those :class:`_VOBatch` derives from it)."""
-    hit = _FOLLOWER_PLANS.get(id(params))
-    if hit is not None and hit[0] is params and hit[1] == v_max and hit[2] == omega_max:
-        return hit[3]
+    model), the limits and ``trace`` (the time the candidates are traced to, :func:`_trace_horizon`;
+    ``None``: ``params.horizon``): ``(plan, scalars, flags)`` (see there), cached per ``params`` object
+    and ``trace`` (the values are those :class:`_VOBatch` derives from them)."""
     p = params
     horizon = p.horizon
+    trace = float(horizon if trace is None else trace)
+    key = (id(params), trace)
+    hit = _FOLLOWER_PLANS.get(key)
+    if hit is not None and hit[0] is params and hit[1] == v_max and hit[2] == omega_max:
+        return hit[3]
     h_static = float(horizon if p.horizon_static is None else min(p.horizon_static, horizon))
-    ext = max(abs(p.v_min), abs(v_max)) * horizon  # as _VOBatch.__init__
-    t_end = _reach_end(p)
+    ext = max(abs(p.v_min), abs(v_max)) * trace  # as _VOBatch.__init__
+    t_end = _reach_end(p, trace)
     plan = (*_kernel_plan(float(v_max), float(omega_max), int(p.n_v), int(p.n_w), float(p.v_min), float(p.tau),
                           float(t_end), "arc", int(p.n_arc)),
             _kernel_velocities(float(v_max), float(omega_max), int(p.n_v), int(p.n_w), float(p.v_min), float(p.tau)))
     scalars = (float(p.margin), float(horizon), h_static, float(ext), float(p.tau), int(p.n_arc),
                float(p.v_min), float(v_max), float(omega_max), float(p.w_pref), float(p.w_heading),
                float(p.side_bias), float(p.w_current), float(p.recip_gap), _reach_cut(p), float(p.w_speed),
-               float(p.escape_commit))
+               float(p.escape_commit), trace)
     reciprocal = bool(getattr(p, "reciprocal", False))  # (safety.AvoidanceParams': the followers avoid each other so)
     flags = (bool(p.fast), bool(p.escape), bool(p.allow_still_overlap), reciprocal, bool(p.w_current), _FIRST_STAGE,
              p.cost == "velocity", bool(p.move_first), bool(p.static_reach))
     value = (plan, scalars, flags)
     if len(_FOLLOWER_PLANS) >= 32:
         _FOLLOWER_PLANS.pop(next(iter(_FOLLOWER_PLANS)))
-    _FOLLOWER_PLANS[id(params)] = (params, v_max, omega_max, value)  # (params kept alive: its id stays unique)
+    _FOLLOWER_PLANS[key] = (params, v_max, omega_max, value)  # (params kept alive: its id stays unique)
     return value
 
 

@@ -31,7 +31,9 @@ _INTERVENTION_EPS = 1e-9
 class AvoidanceParams(VOParams):
     """The followers' VO search: :class:`~swarm_env.guidance.VOParams` (see
     :func:`swarm_env.guidance.vo_select` for each field) plus what is about their world:
-    ``human_margin`` (m) added to the humans' radii on top of ``margin``, and ``reciprocal``
+    ``human_margin`` (m) added to the humans' radii on top of ``margin``, ``human_horizon`` (s: the
+    horizon for the humans, who do not give way, in place of ``horizon``; ``0``, the default, keeps
+    ``horizon``; see :func:`swarm_env.guidance.vo_select_batch`'s ``disc_horizon``), and ``reciprocal``
     (followers avoid each other reciprocally; the robot leader and the humans are always avoided
     fully). Defaults differ from the search's in two places: no keep-right bias
     (``side_bias = 0``), and ``allow_still_overlap`` on (two followers that stopped inside each
@@ -39,6 +41,7 @@ class AvoidanceParams(VOParams):
     """
 
     human_margin: float = 0.05
+    human_horizon: float = 0.0
     side_bias: float = 0.0
     reciprocal: bool = True
     allow_still_overlap: bool = True
@@ -47,6 +50,18 @@ class AvoidanceParams(VOParams):
         super().__post_init__()
         if not (isinstance(self.human_margin, (int, float)) and np.isfinite(self.human_margin) and self.human_margin >= 0):
             raise ValueError(f"human_margin must be a finite number >= 0, got {self.human_margin!r}")
+        hh = self.human_horizon
+        if not (isinstance(hh, (int, float)) and np.isfinite(hh) and hh >= 0):
+            raise ValueError(f"human_horizon must be a finite number >= 0 (s; 0: horizon), got {hh!r}")
+
+    def disc_horizons(self, n_robots: int, n_humans: int) -> np.ndarray | None:
+        """The horizon of each moving disc, ``n_robots`` robots then ``n_humans`` humans
+        (``vo_select_batch``'s ``disc_horizon``); ``None`` when all share ``horizon``."""
+        if not (self.human_horizon and n_humans) or self.human_horizon == self.horizon:
+            return None
+        h = np.full(n_robots + n_humans, float(self.horizon))
+        h[n_robots:] = self.human_horizon
+        return h
 
 
 def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: AvoidanceParams = AvoidanceParams()) -> VOBatchResult:
@@ -90,6 +105,7 @@ def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: Avoid
     mask[np.arange(n), np.arange(n)] = False  # not itself
     recip = np.zeros(n_d, dtype=bool)
     recip[:n] = params.reciprocal  # the robot leader and the humans are avoided fully
+    disc_horizon = params.disc_horizons(n + int(has_leader), n_h)
     return vo_select_batch(
         pose,
         state.follower_radius,
@@ -104,6 +120,7 @@ def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: Avoid
         reciprocal=recip,
         velocity=state.follower_vel,
         current=state.follower_twist,
+        disc_horizon=disc_horizon,
     )
 
 
@@ -120,24 +137,27 @@ def _follower_twists_compiled(state: WorldState, preferred: np.ndarray, params: 
     n_h = len(state.human_pos)
     k = n + int(has_leader)
     # One writeable array per kind (the snapshot's own are read-only, another array type for numba):
-    # x, y, radius, vx, vy of every moving disc, and each follower's heading, current and preferred twists.
-    moving = np.empty((k + n_h, 5))
+    # x, y, radius, vx, vy, horizon of every moving disc, and each follower's heading, current and preferred twists.
+    moving = np.empty((k + n_h, 6))
     moving[:n, :2] = pose[:, :2]
     moving[:n, 2] = state.follower_radius
-    moving[:n, 3:] = state.follower_vel
+    moving[:n, 3:5] = state.follower_vel
     if has_leader:
         moving[n, :2] = state.leader_pose[:2]
         moving[n, 2] = state.leader_radius
-        moving[n, 3:] = state.leader_vel
+        moving[n, 3:5] = state.leader_vel
     if n_h:
         moving[k:, :2] = state.human_pos
         moving[k:, 2] = state.human_radius + params.human_margin
-        moving[k:, 3:] = state.human_vel
+        moving[k:, 3:5] = state.human_vel
+    disc_horizon = params.disc_horizons(k, n_h)
+    moving[:, 5] = params.horizon if disc_horizon is None else disc_horizon
     own = np.empty((n, 5))
     own[:, 0] = pose[:, 2]
     own[:, 1:3] = state.follower_twist
     own[:, 3:] = np.asarray(preferred, dtype=np.float64).reshape(n, 2)
-    plan, scalars, flags = guidance._follower_plan(params, v_max, omega_max)
+    plan, scalars, flags = guidance._follower_plan(params, v_max, omega_max,
+                                                   guidance._trace_horizon(params.horizon, disc_horizon))
     static = state.static
     return VOBatchResult(*vo_kernel.follower_select(moving, own, n, guidance._kernel_map(static), static is not None,
                                                     plan, scalars, flags))

@@ -203,7 +203,7 @@ def _static_row(i, times, xs, ys, static, circles, hs):
 def _keep_discs(world):
     """Each robot's discs that some of its candidates can meet (``_VOBatch.prepare``): the moving discs,
     then the static circles, kept in that order and padded to the longest list (``valid`` False)."""
-    (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
+    (P, rad, ext, horizon, h_static, d, dv, spd_h, hd, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
      has_static, W, H, circ, A, Nn, L, eux, euy, centre, bound, recip_gap) = world
     n = P.shape[0]
     n_moving = d.shape[0]
@@ -252,7 +252,7 @@ def _keep_discs(world):
             R = r + rad[i]
             rel[i, q, 0], rel[i, q, 1] = relx, rely
             Rk[i, q] = R
-            hk[i, q] = horizon if moving else h_static
+            hk[i, q] = hd[j] if moving else h_static
             valid[i, q] = True
             moving_k[i, q] = moving
             # Within the combined radius (plus recip_gap) of a reciprocal disc already: avoided plainly (see guidance).
@@ -267,7 +267,7 @@ def _static_context(world):
     """``guidance._static_context`` (circles included): the walls, circles and polygons in reach of
     some robot, the polygons each robot is free of (``free`` ``(N, P)``, ``fcols``), and the robots
     already within their margin of a polygon with the outward normal there (``over_rn``, ``over_nrm``)."""
-    (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
+    (P, rad, ext, horizon, h_static, d, dv, spd_h, hd, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
      has_static, W, H, circ, A, Nn, L, eux, euy, centre, bound, _recip_gap) = world
     n = P.shape[0]
     wall_ax = np.array([0.0, -1.0, 0.0, 1.0])
@@ -693,7 +693,7 @@ def select(world, times, pref_pts, trajectories, grid, pv, pw, theta, search, fa
     (as ``_VOBatch._kernel_world`` packs them). The other arguments are :func:`_search`'s."""
     discs = _keep_discs(world)
     static = _static_context(world)
-    return _search(discs, static, world[14], times, pref_pts, trajectories, grid, pv, pw, theta, search, fast, escape,
+    return _search(discs, static, world[15], times, pref_pts, trajectories, grid, pv, pw, theta, search, fast, escape,
                    first_stage, still_ok, probe)
 
 
@@ -748,21 +748,23 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     world's arrays in one call: the discs, the reciprocity and the masks, the preferred twists' clipping
     and trajectories, then :func:`_search`.
 
-    ``moving`` ``(D, 5)`` ``x, y, radius, vx, vy`` of the moving discs, the ``n`` followers first (each
+    ``moving`` ``(D, 6)`` ``x, y, radius, vx, vy, horizon`` of the moving discs (``horizon``: the
+    disc's own, ``guidance.vo_select_batch``'s ``disc_horizon``), the ``n`` followers first (each
     left out of its own list; reciprocal among themselves when ``reciprocal``), then the robot leader
     and the humans; ``own`` ``(n, 5)`` each follower's heading, current twist ``(v, omega)`` and
     preferred twist; ``static_map`` as ``guidance._kernel_map`` gives it; ``plan`` ``(grid, times,
     body, gvel)`` the candidate grid, its body-frame trajectories and (``cost="velocity"``) mean
     body-frame velocities (``guidance._grid_velocities``); ``scalars`` ``(margin, horizon,
     h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias, w_current, recip_gap,
-    t_cut, w_speed, escape_commit)`` (``t_cut``: ``static_reach``'s latest static cut, ``guidance._reach_cut``);
+    t_cut, w_speed, escape_commit, trace)`` (``t_cut``: ``static_reach``'s latest static cut, ``guidance._reach_cut``;
+    ``trace``: the longest disc horizon, ``guidance._trace_horizon``; ``horizon`` is the escape probes');
     ``flags`` ``(fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first,
     static_reach)``.
     Returns what :func:`_search` returns.
     """
     grid, times, body, gvel = plan
     (margin, horizon, h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias,
-     w_current, recip_gap, t_cut, w_speed, commit) = scalars
+     w_current, recip_gap, t_cut, w_speed, commit, trace) = scalars
     fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first, static_reach = flags
     n_moving = moving.shape[0]
     P = np.empty((n, 2))
@@ -786,10 +788,12 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     d = np.empty((n_moving, 3))
     dv = np.empty((n_moving, 2))
     spd_h = np.empty(n_moving)
+    hd = np.empty(n_moving)
     for j in range(n_moving):
         d[j, 0], d[j, 1], d[j, 2] = moving[j, 0], moving[j, 1], moving[j, 2]
         dv[j, 0], dv[j, 1] = moving[j, 3], moving[j, 4]
-        spd_h[j] = math.hypot(dv[j, 0], dv[j, 1]) * horizon
+        hd[j] = moving[j, 5]
+        spd_h[j] = math.hypot(dv[j, 0], dv[j, 1]) * hd[j]
     has_recip = reciprocal and n > 0
     recip_in = np.zeros((n, n_moving), dtype=np.bool_)
     own_speed = np.zeros(n)
@@ -801,12 +805,12 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
             for j in range(n):
                 recip_in[i, j] = True  # the other followers; the robot leader and the humans are avoided fully
     has_mask = n >= 0  # (True, typed bool: see no_goal below)
-    world = (P, rad, ext, horizon, h_static, d, dv, spd_h, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
+    world = (P, rad, ext, trace, h_static, d, dv, spd_h, hd, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
              has_static) + static_map + (recip_gap,)
     discs = _keep_discs(world)
     static = _static_context(world)
     # (guidance._reach_end: the trajectories run to static_reach's latest cut if that is later)
-    t_end = max(horizon, t_cut) if static_reach else horizon
+    t_end = max(trace, t_cut) if static_reach else trace
     pref_pts = _preferred_trajectories(pv, pw, theta, tau, t_end, n_arc)
     no_goal = n < 0  # (False, typed bool rather than a literal: select and this entry share one _search)
     search = (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, no_goal,

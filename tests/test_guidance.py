@@ -609,3 +609,31 @@ def test_static_reach_judges_static_obstacles_by_path_length(obstacle) -> None:
         VOParams(static_reach=2.0, model="chord")
     with pytest.raises(ValueError, match="static_reach"):
         VOParams(static_reach=0.5)
+
+
+def test_vo_select_batch_disc_horizon_looks_further_for_one_disc():
+    # A human (radius 0.3) walks head-on at a standing robot: contact (margin 0.05 included) in 3 s. Within the
+    # 2.5 s horizon standing still is safe; with that disc's own horizon of 3.5 s it is not, and the robot
+    # moves off its line. A second disc with the same motion but the search's horizon changes nothing.
+    pose = np.array([[0.0, 0.0, math.pi / 2]])
+    human, human_vel = np.array([[3.0, 0.0, 0.3]]), np.array([[-0.8, 0.0]])
+    params = VOParams(horizon=2.5)
+
+    def select(discs, vel, disc_horizon=None):
+        return vo_select_batch(pose, 0.25, np.zeros((1, 2)), discs, vel, None, 0.65, 1.0, params,
+                               disc_horizon=disc_horizon)
+
+    plain = select(human, human_vel)
+    assert plain.preferred_safe[0] and np.array_equal(plain.twist[0], [0.0, 0.0])
+    longer = select(human, human_vel, np.array([3.5]))
+    assert longer.feasible[0] and not longer.preferred_safe[0] and longer.twist[0, 0] > 0.0
+    same = select(human, human_vel, np.array([2.5]))
+    assert same.preferred_safe[0] and np.array_equal(same.twist[0], plain.twist[0])
+    # Two discs: only the one given the longer horizon is looked for further.
+    far = np.array([[0.0, -6.0, 0.3]])
+    both = select(np.vstack([human, far]), np.vstack([human_vel, [[0.0, 0.0]]]), np.array([2.5, 3.5]))
+    assert both.preferred_safe[0]
+    for bad, match in ((np.array([3.5, 3.5]), "one horizon per disc"), (np.array([-1.0]), "> 0"),
+                       (np.array([np.nan]), "> 0")):
+        with pytest.raises(ValueError, match=match):
+            select(human, human_vel, bad)

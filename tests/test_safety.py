@@ -116,3 +116,37 @@ def test_shield_actions_matches_the_wrapper() -> None:
 def test_shield_policy_needs_an_inner_policy() -> None:
     with pytest.raises(PolicyError, match="shield:SPEC"):
         load_policy("shield", swarm_env.parallel_env("paper_vo_0"))
+
+
+def test_human_horizon_gives_the_humans_their_own_horizon():
+    # 0 (the safety layer's default) keeps `horizon` for everyone: no per-disc horizons at all.
+    assert AvoidanceParams().disc_horizons(3, 2) is None
+    assert AvoidanceParams(human_horizon=2.0, horizon=2.0).disc_horizons(3, 2) is None
+    assert AvoidanceParams(human_horizon=3.5).disc_horizons(3, 0) is None  # no humans
+    h = AvoidanceParams(human_horizon=3.5, horizon=2.5).disc_horizons(3, 2)
+    assert h.tolist() == [2.5, 2.5, 2.5, 3.5, 3.5]
+    for bad in (-1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="human_horizon"):
+            AvoidanceParams(human_horizon=bad)
+    # In a world with humans the longer horizon changes what is safe; in one without, nothing.
+    env = SwarmEnv("paper_vo_0")
+    env.reset(seed=0)
+    for _ in range(80):  # the humans walk into the followers' way
+        env.step({a: np.array([1.0, 0.0], dtype=np.float32) for a in env.agents})
+    state = env.world_state()
+    wanted = np.tile([state.scenario.robots.max_speed, 0.0], (state.n_followers, 1))
+    differ = 0
+    for t in range(40):
+        res = [safe_follower_twists(state, wanted, AvoidanceParams(human_horizon=hh)) for hh in (0.0, 5.0)]
+        differ += not np.array_equal(res[0].twist, res[1].twist)
+        env.step({a: np.array([1.0, 0.0], dtype=np.float32) for a in env.agents})
+        if not env.agents:
+            break
+        state = env.world_state()
+    assert differ > 0
+    switch = SwarmEnv("paper_cbs_switch")
+    switch.reset(seed=0)
+    state = switch.world_state()
+    wanted = np.tile([0.5, 0.2], (state.n_followers, 1))
+    a, b = (safe_follower_twists(state, wanted, AvoidanceParams(human_horizon=hh)) for hh in (0.0, 5.0))
+    assert np.array_equal(a.twist, b.twist) and np.array_equal(a.min_time_to_collision, b.min_time_to_collision)

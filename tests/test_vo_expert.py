@@ -358,17 +358,20 @@ def test_registry_and_policy_stats():
 
 @pytest.mark.slow
 def test_a_boxed_in_follower_backs_off_from_a_human():
-    """Random world 31: follower 1 stands inside follower 2's margin while the human walks at it, so
-    no forward or standing twist is safe. Turning in place, the human walks into it; with the
-    ``reverse`` fallback (off by default) it backs off, and the episode ends without a contact."""
+    """Random world 31 with the humans looked for no further than the robots (``human_horizon=0``):
+    follower 1 stands inside follower 2's margin while the human walks at it, so no forward or
+    standing twist is safe. Turning in place, the human walks into it; with the ``reverse`` fallback
+    (off by default) it backs off, and the episode ends without a contact. The expert's default
+    ``human_horizon`` (3.5 s) sees the human coming early enough to keep out of that corner."""
     results = {}
-    for spec in ("vo", "vo:reverse=0.2"):
+    for spec in ("vo:human_horizon=0", "vo:human_horizon=0,reverse=0.2", "vo"):
         env = SwarmEnv("random")
         results[spec] = run_episode(env, load_policy(spec, env), seed=31)
-    assert results["vo"]["collisions"]["robot_human"] == 1
-    assert results["vo"]["policy_stats"]["reverse_steps"] == 0
-    assert results["vo:reverse=0.2"]["collisions"]["total"] == 0 and results["vo:reverse=0.2"]["success"]
-    assert results["vo:reverse=0.2"]["policy_stats"]["reverse_steps"] > 0
+    short, backs_off, default = results.values()
+    assert short["collisions"]["robot_human"] == 1 and short["policy_stats"]["reverse_steps"] == 0
+    assert backs_off["collisions"]["total"] == 0 and backs_off["success"]
+    assert backs_off["policy_stats"]["reverse_steps"] > 0
+    assert default["collisions"]["total"] == 0 and default["success"] and default["policy_stats"]["reverse_steps"] == 0
     # Worlds without humans never back off: the same episode as without the fallback.
     env = SwarmEnv("paper_vo_45", max_cycles=60)
     plain = run_episode(env, load_policy("vo", env), seed=0)
@@ -423,8 +426,9 @@ def test_one_parameter_object_for_the_search():
     assert expert.avoidance == AvoidanceParams(**{**EXPERT_AVOIDANCE, "horizon": 4.0, "model": "chord", "human_margin": 0.1})
     # The expert's own defaults (on top of the shared ones, which the safety layer keeps) and their opt-out.
     assert EXPERT_AVOIDANCE == {"move_first": True, "recip_gap": 0.2, "horizon": 2.5, "horizon_static": 1.0,
-                                "tau": 0.7, "w_speed": 3.0, "escape_commit": 1.0}
+                                "tau": 0.7, "w_speed": 3.0, "escape_commit": 1.0, "human_horizon": 3.5}
     assert VOExpert.policy_parameters()["move_first"] is True and AvoidanceParams().move_first is False
+    assert VOExpert.policy_parameters()["human_horizon"] == 3.5 and AvoidanceParams().human_horizon == 0.0
     # LEGACY_SPEC (the shipped residual_vo runs' expert) is the shared defaults without preview or look-ahead cap
     # (horizon_static = horizon is what None means).
     legacy = load_policy(LEGACY_SPEC, env)

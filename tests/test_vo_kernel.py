@@ -75,6 +75,7 @@ def _act_both(ref_policy: VOExpert, policy: VOExpert, obs: dict, state: WorldSta
     ("corridor", 0, {}),  # a wall with a door: polygons, standing robots, escapes
     ("crowd_reactive", 0, {}),  # reactive humans
     ("random", 1003, {}),
+    ("random", 31, {}),  # a human walking at a boxed-in follower (the humans' longer horizon)
     ("paper_vo_90", 0, {"static_reach": 3.0}),  # static obstacles judged by path length (opt-in)
     ("paper_cbs_switch", 0, {"static_reach": 6.0}),
     # the expert before issue 12 (no preview: the compiled pursuit; no speed weight, no escape commitment)
@@ -306,6 +307,8 @@ def test_synthetic_calls_give_the_same_bits(clutter: StaticMap) -> None:
             reciprocal=rng.random(n + n_d) < 0.5 if rng.random() < 0.5 else bool(rng.random() < 0.5),
             current=(preferred + rng.normal(0.0, 0.2, (n, 2)) if rng.random() < 0.5 else
                      np.column_stack([np.zeros(n), rng.choice([-0.8, 0.8], n)])) if rng.random() < 0.7 else None,
+            # per-disc horizons (the expert's longer one for humans), some past the search's own
+            disc_horizon=rng.choice([1.0, params.horizon, 3.5], n + n_d) if rng.random() < 0.4 else None,
         )
         static = None if rng.random() < 0.2 else clutter
 
