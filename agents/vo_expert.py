@@ -34,7 +34,9 @@ privileged :class:`~swarm_env.state.WorldState`:
    every candidate whose predicted motion enters the velocity obstacle of
    another follower (reciprocal: they all run this rule), the robot leader and
    the humans (plain VO: they do not yield), the static circles, polygons (exact
-   Minkowski sums, not bounding circles) and walls within the time horizon, and
+   Minkowski sums, not bounding circles) and walls within the time horizon (its
+   own for each: 2.5 s for the robots, 3.5 s for the humans, 1 s for the static
+   map by default), and
    returns the safe candidate with the least penalty (distance to the
    pure-pursuit twist, consistency with the target direction). The env's robot
    leader uses the same functions (one implementation).
@@ -150,8 +152,8 @@ class VOExpert:
 
         Measured (``swarm-env run --scenario S --seed 0 --policy vo:KEY=VALUE``; mean formation
         error in m), the defaults against each left out:
-        paper_vo_90 0.046 (``preview=0``: 0.113, ``lookahead=0``: 0.049, ``w_speed=1``: 0.049),
-        crowd_reactive 0.074 (0.090, 0.098, 0.084), corridor 0.249 (0.249, 0.265, 0.248); on
+        paper_vo_90 0.047 (``preview=0``: 0.114, ``lookahead=0``: 0.049, ``w_speed=1``: 0.049),
+        crowd_reactive 0.075 (0.089, 0.104, 0.088), corridor 0.249 (0.249, 0.265, 0.248); on
         paper_cbs_switch each of those three, and ``escape_commit=0``, brings 1-3 contacts (the
         defaults: none). The whole comparison with the earlier expert and ORCA is in
         docs/vo_expert.md ("Against ORCA").
@@ -171,11 +173,12 @@ class VOExpert:
             at all), contacts 7 -> 5; ``reverse=0.1`` and ``0.3`` had 5 such episodes each, and
             ``0.65`` backed world 31's follower along the human's path for seconds. On the report's
             set (``swarm-env reproduce vo``'s 100 worlds) 96/100 either way. A gain within the
-            noise, so not the default.
+            noise, so not the default. (Measured before ``human_horizon``, with the humans' horizon
+            the robots' 2.5 s: ``vo:human_horizon=0,reverse=0.2`` is that fallback.)
 
     Avoidance (velocity obstacles, Eq. 12): any field of
     :class:`swarm_env.safety.AvoidanceParams` (the search's
-    :class:`~swarm_env.guidance.VOParams` plus ``human_margin`` and ``reciprocal``), e.g.
+    :class:`~swarm_env.guidance.VOParams` plus ``human_margin``, ``human_horizon`` and ``reciprocal``), e.g.
     ``horizon``, ``margin``, ``n_v``/``n_w``, ``tau``, ``w_pref``/``w_heading``/``side_bias``,
     ``escape``, ``w_current``, ``cost``, ``recip_gap``, ``move_first``, ``static_reach``; they are kept in :attr:`avoidance`
     (and read through: ``expert.horizon``). The expert's defaults are the shared ones except

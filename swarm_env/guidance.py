@@ -1203,10 +1203,11 @@ class _VOBatch:
         tau, n_arc, model, margin, v_min = params.tau, params.n_arc, params.model, params.margin, params.v_min
         self.d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
         self.dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
-        h_static = float(params.horizon if params.horizon_static is None else min(params.horizon_static, params.horizon))
+        h_search = float(params.horizon)
+        h_static = h_search if params.horizon_static is None else float(min(params.horizon_static, h_search))
         # Each moving disc's horizon; the trajectories are traced to the longest (`horizon` below), the escape
         # probes keep the search's own (h_probe).
-        self.h_probe = float(params.horizon)
+        self.h_probe = h_search
         self.h_moving = _disc_horizons(disc_horizon, self.d.shape[0], self.h_probe)
         horizon = _trace_horizon(self.h_probe, self.h_moving)
         n_v, n_w, w_pref, w_heading, side_bias = params.n_v, params.n_w, params.w_pref, params.w_heading, params.side_bias
@@ -1688,7 +1689,8 @@ class _VOBatch:
         mask = np.array(np.asarray(self.disc_mask, dtype=bool).reshape(n, n_moving), order="C") if has_mask else recip_in
         own_vel = np.zeros((n, 2)) if vel is None else _f64(vel)
         return ((_f64(self.poses2), _f64(self.rad), float(self.ext), float(self.horizon), float(self.h_static), _f64(d),
-                 _f64(dv), spd_h, _f64(self.h_moving), has_recip, recip_in, _f64(own_speed), own_vel, has_mask, mask, self.static is not None)
+                 _f64(dv), spd_h, _f64(self.h_moving), has_recip, recip_in, _f64(own_speed), own_vel, has_mask, mask,
+                 self.static is not None)
                 + _kernel_map(self.static) + (float(self.recip_gap),))
 
 

@@ -136,7 +136,7 @@ def test_human_horizon_gives_the_humans_their_own_horizon():
     state = env.world_state()
     wanted = np.tile([state.scenario.robots.max_speed, 0.0], (state.n_followers, 1))
     differ = 0
-    for t in range(40):
+    for _ in range(40):
         res = [safe_follower_twists(state, wanted, AvoidanceParams(human_horizon=hh)) for hh in (0.0, 5.0)]
         differ += not np.array_equal(res[0].twist, res[1].twist)
         env.step({a: np.array([1.0, 0.0], dtype=np.float32) for a in env.agents})
