@@ -396,3 +396,20 @@ def test_formation_keeping_fixes_the_robots_in_formation() -> None:
     assert fixed_steps >= kept_steps // 2  # most robots in formation keep their course
     # Off by default: the default expert never keeps.
     assert CBSRRTExpert().formation_keeping is False
+
+
+@pytest.mark.slow
+def test_a_robot_a_human_walks_at_steps_aside():
+    """Random world 1001: a follower waits on its plan while a human walks straight at it. The
+    tracker's shield alone keeps it standing and the human walks into it (``evade_horizon=0``);
+    by default the robot takes the velocity-obstacle search's twist once the human would reach it
+    within 3 s, and the episode ends without a contact."""
+    results = {}
+    for spec in ("cbs_rrt:evade_horizon=0", "cbs_rrt"):
+        env = SwarmEnv("random")
+        results[spec] = run_episode(env, load_policy(spec, env), seed=1001)
+    off, on = results.values()
+    assert off["collisions"]["robot_human"] == 1 and off["policy_stats"]["evade_steps"] == 0
+    assert on["collisions"]["total"] == 0 and on["success"] and on["policy_stats"]["evade_steps"] > 0
+    with pytest.raises(ValueError, match="evade_horizon"):
+        CBSRRTExpert(evade_horizon=-1.0)
