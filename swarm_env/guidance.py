@@ -1209,7 +1209,7 @@ class _VOBatch:
         # probes keep the search's own (h_probe).
         self.h_probe = h_search
         self.h_moving = _disc_horizons(disc_horizon, self.d.shape[0], self.h_probe)
-        horizon = _trace_horizon(self.h_probe, self.h_moving)
+        horizon = _trace_horizon(self.h_probe, None if disc_horizon is None else self.h_moving)
         n_v, n_w, w_pref, w_heading, side_bias = params.n_v, params.n_w, params.w_pref, params.w_heading, params.side_bias
         escape, allow_still_overlap, w_current = params.escape, params.allow_still_overlap, params.w_current
         self.static, self.v_max, self.omega_max, self.v_min = static, v_max, omega_max, v_min
