@@ -86,6 +86,12 @@ Results (2026-12-03, deterministic; ``python benchmarks/hold_bound.py --check-en
   of the obstacles (``SLOT_MARGIN`` 0.10 or 0.15 instead of 0.05, a throwaway script) leaves this
   unchanged (0.866, 0.860). A controller that keeps the expert's margins needs joint plans better
   than these best responses to reach 90 %, and real robots lose more than points.
+* What came of it (2026-12-05): ``cbs_rrt:hold_plan=true`` plans exactly these contact-free joint
+  paths (:func:`swarm_env_agents.cbs_rrt.hold_plan.joint_paths`, which :func:`joint_paths` here
+  calls) from where the robots are and tracks them with the robots' kinematics, without the
+  shield while it holds: seeds 0-7 hold 0.906-0.918 in the env, collision-free
+  (``python benchmarks/hold_bound.py --settle 14``, 77 s: ``j0.28/0.56`` 0.918 from S = 14 s,
+  what seed 0 holds in the env; ``j0.33/0.61`` 0.863).
 * Settling late is what makes 90 % impossible: the flip at t = 179.5 alone costs 4-5 steps, so with
   S = 87 (t = 167, the latest issue 12 allows) even the relaxed upper bound is 0.892 (h = 0.025;
   lower 0.865); at S = 80 (t = 160) the point and the unicycle achieve 0.902.
@@ -99,7 +105,6 @@ import time
 from dataclasses import dataclass, field
 from typing import Any
 
-import numba
 import numpy as np
 
 from swarm_env.formation import SLOT_MARGIN, unprojected_slot_trajectory, virtual_slot_trajectory
@@ -108,10 +113,8 @@ from swarm_env.jsonio import write_json
 from swarm_env.paths import PolylinePath, virtual_leader
 from swarm_env.scenario import Scenario
 from swarm_env.scenario_io import load_scenario
-
-_NEG = np.int16(-30000)  # an unreachable lattice cell's value
-_SAGITTA = 0.03  # m: a 0.25 m chord between points this much beyond r never comes within r of a convex obstacle
-_GRID_MARGIN = 1.6  # m around a follower's slots that its lattice covers
+from swarm_env_agents.cbs_rrt import hold_plan
+from swarm_env_agents.cbs_rrt.hold_plan import CHORD_ALLOWANCE, Lattice, PointDP, half_widths, substep_rollout
 
 
 # --------------------------------------------------------------------------- slots and jumps
@@ -139,13 +142,8 @@ def record_slots(scn: Scenario) -> SlotRecord:
     raw, index = unprojected_slot_trajectory(scn, steps)
     slots, _ = virtual_slot_trajectory(scn, static, steps, (raw, index))
     line = PolylinePath(scn.leader.path)
-    heading = np.empty(steps + 1)
-    done_step = steps
-    for k in range(steps + 1):
-        pose, _, done = virtual_leader(line, scn.leader.speed, k * dt, scn.leader.start_delay)
-        heading[k] = pose[2]
-        if done and done_step == steps:
-            done_step = k
+    heading = np.array([virtual_leader(line, scn.leader.speed, k * dt, scn.leader.start_delay)[0][2] for k in range(steps + 1)])
+    done_step = hold_plan.virtual_leader_done_step(scn, steps)
     return SlotRecord(scn, static, slots, raw, index, heading, dt, done_step)
 
 
@@ -212,196 +210,25 @@ def slot_jumps(rec: SlotRecord, step_limit: float, k_from: int, k_to: int) -> li
 
 
 # --------------------------------------------------------------------------- the lattice DP
-@numba.njit(cache=True)
-def _dp_step(vnext, free, half_widths, gx0, gy0, h, sx, sy, tol2, gain, out, rowmax):  # pragma: no cover - compiled
-    """``out[y, x] = gain held(y, x) + max over the disc footprint of vnext`` on free cells, else NEG.
-
-    The disc footprint is row ``dy`` (``-R..R``) spanning ``|dx| <= half_widths[dy + R]``; the max
-    over a row span is built up width by width (``max over [x-w-1, x+w+1] = max(rowmax_w[x-1],
-    rowmax_w[x+1])``), so the cost is O(R) per cell, not O(R^2)."""
-    H, W = vnext.shape
-    R = (half_widths.shape[0] - 1) // 2
-    wmax = 0
-    for j in range(half_widths.shape[0]):
-        if half_widths[j] > wmax:
-            wmax = half_widths[j]
-    neg = np.int16(-30000)
-    rowmax[0, :, :] = vnext
-    for w in range(1, wmax + 1):
-        for y in range(H):
-            for x in range(W):
-                m = rowmax[w - 1, y, x]
-                if x > 0 and rowmax[w - 1, y, x - 1] > m:
-                    m = rowmax[w - 1, y, x - 1]
-                if x < W - 1 and rowmax[w - 1, y, x + 1] > m:
-                    m = rowmax[w - 1, y, x + 1]
-                rowmax[w, y, x] = m
-    for y in range(H):
-        py = gy0 + y * h
-        for x in range(W):
-            if not free[y, x]:
-                out[y, x] = neg
-                continue
-            best = neg
-            for j in range(2 * R + 1):
-                yy = y + j - R
-                if yy < 0 or yy >= H:
-                    continue
-                v = rowmax[half_widths[j], yy, x]
-                if v > best:
-                    best = v
-            if best == neg:
-                out[y, x] = neg
-                continue
-            px = gx0 + x * h
-            held = gain if (px - sx) ** 2 + (py - sy) ** 2 <= tol2 else 0
-            out[y, x] = best + held
-
-
-@dataclass
-class Lattice:
-    """One follower's lattice: cell ``(y, x)`` is the point ``(x0 + x h, y0 + y h)``."""
-
-    x0: float
-    y0: float
-    h: float
-    clearance: np.ndarray  # (H, W) static.distance of the cell centres (walls included)
-
-    @classmethod
-    def around(cls, static: StaticMap, pts: np.ndarray, h: float) -> Lattice:
-        lo = pts.min(axis=0) - _GRID_MARGIN
-        hi = pts.max(axis=0) + _GRID_MARGIN
-        nx = int(math.ceil((hi[0] - lo[0]) / h)) + 1
-        ny = int(math.ceil((hi[1] - lo[1]) / h)) + 1
-        xs = lo[0] + h * np.arange(nx)
-        ys = lo[1] + h * np.arange(ny)
-        grid = np.stack(np.meshgrid(xs, ys), axis=-1)
-        return cls(float(lo[0]), float(lo[1]), h, static.distance(grid.reshape(-1, 2)).reshape(ny, nx))
-
-    def point(self, cell: tuple[int, int]) -> np.ndarray:
-        return np.array([self.x0 + cell[1] * self.h, self.y0 + cell[0] * self.h])
-
-    def nearest(self, p: np.ndarray) -> tuple[int, int]:
-        return int(round((p[1] - self.y0) / self.h)), int(round((p[0] - self.x0) / self.h))
-
-
-def _half_widths(radius_cells: float) -> np.ndarray:
-    R = int(math.floor(radius_cells + 1e-9))
-    return np.array([int(math.floor(math.sqrt(max(radius_cells**2 - dy * dy, 0.0)) + 1e-9)) for dy in range(-R, R + 1)],
-                    dtype=np.int64)
-
-
-@dataclass
-class PointDP:
-    """The backward values of one follower on one lattice (``values[k - k0]`` for step ``k``)."""
-
-    lattice: Lattice
-    free: np.ndarray
-    half_widths: np.ndarray
-    k0: int
-    values: np.ndarray  # (k_end - k0 + 1, H, W) int16: most steps within tolerance from k on
-    tol: float
-    step: float
-    slots: np.ndarray  # (K+1, 2) this follower's slots
-
-    def start_cell(self, k: int) -> tuple[int, int]:
-        """The free lattice cell nearest to the slot at step ``k`` (the follower starts on its slot)."""
-        cell = self.lattice.nearest(self.slots[k])
-        if self.free[cell]:
-            return cell
-        ys, xs = np.nonzero(self.free)
-        pts = np.column_stack([self.lattice.x0 + xs * self.lattice.h, self.lattice.y0 + ys * self.lattice.h])
-        j = int(np.argmin(np.hypot(*(pts - self.slots[k]).T)))
-        return int(ys[j]), int(xs[j])
-
-    def value(self, k: int) -> int:
-        """Most steps ``k..k_end`` within tolerance, starting on the slot at ``k``."""
-        return int(self.values[k - self.k0][self.start_cell(k)])
-
-    def path(self, k: int) -> np.ndarray:
-        """An optimal lattice path from the slot at step ``k`` to ``k_end`` (``(k_end - k + 1, 2)``):
-        each step the reachable cell of largest value, ties to the one nearest the next slot."""
-        cell = self.start_cell(k)
-        first = self.values[k - self.k0]
-        if first[cell] <= _NEG:  # the slot is blocked (another robot's disc there): start within tolerance
-            H, W = first.shape
-            xs = self.lattice.x0 + self.lattice.h * np.arange(W)
-            ys = self.lattice.y0 + self.lattice.h * np.arange(H)
-            d2 = (xs[None, :] - self.slots[k, 0]) ** 2 + (ys[:, None] - self.slots[k, 1]) ** 2
-            score = np.where(d2 <= self.tol**2, first.astype(np.int64), -(10**9))
-            cell = tuple(int(c) for c in np.unravel_index(int(np.argmax(score)), score.shape))  # type: ignore[assignment]
-        out = [self.lattice.point(cell)]
-        R = (len(self.half_widths) - 1) // 2
-        H, W = self.free.shape
-        for kk in range(k, self.k0 + len(self.values) - 1):
-            nxt = self.values[kk + 1 - self.k0]
-            best: tuple[int, float, int, int] | None = None
-            s = self.slots[kk + 1]
-            for j, dy in enumerate(range(-R, R + 1)):
-                yy = cell[0] + dy
-                if not 0 <= yy < H:
-                    continue
-                w = int(self.half_widths[j])
-                for xx in range(max(cell[1] - w, 0), min(cell[1] + w, W - 1) + 1):
-                    v = int(nxt[yy, xx])
-                    d = float(np.hypot(self.lattice.x0 + xx * self.lattice.h - s[0], self.lattice.y0 + yy * self.lattice.h - s[1]))
-                    if best is None or v > best[0] or (v == best[0] and d < best[1]):
-                        best = (v, d, yy, xx)
-            assert best is not None and best[0] > _NEG, "no reachable cell: the lattice is too small"
-            cell = (best[2], best[3])
-            out.append(self.lattice.point(cell))
-        return np.array(out)
-
-
 def point_dp(rec: SlotRecord, i: int, k0: int, k_end: int, h: float, relax: bool,
              others: np.ndarray | None = None, margins: tuple[float, float] | None = None,
              gain: np.ndarray | None = None) -> PointDP:
-    """Solve the point follower ``i``'s DP from step ``k0`` to ``k_end`` (see module docstring).
+    """Follower ``i``'s DP from step ``k0`` to ``k_end`` (:func:`swarm_env_agents.cbs_rrt.hold_plan.point_dp`).
 
-    ``others`` ``(k_end - k0 + 1, M, 2)``: robots already planned (prioritised planning, exact
-    constants only): at every step the follower keeps its centre at least ``2 r + 0.06`` m from
-    theirs (0.06 m: two 0.25 m moves between two step ends cannot then bring the centres within
-    ``2 r``, the same chord argument as for obstacles). ``margins = (floor, separation)``
-    replaces the exact constants' smallest centre clearance to obstacles (``r + 0.03``) and that
-    separation. ``gain (k_end - k0 + 1,)``: what a step within tolerance is worth (ints >= 1,
-    default 1: the values count steps)."""
+    ``relax``: every constant relaxed by the lattice error (the ``upper`` bound; no ``others``).
+    Otherwise the exact constants: the centre keeps ``r + 0.03`` from obstacles and, from the
+    ``others (k_end - k0 + 1, M, 2)`` already planned, ``2 r + 0.06`` (0.06 m: two 0.25 m moves
+    between two step ends cannot then bring the centres within ``2 r``, the same chord argument as
+    for obstacles); ``margins = (floor, separation)`` replaces those two. ``gain``: what a step
+    within tolerance is worth."""
     robots = rec.scenario.robots
     tol = rec.scenario.world.settle_tolerance
     step = robots.max_speed * rec.dt
-    slots = rec.slots[:, i]
-    lat = Lattice.around(rec.static, slots[k0 : k_end + 1], h)
     e = h / math.sqrt(2.0)
+    floor, sep = (robots.radius + CHORD_ALLOWANCE, 2.0 * robots.radius + 2.0 * CHORD_ALLOWANCE) if margins is None else margins
     if relax:
-        tol_c, step_c, free = tol + e, step + 2.0 * e, lat.clearance >= robots.radius - e
-    else:
-        floor = robots.radius + _SAGITTA if margins is None else margins[0]
-        tol_c, step_c, free = tol, step, lat.clearance >= floor
-    sep = 2.0 * robots.radius + 2.0 * _SAGITTA if margins is None else margins[1]
-    g = np.ones(k_end - k0 + 1, dtype=np.int64) if gain is None else np.asarray(gain, dtype=np.int64)
-    if len(g) != k_end - k0 + 1 or g.min() < 1 or g.sum() > 30000:  # int16 values
-        raise ValueError(f"gain: {k_end - k0 + 1} ints >= 1 summing to <= 30000 expected")
-    hw = _half_widths(step_c / h)
-    H, W = free.shape
-    values = np.empty((k_end - k0 + 1, H, W), dtype=np.int16)
-    rowmax = np.empty((int(hw.max()) + 1, H, W), dtype=np.int16)
-    # The last step: only its own hold counts.
-    xs = lat.x0 + h * np.arange(W)
-    ys = lat.y0 + h * np.arange(H)
-    held = ((xs[None, :] - slots[k_end, 0]) ** 2 + (ys[:, None] - slots[k_end, 1]) ** 2 <= tol_c**2) * g[-1]
-    def free_at(k: int) -> np.ndarray:
-        if others is None or others.shape[1] == 0:
-            return free
-        pos = others[k - k0]
-        near = np.zeros(free.shape, dtype=bool)
-        for q in pos:
-            near |= (xs[None, :] - q[0]) ** 2 + (ys[:, None] - q[1]) ** 2 < sep * sep
-        return free & ~near
-
-    values[-1] = np.where(free_at(k_end), held, _NEG)
-    for k in range(k_end - 1, k0 - 1, -1):
-        _dp_step(values[k + 1 - k0], free_at(k), hw, lat.x0, lat.y0, h, float(slots[k, 0]), float(slots[k, 1]),
-                 tol_c**2, int(g[k - k0]), values[k - k0], rowmax)
-    return PointDP(lat, free, hw, k0, values, tol_c, step_c, slots)
+        tol, step, floor = tol + e, step + 2.0 * e, robots.radius - e
+    return hold_plan.point_dp(rec.static, rec.slots[:, i], k0, k_end, h, tol, step, floor, sep, others, gain)
 
 
 def prioritised_paths(rec: SlotRecord, k_s: int, k_end: int, h: float, order: list[int],
@@ -421,33 +248,14 @@ def prioritised_paths(rec: SlotRecord, k_s: int, k_end: int, h: float, order: li
 
 def joint_paths(rec: SlotRecord, k_s: int, k_end: int, h: float, margins: tuple[float, float],
                 rounds: int = 3, bonus: int = 16) -> np.ndarray:
-    """Point paths ``(k_end - k_s + 1, N, 2)`` from the slots at ``k_s`` that keep ``margins =
-    (floor, separation)`` (see :func:`point_dp`) and hold the *whole* formation in as many steps as
-    this finds: :func:`prioritised_paths` in index order, then up to ``rounds`` rounds of best
-    responses. In a round each follower in turn solves its DP again against all the others' paths,
-    a step within tolerance worth ``1 + bonus`` where every other follower is within tolerance in
-    it and ``1`` elsewhere (what counts is every follower in the same step); its new path is kept
-    only if the number of steps with every follower within tolerance grows. Achieved by real
-    points (a lower bound of what followers keeping those margins can hold)."""
-    tol = rec.scenario.world.settle_tolerance
-    n = rec.slots.shape[1]
-    window = rec.slots[k_s : k_end + 1]
-    paths = prioritised_paths(rec, k_s, k_end, h, list(range(n)), margins)
-    within = np.hypot(*(paths - window).transpose(2, 0, 1)) <= tol  # (steps, N)
-    score = int(within.all(axis=1).sum())
-    for _ in range(rounds):
-        gained = False
-        for i in range(n):
-            rest = [j for j in range(n) if j != i]
-            gain = 1 + bonus * within[:, rest].all(axis=1).astype(np.int64)
-            path = point_dp(rec, i, k_s, k_end, h, relax=False, others=paths[:, rest], margins=margins, gain=gain).path(k_s)
-            mine = np.hypot(*(path - window[:, i]).T) <= tol
-            new = int((within[:, rest].all(axis=1) & mine).sum())
-            if new > score:
-                paths[:, i], within[:, i], score, gained = path, mine, new, True
-        if not gained:
-            break
-    return paths
+    """Point paths ``(k_end - k_s + 1, N, 2)`` from the slots at ``k_s`` keeping ``margins = (floor,
+    separation)`` that hold the whole formation in as many steps as
+    :func:`swarm_env_agents.cbs_rrt.hold_plan.joint_paths` finds (prioritised, then best responses:
+    what ``cbs_rrt:hold_plan=true`` plans). Achieved by real points (a lower bound of what
+    followers keeping those margins can hold)."""
+    robots = rec.scenario.robots
+    return hold_plan.joint_paths(rec.static, rec.slots, k_s, k_end, h, rec.scenario.world.settle_tolerance,
+                                 robots.max_speed * rec.dt, margins[0], margins[1], rounds=rounds, bonus=bonus)
 
 
 # --------------------------------------------------------------------------- greedy point, unicycle
@@ -467,30 +275,11 @@ def point_greedy(rec: SlotRecord, i: int, k: int, k_end: int, n_dirs: int = 72) 
         d = s - p
         n = float(np.hypot(*d))
         cand = np.vstack([s[None] if n <= step else (p + d * (step / n))[None], p + cand_off, p[None]])
-        ok = rec.static.distance(cand) >= robots.radius + _SAGITTA
+        ok = rec.static.distance(cand) >= robots.radius + CHORD_ALLOWANCE
         cand = cand[ok]
         p = cand[int(np.argmin(np.hypot(*(cand - s).T)))].copy()
         out.append(p.copy())
     return np.array(out)
-
-
-def _unicycle_rollout(state: np.ndarray, cmds: np.ndarray, substeps: int, sub_dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Advance poses ``state (..., 6) = (x, y, a, vx, vy, w)`` by one env step with ``cmds (..., 2)``:
-    in each substep the position moves with the velocity of the previous substep, then the velocity
-    is set from the command along the new heading (pymunk integrates positions before the velocity
-    callback runs). Returns the new state and the positions after each substep ``(substeps, ..., 2)``."""
-    x, y, a, vx, vy, w = (state[..., j].copy() for j in range(6))
-    v_cmd, w_cmd = cmds[..., 0], cmds[..., 1]
-    pts = []
-    for _ in range(substeps):
-        x = x + vx * sub_dt
-        y = y + vy * sub_dt
-        a = a + w * sub_dt
-        vx = v_cmd * np.cos(a)
-        vy = v_cmd * np.sin(a)
-        w = w_cmd + 0.0 * a
-        pts.append(np.stack([x, y], axis=-1))
-    return np.stack([x, y, a, vx, vy, w], axis=-1), np.stack(pts)
 
 
 def unicycle_track(rec: SlotRecord, i: int, k: int, ref: np.ndarray, lattice: Lattice, heading: float,
@@ -531,7 +320,7 @@ def unicycle_track(rec: SlotRecord, i: int, k: int, ref: np.ndarray, lattice: La
         cmds = seq1
         for look in range(1, horizon + 1):
             kk = min(j + look, n - 1)
-            st, sub = _unicycle_rollout(st, cmds, substeps, sub_dt)
+            st, sub = substep_rollout(st, cmds, substeps, sub_dt)
             p = st[:, :2]
             s = rec.slots[k + kk, i]
             miss = np.maximum(np.hypot(*(p - s).T) - (tol - 0.02), 0.0)
@@ -541,7 +330,7 @@ def unicycle_track(rec: SlotRecord, i: int, k: int, ref: np.ndarray, lattice: La
             cost += np.where(hit, 1e6, 0.0)
             cmds = seq2
         best = int(np.argmin(cost))
-        state, _ = _unicycle_rollout(state, seq1[best], substeps, sub_dt)
+        state, _ = substep_rollout(state, seq1[best], substeps, sub_dt)
         out.append(state[:2].copy())
     path = np.array(out)
     fine = np.concatenate([path[:-1] + (path[1:] - path[:-1]) * f for f in np.linspace(0, 1, 9)])
@@ -672,8 +461,8 @@ def earliest_settle(rec: SlotRecord, k_switch: int, k_end: int, h: float) -> int
     worst = k_switch
     for i in range(rec.slots.shape[1]):
         lat = Lattice.around(rec.static, rec.slots[k_switch - 1 : k_end + 1, i], h)
-        free = lat.clearance >= robots.radius + _SAGITTA
-        hw = _half_widths(robots.max_speed * rec.dt / h)
+        free = lat.clearance >= robots.radius + CHORD_ALLOWANCE
+        hw = half_widths(robots.max_speed * rec.dt / h)
         reach = np.zeros(free.shape, dtype=bool)
         reach[lat.nearest(rec.slots[k_switch - 1, i])] = True
         H, W = free.shape
@@ -745,7 +534,7 @@ def main() -> None:
 
         shield = CBSRRTExpert().shield_margin
         rad = robots.radius
-        margins = ((rad + _SAGITTA, 2 * rad + 2 * _SAGITTA), (rad + shield + _SAGITTA, 2 * rad + shield + 2 * _SAGITTA))
+        margins = ((rad + CHORD_ALLOWANCE, 2 * rad + 2 * CHORD_ALLOWANCE), (rad + shield + CHORD_ALLOWANCE, 2 * rad + shield + 2 * CHORD_ALLOWANCE))
     margins = tuple((round(a, 6), round(b, 6)) for a, b in margins)
     print(f"paper_cbs_switch: switch at step {k_switch} (t = {k_switch * dt}), leader done at step {k_end} "
           f"(t = {k_end * dt}); a follower moves <= {step_limit} m per step; tolerance {scn.world.settle_tolerance} m")

@@ -75,6 +75,7 @@ from swarm_env_agents.cbs_rrt.constraints import Constraint
 from swarm_env_agents.cbs_rrt.distance_field import distance_field
 from swarm_env_agents.cbs_rrt.goals import FormationGoals, GoalWindow
 from swarm_env_agents.cbs_rrt.hold import SlotHolder
+from swarm_env_agents.cbs_rrt.hold_plan import CHORD_ALLOWANCE, PlanTracker, joint_paths, virtual_leader_done_step
 from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
 from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
@@ -90,6 +91,13 @@ _CONSTRAINT_SLACK = 0.05  # m, ConstraintTable's inflation of the constraint dis
 _SHIELD_FRACTIONS = np.array([0.25, 0.5, 0.75, 1.0])[None, :]  # points of the next step's arc checked
 _HOLD_POINTS = 4  # points the formation holder scores: the next step and three more over hold_horizon
 _HOLD_PATIENCE = 5.0  # s a follower may stay beyond the capture distance before the holder hands back to CBS
+_PLAN_PITCH = 0.05  # m: hold_plan's lattice
+_PLAN_MAX_STEPS = 400  # hold_plan plans at most this many steps ahead (memory: int16 values per cell and step)
+_PLAN_DEVIATION = 0.5  # m off its planned path that makes hold_plan plan the formation again
+_PLAN_RETRY = 2.0  # s between two such plans
+_TRACK_STEPS = 5  # steps hold_plan's tracker looks ahead
+_PLAN_ROUNDS = 1  # rounds of best responses (a second one gained nothing on paper_cbs_switch)
+_PLAN_REACH = 2.5  # m: a planned follower stays this close to its slot in x and y (the leader's turn moves slots 2.04 m)
 
 REPLAN_REASONS = ("initial", "switch", "goal_jump", "horizon", "rolling", "deviation", "goal_moved", "retry")
 
@@ -217,6 +225,24 @@ class CBSRRTExpert:
             that for 5 s (``stats()["hold_releases"]``): CBS brings the swarm close, the holder settles it
             (with ``0`` the last few decimetres are left to replans, which settled 2 of the 8
             seeds late or never).
+        hold_plan: hold by planning (implies ``hold_slots``): with a virtual leader, whose slots
+            are known for the rest of the episode, the holder plans where every follower should be
+            at every step up to the next switch or the leader's stop (joint space-time point paths
+            that keep contact-free margins, ``r + 0.03`` m from obstacles and ``2 r + 0.06`` m
+            apart, and maximise the steps with the whole formation within tolerance:
+            :mod:`~swarm_env_agents.cbs_rrt.hold_plan`) and tracks that plan with a look-ahead
+            search over the robots' exact substep kinematics; the plan's margins replace the shield
+            while it holds, humans are left to ``evade_horizon``. It plans again when a robot is
+            0.5 m off its path or the formation changes (``stats()["hold_plans"]``,
+            ``["hold_plan_cpu_s"]``). Other leaders, and steps too short for the 0.05 m lattice
+            (less than 0.2 m of travel), keep the short-horizon holder. On ``paper_cbs_switch``
+            seeds 0-7 (``swarm-env evaluate --policies cbs_rrt:hold_plan=true --scenarios
+            paper_cbs_switch --seeds 0-7``, 2026-12-05): success 8/8, 0 collisions, the grid
+            reached 14-20 s after the switch and held **0.906-0.918** of the time after it (issue
+            12's target 0.9; ``benchmarks/hold_bound.py`` gives 0.918 for the same plans from
+            S = 14 s), formation error 0.120 m; 25-30 s of policy time per episode (the tracker:
+            8 robots x 14,641 twist sequences a step), 4.3-8.6 s of it planning. Off by default:
+            a minute of CPU per paper episode, and not yet measured on the random worlds.
 
     Tracking:
         lookahead_time: pure pursuit aims at the plan's position this far ahead (s).
@@ -277,6 +303,7 @@ class CBSRRTExpert:
         hold_slots: bool = False,
         hold_horizon: float = 2.0,
         hold_capture: float = 1.5,
+        hold_plan: bool = True,
         shield_margin: float = 0.05,
         evade_horizon: float = 3.0,
         field_resolution: float = 0.05,
@@ -344,6 +371,7 @@ class CBSRRTExpert:
         self.formation_keeping = bool(formation_keeping)
         if not (isinstance(hold_horizon, (int, float)) and math.isfinite(hold_horizon) and hold_horizon > 0):
             raise ValueError(f"hold_horizon must be a finite number > 0 (s), got {hold_horizon!r}")
+        self.hold_plan = bool(hold_plan)
         self.hold_slots = bool(hold_slots)
         self.hold_horizon = float(hold_horizon)
         self.hold_capture = float(hold_capture)
@@ -394,6 +422,10 @@ class CBSRRTExpert:
         self._hold_steps = 0
         self._hold_releases = 0
         self._far_since = np.full(0, np.inf)  # per follower: since when it is beyond the capture distance
+        self._hold_course: tuple[int, int, np.ndarray] | None = None  # hold_plan: (formation, first step, paths)
+        self._hold_course_time = -math.inf
+        self._hold_plans = 0
+        self._hold_plan_cpu: list[float] = []
 
     def reset(self, env: SwarmEnv, seed: int | None) -> None:
         if env.action_type != "continuous":
@@ -466,10 +498,19 @@ class CBSRRTExpert:
             every=max(1, round((self.hold_horizon - env_dt) / (env_dt * (_HOLD_POINTS - 1)))),
         )
         self._slot_course: np.ndarray | None = None
-        if self.hold_slots and scn.leader.kind == "virtual":
+        self._tracker: PlanTracker | None = None
+        if (self.hold_slots or self.hold_plan) and scn.leader.kind == "virtual":
             # A virtual leader's slots are a function of time: the env's own, for the whole episode.
-            steps = int(math.ceil(scn.world.max_time / env_dt)) + int(self.holder.steps_ahead()[-1]) + 1
+            steps = int(math.ceil(scn.world.max_time / env_dt)) + max(int(self.holder.steps_ahead()[-1]), _TRACK_STEPS) + 1
             self._slot_course = virtual_slot_trajectory(scn, state.static, steps)[0]
+            self._leader_done_step = virtual_leader_done_step(scn, steps)
+            # The plan's lattice must resolve a step's travel: the random worlds' dt = 0.1 s moves a robot one cell.
+            if self.hold_plan and robots.max_speed * env_dt >= 4 * _PLAN_PITCH:
+                self._tracker = PlanTracker(
+                    self.field, radius=self._radius, max_speed=robots.max_speed, max_turn_rate=robots.max_turn_rate,
+                    dt=env_dt, substeps=scn.world.substeps, tolerance=scn.world.settle_tolerance,
+                    separation=2.0 * self._radius + 0.02, horizon=_TRACK_STEPS,
+                )
         self._scenario = scn
 
     # ------------------------------------------------------------------ acting
@@ -477,7 +518,7 @@ class CBSRRTExpert:
         if self._scenario is not state.scenario:
             self.setup(state)
             self._reset_episode()
-        if self.hold_slots and self._holding(state):
+        if (self.hold_slots or self._tracker is not None) and self._holding(state):
             twist = self._hold(state)
         else:
             reasons = self._triggers(state)
@@ -836,7 +877,10 @@ class CBSRRTExpert:
 
     def _hold(self, state: WorldState) -> np.ndarray:
         """The holder's twists towards the slots over the next ``hold_horizon`` (the env's own for
-        a virtual leader, the formation layer's course otherwise), through the shield."""
+        a virtual leader, the formation layer's course otherwise), through the shield; with
+        ``hold_plan`` (and a virtual leader) the tracker's twists along the formation's plan."""
+        if self._tracker is not None:
+            return self._hold_by_plan(state)
         scn = state.scenario
         dt = scn.world.dt
         steps = self.holder.steps_ahead()
@@ -852,6 +896,47 @@ class CBSRRTExpert:
         self._hold_steps += 1
         self._shield_others = now
         return self._shield(state.follower_pose, twist, dt, state.follower_twist[:, 0], dt / scn.world.substeps)
+
+    def _hold_by_plan(self, state: WorldState) -> np.ndarray:
+        """``hold_plan``: plan the formation to the next switch or the leader's stop (at most
+        ``_PLAN_MAX_STEPS`` ahead) from where the robots are, once per reached formation and again
+        when a robot is ``_PLAN_DEVIATION`` off its path (at most every ``_PLAN_RETRY``) or the
+        plan runs out, then track it (:mod:`~swarm_env_agents.cbs_rrt.hold_plan`). The plan's
+        contact-free margins replace the shield (which would stop robots the plan takes past an
+        obstacle closer than ``shield_margin``); humans are left to ``evade_horizon``."""
+        assert self._tracker is not None and self._slot_course is not None
+        scn = state.scenario
+        dt = scn.world.dt
+        k = int(round(state.time / dt))
+        pose = state.follower_pose
+        course = self._hold_course
+        stale = course is None or course[0] != state.formation_index or k - course[1] >= len(course[2]) - 1
+        if not stale and state.time - self._hold_course_time >= _PLAN_RETRY - 1e-9:
+            assert course is not None
+            stale = bool(np.any(np.hypot(*(pose[:, :2] - course[2][k - course[1]]).T) > _PLAN_DEVIATION))
+        if stale:
+            cpu0 = time.process_time()
+            k_end = min(self._leader_done_step, k + _PLAN_MAX_STEPS, len(self._slot_course) - 1)
+            if math.isfinite(state.next_switch_time):
+                k_end = min(k_end, int(round(state.next_switch_time / dt)) - 1)
+            k_end = max(k_end, k + 1)
+            r = self._radius
+            paths = joint_paths(
+                state.static, self._slot_course, k, k_end, _PLAN_PITCH, scn.world.settle_tolerance,
+                scn.robots.max_speed * dt, floor=r + CHORD_ALLOWANCE, separation=2.0 * r + 2.0 * CHORD_ALLOWANCE,
+                starts=pose[:, :2], rounds=_PLAN_ROUNDS, reach=_PLAN_REACH,
+            )
+            course = self._hold_course = (state.formation_index, k, paths)
+            self._hold_course_time = state.time
+            self._hold_plans += 1
+            self._hold_plan_cpu.append(time.process_time() - cpu0)
+        assert course is not None
+        ahead = np.arange(_TRACK_STEPS + 1)
+        plan = course[2][np.minimum(k - course[1] + ahead, len(course[2]) - 1)]
+        slots = self._slot_course[np.minimum(k + ahead, len(self._slot_course) - 1)]
+        motion = np.column_stack([pose, state.follower_vel, state.follower_twist[:, 1]])
+        self._hold_steps += 1
+        return self._tracker.twists(motion, plan, slots)
 
     def _evade(self, state: WorldState, twist: np.ndarray) -> np.ndarray:
         """``twist`` with the robots that a human would reach within ``evade_horizon`` (were they
@@ -968,6 +1053,8 @@ class CBSRRTExpert:
             "shield_stops": self._shield_stops,
             "evade_steps": self._evade_steps,
             "hold_steps": self._hold_steps,
+            "hold_plans": self._hold_plans,
+            "hold_plan_cpu_s": round(float(sum(self._hold_plan_cpu)), 3),
             "hold_releases": self._hold_releases,
             "tracking_gap_m": {
                 "mean": float(gaps.mean()) if gaps.size else None,
