@@ -94,8 +94,9 @@ def test_plan_tracker_follows_a_path_and_keeps_off_obstacles() -> None:
 
 def test_expert_plans_the_hold_only_with_a_virtual_leader_and_long_steps() -> None:
     """By default the expert plans a reached formation where the slots are known ahead (a virtual
-    leader) and a step moves a robot at least four lattice cells (``paper_cbs_switch``: 0.25 m). The
-    random worlds (dt = 0.1 s) keep CBS: nothing is held there unless ``hold_slots`` asks for it."""
+    leader), no human walks about (the plan has none in it) and a step moves a robot at least four
+    lattice cells (``paper_cbs_switch``: 0.25 m). The random worlds (dt = 0.1 s), and any with
+    humans, keep CBS: nothing is held there unless ``hold_slots`` asks for it."""
     scn = load_scenario("paper_cbs_switch")
     assert virtual_leader_done_step(scn, 10_000) * scn.world.dt == pytest.approx(185.0)
     assert CBSRRTExpert().hold_plan is True and CBSRRTExpert().hold_slots is False
@@ -105,6 +106,27 @@ def test_expert_plans_the_hold_only_with_a_virtual_leader_and_long_steps() -> No
     off = CBSRRTExpert(hold_plan=False)
     run_episode(swarm_env.parallel_env("paper_cbs_switch", max_cycles=30), off, 0)
     assert off.stats()["hold_plans"] == 0 and off.stats()["hold_steps"] == 0
-    rnd = CBSRRTExpert()
-    run_episode(swarm_env.parallel_env("random", n_followers=3, n_humans=0, max_time=20.0), rnd, 5)
-    assert rnd.stats()["hold_plans"] == 0 and rnd.stats()["hold_steps"] == 0
+    for knobs, plans in (({}, False), ({"dt": 0.5, "substeps": 4, "n_humans": 2}, False),
+                         ({"dt": 0.5, "substeps": 4, "n_humans": 0}, True)):
+        rnd = CBSRRTExpert()
+        run_episode(swarm_env.parallel_env("random", n_followers=3, max_time=30.0, leader_kind="virtual", **knobs), rnd, 5)
+        assert (rnd.stats()["hold_plans"] > 0) is plans, knobs
+
+
+def test_plan_tracker_never_drives_two_robots_into_each_other() -> None:
+    """Two robots driving at each other at full speed, each with a plan straight through the other:
+    neither the step's substeps nor the next step's first one (which still moves with this step's
+    velocity, whatever is commanded) ever brings them into contact."""
+    field = DistanceField.build(StaticMap.from_obstacles((12.0, 6.0), []), 0.05)
+    tracker = PlanTracker(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.5, substeps=4,
+                          tolerance=0.3, separation=0.52, horizon=5)
+    east = np.array([[3.0 + 0.25 * k, 3.0] for k in range(30)])
+    west = np.array([[4.2 - 0.25 * k, 3.0] for k in range(30)])
+    plan = np.stack([east, west], axis=1)  # (K, 2, 2)
+    state = np.array([[3.0, 3.0, 0.0, 0.5, 0.0, 0.0], [4.2, 3.0, math.pi, -0.5, 0.0, 0.0]])
+    closest = np.inf
+    for k in range(12):
+        tw = tracker.twists(state, plan[k : k + 6], plan[k : k + 6])
+        state, subs = substep_rollout(state, tw, 4, 0.125)
+        closest = min(closest, float(np.hypot(*(subs[:, 0] - subs[:, 1]).T).min()))
+    assert closest >= 0.5

@@ -1,4 +1,8 @@
-"""Holding a reached formation: the CBS + RRT expert's tracker after a switch (issue 12 item 1).
+"""Holding a reached formation: the CBS + RRT expert's short-horizon holder (issue 12 item 1).
+
+Where the slots are known ahead (a virtual leader) the expert plans the hold instead
+(:mod:`swarm_env_agents.cbs_rrt.hold_plan`, on by default): this holder is the opt-in one for the
+other cases (``hold_slots=True``).
 
 CBS + RRT plans the way into a formation; once every follower is near its slot (within the
 settle tolerance plus ``hold_capture``), :class:`CBSRRTExpert` (with ``hold_slots=True``) hands the swarm to a

@@ -20,14 +20,18 @@ plans, once, where every follower should be at every remaining step, and tracks 
    two-twist sequence ``(u1, u2, u2, ...)`` over ``horizon`` steps on a grid of twists, rolled out
    with the env's own substep integration (:func:`substep_rollout`), scoring the distance to the
    plan, a miss of the slot where the plan holds it, an obstacle hit (prohibitive) and coming
-   closer than the plans' separation to another robot (heavy: robots decided before this one
-   where their chosen twists take them, the others on their plans).
+   closer than the plans' separation to another robot (heavy; touching one over the next step is
+   prohibitive: robots decided before this one where their chosen twists take them, the others on
+   their plans, or where they are if they are off them). The next step's first physics substep is
+   checked too: it still moves with this step's last velocity, whatever is commanded then (without
+   it, 3 of 60 random worlds at dt = 0.5 s had a robot-robot contact).
 
 The margins are the contact-free ones of ``benchmarks/hold_bound.py`` (which shares this module):
 ``floor = r + 0.03`` and ``separation = 2 r + 0.06`` (``0.03``: a 0.25 m chord between two lattice
-points that keep this much beyond ``r`` never comes within ``r`` of a convex obstacle). Keeping
-the CBS shield's 0.05 m on top costs 3-5 % of the hold (``hold_bound.py``'s ``j 0.33/0.61``
-column): the plan's margins replace the shield while it holds.
+points that keep this much beyond ``r`` never comes within ``r`` of a convex obstacle); the expert
+adds 0.01 and 0.02 m for the tracker's errors. Keeping the CBS shield's 0.05 m on top costs 3-5 %
+of the hold (``hold_bound.py``'s ``j 0.33/0.61`` column): the plan's margins replace the shield
+while it holds.
 
 Deterministic: no randomness; ties broken by fixed orders.
 """
@@ -61,6 +65,8 @@ __all__ = [
 NEG = np.int16(-30000)  # an unreachable lattice cell's value
 CHORD_ALLOWANCE = 0.03  # m: a 0.25 m chord between points this much beyond r never comes within r of a convex obstacle
 GRID_MARGIN = 1.6  # m around a follower's slots that its lattice covers
+_OFF_PLAN = 0.15  # m: the tracker expects a robot farther than this from its plan to stay where it is
+_CONTACT_GAP = 0.005  # m: robot surfaces closer than this over the next step exclude a twist sequence
 
 
 @numba.njit(cache=True)
@@ -346,12 +352,13 @@ def substep_rollout(state: np.ndarray, cmds: np.ndarray, substeps: int, sub_dt: 
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, others, mates, separation, floor, tol,
-                    ref_weight, inv, xmax, ymax, nx, values):  # pragma: no cover - compiled
+def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, others, mates, separation, contact, floor,
+                    tol, ref_weight, inv, xmax, ymax, nx, values):  # pragma: no cover - compiled
     """The cheapest twist sequence ``(first[a], later[b], later[b], ...)`` for one robot at ``s0 =
     (x, y, angle, vx, vy, w)`` (:meth:`PlanTracker.twists` gives the cost), as its index ``a * B +
     b`` (the first of equals), and the positions over the first step's substeps for each first
-    twist ``(substeps, A, 2)``.
+    twist and where the next step's first substep takes it whatever is commanded then (``(substeps +
+    1, A, 2)``).
 
     Branch and bound: the costs after the first step are >= 0, so first twists are tried in the
     order of their first step's cost, and none is tried further once that alone exceeds the best
@@ -359,7 +366,7 @@ def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, othe
     A = first.shape[0]
     B = later.shape[0]
     H = plan.shape[0] - 1
-    subs = np.empty((substeps, A, 2))
+    subs = np.empty((substeps + 1, A, 2))
     head = np.zeros(A)
     after = np.empty((A, 6))
     for a in range(A):
@@ -381,6 +388,18 @@ def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, othe
                 d = math.hypot(x - others[m, j, 0], y - others[m, j, 1])
                 if d < gap:
                     gap = d
+        # The next step's first substep still moves with this step's last velocity: whatever is commanded
+        # then, the robot gets there.
+        lx = x + vx * sub_dt
+        ly = y + vy * sub_dt
+        subs[substeps, a, 0] = lx
+        subs[substeps, a, 1] = ly
+        if _clear1(lx, ly, inv, xmax, ymax, nx, values) < floor:
+            hit = True
+        for j in range(others.shape[1]):
+            d = math.hypot(lx - others[substeps, j, 0], ly - others[substeps, j, 1])
+            if d < gap:
+                gap = d
         c = ref_weight * math.hypot(x - plan[1, 0], y - plan[1, 1])
         if in_tol[1]:
             c += 100.0 * max(math.hypot(x - slots[1, 0], y - slots[1, 1]) - (tol - 0.02), 0.0)
@@ -388,6 +407,8 @@ def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, othe
             c += 1e6
         if gap < separation:
             c += 1e4 * (separation - gap)
+        if gap < contact:  # touching another robot over the next step: as bad as an obstacle
+            c += 1e6
         head[a] = c
         after[a, 0], after[a, 1], after[a, 2], after[a, 3], after[a, 4], after[a, 5] = x, y, ang, vx, vy, w
     order = np.argsort(head, kind="mergesort")
@@ -474,13 +495,17 @@ class PlanTracker:
         """``(N, 2)`` twists for robots at ``state (N, 6) = (x, y, a, vx, vy, w)`` tracking ``plan
         (horizon + 1, N, 2)`` (row 0: now) towards ``slots (horizon + 1, N, 2)``: for each robot the
         first twist of its cheapest sequence. Robots decide in index order; over the first step a
-        robot keeps clear of where the ones before it go and of the others' plans."""
+        robot keeps clear of where the ones before it go (touching one excludes a sequence) and of
+        the others' plans (of where they are, for those more than 0.15 m off their plans)."""
         n = len(state)
         if plan.shape != (self.horizon + 1, n, 2) or slots.shape != plan.shape:
             raise ValueError(f"PlanTracker.twists: plan and slots of shape {(self.horizon + 1, n, 2)} expected, "
                              f"got {plan.shape} and {slots.shape}")
         out = np.zeros((n, 2))
-        others = np.repeat(plan[1][None], self.substeps, axis=0)  # (S, N, 2): decided robots' substeps replace these
+        # Over the next step: the robots not decided yet on their plans, but one that is off its plan
+        # (it could not follow it) where it is; decided robots' substeps replace these.
+        ahead = np.where((np.hypot(*(state[:, :2] - plan[0]).T) > _OFF_PLAN)[:, None], state[:, :2], plan[1])
+        others = np.repeat(ahead[None], self.substeps + 1, axis=0)  # (S + 1, N, 2): the substeps and the lagged one
         in_tol = np.hypot(*(plan - slots).transpose(2, 0, 1)) <= self.tolerance  # (H+1, N)
         f = self.field
         floor = self.radius + self.clearance
@@ -491,7 +516,8 @@ class PlanTracker:
                 state[i], self._twists, self._later, self.substeps, self.sub_dt,
                 np.ascontiguousarray(plan[:, i]), np.ascontiguousarray(slots[:, i]), in_tol[:, i],
                 np.ascontiguousarray(others[:, rest]), np.ascontiguousarray(plan[:, rest]),
-                self.separation, floor, self.tolerance, self.ref_weight, f._inv, f._xmax, f._ymax, f.nx, f.values,
+                self.separation, 2.0 * self.radius + _CONTACT_GAP, floor, self.tolerance, self.ref_weight,
+                f._inv, f._xmax, f._ymax, f.nx, f.values,
             )
             a = int(best) // len(self._later)
             out[i] = self._twists[a]

@@ -44,6 +44,13 @@ that a human walking on at its current velocity would reach within
 twist is the ``vo`` expert's velocity-obstacle search's (the humans do not give
 way, and a plan that waits for them is no plan; counted in ``evade_steps``).
 
+A reached formation is held, not replanned (issue 12 item 1): with a virtual leader the
+slots are known for the rest of the episode, so once every follower is near its slot the
+expert plans the whole formation to the next switch or the leader's stop in space and
+time (:mod:`swarm_env_agents.cbs_rrt.hold_plan`, ``hold_plan``) and tracks that plan;
+replanning knocked robots in formation off their courses at every replan (``paper_cbs_switch``
+held its grid about 20 % of the time, now 91 %).
+
 Determinism: one ``numpy.random.Generator`` made in :meth:`CBSRRTExpert.reset`
 from the seed; every budget is a count (RRT expansions, CBS nodes, low-level
 calls), so the same seed gives the same plans on any machine. Wall-clock time
@@ -97,6 +104,7 @@ _PLAN_DEVIATION = 0.5  # m off its planned path that makes hold_plan plan the fo
 _PLAN_RETRY = 2.0  # s between two such plans
 _TRACK_STEPS = 5  # steps hold_plan's tracker looks ahead
 _PLAN_ROUNDS = 1  # rounds of best responses (a second one gained nothing on paper_cbs_switch)
+_PLAN_GAP = 0.02  # m the plans keep beyond contact-free (robots; half of it to obstacles) for the tracker's errors
 _PLAN_REACH = 2.5  # m: a planned follower stays this close to its slot in x and y (the leader's turn moves slots 2.04 m)
 
 REPLAN_REASONS = ("initial", "switch", "goal_jump", "horizon", "rolling", "deviation", "goal_moved", "retry")
@@ -195,18 +203,18 @@ class CBSRRTExpert:
             course a robot must be to count as in formation, and how far it may then fall behind
             before a ``deviation`` replan (m; the others use ``deviation_tolerance``).
 
-    Holding a reached formation (issue 12 item 1; off by default while it falls short of the
-    target):
-        hold_slots: once every follower is near its slot (``hold_capture``), a
+    Holding a reached formation (issue 12 item 1):
+        hold_slots: (off by default; where ``hold_plan`` does not apply) once every follower is
+            near its slot (``hold_capture``), a
             :class:`~swarm_env_agents.cbs_rrt.hold.SlotHolder` (a short-horizon search over the
             robots' kinematics towards their moving slots, round obstacles by geodesic distance)
             drives the swarm instead of the plans, until the next formation switch (or a stuck
             follower, ``hold_capture``), when CBS plans again. On ``paper_cbs_switch`` seeds 0-7
             (``swarm-env evaluate --policies cbs_rrt:hold_slots=true --scenarios paper_cbs_switch
             --seeds 0-7``, 2026-12-03, the same episodes on 2026-12-05):
-            success 8/8 (default 4/8), the grid reached 10-29 s after the switch (default: 2 seeds
-            late or never), held 0.70-0.79 of the time after it (default about 0.20; the target is
-            0.9), 0 collisions. Why it is off: on random worlds 1000-1099 (``swarm-env evaluate
+            success 8/8 (CBS alone, ``hold_plan=false``: 4/8), the grid reached 10-29 s after the
+            switch (CBS alone: 2 seeds late or never), held 0.70-0.79 of the time after it (CBS
+            alone about 0.20; ``hold_plan`` 0.91), 0 collisions. Why it is off elsewhere: on random worlds 1000-1099 (``swarm-env evaluate
             --policies cbs_rrt:hold_slots=true cbs_rrt --scenarios random --scenario-seeds
             random=1000-1099 --seeds 0``, 2026-12-05) the formation error is lower (paired
             -0.24 +- 0.08 m) but 95/100 episodes are collision-free against 97/100 (paired
@@ -225,24 +233,36 @@ class CBSRRTExpert:
             that for 5 s (``stats()["hold_releases"]``): CBS brings the swarm close, the holder settles it
             (with ``0`` the last few decimetres are left to replans, which settled 2 of the 8
             seeds late or never).
-        hold_plan: hold by planning (implies ``hold_slots``): with a virtual leader, whose slots
-            are known for the rest of the episode, the holder plans where every follower should be
-            at every step up to the next switch or the leader's stop (joint space-time point paths
-            that keep contact-free margins, ``r + 0.03`` m from obstacles and ``2 r + 0.06`` m
-            apart, and maximise the steps with the whole formation within tolerance:
+        hold_plan: hold a reached formation by planning it (on by default): with a virtual
+            leader, whose slots are known for the rest of the episode, once every follower is
+            near its slot (``hold_capture``) the expert plans where each should be at every step
+            up to the next switch or the leader's stop (joint space-time point paths on a 0.05 m
+            lattice that keep contact-free margins, ``r + 0.03`` m from obstacles and ``2 r +
+            0.06`` m apart, and maximise the steps with the whole formation within tolerance:
             :mod:`~swarm_env_agents.cbs_rrt.hold_plan`) and tracks that plan with a look-ahead
             search over the robots' exact substep kinematics; the plan's margins replace the shield
-            while it holds, humans are left to ``evade_horizon``. It plans again when a robot is
+            while it holds. It plans again when a robot is
             0.5 m off its path or the formation changes (``stats()["hold_plans"]``,
-            ``["hold_plan_cpu_s"]``). Other leaders, and steps too short for the 0.05 m lattice
-            (less than 0.2 m of travel), keep the short-horizon holder. On ``paper_cbs_switch``
-            seeds 0-7 (``swarm-env evaluate --policies cbs_rrt:hold_plan=true --scenarios
-            paper_cbs_switch --seeds 0-7``, 2026-12-05): success 8/8, 0 collisions, the grid
-            reached 14-20 s after the switch and held **0.906-0.918** of the time after it (issue
-            12's target 0.9; ``benchmarks/hold_bound.py`` gives 0.918 for the same plans from
-            S = 14 s), formation error 0.120 m; 25-30 s of policy time per episode (the tracker:
-            8 robots x 14,641 twist sequences a step), 4.3-8.6 s of it planning. Off by default:
-            a minute of CPU per paper episode, and not yet measured on the random worlds.
+            ``["hold_plan_s"]``, ``["hold_plan_cpu_s"]``: wall and CPU time); CBS takes over again
+            like with ``hold_slots``. Other leaders, worlds with humans (the plan has no humans in
+            it: on 60 random worlds at dt = 0.5 s it left 26 with a contact, CBS none), and steps too
+            short for the lattice (less than 0.2 m of travel: the random worlds and the paper-003
+            scenarios, dt = 0.1 s) keep CBS (or ``hold_slots``' holder). Without humans, random
+            worlds 0-259 at dt = 0.5 s (``swarm-env evaluate --policies cbs_rrt
+            cbs_rrt:hold_plan=false --scenarios random --scenario-seeds random=0-259 --seeds 0 --env
+            dt=0.5 --env substeps=4 --env n_humans=0``): 0 contacts with it or without (260 worlds),
+            259 against 260 successes (world 80 does not settle), formation error -0.049 +- 0.015 m
+            (paired), 0.48 s of policy time per episode against 0.11 s (medians). On
+            ``paper_cbs_switch`` seeds 0-7 (``swarm-env evaluate --policies cbs_rrt
+            cbs_rrt:hold_plan=false --scenarios paper_cbs_switch --seeds 0-7``, 2026-12-05):
+            success 8/8 (without: 4/8), 0 collisions, the grid reached 14-22 s after the switch
+            and held **0.910-0.918** of the time after it (without: about 0.20; issue 12's target
+            0.9; ``benchmarks/hold_bound.py --settle 14`` gives 0.918 for contact-free plans from
+            S = 14 s), formation error 0.135 m; 1.4-1.5 s of CPU for the plans (two per episode,
+            about 0.7 s each) and 4.0 s of policy time per episode. The plans keep contact-free
+            margins (centres 0.29 m from obstacles, 0.58 m apart), not ``shield_margin``, which
+            would cost 3-5 % of the hold: the smallest gaps were 2-4 cm between robots and 1.2 cm
+            to obstacles (the tracker keeps 1 cm, by the distance field).
 
     Tracking:
         lookahead_time: pure pursuit aims at the plan's position this far ahead (s).
@@ -426,6 +446,7 @@ class CBSRRTExpert:
         self._hold_course_time = -math.inf
         self._hold_plans = 0
         self._hold_plan_cpu: list[float] = []
+        self._hold_plan_wall: list[float] = []
 
     def reset(self, env: SwarmEnv, seed: int | None) -> None:
         if env.action_type != "continuous":
@@ -505,11 +526,13 @@ class CBSRRTExpert:
             self._slot_course = virtual_slot_trajectory(scn, state.static, steps)[0]
             self._leader_done_step = virtual_leader_done_step(scn, steps)
             # The plan's lattice must resolve a step's travel: the random worlds' dt = 0.1 s moves a robot one cell.
-            if self.hold_plan and robots.max_speed * env_dt >= 4 * _PLAN_PITCH:
+            # The plan has no humans in it (nor a shield): with humans about it left 26 of 60 random worlds at
+            # dt = 0.5 s with a contact, CBS none.
+            if self.hold_plan and robots.max_speed * env_dt >= 4 * _PLAN_PITCH and not scn.humans:
                 self._tracker = PlanTracker(
                     self.field, radius=self._radius, max_speed=robots.max_speed, max_turn_rate=robots.max_turn_rate,
                     dt=env_dt, substeps=scn.world.substeps, tolerance=scn.world.settle_tolerance,
-                    separation=2.0 * self._radius + 0.02, horizon=_TRACK_STEPS,
+                    separation=2.0 * self._radius + _PLAN_GAP, horizon=_TRACK_STEPS,
                 )
         self._scenario = scn
 
@@ -903,7 +926,7 @@ class CBSRRTExpert:
         when a robot is ``_PLAN_DEVIATION`` off its path (at most every ``_PLAN_RETRY``) or the
         plan runs out, then track it (:mod:`~swarm_env_agents.cbs_rrt.hold_plan`). The plan's
         contact-free margins replace the shield (which would stop robots the plan takes past an
-        obstacle closer than ``shield_margin``); humans are left to ``evade_horizon``."""
+        obstacle closer than ``shield_margin``). Only used in worlds without humans (they are not in the plan)."""
         assert self._tracker is not None and self._slot_course is not None
         scn = state.scenario
         dt = scn.world.dt
@@ -915,7 +938,7 @@ class CBSRRTExpert:
             assert course is not None
             stale = bool(np.any(np.hypot(*(pose[:, :2] - course[2][k - course[1]]).T) > _PLAN_DEVIATION))
         if stale:
-            cpu0 = time.process_time()
+            cpu0, wall0 = time.process_time(), time.perf_counter()
             k_end = min(self._leader_done_step, k + _PLAN_MAX_STEPS, len(self._slot_course) - 1)
             if math.isfinite(state.next_switch_time):
                 k_end = min(k_end, int(round(state.next_switch_time / dt)) - 1)
@@ -923,13 +946,15 @@ class CBSRRTExpert:
             r = self._radius
             paths = joint_paths(
                 state.static, self._slot_course, k, k_end, _PLAN_PITCH, scn.world.settle_tolerance,
-                scn.robots.max_speed * dt, floor=r + CHORD_ALLOWANCE, separation=2.0 * r + 2.0 * CHORD_ALLOWANCE,
+                scn.robots.max_speed * dt, floor=r + CHORD_ALLOWANCE + _PLAN_GAP / 2,
+                separation=2.0 * (r + CHORD_ALLOWANCE) + _PLAN_GAP,
                 starts=pose[:, :2], rounds=_PLAN_ROUNDS, reach=_PLAN_REACH,
             )
             course = self._hold_course = (state.formation_index, k, paths)
             self._hold_course_time = state.time
             self._hold_plans += 1
             self._hold_plan_cpu.append(time.process_time() - cpu0)
+            self._hold_plan_wall.append(time.perf_counter() - wall0)
         assert course is not None
         ahead = np.arange(_TRACK_STEPS + 1)
         plan = course[2][np.minimum(k - course[1] + ahead, len(course[2]) - 1)]
@@ -1028,7 +1053,9 @@ class CBSRRTExpert:
         this process: what a shared machine does not inflate), ``fallbacks`` (``stationary``: robots whose plan failed,
         ``dropped``: robots removed from active planning, ``partial``: plans that stop short
         of the goal, ``unsolved``: replans that ended with conflicts), ``hold_steps`` (steps
-        driven by the formation holder, ``hold_slots``), ``hold_releases`` (times it handed a
+        driven by the formation holder, ``hold_plan`` or ``hold_slots``), ``hold_plans`` (plans of a
+        reached formation, ``hold_plan``; ``hold_plan_s`` and ``hold_plan_cpu_s`` their wall and CPU
+        time), ``hold_releases`` (times it handed a
         formation back to CBS, a follower too far behind) and ``tracking_gap_m`` — the distance between each robot and its plan's position at the
         same time, over all steps (mean, p95, max).
         """
@@ -1054,6 +1081,7 @@ class CBSRRTExpert:
             "evade_steps": self._evade_steps,
             "hold_steps": self._hold_steps,
             "hold_plans": self._hold_plans,
+            "hold_plan_s": round(float(sum(self._hold_plan_wall)), 3),
             "hold_plan_cpu_s": round(float(sum(self._hold_plan_cpu)), 3),
             "hold_releases": self._hold_releases,
             "tracking_gap_m": {
