@@ -86,12 +86,12 @@ Results (2026-12-03, deterministic; ``python benchmarks/hold_bound.py --check-en
   of the obstacles (``SLOT_MARGIN`` 0.10 or 0.15 instead of 0.05, a throwaway script) leaves this
   unchanged (0.866, 0.860). A controller that keeps the expert's margins needs joint plans better
   than these best responses to reach 90 %, and real robots lose more than points.
-* What came of it (2026-12-05): ``cbs_rrt:hold_plan=true`` plans exactly these contact-free joint
-  paths (:func:`swarm_env_agents.cbs_rrt.hold_plan.joint_paths`, which :func:`joint_paths` here
-  calls) from where the robots are and tracks them with the robots' kinematics, without the
-  shield while it holds: seeds 0-7 hold 0.906-0.918 in the env, collision-free
-  (``python benchmarks/hold_bound.py --settle 14``, 77 s: ``j0.28/0.56`` 0.918 from S = 14 s,
-  what seed 0 holds in the env; ``j0.33/0.61`` 0.863).
+* What came of it (2026-12-05): ``cbs_rrt`` (``hold_plan``, on by default) plans such joint paths
+  (:func:`swarm_env_agents.cbs_rrt.hold_plan.joint_paths`, which :func:`joint_paths` here calls,
+  with 0.01 / 0.02 m more than contact-free) from where the robots are and tracks them with the
+  robots' kinematics, without the shield while it holds: seeds 0-7 hold 0.910-0.918 in the env,
+  collision-free (``python benchmarks/hold_bound.py --settle 14``, 77 s: ``j0.28/0.56`` 0.918 from
+  S = 14 s; ``j0.33/0.61`` 0.863).
 * Settling late is what makes 90 % impossible: the flip at t = 179.5 alone costs 4-5 steps, so with
   S = 87 (t = 167, the latest issue 12 allows) even the relaxed upper bound is 0.892 (h = 0.025;
   lower 0.865); at S = 80 (t = 160) the point and the unicycle achieve 0.902.

@@ -54,7 +54,7 @@ def test_unicycle_rollout_is_the_envs_kinematics(hb):
         command = np.zeros((scn.robots.count, 2))
         command[0] = cmd
         world.step(command)
-        state, _ = hb._unicycle_rollout(state, np.array(cmd), scn.world.substeps, scn.world.dt / scn.world.substeps)
+        state, _ = hb.substep_rollout(state, np.array(cmd), scn.world.substeps, scn.world.dt / scn.world.substeps)
         got = world.snapshot().follower_pose[0]
         assert np.allclose(state[:3], got, atol=1e-9), (state, got)
 

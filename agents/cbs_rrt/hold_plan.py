@@ -2,8 +2,9 @@
 
 With a virtual leader the slot targets are a function of time and the map only
 (:func:`swarm_env.formation.virtual_slot_trajectory`), so once the swarm has reached a formation
-the whole rest of it is known in advance. :class:`CBSRRTExpert` with ``hold_plan=True`` then
-plans, once, where every follower should be at every remaining step, and tracks that:
+the whole rest of it is known in advance. :class:`CBSRRTExpert` (``hold_plan``, on by default)
+then plans where every follower should be at every remaining step (again only if a robot falls
+0.5 m off its path), and tracks that:
 
 1. **One follower** (:func:`point_dp`): a point moving at most ``max_speed * dt`` per step on a
    lattice of pitch ``h`` whose centre keeps ``floor`` from obstacles and walls and ``separation``
@@ -33,6 +34,10 @@ adds 0.01 and 0.02 m for the tracker's errors. Keeping the CBS shield's 0.05 m o
 of the hold (``hold_bound.py``'s ``j 0.33/0.61`` column): the plan's margins replace the shield
 while it holds.
 
+Work: the expert's plan of ``paper_cbs_switch``'s grid (180 steps, 8 followers, one round of best
+responses, each follower within 2.5 m of its slot: ``reach``) takes about 0.7 s of CPU; tracking,
+with branch and bound over the 14,641 twist sequences per robot, about 10 ms per step.
+
 Deterministic: no randomness; ties broken by fixed orders.
 """
 
@@ -52,6 +57,7 @@ from swarm_env_agents.cbs_rrt.kernels import _clear1
 
 __all__ = [
     "CHORD_ALLOWANCE",
+    "GRID_MARGIN",
     "Lattice",
     "PlanTracker",
     "PointDP",

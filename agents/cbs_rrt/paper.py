@@ -416,7 +416,7 @@ def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path,
         "for its grid slot held where it is at that moment. Left, every robot's RRT plan on its own",
         f"({fig3[0]} conflicts; red crosses: where two robots would come closer than 0.7 m); right, after CBS",
         f"({fig3[1]} conflicts; {fig3[2]} constraint-tree nodes, {fig3[3]} low-level calls, {fig3[4]:.2f} s"
-        f"{', with a fallback' if fig3[5] else ', no fallback'}). CBS resolves the whole 30 s window here; the expert",
+        f"{', with a fallback' if fig3[5] else ', no fallback'}). CBS works on the whole 30 s window here; the expert",
         "itself resolves 8 s at a time and replans.",
         "",
         f"![before and after CBS]({rel}/cbs_before_after.png)",

@@ -82,7 +82,13 @@ from swarm_env_agents.cbs_rrt.constraints import Constraint
 from swarm_env_agents.cbs_rrt.distance_field import distance_field
 from swarm_env_agents.cbs_rrt.goals import FormationGoals, GoalWindow
 from swarm_env_agents.cbs_rrt.hold import SlotHolder
-from swarm_env_agents.cbs_rrt.hold_plan import CHORD_ALLOWANCE, PlanTracker, joint_paths, virtual_leader_done_step
+from swarm_env_agents.cbs_rrt.hold_plan import (
+    CHORD_ALLOWANCE,
+    GRID_MARGIN,
+    PlanTracker,
+    joint_paths,
+    virtual_leader_done_step,
+)
 from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
 from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
@@ -99,7 +105,9 @@ _SHIELD_FRACTIONS = np.array([0.25, 0.5, 0.75, 1.0])[None, :]  # points of the n
 _HOLD_POINTS = 4  # points the formation holder scores: the next step and three more over hold_horizon
 _HOLD_PATIENCE = 5.0  # s a follower may stay beyond the capture distance before the holder hands back to CBS
 _PLAN_PITCH = 0.05  # m: hold_plan's lattice
-_PLAN_MAX_STEPS = 400  # hold_plan plans at most this many steps ahead (memory: int16 values per cell and step)
+_PLAN_MAX_STEPS = 400  # hold_plan plans at most this many steps ahead
+_PLAN_CELL_STEPS = 2.5e7  # and at most this many lattice cells x steps (int16 values: 50 MB per follower's DP)
+_PLAN_TAIL = 20  # steps planned at a time once the leader has stopped
 _PLAN_DEVIATION = 0.5  # m off its planned path that makes hold_plan plan the formation again
 _PLAN_RETRY = 2.0  # s between two such plans
 _TRACK_STEPS = 5  # steps hold_plan's tracker looks ahead
@@ -237,8 +245,8 @@ class CBSRRTExpert:
             leader, whose slots are known for the rest of the episode, once every follower is
             near its slot (``hold_capture``) the expert plans where each should be at every step
             up to the next switch or the leader's stop (joint space-time point paths on a 0.05 m
-            lattice that keep contact-free margins, ``r + 0.03`` m from obstacles and ``2 r +
-            0.06`` m apart, and maximise the steps with the whole formation within tolerance:
+            lattice that keep contact-free margins, centres ``r + 0.04`` m from obstacles and ``2 r +
+            0.08`` m apart, and maximise the steps with the whole formation within tolerance:
             :mod:`~swarm_env_agents.cbs_rrt.hold_plan`) and tracks that plan with a look-ahead
             search over the robots' exact substep kinematics; the plan's margins replace the shield
             while it holds. It plans again when a robot is
@@ -939,9 +947,14 @@ class CBSRRTExpert:
             stale = bool(np.any(np.hypot(*(pose[:, :2] - course[2][k - course[1]]).T) > _PLAN_DEVIATION))
         if stale:
             cpu0, wall0 = time.process_time(), time.perf_counter()
-            k_end = min(self._leader_done_step, k + _PLAN_MAX_STEPS, len(self._slot_course) - 1)
+            # To the leader's stop (after it, a while more: the slots stand still), the next switch, the end
+            # of the course, and at most _PLAN_MAX_STEPS and _PLAN_CELL_STEPS of lattice values.
+            k_end = self._leader_done_step if k + 1 < self._leader_done_step else k + _PLAN_TAIL
+            k_end = min(k_end, k + _PLAN_MAX_STEPS, len(self._slot_course) - 1)
             if math.isfinite(state.next_switch_time):
                 k_end = min(k_end, int(round(state.next_switch_time / dt)) - 1)
+            while k_end > k + 1 and self._lattice_cells(k, k_end) * (k_end - k + 1) > _PLAN_CELL_STEPS:
+                k_end = k + (k_end - k) // 2
             k_end = max(k_end, k + 1)
             r = self._radius
             paths = joint_paths(
@@ -962,6 +975,12 @@ class CBSRRTExpert:
         motion = np.column_stack([pose, state.follower_vel, state.follower_twist[:, 1]])
         self._hold_steps += 1
         return self._tracker.twists(motion, plan, slots)
+
+    def _lattice_cells(self, k: int, k_end: int) -> float:
+        """About how many cells the largest of the followers' lattices from ``k`` to ``k_end`` has."""
+        assert self._slot_course is not None
+        span = np.ptp(self._slot_course[k : k_end + 1], axis=0).max(axis=0) + 2.0 * GRID_MARGIN  # (2,) m
+        return float(np.prod(span / _PLAN_PITCH + 1.0))
 
     def _evade(self, state: WorldState, twist: np.ndarray) -> np.ndarray:
         """``twist`` with the robots that a human would reach within ``evade_horizon`` (were they
