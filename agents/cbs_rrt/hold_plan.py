@@ -57,7 +57,6 @@ from swarm_env_agents.cbs_rrt.kernels import _clear1
 
 __all__ = [
     "CHORD_ALLOWANCE",
-    "GRID_MARGIN",
     "Lattice",
     "PlanTracker",
     "PointDP",
@@ -182,14 +181,18 @@ class Lattice:
     h: float
     clearance: np.ndarray  # (H, W) static.distance of the cell centres (walls included)
 
-    @classmethod
-    def around(cls, static: StaticMap, pts: np.ndarray, h: float) -> Lattice:
-        """The lattice covering ``pts (..., 2)`` and ``GRID_MARGIN`` round them."""
+    @staticmethod
+    def extent(pts: np.ndarray, h: float) -> tuple[np.ndarray, int, int]:
+        """``(lower corner, nx, ny)`` of the lattice covering ``pts (..., 2)`` and ``GRID_MARGIN`` round them."""
         pts = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
         lo = pts.min(axis=0) - GRID_MARGIN
         hi = pts.max(axis=0) + GRID_MARGIN
-        nx = int(math.ceil((hi[0] - lo[0]) / h)) + 1
-        ny = int(math.ceil((hi[1] - lo[1]) / h)) + 1
+        return lo, int(math.ceil((hi[0] - lo[0]) / h)) + 1, int(math.ceil((hi[1] - lo[1]) / h)) + 1
+
+    @classmethod
+    def around(cls, static: StaticMap, pts: np.ndarray, h: float) -> Lattice:
+        """The lattice covering ``pts (..., 2)`` and ``GRID_MARGIN`` round them."""
+        lo, nx, ny = cls.extent(pts, h)
         xs = lo[0] + h * np.arange(nx)
         ys = lo[1] + h * np.arange(ny)
         grid = np.stack(np.meshgrid(xs, ys), axis=-1)
@@ -280,19 +283,12 @@ def point_dp(static: StaticMap, slots: np.ndarray, k0: int, k_end: int, h: float
     H, W = free.shape
     values = np.empty((n, H, W), dtype=np.int16)
     rowmax = np.empty((int(hw.max()) + 1, H, W), dtype=np.int16)
-    xs = lat.x0 + h * np.arange(W)
-    ys = lat.y0 + h * np.arange(H)
-
     mates = np.zeros((n, 0, 2)) if others is None else np.ascontiguousarray(others, dtype=np.float64)
-    free_end = free.copy()
-    for q in mates[-1]:
-        free_end &= (xs[None, :] - q[0]) ** 2 + (ys[:, None] - q[1]) ** 2 >= separation * separation
     cells = max(H, W) if reach is None else int(math.ceil(reach / h))
-    free_end &= (np.abs(xs[None, :] - slots[k_end, 0]) <= (cells + 0.5) * h) & (np.abs(ys[:, None] - slots[k_end, 1]) <= (cells + 0.5) * h)
-    held = ((xs[None, :] - slots[k_end, 0]) ** 2 + (ys[:, None] - slots[k_end, 1]) ** 2 <= tol**2) * g[-1]
-    values[-1] = np.where(free_end, held, NEG)
-    for k in range(k_end - 1, k0 - 1, -1):
-        _dp_step(values[k + 1 - k0], free, mates[k - k0], separation * separation, hw, lat.x0, lat.y0, h,
+    after_end = np.zeros((H, W), dtype=np.int16)  # the last step: only its own hold counts
+    for k in range(k_end, k0 - 1, -1):
+        vnext = after_end if k == k_end else values[k + 1 - k0]
+        _dp_step(vnext, free, mates[k - k0], separation * separation, hw, lat.x0, lat.y0, h,
                  float(slots[k, 0]), float(slots[k, 1]), tol**2, int(g[k - k0]), cells, values[k - k0], rowmax)
     return PointDP(lat, free, hw, k0, values, tol, step, slots)
 
@@ -357,6 +353,39 @@ def substep_rollout(state: np.ndarray, cmds: np.ndarray, substeps: int, sub_dt: 
     return np.stack([x, y, a, vx, vy, w], axis=-1), np.stack(pts)
 
 
+_jit_inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+
+
+@_jit_inline
+def _substep(x, y, ang, vx, vy, w, v_cmd, w_cmd, sub_dt):  # pragma: no cover - compiled
+    """One physics substep of :func:`substep_rollout`: move with the last velocity, then set it from the command."""
+    x += vx * sub_dt
+    y += vy * sub_dt
+    ang += w * sub_dt
+    return x, y, ang, v_cmd * math.cos(ang), v_cmd * math.sin(ang), w_cmd
+
+
+@_jit_inline
+def _nearest(x, y, pts):  # pragma: no cover - compiled
+    """Distance from ``(x, y)`` to the nearest of ``pts (M, 2)`` (``inf`` if none)."""
+    gap = np.inf
+    for j in range(pts.shape[0]):
+        d = math.hypot(x - pts[j, 0], y - pts[j, 1])
+        if d < gap:
+            gap = d
+    return gap
+
+
+@_jit_inline
+def _off_course(x, y, ref, slot, slot_counts, tol, ref_weight):  # pragma: no cover - compiled
+    """Cost of ending a step at ``(x, y)``: metres off the plan's point ``ref``, and beyond ``tol - 0.02``
+    of the slot where the plan holds it (``slot_counts``)."""
+    c = ref_weight * math.hypot(x - ref[0], y - ref[1])
+    if slot_counts:
+        c += 100.0 * max(math.hypot(x - slot[0], y - slot[1]) - (tol - 0.02), 0.0)
+    return c
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, others, mates, separation, contact, floor,
                     tol, ref_weight, inv, xmax, ymax, nx, values):  # pragma: no cover - compiled
@@ -379,36 +408,20 @@ def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, othe
         x, y, ang, vx, vy, w = s0[0], s0[1], s0[2], s0[3], s0[4], s0[5]
         hit = False
         gap = np.inf
-        for m in range(substeps):
-            x += vx * sub_dt
-            y += vy * sub_dt
-            ang += w * sub_dt
-            vx = first[a, 0] * math.cos(ang)
-            vy = first[a, 0] * math.sin(ang)
-            w = first[a, 1]
-            subs[m, a, 0] = x
-            subs[m, a, 1] = y
-            if _clear1(x, y, inv, xmax, ymax, nx, values) < floor:
+        for m in range(substeps + 1):
+            if m < substeps:
+                x, y, ang, vx, vy, w = _substep(x, y, ang, vx, vy, w, first[a, 0], first[a, 1], sub_dt)
+                px, py = x, y
+            else:
+                # The next step's first substep still moves with this step's last velocity: whatever is
+                # commanded then, the robot gets there.
+                px, py = x + vx * sub_dt, y + vy * sub_dt
+            subs[m, a, 0] = px
+            subs[m, a, 1] = py
+            if _clear1(px, py, inv, xmax, ymax, nx, values) < floor:
                 hit = True
-            for j in range(others.shape[1]):
-                d = math.hypot(x - others[m, j, 0], y - others[m, j, 1])
-                if d < gap:
-                    gap = d
-        # The next step's first substep still moves with this step's last velocity: whatever is commanded
-        # then, the robot gets there.
-        lx = x + vx * sub_dt
-        ly = y + vy * sub_dt
-        subs[substeps, a, 0] = lx
-        subs[substeps, a, 1] = ly
-        if _clear1(lx, ly, inv, xmax, ymax, nx, values) < floor:
-            hit = True
-        for j in range(others.shape[1]):
-            d = math.hypot(lx - others[substeps, j, 0], ly - others[substeps, j, 1])
-            if d < gap:
-                gap = d
-        c = ref_weight * math.hypot(x - plan[1, 0], y - plan[1, 1])
-        if in_tol[1]:
-            c += 100.0 * max(math.hypot(x - slots[1, 0], y - slots[1, 1]) - (tol - 0.02), 0.0)
+            gap = min(gap, _nearest(px, py, others[m]))
+        c = _off_course(x, y, plan[1], slots[1], in_tol[1], tol, ref_weight)
         if hit:
             c += 1e6
         if gap < separation:
@@ -429,22 +442,11 @@ def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, othe
             for look in range(2, H + 1):
                 hit = False
                 for _m in range(substeps):
-                    x += vx * sub_dt
-                    y += vy * sub_dt
-                    ang += w * sub_dt
-                    vx = later[b, 0] * math.cos(ang)
-                    vy = later[b, 0] * math.sin(ang)
-                    w = later[b, 1]
+                    x, y, ang, vx, vy, w = _substep(x, y, ang, vx, vy, w, later[b, 0], later[b, 1], sub_dt)
                     if _clear1(x, y, inv, xmax, ymax, nx, values) < floor:
                         hit = True
-                step_cost = ref_weight * math.hypot(x - plan[look, 0], y - plan[look, 1])
-                if in_tol[look]:
-                    step_cost += 100.0 * max(math.hypot(x - slots[look, 0], y - slots[look, 1]) - (tol - 0.02), 0.0)
-                gap = np.inf
-                for j in range(mates.shape[1]):
-                    d = math.hypot(x - mates[look, j, 0], y - mates[look, j, 1])
-                    if d < gap:
-                        gap = d
+                step_cost = _off_course(x, y, plan[look], slots[look], in_tol[look], tol, ref_weight)
+                gap = _nearest(x, y, mates[look])
                 if gap < separation:
                     step_cost += 1e4 * (separation - gap)
                 c += step_cost / look

@@ -49,7 +49,7 @@ slots are known for the rest of the episode, so once every follower is near its 
 expert plans the whole formation to the next switch or the leader's stop in space and
 time (:mod:`swarm_env_agents.cbs_rrt.hold_plan`, ``hold_plan``) and tracks that plan;
 replanning knocked robots in formation off their courses at every replan (``paper_cbs_switch``
-held its grid about 20 % of the time, now 91 %).
+held its grid 2-17 % of the time, now 91-92 %: see ``hold_plan`` below).
 
 Determinism: one ``numpy.random.Generator`` made in :meth:`CBSRRTExpert.reset`
 from the seed; every budget is a count (RRT expansions, CBS nodes, low-level
@@ -84,7 +84,7 @@ from swarm_env_agents.cbs_rrt.goals import FormationGoals, GoalWindow
 from swarm_env_agents.cbs_rrt.hold import SlotHolder
 from swarm_env_agents.cbs_rrt.hold_plan import (
     CHORD_ALLOWANCE,
-    GRID_MARGIN,
+    Lattice,
     PlanTracker,
     joint_paths,
     virtual_leader_done_step,
@@ -222,7 +222,7 @@ class CBSRRTExpert:
             --seeds 0-7``, 2026-12-03, the same episodes on 2026-12-05):
             success 8/8 (CBS alone, ``hold_plan=false``: 4/8), the grid reached 10-29 s after the
             switch (CBS alone: 2 seeds late or never), held 0.70-0.79 of the time after it (CBS
-            alone about 0.20; ``hold_plan`` 0.91), 0 collisions. Why it is off elsewhere: on random worlds 1000-1099 (``swarm-env evaluate
+            alone 0.02-0.17; ``hold_plan`` 0.91-0.92), 0 collisions. Why it is off elsewhere: on random worlds 1000-1099 (``swarm-env evaluate
             --policies cbs_rrt:hold_slots=true cbs_rrt --scenarios random --scenario-seeds
             random=1000-1099 --seeds 0``, 2026-12-05) the formation error is lower (paired
             -0.24 +- 0.08 m) but 95/100 episodes are collision-free against 97/100 (paired
@@ -264,9 +264,10 @@ class CBSRRTExpert:
             ``paper_cbs_switch`` seeds 0-7 (``swarm-env evaluate --policies cbs_rrt
             cbs_rrt:hold_plan=false --scenarios paper_cbs_switch --seeds 0-7``, 2026-12-05):
             success 8/8 (without: 4/8), 0 collisions, the grid reached 14-22 s after the switch
-            and held **0.910-0.918** of the time after it (without: about 0.20; issue 12's target
-            0.9; ``benchmarks/hold_bound.py --settle 14`` gives 0.918 for contact-free plans from
-            S = 14 s), formation error 0.135 m; 1.4-1.5 s of CPU for the plans (two per episode,
+            and held **0.910-0.918** of the time after it (without: 0.02-0.17 on the 6 seeds that
+            reached it before the leader stopped; issue 12's target 0.9; ``benchmarks/hold_bound.py
+            --settle 14`` gives 0.918 for contact-free plans from S = 14 s), formation error 0.135 m
+            (without: 0.364 m); 1.4-1.5 s of CPU for the plans (two per episode,
             about 0.7 s each) and 4.0 s of policy time per episode. The plans keep contact-free
             margins (centres 0.29 m from obstacles, 0.58 m apart), not ``shield_margin``, which
             would cost 3-5 % of the hold: the smallest gaps were 2-4 cm between robots and 1.2 cm
@@ -979,8 +980,8 @@ class CBSRRTExpert:
     def _lattice_cells(self, k: int, k_end: int) -> float:
         """About how many cells the largest of the followers' lattices from ``k`` to ``k_end`` has."""
         assert self._slot_course is not None
-        span = np.ptp(self._slot_course[k : k_end + 1], axis=0).max(axis=0) + 2.0 * GRID_MARGIN  # (2,) m
-        return float(np.prod(span / _PLAN_PITCH + 1.0))
+        course = self._slot_course[k : k_end + 1]
+        return float(max(nx * ny for _, nx, ny in (Lattice.extent(course[:, i], _PLAN_PITCH) for i in range(course.shape[1]))))
 
     def _evade(self, state: WorldState, twist: np.ndarray) -> np.ndarray:
         """``twist`` with the robots that a human would reach within ``evade_horizon`` (were they
