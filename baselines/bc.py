@@ -568,7 +568,7 @@ def train_bc(cfg: BCConfig) -> Path:
         _write_csv(out / "eval.csv", EVAL_COLUMNS, eval_rows)
     plot_bc_curve(log_rows, out / "learning_curve.png", title=f"BC of {cfg.expert} on {cfg.scenario} (seed {cfg.seed})")
     try:
-        from swarm_env_baselines.train import package_versions
+        from swarm_env_baselines.options import package_versions
 
         versions: dict[str, Any] = package_versions()
     except ImportError:  # the training module is optional for BC

@@ -18,7 +18,6 @@ Data split used by the shipped baselines (``scenario="random"``):
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 from dataclasses import dataclass, field
@@ -27,8 +26,9 @@ from typing import Any
 
 from swarm_env.harness.leaderboard import parse_seeds
 from swarm_env.jsonio import dumps
+from swarm_env_baselines.options import add_dataclass_options, field_help, int_arg
 
-__all__ = ["NET_ARCH", "TrainConfig", "field_help", "parse_seeds", "policy_kwargs"]
+__all__ = ["NET_ARCH", "TrainConfig", "add_dataclass_options", "field_help", "int_arg", "parse_seeds", "policy_kwargs"]
 
 #: Network shared by every follower (actor and critic each get this MLP); BC uses the same.
 NET_ARCH: tuple[int, ...] = (128, 128)
@@ -139,75 +139,3 @@ class TrainConfig:
         if unknown:
             raise ValueError(f"{path}: unknown config keys {unknown}; expected some of {sorted(known)}")
         return cls(**data)
-
-
-def field_help(cls: type = TrainConfig) -> dict[str, str]:
-    """The ``#:`` comment above each dataclass field, by field name (the CLI help text)."""
-    import inspect
-
-    lines = inspect.getsource(cls).splitlines()
-    helps: dict[str, str] = {}
-    pending: list[str] = []
-    for line in lines:
-        stripped = line.strip()
-        if stripped.startswith("#:"):
-            pending.append(stripped[2:].strip())
-            continue
-        name = stripped.split(":", 1)[0]
-        if pending and name.isidentifier():
-            helps[name] = " ".join(pending)
-        pending = []
-    return helps
-
-
-def int_arg(text: str) -> int:
-    """An integer option that may be written as 2e6 or 2_000_000."""
-    import argparse
-
-    try:
-        value = float(text.replace("_", ""))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
-    if not value.is_integer():
-        raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}")
-    return int(value)
-
-
-def add_dataclass_options(parser: argparse.ArgumentParser, cls: type, *, required: tuple[str, ...] = ()) -> None:
-    """One option per field of the dataclass ``cls`` (``total_steps`` -> ``--total-steps``).
-
-    Help text = the field's ``#:`` comment plus its default; options left out
-    are absent from the parsed namespace (``argparse.SUPPRESS``), so the
-    dataclass's own defaults apply. Bools get ``--x/--no-x``, ints accept
-    ``2e6``, tuples take several ints, and a field named ``env_kwargs`` (``x_env_kwargs``)
-    becomes a repeatable ``--env KEY=VALUE`` (``--x-env``; YAML values) collected as a list of pairs.
-    """
-    import argparse
-
-    from swarm_env.harness.cli import parse_env_item
-
-    def env_item(text: str) -> tuple[str, Any]:
-        try:
-            return parse_env_item(text)
-        except ValueError as exc:
-            raise argparse.ArgumentTypeError(str(exc)) from None
-
-    helps = field_help(cls)
-    for f in dataclasses.fields(cls):
-        flag = "--" + f.name.replace("_", "-")
-        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()  # type: ignore[misc]
-        shown = list(default) if isinstance(default, tuple) else default
-        kwargs: dict[str, Any] = {"help": f"{helps.get(f.name, '')} (default: {shown})", "default": argparse.SUPPRESS}
-        if f.name.endswith("env_kwargs"):  # env_kwargs -> --env, train_env_kwargs -> --train-env
-            env_flag = "--" + f.name[: -len("_kwargs")].replace("_", "-")
-            parser.add_argument(env_flag, dest=f.name, type=env_item, action="append", metavar="KEY=VALUE", **kwargs)
-        elif isinstance(default, bool):
-            parser.add_argument(flag, action=argparse.BooleanOptionalAction, **kwargs)
-        elif isinstance(default, int):
-            parser.add_argument(flag, type=int_arg, **kwargs)
-        elif isinstance(default, float):
-            parser.add_argument(flag, type=float, **kwargs)
-        elif isinstance(default, tuple):
-            parser.add_argument(flag, type=int, nargs="+", **kwargs)
-        else:
-            parser.add_argument(flag, type=str, required=f.name in required, **kwargs)

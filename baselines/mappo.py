@@ -63,10 +63,12 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import functools
 import json
+import os
+import re
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -76,13 +78,12 @@ import numpy as np
 from swarm_env.jsonio import dumps, write_json
 from swarm_env_baselines.mappo_policy import MAPPOPolicy, ResidualPolicy, residual_action, save_run_policy
 from swarm_env_baselines.ppo_core import RunningMeanStd, gae, mlp, ppo_policy_loss
+from swarm_env_baselines.validation import EVAL_COLUMNS
 
-#: Model selection: a collision costs as much as this many metres of mean formation error.
-COLLISION_COST_M = 1.0
-EVAL_COLUMNS = ("agent_steps", "wall_s", "score", "formation_error", "formation_error_ci95", "collisions",
-                "collisions_ci95", "success_rate")
-TRAIN_COLUMNS = ("agent_steps", "wall_s", "rollout_s", "update_s", "policy_loss", "value_loss", "imitation_loss",
-                 "entropy", "std", "mean_reward", "contacts_per_agent_step", "intervention_rate", "first_ratio_error")
+TRAIN_COLUMNS = ("agent_steps", "wall_s", "rollout_s", "update_s", "agent_steps_per_s", "policy_loss", "value_loss",
+                 "imitation_loss", "entropy", "approx_kl", "clip_fraction", "explained_variance", "std", "mean_reward",
+                 "episodes", "episode_return", "collisions_per_episode", "episode_formation_error",
+                 "contacts_per_agent_step", "intervention_rate", "first_ratio_error")
 SHIELD_MODES = ("off", "teach", "execute")
 
 
@@ -166,6 +167,11 @@ class MAPPOConfig:
     eval_workers: int = 0
     #: Torch threads (1 is fastest for these small networks).
     torch_threads: int = 1
+    #: Where the networks and the update run: cpu, or cuda / cuda:K when torch sees a GPU (the rollout's
+    #: engine is on the CPU either way; bits differ between devices).
+    device: str = "cpu"
+    #: Write TensorBoard scalars under <run dir>/tb beside train.csv and eval.csv.
+    tensorboard: bool = True
     #: Save a resumable checkpoint (checkpoint/) every this many PPO updates (0: only after the warm start, on
     #: SIGINT/SIGTERM and at the end).
     checkpoint_every: int = 10
@@ -206,6 +212,8 @@ class MAPPOConfig:
             raise ValueError("a residual policy's experts read the worlds in the training process: use --env-procs 1")
         if self.residual and self.pretrain != "none":
             raise ValueError("a residual policy starts from its expert (zero correction): use --pretrain none")
+        if not isinstance(self.device, str) or not re.fullmatch(r"cpu|cuda(:\d+)?", self.device):
+            raise ValueError(f"device must be cpu, cuda or cuda:K, got {self.device!r}")
         self.hidden = tuple(int(h) for h in self.hidden)
 
     @property
@@ -216,7 +224,7 @@ class MAPPOConfig:
         return dumps(dataclasses.asdict(self))
 
 
-# --------------------------------------------------------------------------- evaluation
+# --------------------------------------------------------------------------- worlds and validation
 
 
 def _world_factory(cfg: MAPPOConfig, shielded: bool) -> Any:
@@ -227,33 +235,24 @@ def _world_factory(cfg: MAPPOConfig, shielded: bool) -> Any:
 
 def make_env(cfg: MAPPOConfig, shielded: bool) -> Any:
     """One training world: a SwarmEnv of the run's scenario (``env_kwargs`` then ``train_env_kwargs``),
-    wrapped in the safety layer if ``shielded`` (what each world of :func:`make_engine` is)."""
+    wrapped in the safety layer if ``shielded`` (what each world of :func:`make_worlds` is)."""
     return _world_factory(cfg, shielded)()
 
 
-def make_engine(cfg: MAPPOConfig) -> Any:
-    """The training worlds: a :class:`~swarm_env.vector.SwarmVectorEnv` of ``n_copies`` :func:`make_env`
+def make_worlds(cfg: MAPPOConfig) -> Any:
+    """The training worlds: :class:`~swarm_env_baselines.worlds.TrainingWorlds` of ``n_copies`` :func:`make_env`
     worlds (shielded for ``shield="execute"``), their physics in ``env_procs`` processes (1: this one)."""
-    from swarm_env.vector import SwarmVectorEnv
+    from swarm_env_baselines.worlds import TrainingWorlds
 
-    return SwarmVectorEnv.from_factories([_world_factory(cfg, cfg.shield == "execute")] * cfg.n_copies,
-                                         n_procs=cfg.env_procs)
+    return TrainingWorlds(_world_factory(cfg, cfg.shield == "execute"), cfg.n_copies, cfg.env_procs)
 
 
 def evaluate(policy: MAPPOPolicy, cfg: MAPPOConfig, seeds: list[int]) -> dict[str, Any]:
-    """Score ``policy`` on ``seeds`` with the leaderboard's episode loop, through the shield when the run
-    executes through it (``shield="execute"``); ``score`` is formation error + 1 m per collision."""
-    from swarm_env.env import SwarmEnv
-    from swarm_env.harness.evaluation import run_episode, summarize
-    from swarm_env.harness.policies import ShieldedPolicy
+    """Score ``policy`` on ``seeds`` (:func:`swarm_env_baselines.validation.evaluate_policy`) in the run's
+    validation worlds (``env_kwargs``), through the shield when the run executes through it."""
+    from swarm_env_baselines.validation import evaluate_policy
 
-    env = SwarmEnv(cfg.scenario, **cfg.env_kwargs)
-    scored: Any = ShieldedPolicy.around(policy) if cfg.shield == "execute" else policy
-    episodes = [run_episode(env, scored, s) for s in seeds]
-    env.close()
-    s = summarize(episodes)
-    s["score"] = s["formation_error"]["mean"] + COLLISION_COST_M * s["collisions"]["mean"]
-    return s
+    return evaluate_policy(policy, cfg.scenario, cfg.env_kwargs, seeds, shielded=cfg.shield == "execute")
 
 
 def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str, Any]:
@@ -272,68 +271,75 @@ def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str,
     return evaluate(policy, cfg, seeds)
 
 
-def _replace_dir(src: Path, dst: Path) -> None:
-    """Make ``dst`` a copy of ``src``, swapped in whole (a reader never sees half a model)."""
-    import shutil
-
-    from swarm_env_baselines.safe_io import swap_in_dir
-
-    tmp = dst.with_name(f".{dst.name}.tmp")
-    shutil.rmtree(tmp, ignore_errors=True)
-    shutil.copytree(src, tmp)
-    swap_in_dir(tmp, dst)
-
-
 # --------------------------------------------------------------------------- training
 
 
 @dataclass
 class Batch:
-    """One rollout of ``T`` steps of ``B = copies x followers`` agents, as the update needs it."""
+    """One rollout of ``T`` steps of ``M`` worlds of ``N`` followers, as the update needs it.
 
-    actor_in: np.ndarray  # (T, B, D) actor inputs, normalised as when the actions were drawn
-    critic_in: list[Any]  # T tensors (B, C)
-    actions: np.ndarray  # (T, B, 2) sampled actions (before clipping)
-    logp: np.ndarray  # (T, B)
-    values: np.ndarray  # (T, B)
-    rewards: np.ndarray  # (T, B) scaled, bootstraps folded in
-    dones: np.ndarray  # (T, B)
-    safe: np.ndarray  # (T, B, 2) the shield's actions (teach/execute)
-    intervened: np.ndarray  # (T, B) float 0/1
+    Arrays keep the ``(T, M, ...)`` axes: the critic's global state is stored once per world-step,
+    and the update's minibatches are sets of world-steps (each with its ``N`` followers)."""
+
+    obs: np.ndarray  # (T, M, N, D) actor inputs, normalised as when the actions were drawn
+    states: np.ndarray  # (T, M, S) critic states, normalised likewise (S = 1 and unused for IPPO)
+    actions: np.ndarray  # (T, M, N, 2) sampled actions (before clipping)
+    logp: np.ndarray  # (T, M, N)
+    values: np.ndarray  # (T, M, N)
+    rewards: np.ndarray  # (T, M, N) scaled, truncation bootstraps folded in
+    dones: np.ndarray  # (T, M) the world's episode ended after this step
+    safe: np.ndarray  # (T, M, N, 2) the shield's actions (teach/execute)
+    intervened: np.ndarray  # (T, M, N) float 0/1
     contacts: int = 0
+    #: The episodes that ended in this rollout: their return (raw reward summed, mean over followers)
+    #: and final metrics (collisions, formation error).
+    episode_returns: list[float] = field(default_factory=list)
+    episode_metrics: list[dict[str, Any]] = field(default_factory=list)
 
     @classmethod
-    def empty(cls, t: int, b: int, d: int) -> Batch:
-        return cls(np.zeros((t, b, d), np.float32), [], np.zeros((t, b, 2), np.float32), np.zeros((t, b), np.float32),
-                   np.zeros((t, b)), np.zeros((t, b)), np.zeros((t, b)), np.zeros((t, b, 2), np.float32),
-                   np.zeros((t, b), np.float32))
+    def empty(cls, t: int, m: int, n: int, d: int, s: int) -> Batch:
+        f32 = np.float32
+        return cls(np.zeros((t, m, n, d), f32), np.zeros((t, m, s), f32), np.zeros((t, m, n, 2), f32),
+                   np.zeros((t, m, n), f32), np.zeros((t, m, n), f32), np.zeros((t, m, n)), np.zeros((t, m)),
+                   np.zeros((t, m, n, 2), f32), np.zeros((t, m, n), f32))
 
 
 class Trainer:
     """The state of one run: the worlds (one :class:`~swarm_env.vector.SwarmVectorEnv` of ``n_copies``
-    worlds), networks, statistics; :meth:`collect` then :meth:`update`."""
+    worlds), networks, statistics; :meth:`collect` then :meth:`update`.
+
+    Every array of the rollout has the worlds and followers as axes ``(M, N)``: one actor and one
+    critic forward per step for all agents, the rewards, return statistics and bootstraps over whole
+    arrays; Python loops over worlds remain only where an expert or the teaching shield reads each
+    world's state (``residual``, ``shield="teach"``)."""
 
     def __init__(self, cfg: MAPPOConfig, run_dir: Path) -> None:
         import torch
+
+        from swarm_env_baselines.nets import make_critic
 
         self.cfg = cfg
         self.run_dir = run_dir
         torch.set_num_threads(cfg.torch_threads)
         torch.manual_seed(cfg.seed)
         torch.use_deterministic_algorithms(True)
-        self.gen = torch.Generator().manual_seed(cfg.seed)
-        self.venv = make_engine(cfg)
+        self.gen = torch.Generator().manual_seed(cfg.seed)  # on the CPU whatever the device: the same draws
+        self.device = _torch_device(cfg.device)
+        self.worlds = make_worlds(cfg)
+        self.venv = self.worlds.venv
         self.agents = list(self.venv.possible_agents)
         self.n, self.m = self.venv.num_agents, cfg.n_copies
         self.obs_dim = self.venv.single_observation_space.shape[0] + (2 if cfg.residual else 0)
         self.state_dim = self.venv.state_space.shape[0] if cfg.critic == "central" else 0
         self.actor = mlp([self.obs_dim, *cfg.hidden, 2])
-        self.log_std = torch.nn.Parameter(torch.full((2,), float(cfg.log_std_init)))
-        self.critic = mlp([self.obs_dim + self.state_dim, *cfg.hidden, 1])
+        self.critic = make_critic(self.state_dim, self.obs_dim, cfg.hidden)
         if cfg.residual:  # start at the expert: a zero correction
             with torch.no_grad():
                 self.actor[-1].weight.mul_(0.01)
                 self.actor[-1].bias.zero_()
+        self.actor.to(self.device)
+        self.critic.to(self.device)
+        self.log_std = torch.nn.Parameter(torch.full((2,), float(cfg.log_std_init), device=self.device))
         self.obs_rms = RunningMeanStd((self.obs_dim,))
         self.state_rms = RunningMeanStd((max(self.state_dim, 1),))
         self.ret_rms = RunningMeanStd(())
@@ -352,6 +358,16 @@ class Trainer:
                                                  side_bias=cfg.teach_side_bias)
         self.pretrain_log: list[dict[str, float]] = []
 
+    def _tensor(self, x: np.ndarray) -> Any:
+        """A numpy array as a tensor on the training device (no copy on the CPU)."""
+        import torch
+
+        return torch.from_numpy(x).to(self.device)
+
+    def parameters(self) -> list[Any]:
+        """Everything the optimiser trains: the actor, its log standard deviation, the critic."""
+        return [*self.actor.parameters(), self.log_std, *self.critic.parameters()]
+
     def _world_envs(self, indices: list[int] | None = None) -> list[Any]:
         """The worlds' own ``SwarmEnv`` objects (what an expert's ``reset(env, seed)`` takes)."""
         return self.venv.get_attr("unwrapped", indices)
@@ -369,28 +385,28 @@ class Trainer:
         env.close()
 
     # ---------------------------------------------------------------- rollouts
-    def _inputs(self, k: int, obs: np.ndarray, world_state: Any) -> np.ndarray:
-        """Actor inputs (N, D) of copy ``k`` from its observations ``obs`` (N, obs_dim): the observations,
-        and for a residual the expert's actions in ``world_state`` (kept in ``base_actions``)."""
+    def _inputs(self, obs: np.ndarray, worlds: list[int], world_states: list[Any] | None) -> np.ndarray:
+        """Actor inputs ``(K, N, D)`` of the worlds ``worlds`` from their observations ``obs`` ``(K, N, obs_dim)``:
+        the observations, and for a residual the expert's actions in ``world_states`` (kept in ``base_actions``)."""
         if not self.cfg.residual:
             return obs
-        # The expert's protocol takes observations by agent (it reads only their names).
-        base = self.experts[k].act({a: obs[i] for i, a in enumerate(self.agents)}, world_state)
-        self.base_actions[k] = np.stack([base[a] for a in self.agents])
-        return np.concatenate([obs, self.base_actions[k]], axis=1)
+        assert world_states is not None
+        for j, k in enumerate(worlds):  # the expert's protocol takes observations by agent (it reads their names)
+            base = self.experts[k].act({a: obs[j, i] for i, a in enumerate(self.agents)}, world_states[j])
+            self.base_actions[k] = np.stack([base[a] for a in self.agents])
+        return np.concatenate([obs, self.base_actions[worlds]], axis=2)
 
-    def _world_states(self) -> list[Any]:
-        """Every world's current WorldState when an expert needs them (residual), else Nones."""
-        return self.venv.call("world_state") if self.cfg.residual else [None] * self.m
+    def _world_states(self) -> list[Any] | None:
+        """Every world's current WorldState when an expert needs them (residual), else None."""
+        return self.venv.call("world_state") if self.cfg.residual else None
 
     def start(self) -> None:
         """Start the first episode of every world (world ``k`` from seed ``100 * seed + k``)."""
         self._allocate()
-        obs, _ = self.venv.reset(seed=100 * self.cfg.seed)
-        states = self._world_states()
-        for k, start in enumerate(self.venv.episode_starts()):
-            self._begin_episode(k, start, obs[k], states[k])
+        obs = self.worlds.reset(seed=100 * self.cfg.seed)
+        self._begin_episodes(list(range(self.m)), obs)
         self._read_states()
+        self._update_statistics(self.inputs, self.states)  # the first rollout is normalised by its first step
 
     def _allocate(self) -> None:
         m, n = self.m, self.n
@@ -398,61 +414,72 @@ class Trainer:
         self.inputs = np.zeros((m, n, self.obs_dim), np.float32)
         self.states = np.zeros((m, max(self.state_dim, 1)), np.float32)
         self.returns = np.zeros((m, n))
-        # What a checkpoint needs to rebuild each world as it is now (see :meth:`restore`): how its episode
-        # began (the engine's episode_starts), and every action the world has executed since.
-        self.episode_starts: list[dict[str, Any]] = [{} for _ in range(m)]
-        self.episode_actions: list[list[np.ndarray]] = [[] for _ in range(m)]
+        self.episode_return = np.zeros(m)  # the running episode's raw reward, mean over followers
 
-    def _begin_episode(self, k: int, start: dict[str, Any], obs: np.ndarray, world_state: Any) -> None:
-        """World ``k`` has begun an episode as ``start`` says (the engine's :meth:`episode_starts` entry), with
-        first observations ``obs``: reset its expert and its inputs, forget the last episode's actions."""
-        if self.experts:
-            self.experts[k].reset(self._world_envs([k])[0], None)
-        self.episode_starts[k], self.episode_actions[k] = start, []
-        self.inputs[k] = self._inputs(k, obs, world_state)
+    def _begin_episodes(self, worlds: list[int], obs: np.ndarray) -> None:
+        """The worlds ``worlds`` have begun an episode, with first observations ``obs`` ``(K, N, obs_dim)``:
+        reset their experts and inputs."""
+        envs = self._world_envs(worlds) if self.experts else []
+        for k, env in zip(worlds, envs):
+            self.experts[k].reset(env, None)
+        self.inputs[worlds] = self._inputs(obs, worlds, None if not self.experts else
+                                           [e.world_state() for e in envs])
 
     def _read_states(self) -> None:
         if self.state_dim:
             self.states[:] = self.venv.state()
 
-    def critic_input(self, inputs: np.ndarray, states: np.ndarray) -> Any:
+    def _normalised(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current inputs ``(M, N, D)`` and states ``(M, S)``, normalised by the current statistics."""
+        return self.obs_rms.normalize(self.inputs), self.state_rms.normalize(self.states)
+
+    def value(self, obs: np.ndarray, states: np.ndarray) -> np.ndarray:
+        """The critic's values ``(K, N)`` of normalised inputs ``(K, N, D)`` and states ``(K, S)``."""
         import torch
 
-        x = self.obs_rms.normalize(inputs).reshape(-1, self.obs_dim)
-        if self.state_dim:
-            x = np.concatenate([np.repeat(self.state_rms.normalize(states), self.n, axis=0), x], axis=1)
-        return torch.as_tensor(x)
+        with torch.no_grad():
+            return self.critic(self._tensor(states), self._tensor(obs)).cpu().numpy()
 
     def collect(self) -> Batch:
-        """One rollout of ``n_steps`` steps of every world, one engine step each."""
+        """One rollout of ``n_steps`` steps of every world: per step one engine step and one actor forward
+        for every agent; the values and log-probabilities of the whole rollout are then one forward each."""
         import torch
 
         cfg, m, n = self.cfg, self.m, self.n
-        batch = Batch.empty(cfg.n_steps, m * n, self.obs_dim)
+        batch = Batch.empty(cfg.n_steps, m, n, self.obs_dim, max(self.state_dim, 1))
+        means = torch.zeros((cfg.n_steps, m, n, 2))
+        raw_obs = np.zeros((cfg.n_steps, m, n, self.obs_dim), np.float32)
+        raw_states = np.zeros((cfg.n_steps, m, max(self.state_dim, 1)), np.float32)
         for t in range(cfg.n_steps):
-            self.obs_rms.update(self.inputs.reshape(-1, self.obs_dim))
-            if self.state_dim:
-                self.state_rms.update(self.states)
-            x = torch.as_tensor(self.obs_rms.normalize(self.inputs).reshape(-1, self.obs_dim))
-            cin = self.critic_input(self.inputs, self.states)
+            raw_obs[t], raw_states[t] = self.inputs, self.states
+            batch.obs[t], batch.states[t] = self._normalised()
             with torch.no_grad():
-                mean = self.actor(x)
-                std = self.log_std.exp().expand_as(mean)
-                action = mean + std * torch.randn(mean.shape, generator=self.gen)
-                logp = torch.distributions.Normal(mean, std).log_prob(action).sum(-1)
-                value = self.critic(cin).squeeze(-1)
-            batch.actor_in[t], batch.actions[t], batch.logp[t], batch.values[t] = x.numpy(), action.numpy(), logp.numpy(), value.numpy()
-            batch.critic_in.append(cin)
-            sampled = np.clip(action.numpy(), -1.0, 1.0).reshape(m, n, 2)
+                mean = self.actor(self._tensor(batch.obs[t])).cpu()
+                action = mean + self.log_std.exp().cpu() * torch.randn(mean.shape, generator=self.gen)
+            means[t], batch.actions[t] = mean, action.numpy()
+            sampled = np.clip(batch.actions[t], -1.0, 1.0)
             env_action = residual_action(self.base_actions, sampled, cfg.residual_scale) if cfg.residual else sampled
             self._step_worlds(env_action, batch, t)
+        with torch.no_grad():  # the networks did not change during the rollout: one large forward each
+            dist = torch.distributions.Normal(means, self.log_std.exp().cpu().expand_as(means))
+            batch.logp[:] = dist.log_prob(torch.from_numpy(batch.actions)).sum(-1).numpy()
+        batch.values[:] = self.value(batch.obs, batch.states)
+        self._update_statistics(raw_obs, raw_states)
         return batch
+
+    def _update_statistics(self, inputs: np.ndarray, states: np.ndarray) -> None:
+        """Move the input and state statistics by a rollout's raw inputs ``(..., D)`` and states ``(..., S)``.
+
+        Once per rollout (as RLlib's filters are synchronised once per iteration), not per step: the inputs
+        of a rollout are all normalised by the statistics of the rollouts before it, and the update sees
+        them as they were normalised when the actions were drawn."""
+        self.obs_rms.update(inputs.reshape(-1, self.obs_dim))
+        if self.state_dim:
+            self.state_rms.update(states.reshape(-1, self.state_dim))
 
     def _step_worlds(self, action: np.ndarray, batch: Batch, t: int) -> None:
         """Step every world with ``action`` (M, N, 2) and write row ``t`` of ``batch``."""
-        import torch
-
-        cfg, m, n = self.cfg, self.m, self.n
+        cfg = self.cfg
         correction = None
         if cfg.shield == "teach":  # the safe action nearest to each sampled one, in the state it was sampled in
             from swarm_env.safety import shield_actions
@@ -460,88 +487,97 @@ class Trainer:
             corrections = []
             for k, state in enumerate(self.venv.call("world_state")):
                 res = shield_actions(state, action[k], self.shield_params)
-                cols = slice(k * n, (k + 1) * n)
-                batch.safe[t, cols], batch.intervened[t, cols] = res.actions, res.intervened
+                batch.safe[t, k], batch.intervened[t, k] = res.actions, res.intervened
                 corrections.append(res.correction)
-            correction = np.stack(corrections)  # the shield's own dtype, as the penalty always had it
-        obs, rew, terms, truncs, infos = self.venv.step(action)
-        for k in range(m):
-            self.episode_actions[k].append(np.array(action[k]))
+            correction = np.stack(corrections)
+        obs, rew, terms, truncs, infos = self.worlds.step(action)
         if cfg.shield == "execute":
-            # float64 as the per-agent infos' Python floats were: the penalty below keeps its bits.
             correction = infos["shield_correction"].astype(np.float64)
-            batch.safe[t] = infos["shield_action"].reshape(m * n, 2)
-            batch.intervened[t] = (correction > 0).reshape(m * n)
+            batch.safe[t] = infos["shield_action"]
+            batch.intervened[t] = correction > 0
         if correction is not None and cfg.intervention_coef:
             rew = rew - cfg.intervention_coef * correction
         batch.contacts += int(sum(infos[f"contacts_{g}"].sum() for g in ("robot", "obstacle", "human", "wall")))
+        # The return-scale statistics: one update per step over every agent of every world.
+        self.returns = self.returns * cfg.gamma + rew
+        self.ret_rms.update(self.returns)
+        scaled = np.clip(rew / np.sqrt(self.ret_rms.var + self.ret_rms.epsilon), -10.0, 10.0)
+        self.episode_return += rew.mean(axis=1)
         done = terms | truncs
-        states = self._world_states()
-        starts = self.venv.episode_starts() if done.any() else None
-        # The return-scale statistics move world by world, in world order: each world's rewards are scaled
-        # by the statistics after its own update (as when the worlds were stepped one by one).
-        for k in range(m):
-            cols = slice(k * n, (k + 1) * n)
-            self.returns[k] = self.returns[k] * cfg.gamma + rew[k]
-            self.ret_rms.update(self.returns[k])
-            scaled = np.clip(rew[k] / np.sqrt(self.ret_rms.var + self.ret_rms.epsilon), -10.0, 10.0)
-            if done[k]:
-                if truncs[k] and not terms[k]:  # bootstrap a cut-off episode from its last state
-                    last_in = self._inputs(k, infos["final_obs"][k], infos["final_world_state"][k])
-                    last_state = infos["final_state"][k] if self.state_dim else np.zeros(1, np.float32)
-                    with torch.no_grad():
-                        scaled = scaled + cfg.gamma * self.critic(
-                            self.critic_input(last_in[None], last_state[None])).squeeze(-1).numpy()
-                self.returns[k] = 0.0
-                assert starts is not None
-                self._begin_episode(k, starts[k], obs[k], states[k])  # the engine's auto-reset: the stream goes on
-            else:
-                self.inputs[k] = self._inputs(k, obs[k], states[k])
-            batch.rewards[t, cols] = scaled
-            batch.dones[t, cols] = float(done[k])
+        ended = np.flatnonzero(done).tolist()
+        if ended:
+            cut = [k for k in ended if not terms[k]]
+            if cut:  # bootstrap the cut-off episodes from the value of their last state, in one critic call
+                finals = self._inputs(np.stack([infos["final_obs"][k] for k in cut]), cut,
+                                      [infos["final_world_state"][k] for k in cut] if self.experts else None)
+                last_states = (np.stack([infos["final_state"][k] for k in cut]) if self.state_dim
+                               else np.zeros((len(cut), 1), np.float32))
+                scaled[cut] += cfg.gamma * self.value(self.obs_rms.normalize(finals),
+                                                      self.state_rms.normalize(last_states))
+            self.returns[ended] = 0.0
+            batch.episode_returns += self.episode_return[ended].tolist()
+            batch.episode_metrics += [infos["final_metrics"][k] for k in ended]
+            self.episode_return[ended] = 0.0
+        batch.rewards[t] = scaled
+        batch.dones[t] = done
+        running = np.flatnonzero(~done).tolist()
+        if running:
+            self.inputs[running] = self._inputs(obs[running], running, self._world_states_of(running))
+        if ended:  # the engine's auto-reset: the worlds' streams go on
+            self._begin_episodes(ended, obs[ended])
         self._read_states()
+
+    def _world_states_of(self, worlds: list[int]) -> list[Any] | None:
+        return self.venv.call("world_state", indices=worlds) if self.experts else None
 
     # ---------------------------------------------------------------- update
     def update(self, batch: Batch, optim: Any, update_index: int, n_updates: int) -> dict[str, float]:
-        """PPO epochs over the rollout (critic only during the warm-up updates)."""
+        """PPO epochs over the rollout (critic only during the warm-up updates). Minibatches are world-steps,
+        each with its ``N`` followers (the critic's state part is computed once per world-step)."""
         import torch
 
+        from swarm_env_baselines.ppo_core import explained_variance, ratio_stats
+
         cfg = self.cfg
-        with torch.no_grad():
-            last_val = self.critic(self.critic_input(self.inputs, self.states)).squeeze(-1).numpy()
-        adv = gae(batch.rewards, batch.values, batch.dones, last_val, cfg.gamma, cfg.gae_lambda)
+        T, m, n = batch.dones.shape[0], self.m, self.n
+        last_val = self.value(*self._normalised())
+        dones = np.repeat(batch.dones[:, :, None], n, axis=2)
+        adv = gae(batch.rewards.reshape(T, -1), batch.values.reshape(T, -1), dones.reshape(T, -1),
+                  last_val.reshape(-1), cfg.gamma, cfg.gae_lambda).reshape(T, m, n)
         ret = adv + batch.values
-        b_x = torch.as_tensor(batch.actor_in.reshape(-1, self.obs_dim))
-        b_c = torch.cat(batch.critic_in)
-        b_a = torch.as_tensor(batch.actions.reshape(-1, 2))
-        b_logp = torch.as_tensor(batch.logp.reshape(-1))
-        b_adv = torch.as_tensor(adv.reshape(-1), dtype=torch.float32)
-        b_ret = torch.as_tensor(ret.reshape(-1), dtype=torch.float32)
-        b_safe = torch.as_tensor(batch.safe.reshape(-1, 2))
-        b_int = torch.as_tensor(batch.intervened.reshape(-1))
+        size = T * m
+        b_x = self._tensor(batch.obs.reshape(size, n, self.obs_dim))
+        b_s = self._tensor(batch.states.reshape(size, -1))
+        b_a = self._tensor(batch.actions.reshape(size, n, 2))
+        b_logp = self._tensor(batch.logp.reshape(size, n))
+        b_adv = self._tensor(adv.reshape(size, n).astype(np.float32))
+        b_ret = self._tensor(ret.reshape(size, n).astype(np.float32))
+        b_safe = self._tensor(batch.safe.reshape(size, n, 2))
+        b_int = self._tensor(batch.intervened.reshape(size, n))
         im_coef = cfg.imitation_coef
         if cfg.imitation_anneal:
             im_coef *= max(0.0, 1.0 - update_index / (cfg.imitation_anneal * n_updates))
         actor_learns = update_index >= cfg.critic_warmup
-        params = [*self.actor.parameters(), self.log_std, *self.critic.parameters()]
-        size = b_x.shape[0]
+        params = self.parameters()
         mb = max(1, size // cfg.n_minibatches)
         stats = []
         ratio0 = None  # the first minibatch's |ratio - 1|: 0 before any update (checked by the tests)
         for _epoch in range(cfg.n_epochs):
             order = torch.randperm(size, generator=self.gen)
             for start in range(0, size, mb):
-                idx = order[start:start + mb]
+                idx = order[start:start + mb].to(self.device)
                 mean = self.actor(b_x[idx])
                 dist = torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
-                pg, ratio_err = ppo_policy_loss(dist.log_prob(b_a[idx]).sum(-1), b_logp[idx], b_adv[idx], cfg.clip_range)
+                pg, ratio = ppo_policy_loss(dist.log_prob(b_a[idx]).sum(-1).reshape(-1), b_logp[idx].reshape(-1),
+                                            b_adv[idx].reshape(-1), cfg.clip_range)
+                ratio_err, kl, clipped = ratio_stats(ratio, cfg.clip_range)
                 if ratio0 is None:
                     ratio0 = ratio_err
-                v_loss = 0.5 * (self.critic(b_c[idx]).squeeze(-1) - b_ret[idx]).pow(2).mean()
+                v_loss = 0.5 * (self.critic(b_s[idx], b_x[idx]) - b_ret[idx]).pow(2).mean()
                 entropy = dist.entropy().sum(-1).mean()
                 # The imitation term averages over the whole minibatch (zero where the shield let the action
                 # pass), so its weight relative to PPO's loss is the intervention rate times imitation_coef.
-                im = (b_int[idx] * (mean - b_safe[idx]).pow(2).sum(-1)).sum() / len(idx)
+                im = (b_int[idx] * (mean - b_safe[idx]).pow(2).sum(-1)).sum() / b_int[idx].numel()
                 loss = cfg.vf_coef * v_loss
                 if actor_learns:
                     loss = loss + pg - cfg.ent_coef * entropy + im_coef * im
@@ -549,20 +585,25 @@ class Trainer:
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
                 optim.step()
-                stats.append((pg.item(), v_loss.item(), im.item(), entropy.item()))
+                stats.append((pg.item(), v_loss.item(), im.item(), entropy.item(), kl, clipped))
         s = np.mean(stats, axis=0)
         return {"policy_loss": s[0], "value_loss": s[1], "imitation_loss": s[2], "entropy": s[3],
+                "approx_kl": s[4], "clip_fraction": s[5],
+                "explained_variance": explained_variance(batch.values.ravel(), ret.ravel()),
                 "std": float(self.log_std.detach().exp().mean()), "first_ratio_error": ratio0 or 0.0}
 
     # ---------------------------------------------------------------- outputs
     def policy(self) -> MAPPOPolicy:
         """The current actor as a deterministic policy (with frozen copies of the statistics)."""
+        import copy
+
+        actor = self.actor if self.device.type == "cpu" else copy.deepcopy(self.actor).cpu()
         if self.cfg.residual:
             from swarm_env.harness.policies import load_policy
 
             expert = load_policy(self.cfg.residual, self._world_envs([0])[0])
-            return ResidualPolicy(self.actor, self.obs_rms.copy(), expert, self.cfg.residual_scale)
-        return MAPPOPolicy(self.actor, self.obs_rms.copy())
+            return ResidualPolicy(actor, self.obs_rms.copy(), expert, self.cfg.residual_scale)
+        return MAPPOPolicy(actor, self.obs_rms.copy())
 
     def save(self, directory: Path) -> Path:
         return save_run_policy(directory, self.actor, self.log_std, self.critic, self.obs_rms, self.state_rms, self.cfg)
@@ -584,25 +625,25 @@ class Trainer:
         tensors["rng.sampling"] = self.gen.get_state()  # actions and minibatch order
         tensors["rng.torch"] = torch.get_rng_state()
         # Kept to check the rebuilt worlds against (restore), and because the returns are not rebuilt.
+        tensors = {k: v.cpu() for k, v in tensors.items()}
         tensors["rollout.inputs"] = torch.from_numpy(self.inputs.copy())
         tensors["rollout.states"] = torch.from_numpy(self.states.copy())
         tensors["rollout.returns"] = torch.from_numpy(self.returns.copy())
-        for k, actions in enumerate(self.episode_actions):
-            if actions:
-                tensors[f"episode.{k}.actions"] = torch.from_numpy(np.stack(actions))
+        tensors["rollout.episode_return"] = torch.from_numpy(self.episode_return.copy())
+        arrays, starts = self.worlds.checkpoint()
+        tensors.update({k: torch.from_numpy(v) for k, v in arrays.items()})
         stats = {name: {**rms.to_json(), "frozen": rms.frozen}
                  for name, rms in (("obs_rms", self.obs_rms), ("state_rms", self.state_rms), ("ret_rms", self.ret_rms))}
-        return tensors, {"optimizer": optim_meta, "statistics": stats, "episode_starts": self.episode_starts}
+        return tensors, {"optimizer": optim_meta, "statistics": stats, "episode_starts": starts}
 
     def restore(self, tensors: dict[str, Any], meta: dict[str, Any], optim: Any, source: Path) -> None:
         """Load a :meth:`checkpoint_state` (read from ``source``, named in errors) into this fresh trainer.
 
-        The worlds cannot be saved mid-episode (their physics lives in pymunk), so each is rebuilt: a
-        fresh env (:func:`make_env`) is reset as the world's episode began (the seed, or the world
-        generator's state) and every action it executed since is played again, with its expert; the
-        env is deterministic, so the world, its observations and the expert come back as they were, and
-        it takes the world's place in the engine (:meth:`~swarm_env.vector.SwarmVectorEnv.set_world`).
-        The rebuilt inputs are checked against the saved ones.
+        The worlds cannot be saved mid-episode (their physics lives in pymunk), so each is rebuilt by
+        :meth:`~swarm_env_baselines.worlds.TrainingWorlds.restore` (reset as its episode began, its actions
+        played again) with its expert following it; the env is deterministic, so the world, its
+        observations and the expert come back as they were. The rebuilt inputs are checked against the
+        saved ones.
         """
         import torch
 
@@ -623,32 +664,24 @@ class Trainer:
             starts = meta["episode_starts"]
             saved_inputs, saved_states = tensors["rollout.inputs"].numpy(), tensors["rollout.states"].numpy()
             returns = tensors["rollout.returns"].numpy()
+            episode_return = tensors["rollout.episode_return"].numpy()
         except (KeyError, TypeError, ValueError, RuntimeError) as exc:
             raise ValueError(f"{source}: not a checkpoint of this run's networks ({exc})") from None
         optimizer_from_files(optim, tensors, meta["optimizer"], source)
         self._allocate()
-        if len(starts) != self.m or returns.shape != self.returns.shape:
+        if len(starts) != self.m or returns.shape != self.returns.shape or episode_return.shape != (self.m,):
             raise ValueError(f"{source}: the checkpoint has {len(starts)} env copies, this run {self.m}")
         self.returns[:] = returns
-        self.venv.reset(seed=100 * self.cfg.seed)  # every world gets an episode; each is then replaced
-        agents = self.agents
-        for k, start in enumerate(starts):
-            env = make_env(self.cfg, self.cfg.shield == "execute")
-            if start.get("seed") is not None:
-                obs, _ = env.reset(seed=start["seed"])
-            else:
-                _set_world_rng(env, start["rng"])
-                obs, _ = env.reset()
-            if self.experts:
+        self.episode_return[:] = episode_return
+
+        def follow(k: int, env: Any, obs: dict[str, np.ndarray], t: int) -> None:
+            if self.experts and t == 0:
                 self.experts[k].reset(env.unwrapped, None)
-            self.inputs[k] = self._inputs(k, np.stack([obs[a] for a in agents]), env.unwrapped.world_state())
-            actions = tensors.get(f"episode.{k}.actions")
-            for action in ([] if actions is None else actions.numpy()):
-                obs, *_ = env.step({a: action[i] for i, a in enumerate(agents)})
-                self.episode_actions[k].append(np.array(action))
-                self.inputs[k] = self._inputs(k, np.stack([obs[a] for a in agents]), env.unwrapped.world_state())
-            self.episode_starts[k] = start
-            self.venv.set_world(k, env, start)
+            raw = np.stack([obs[a] for a in self.agents])[None]
+            self.inputs[k] = self._inputs(raw, [k], [env.unwrapped.world_state()])[0]
+
+        arrays = {k: v.numpy() for k, v in tensors.items() if k.startswith("episode.")}
+        self.worlds.restore(arrays, starts, 100 * self.cfg.seed, follow)
         self._read_states()
         if not (np.array_equal(self.inputs, saved_inputs) and np.array_equal(self.states, saved_states)):
             import warnings
@@ -657,30 +690,31 @@ class Trainer:
                           "scenario?); training goes on from the rebuilt worlds", stacklevel=2)
 
     def close(self) -> None:
-        self.venv.close()
+        self.worlds.close()
 
 
-def _set_world_rng(env: Any, state: dict[str, Any]) -> None:
-    """Put ``env``'s world generator in ``state`` (an ``episode_starts()`` entry's ``rng`` of the engine)."""
-    bit_generator = getattr(np.random, state["bit_generator"])()
-    bit_generator.state = state
-    env.unwrapped._rng = np.random.Generator(bit_generator)  # noqa: SLF001
+def _torch_device(name: str) -> Any:
+    """``torch.device(name)``, refused with one line if it names a GPU that torch does not see."""
+    import torch
 
-
-def _write_row(path: Path, columns: tuple[str, ...], row: dict[str, Any]) -> None:
-    with open(path, "a", newline="") as fh:  # streamed: readable while the run goes on
-        csv.writer(fh).writerow([row[c] for c in columns])
-
-
-def _fmt(x: Any) -> Any:
-    return f"{x:.6g}" if isinstance(x, float) else x
+    device = torch.device(name)
+    if device.type == "cuda":
+        # cuBLAS's deterministic mode (torch.use_deterministic_algorithms) needs this before its first call.
+        os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
+        if not torch.cuda.is_available():
+            raise ValueError(f"--device {name}: torch sees no GPU (torch.cuda.is_available() is False; this torch "
+                             f"is {torch.__version__})")
+        index = device.index or 0
+        if index >= torch.cuda.device_count():
+            raise ValueError(f"--device {name}: torch sees {torch.cuda.device_count()} GPU(s)")
+    return device
 
 
 #: The run directory's resumable checkpoint (the latest only; :meth:`Trainer.checkpoint_state`).
 CHECKPOINT_DIR = "checkpoint"
 CHECKPOINT_FORMAT = "swarm_env.mappo-checkpoint/1"
 #: What ``--resume`` may change: the budget, and settings that leave the results as they are.
-RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "progress")
+RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "progress", "tensorboard")
 
 
 def train(cfg: MAPPOConfig) -> Path:
@@ -693,16 +727,15 @@ def train(cfg: MAPPOConfig) -> Path:
     Raises ``FileExistsError`` if the run directory already holds a run.
     """
     from swarm_env_baselines.checkpointing import claim_run_dir
-    from swarm_env_baselines.train import package_versions
+    from swarm_env_baselines.options import package_versions
+    from swarm_env_baselines.run_log import RunLog
 
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     run_dir = Path(cfg.runs_dir) / (cfg.run_name or f"{cfg.kind}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}")
     claim_run_dir(run_dir)
     (run_dir / "config.json").write_text(cfg.to_json() + "\n")
     write_json(run_dir / "versions.json", package_versions())
-    for name, columns in (("eval.csv", EVAL_COLUMNS), ("train.csv", TRAIN_COLUMNS)):
-        with open(run_dir / name, "w", newline="") as fh:
-            csv.writer(fh).writerow(columns)
+    RunLog.create(run_dir, TRAIN_COLUMNS, EVAL_COLUMNS)
     return _run(cfg, run_dir, None)
 
 
@@ -746,153 +779,125 @@ def _run(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict
         return _train_loop(cfg, run_dir, checkpoint, stop)
 
 
+def _episode_stats(batch: Batch) -> dict[str, float]:
+    """The episodes that ended in a rollout: how many, their mean return, collisions and formation error."""
+    nan = float("nan")
+    done = batch.episode_metrics
+    if not done:
+        return {"episodes": 0, "episode_return": nan, "collisions_per_episode": nan, "episode_formation_error": nan}
+    return {"episodes": len(done), "episode_return": float(np.mean(batch.episode_returns)),
+            "collisions_per_episode": float(np.mean([e["collisions"]["total"] for e in done])),
+            "episode_formation_error": float(np.mean([e["formation_error"]["mean"] for e in done]))}
+
+
 def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None,
                 stop: Any) -> Path:
     import torch
     from tqdm import tqdm
 
+    from swarm_env.harness.leaderboard import parse_seeds
     from swarm_env_baselines.checkpointing import TrainingInterrupted, csv_rows, truncate_csv, write_checkpoint
-    from swarm_env_baselines.config import parse_seeds
+    from swarm_env_baselines.run_log import RunLog
+    from swarm_env_baselines.validation import Validation
 
+    # --- the trainer, its optimiser, and the budget in PPO updates
     eval_seeds = parse_seeds(cfg.eval_seeds)
     trainer = Trainer(cfg, run_dir)
-    params = [*trainer.actor.parameters(), trainer.log_std, *trainer.critic.parameters()]
-    optim = torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
+    optim = torch.optim.Adam(trainer.parameters(), lr=cfg.learning_rate, eps=1e-5)
     batch_size = cfg.n_steps * trainer.m * trainer.n
     n_updates = max(1, cfg.total_steps // batch_size)
-    best = float("inf")
-    history: list[dict[str, Any]] = []
     steps_done = updates_done = 0
-    last_eval: int | None = None
     next_eval = cfg.eval_every or None
-    # Evaluations handed to a worker and not yet recorded: (agent-steps, wall_s, snapshot dir, future).
-    pending: list[tuple[int, float, Path, Any]] = []
-    resubmit: list[tuple[int, float]] = []
-    if checkpoint is None:
-        t0 = time.perf_counter()
-        if cfg.pretrain != "none":
-            # DAgger cannot stop half-way and save: a signal ends the run at once.
-            with stop.immediate(f"interrupted during the warm start: nothing to resume yet; start again with another "
-                                f"--run-name (or delete {run_dir})"):
-                trainer.pretrain()
-            with open(run_dir / "pretrain.csv", "w", newline="") as fh:
-                w = csv.DictWriter(fh, fieldnames=list(trainer.pretrain_log[0]))
-                w.writeheader()
-                w.writerows(trainer.pretrain_log)
-        pretrain_s = time.perf_counter() - t0
-        trainer.start()
-    else:
-        try:  # the envs are open: close them on a refusal
+    log: RunLog | None = None
+    validation = Validation(run_dir, lambda: evaluate(trainer.policy(), cfg, eval_seeds),
+                            functools.partial(evaluate_saved, cfg_json=cfg.to_json(), seeds=eval_seeds),
+                            lambda row: log.eval(row) if log is not None else None, cfg.eval_workers)
+
+    # --- a new run starts with the warm start; a resumed one rebuilds its worlds and counters
+    try:
+        if checkpoint is None:
+            t0 = time.perf_counter()
+            if cfg.pretrain != "none":
+                # DAgger cannot stop half-way and save: a signal ends the run at once.
+                with stop.immediate(f"interrupted during the warm start: nothing to resume yet; start again with "
+                                    f"another --run-name (or delete {run_dir})"):
+                    trainer.pretrain()
+                with open(run_dir / "pretrain.csv", "w", newline="") as fh:
+                    w = csv.DictWriter(fh, fieldnames=list(trainer.pretrain_log[0]))
+                    w.writeheader()
+                    w.writerows(trainer.pretrain_log)
+            pretrain_s = time.perf_counter() - t0
+            trainer.start()
+            log = RunLog(run_dir, TRAIN_COLUMNS, EVAL_COLUMNS, cfg.tensorboard)
+        else:
             tensors, meta = checkpoint
             source = run_dir / CHECKPOINT_DIR
             try:
                 steps_done, updates_done = int(meta["agent_steps"]), int(meta["updates"])
-                best = float("inf") if meta["best"] is None else float(meta["best"])
-                history, last_eval, next_eval = list(meta["history"]), meta["last_eval"], meta["next_eval"]
+                next_eval = meta["next_eval"]
                 pretrain_s, t0 = float(meta["pretrain_s"]), time.perf_counter() - float(meta["wall_s"])
-                resubmit = [(int(s), float(w)) for s, w in meta["pending_evals"]]
                 rows = {name: int(meta["csv_rows"][name]) for name in ("train.csv", "eval.csv")}
-            except (KeyError, TypeError, ValueError) as exc:
+                if updates_done >= n_updates and not meta["pending_evals"]:
+                    raise ValueError(f"--resume {run_dir}: the run is complete ({steps_done} agent-steps, total_steps "
+                                     f"{cfg.total_steps}); pass a larger --total-steps to train it further")
+                for name, count in rows.items():  # drop what was logged after the checkpoint
+                    truncate_csv(run_dir / name, count)
+                log = RunLog(run_dir, TRAIN_COLUMNS, EVAL_COLUMNS, cfg.tensorboard, purge_step=steps_done + 1)
+                validation.resume(meta)
+            except (KeyError, TypeError) as exc:
                 raise ValueError(f"{source / 'state.json'}: {exc}") from None
-            if updates_done >= n_updates and not resubmit:
-                raise ValueError(f"--resume {run_dir}: the run is complete ({steps_done} agent-steps, total_steps "
-                                 f"{cfg.total_steps}); pass a larger --total-steps to train it further")
-            for name, count in rows.items():  # drop what was logged after the checkpoint
-                truncate_csv(run_dir / name, count)
             print(f"resuming {run_dir} at update {updates_done} of {n_updates} ({steps_done} agent-steps)",
                   file=sys.stderr)
             trainer.restore(tensors, meta, optim, source)
-        except BaseException:
-            trainer.close()
-            raise
-    # Validation in background processes (cfg.eval_workers): each evaluation point saves a snapshot under
-    # evals/, a worker scores it, and results are recorded in order as they arrive.
-    pool = None
-    if cfg.eval_workers:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor
-
-        from swarm_env_baselines.checkpointing import ignore_interrupts
-
-        pool = ProcessPoolExecutor(cfg.eval_workers, mp_context=mp.get_context("spawn"), initializer=ignore_interrupts)
-
-    def record(steps: int, wall_s: float, s: dict[str, Any], keep: Callable[[], Any]) -> None:
-        nonlocal best
-        row = {"agent_steps": steps, "wall_s": wall_s, "score": s["score"],
-               "formation_error": s["formation_error"]["mean"], "formation_error_ci95": s["formation_error"]["ci95"],
-               "collisions": s["collisions"]["mean"], "collisions_ci95": s["collisions"]["ci95"],
-               "success_rate": s["success_rate"]["mean"]}
-        history.append(row)
-        _write_row(run_dir / "eval.csv", EVAL_COLUMNS, row)
-        if row["score"] < best:
-            best = row["score"]
-            keep()
-
-    def collect_results(wait: bool) -> None:
-        while pending and (wait or pending[0][3].done()):
-            steps, wall_s, snapshot, future = pending.pop(0)
-            record(steps, wall_s, future.result(), lambda snapshot=snapshot: _replace_dir(snapshot, run_dir / "best"))
-
-    def submit(steps: int, wall_s: float, snapshot: Path) -> None:
-        if pool is None:  # a resumed run's pending evaluation, now without workers
-            record(steps, wall_s, evaluate_saved(str(snapshot), cfg.to_json(), eval_seeds),
-                   lambda: _replace_dir(snapshot, run_dir / "best"))
-            return
-        pending.append((steps, wall_s, snapshot, pool.submit(evaluate_saved, str(snapshot), cfg.to_json(), eval_seeds)))
-
-    def evaluate_and_keep() -> None:
-        nonlocal last_eval
-        last_eval = steps_done
-        wall_s = round(time.perf_counter() - t0, 1)
-        if pool is None:
-            summary = evaluate(trainer.policy(), cfg, eval_seeds)
-            record(steps_done, wall_s, summary, lambda: trainer.save(run_dir / "best"))
-            return
-        submit(steps_done, wall_s, trainer.save(run_dir / "evals" / str(steps_done)))
-        collect_results(wait=False)
+    except BaseException:
+        trainer.close()
+        validation.close(finished=False)
+        if log is not None:
+            log.close()
+        raise
 
     def save_checkpoint() -> None:
-        # Evaluations still with a worker are listed, their snapshots kept: a resume scores them again.
         tensors, meta = trainer.checkpoint_state(optim)
         meta = {"format": CHECKPOINT_FORMAT, "updates": updates_done, "agent_steps": steps_done,
-                "best": best if np.isfinite(best) else None,
-                "history": history, "last_eval": last_eval, "next_eval": next_eval, "pretrain_s": pretrain_s,
-                "wall_s": time.perf_counter() - t0, "pending_evals": [[p[0], p[1]] for p in pending],
-                "csv_rows": {name: csv_rows(run_dir / name) for name in ("train.csv", "eval.csv")}, **meta}
+                "next_eval": next_eval, "pretrain_s": pretrain_s, "wall_s": time.perf_counter() - t0,
+                "csv_rows": {name: csv_rows(run_dir / name) for name in ("train.csv", "eval.csv")},
+                **validation.state(), **meta}
         write_checkpoint(run_dir / CHECKPOINT_DIR, tensors, meta)
 
+    def evaluate_now() -> None:
+        validation.evaluate(steps_done, round(time.perf_counter() - t0, 1), trainer.save)
+
+    # --- the loop: collect a rollout of every world, update, log; evaluate and checkpoint on schedule
     finished = False
-    bar = tqdm(total=n_updates * batch_size, initial=steps_done, unit="step", disable=not cfg.progress, desc=cfg.kind)
+    bar = tqdm(total=n_updates * batch_size, initial=steps_done, unit="step", unit_scale=True,
+               disable=not cfg.progress, desc=cfg.kind, dynamic_ncols=True)
     try:
-        for steps, wall_s in resubmit:
-            snapshot = run_dir / "evals" / str(steps)
-            if (snapshot / "policy.json").is_file():
-                submit(steps, wall_s, snapshot)
-            else:
-                print(f"warning: {snapshot} is gone: the evaluation at {steps} agent-steps is skipped", file=sys.stderr)
         if checkpoint is None:
             if cfg.eval_every:
-                evaluate_and_keep()  # the starting point (after the warm start)
+                evaluate_now()  # the starting point (after the warm start)
             save_checkpoint()
         for u in range(updates_done, n_updates):
             t_roll = time.perf_counter()
             batch = trainer.collect()
             t_upd = time.perf_counter()
             stats = trainer.update(batch, optim, u, n_updates)
+            t_end = time.perf_counter()
             steps_done += batch_size
             updates_done = u + 1
-            bar.update(batch_size)
-            row = {"agent_steps": steps_done, "wall_s": round(time.perf_counter() - t0, 1),
-                   "rollout_s": round(t_upd - t_roll, 3), "update_s": round(time.perf_counter() - t_upd, 3),
+            row = {"agent_steps": steps_done, "wall_s": round(t_end - t0, 1), "rollout_s": round(t_upd - t_roll, 3),
+                   "update_s": round(t_end - t_upd, 3), "agent_steps_per_s": batch_size / (t_end - t_roll),
                    "mean_reward": float(batch.rewards.mean()), "contacts_per_agent_step": batch.contacts / batch_size,
-                   "intervention_rate": float(batch.intervened.mean()), **stats}
-            _write_row(run_dir / "train.csv", TRAIN_COLUMNS, {k: _fmt(v) for k, v in row.items()})
+                   "intervention_rate": float(batch.intervened.mean()), **_episode_stats(batch), **stats}
+            log.train(row)
+            bar.update(batch_size)
+            bar.set_postfix(ret=f"{row['episode_return']:.3g}", coll=f"{row['collisions_per_episode']:.2g}",
+                            refresh=False)
             if next_eval is not None and steps_done >= next_eval:
                 next_eval += cfg.eval_every
-                evaluate_and_keep()
-            collect_results(wait=False)
+                evaluate_now()
+            validation.collect(wait=False)
             if stop.requested:
-                collect_results(wait=True)
+                validation.collect(wait=True)
                 save_checkpoint()
                 trainer.save(run_dir)
                 finished = True  # a clean stop: nothing pending, evals/ may go
@@ -901,24 +906,23 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
                     f"and {run_dir / CHECKPOINT_DIR}/. Resume with: swarm-env train mappo --resume {run_dir}"))
             if cfg.checkpoint_every and updates_done % cfg.checkpoint_every == 0 and updates_done < n_updates:
                 save_checkpoint()
-        if last_eval != steps_done:  # the final policy is always scored
-            evaluate_and_keep()
-        collect_results(wait=True)
+        if validation.last_eval != steps_done:  # the final policy is always scored
+            evaluate_now()
+        validation.collect(wait=True)
         save_checkpoint()  # a finished run can be trained further (--resume with a larger --total-steps)
         finished = True
     finally:
         bar.close()
         trainer.close()
-        if pool is not None:
-            pool.shutdown(cancel_futures=True)
-        if finished:
-            import shutil
+        validation.close(finished)
+        log.close()
 
-            shutil.rmtree(run_dir / "evals", ignore_errors=True)
+    # --- the run's files: the final policy, a summary and the learning curve
     wall = time.perf_counter() - t0
     trainer.save(run_dir)
+    history = validation.history
     summary = {"agent_steps": steps_done, "wall_s": round(wall, 1), "pretrain_s": round(pretrain_s, 1),
-               "steps_per_s": round(steps_done / (wall - pretrain_s), 1), "best_score": best,
+               "steps_per_s": round(steps_done / (wall - pretrain_s), 1), "best_score": validation.best,
                "best": min(history, key=lambda r: r["score"]), "final": history[-1]}
     write_json(run_dir / "summary.json", summary)
     from swarm_env_baselines.plots import plot_learning_curve
@@ -928,7 +932,7 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from swarm_env_baselines.config import add_dataclass_options
+    from swarm_env_baselines.options import add_dataclass_options
 
     parser = argparse.ArgumentParser(prog="swarm-env train mappo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--resume", metavar="RUN_DIR", default=argparse.SUPPRESS,

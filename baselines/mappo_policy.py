@@ -130,9 +130,9 @@ def save_run_policy(directory: Path, actor: Any, log_std: Any, critic: Any, obs_
     from swarm_env_baselines.safe_io import _atomic
 
     directory.mkdir(parents=True, exist_ok=True)
-    tensors = {f"actor.{k}": v.detach().contiguous() for k, v in actor.state_dict().items()}
-    tensors.update({f"critic.{k}": v.detach().contiguous() for k, v in critic.state_dict().items()})
-    tensors["log_std"] = log_std.detach().contiguous()
+    tensors = {f"actor.{k}": v.detach().cpu().contiguous() for k, v in actor.state_dict().items()}
+    tensors.update({f"critic.{k}": v.detach().cpu().contiguous() for k, v in critic.state_dict().items()})
+    tensors["log_std"] = log_std.detach().cpu().contiguous()
     meta = {"format": FORMAT, "config": dataclasses.asdict(config), "obs_rms": obs_rms.to_json(),
             "state_rms": state_rms.to_json()}
     with _atomic(directory / WEIGHTS_FILE) as tmp:

@@ -90,12 +90,29 @@ def gae(rewards: np.ndarray, values: np.ndarray, dones: np.ndarray, last_values:
     return adv
 
 
-def ppo_policy_loss(logp: Any, old_logp: Any, advantages: Any, clip_range: float) -> tuple[Any, float]:
+def ppo_policy_loss(logp: Any, old_logp: Any, advantages: Any, clip_range: float) -> tuple[Any, Any]:
     """The clipped surrogate loss (to minimise) on one minibatch, with advantages normalised
-    within it, and the largest ``|ratio - 1|`` (0 before the first update of a rollout)."""
+    within it, and the probability ratios (detached) for the diagnostics of :func:`ratio_stats`."""
     import torch
 
     ratio = (logp - old_logp).exp()
     a = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
     loss = -torch.min(ratio * a, ratio.clamp(1 - clip_range, 1 + clip_range) * a).mean()
-    return loss, float((ratio.detach() - 1.0).abs().max())
+    return loss, ratio.detach()
+
+
+def ratio_stats(ratio: Any, clip_range: float) -> tuple[float, float, float]:
+    """``(max |ratio - 1|, approximate KL, clip fraction)`` of a minibatch's probability ratios.
+
+    The KL is Schulman's unbiased low-variance estimator ``E[(r - 1) - log r]`` of KL(old || new);
+    the clip fraction is the share of samples whose ratio left ``[1 - clip, 1 + clip]``."""
+    dev = ratio - 1.0
+    return float(dev.abs().max()), float((dev - ratio.log()).mean()), float((dev.abs() > clip_range).float().mean())
+
+
+def explained_variance(values: np.ndarray, returns: np.ndarray) -> float:
+    """``1 - Var(returns - values) / Var(returns)`` (NaN when the returns do not vary): 1 is a perfect
+    critic, 0 one no better than the mean, negative one worse."""
+    var = float(np.var(returns))
+    return float("nan") if var == 0.0 else 1.0 - float(np.var(returns - values)) / var
+

@@ -207,8 +207,8 @@ def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = Tr
     import ray
     from ray.tune.registry import register_env
 
+    from swarm_env_baselines.options import package_versions
     from swarm_env_baselines.safe_io import _atomic
-    from swarm_env_baselines.train import package_versions
 
     out.mkdir(parents=True, exist_ok=True)
     started = not ray.is_initialized()

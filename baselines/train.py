@@ -33,39 +33,15 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import platform
-import subprocess
 import sys
 import time
 from datetime import datetime, timezone
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 from swarm_env.jsonio import dumps, write_json
 from swarm_env_baselines.config import TrainConfig, add_dataclass_options, parse_seeds, policy_kwargs
-
-PACKAGES = ("swarm-env", "numpy", "torch", "stable-baselines3", "gymnasium", "pettingzoo", "pymunk", "tensorboard")
-
-
-def package_versions() -> dict[str, Any]:
-    """Interpreter, platform, package versions and the git commit of the working directory (if any)."""
-    versions: dict[str, Any] = {"python": sys.version.split()[0], "platform": platform.platform()}
-    for pkg in PACKAGES:
-        try:
-            versions[pkg] = version(pkg)
-        except PackageNotFoundError:
-            versions[pkg] = None
-    try:
-        root = Path(__file__).resolve().parent.parent
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=5)
-        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, timeout=5)
-        versions["git_commit"] = commit.stdout.strip() or None
-        versions["git_dirty"] = bool(dirty.stdout.strip()) if commit.returncode == 0 else None
-    except (OSError, subprocess.SubprocessError):
-        versions["git_commit"] = None
-    versions["argv"] = sys.argv
-    return versions
+from swarm_env_baselines.options import package_versions
 
 
 def _env_kwargs(cfg: TrainConfig) -> dict[str, Any]:

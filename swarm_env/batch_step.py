@@ -12,6 +12,8 @@ then runs, for all worlds at once, :func:`swarm_env.batch_kernel.rewards_batch`,
 :func:`~swarm_env.batch_kernel.metrics_batch`, and the episode end, with Python only where
 something happens in a world (contacts, a formation switch or settling, the leader arriving, the
 episode's end): the same bits as each world's ``SwarmEnv._advance`` + ``_account`` + observations.
+:meth:`BatchState.state` gives every world's global state (``SwarmEnv.state()``) in one call of
+:func:`swarm_env.state_kernel.state_batch` (it keeps each world's occupancy grid as a row).
 
 Ownership: while the engine steps, the rows are the truth and the worlds' own ``EpisodeMetrics``
 and ``_prev_dist``/``_prev_action`` lag behind; :meth:`BatchState.store` writes a row back into its
@@ -35,6 +37,7 @@ import numpy as np
 
 from swarm_env.geometry import _FAST_MAX_POINTS, _SCREEN_MARGIN, StaticMap
 from swarm_env.metrics import _LIPSCHITZ_SLACK
+from swarm_env.observations import _GRADIENT_STEP, STATE_CLEARANCE_RANGE, STATE_GRID, STATE_LIMIT
 from swarm_env.rewards import (
     CONTACT_GROUPS,
     REWARD_TERMS,
@@ -157,6 +160,12 @@ class BatchState:
                                and e.capacity.max_time == obs.capacity.max_time for e in envs)
         self.obs = obs
         self.maps = PaddedMaps(m)
+        # The global state (:meth:`state`): whether world b's builder has the batch's capacity (the state's
+        # layout and scales; set in load, as set_world may bring another), and each world's occupancy grid
+        # with the map it was computed for (a per-map constant, refreshed when the world's map changes).
+        self.same_capacity = np.zeros(m, bool)
+        self.occupancy = np.zeros((m, STATE_GRID * STATE_GRID))
+        self._occupancy_of: list[StaticMap | None] = [None] * m
         # Reward and episode-end rows.
         self.prev_dist = np.zeros((m, n))
         self.prev_action = np.zeros((m, n, 2))
@@ -203,6 +212,7 @@ class BatchState:
         if len(st.follower_pose) != self.n:
             raise ValueError(f"world {b} has {len(st.follower_pose)} followers, the batch {self.n}")
         self.maps.set(b, st.static)
+        self.same_capacity[b] = e._obs.capacity == self.obs.capacity
         self.weights[b] = (spec.formation, spec.collision, spec.contact, spec.clearance, spec.clearance_margin,
                            spec.smoothness, spec.progress, spec.approach, spec.approach_margin)
         self.horizon[b] = spec.approach_horizon
@@ -387,6 +397,59 @@ class BatchState:
             if e._renderer is not None and not (terminated[b] or truncated[b]):
                 e._close_step(states[b], False, False, False)
         return terminated, truncated, infos
+
+    def state(self, envs: Sequence[SwarmEnv]) -> np.ndarray | None:
+        """``(M, state_size)`` float32: each world's ``SwarmEnv.state()`` of its current snapshot
+        (``e._state``: after a step, a finished world's first state of its next episode), in one call
+        of :func:`swarm_env.state_kernel.state_batch`; the same bits as ``np.stack([e.state() for e in
+        envs])``. ``None`` when one kernel cannot serve every world (a world whose capacity, hence state
+        layout or scales, differs from world 0's): the caller stacks the worlds' own.
+
+        The rows must be live (every world's current episode loaded): the human counts and maps are
+        the rows'. Compiled: call it only with :func:`swarm_env.compiled.compiled_kernels` on."""
+        from swarm_env import state_kernel as sk
+
+        if not self.same_capacity.all():
+            return None
+        ob = self.obs
+        cap = ob.capacity
+        lay = ob.state_layout
+        widths = {"followers": sk.FOLLOWER_COLUMNS * cap.max_followers, "leader": sk.LEADER_COLUMNS,
+                  "humans": sk.HUMAN_COLUMNS * cap.max_humans, "time": sk.TIME_COLUMNS,
+                  "follower_clearance": sk.CLEARANCE_COLUMNS * cap.max_followers,
+                  "occupancy": STATE_GRID * STATE_GRID}
+        if {k: lay[k].stop - lay[k].start for k in widths} != widths:  # the kernel's columns are state_vector's
+            raise RuntimeError(f"state_layout {lay} does not match swarm_env.state_kernel's columns")
+        if self.n > cap.max_followers or int(self.hcount.max(initial=0)) > cap.max_humans:
+            raise ValueError(f"the worlds have up to {self.n} followers and {int(self.hcount.max(initial=0))} "
+                             f"humans, the state has room for {cap.max_followers} and {cap.max_humans}")
+        states = []
+        occupancy_of = self._occupancy_of
+        for b, e in enumerate(envs):
+            st = e._state
+            assert st is not None
+            static = st.static
+            if occupancy_of[b] is not static:  # a new map: its grid from the world's builder (which caches it)
+                self.occupancy[b] = e._obs._occupancy(static)
+                occupancy_of[b] = static
+            if self.maps.rows[b] is not static:  # (load keeps the maps current; a cheap guard)
+                self.maps.set(b, static)
+            states.append(st)
+        a = self.gather(states)
+        # The headings' cosines and sines by numpy, on views like the reference's (state_vector takes a
+        # strided column of the pose and the leader's heading): numba's libm could round differently.
+        th = a.pose[:, :, 2]
+        lth = a.lpose[:, 2]
+        W, H, _, _, circles, ncirc, n_poly, n_edge, *edges = self.maps.kernel_arrays()
+        w, h = cap.world_size
+        out = np.empty((self.m, ob.state_size), dtype=np.float32)
+        sk.state_batch(  # type: ignore[call-arg]
+            a.pose, a.twist, a.slots, a.lpose, a.lvel, np.cos(th), np.sin(th), np.cos(lth), np.sin(lth), a.time,
+            a.next_switch, a.hpos, a.hvel, self.hcount, self.occupancy, W, H, circles, ncirc, n_poly, n_edge, *edges,
+            float(w), float(h), float(ob.vel_limit), float(cap.max_time), STATE_CLEARANCE_RANGE, _GRADIENT_STEP,
+            STATE_LIMIT, lay["followers"].start, lay["leader"].start, lay["humans"].start, lay["time"].start,
+            lay["follower_clearance"].start, lay["occupancy"].start, out)
+        return out
 
     def observations(self, envs: Sequence[SwarmEnv], states: Sequence[WorldState], a: StepArrays) -> np.ndarray:
         """``(M, N, D)`` float32: each world's ``build_without_lidar`` of its snapshot."""

@@ -4,8 +4,9 @@
 scripted humans (:mod:`swarm_env.human_kernel`), a control step's physics substeps with chipmunk
 called from compiled code (:mod:`swarm_env.physics_kernel`), the virtual leader and the slot targets
 (:mod:`swarm_env.slot_kernel`), the rewards and the metrics of a step (:mod:`swarm_env.step_kernel`),
-the robots' velocity callback (:mod:`swarm_env.drive_kernel`, chosen when a world is built), and the
-physics and snapshots of many worlds in one call (:mod:`swarm_env.world_batch`).
+the robots' velocity callback (:mod:`swarm_env.drive_kernel`, chosen when a world is built), the
+physics and snapshots of many worlds in one call (:mod:`swarm_env.world_batch`), and the batched
+engine's global state of many worlds (:mod:`swarm_env.state_kernel`).
 
 Each kernel has a numpy reference beside it that gives the same bits (their tests compare the
 two on whole episodes). The references import no numba, which is why the batched engine's worker

@@ -14,7 +14,8 @@ What is batched: the lidar of all ``M x N`` followers is one call of the compile
 (:mod:`swarm_env.lidar`), in this process; with the compiled kernels on, the rewards, the metrics
 and the observations (without the lidar) of a block's worlds are one compiled call per stage too
 (:mod:`swarm_env.batch_step`, :mod:`swarm_env.batch_kernel`), with Python only in the worlds where
-something happens (contacts, a formation switch, an episode's end); observations, rewards and
+something happens (contacts, a formation switch, an episode's end), and so is the global state of
+all worlds (:meth:`SwarmVectorEnv.state`, :mod:`swarm_env.state_kernel`); observations, rewards and
 infos come back as arrays and no per-agent dict is built. The physics stays pymunk, one space per
 world; one compiled call steps all of a block's spaces and takes their snapshots (``_physics_stage``,
 :mod:`swarm_env.world_batch`; worlds it cannot take, e.g. with reactive humans, step by themselves),
@@ -294,6 +295,16 @@ class _WorldBlock:
         return out
 
     def state(self) -> np.ndarray:
+        """``(B, state_dim)`` float32: each world's ``SwarmEnv.state()`` of its current snapshot. While
+        the batched rows are live (compiled kernels on, after the first batched step and until a
+        per-world ``call``/``get_attr``/``set_attr`` writes them back), one compiled call for all worlds
+        (:meth:`BatchState.state <swarm_env.batch_step.BatchState.state>`, the same bits); otherwise,
+        or when the worlds' capacities differ, the worlds' own, stacked."""
+        if compiled_kernels() and self._rows_live:
+            assert self._rows is not None
+            out = self._rows.state(self.envs)
+            if out is not None:
+                return out
         return np.stack([e.state() for e in self.envs])
 
     def episode_starts(self) -> list[dict[str, Any]]:

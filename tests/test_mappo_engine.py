@@ -1,12 +1,14 @@
-"""MAPPO's rollouts on the batched engine (swarm_env_baselines.mappo.Trainer over swarm_env.vector.SwarmVectorEnv)
-train exactly as the trainer that stepped a list of SwarmEnvs did.
+"""MAPPO's training on the batched engine (swarm_env_baselines.mappo.Trainer over swarm_env.vector.SwarmVectorEnv)
+is bit for bit its reference runs, whatever the number of worker processes for the worlds' physics.
 
-``tests/data/mappo_reference.json`` was recorded with that earlier trainer (commit "Tests: reference runs of
-the MAPPO trainer before the batched engine"; regenerate with ``python tests/test_mappo_engine.py`` only when
-the training itself is meant to change). Each case runs a few PPO updates on worlds short enough that every
-copy ends (and auto-resets) episodes inside the rollouts, so the truncation bootstrap, the auto-reset and the
-per-copy reward scaling are all exercised; every update's batch and losses and the final networks and
-statistics must come out bit for bit.
+``tests/data/mappo_reference.json`` holds reference runs of the vectorised trainer (re-baselined deliberately with
+issue 31's rollouts over whole ``(worlds, followers)`` arrays: one return-statistics update per step for all
+agents, input statistics moved once per rollout, values and log-probabilities of a rollout in one forward, a
+critic whose first layer is split between the global state and the observation). Regenerate with ``python
+tests/test_mappo_engine.py`` only when the training itself is meant to change. Each case runs a few PPO
+updates on worlds short enough that every copy ends (and auto-resets) episodes inside the rollouts, so the
+truncation bootstrap, the auto-reset and the reward scaling are all exercised; every update's batch and losses
+and the final networks and statistics must come out bit for bit.
 
 torch's CPU kernels give other last bits on other CPUs (``tests/_numerics.py``), so the file also keeps the same
 runs recorded on other machines under ``by_numerics`` (``python tests/test_mappo_engine.py --this-machine``
@@ -68,7 +70,7 @@ def run_case(name: str, tmp_path: Path, env_procs: int = 1) -> dict[str, Any]:
     extra = {"env_procs": env_procs} if env_procs > 1 else {}  # (the recording trainer had no such option)
     cfg = mappo.MAPPOConfig(**{**BASE, **CASES[name], **extra, "runs_dir": str(tmp_path), "run_name": name})
     trainer = mappo.Trainer(cfg, tmp_path / name)
-    params = [*trainer.actor.parameters(), trainer.log_std, *trainer.critic.parameters()]
+    params = trainer.parameters()
     optim = torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
     batch_size = cfg.n_steps * trainer.m * trainer.n
     n_updates = cfg.total_steps // batch_size
@@ -77,13 +79,13 @@ def run_case(name: str, tmp_path: Path, env_procs: int = 1) -> dict[str, Any]:
         trainer.start()
         for u in range(n_updates):
             batch = trainer.collect()
-            critic_in = torch.cat(batch.critic_in).numpy()
-            row = {"batch": _digest(batch.actor_in, critic_in, batch.actions, batch.logp, batch.values, batch.rewards,
+            row = {"batch": _digest(batch.obs, batch.states, batch.actions, batch.logp, batch.values, batch.rewards,
                                     batch.dones, batch.safe, batch.intervened),
                    "contacts": int(batch.contacts), "dones": int(batch.dones.sum()),
                    "intervened": int(batch.intervened.sum())}
             stats = trainer.update(batch, optim, u, n_updates)
             row.update({k: float(v).hex() for k, v in sorted(stats.items())})
+            row["episodes"] = len(batch.episode_metrics)
             rows.append(row)
         nets = [p.detach().numpy() for p in params]
         moments = [s[k].numpy() for s in optim.state.values() for k in ("exp_avg", "exp_avg_sq")]

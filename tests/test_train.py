@@ -87,7 +87,7 @@ def test_cli_parses_every_field_and_rejects_bad_input(tmp_path, capsys):
     assert train_mod.main(["--algo", "sac", "--action-type", "discrete"]) == 2
     with pytest.raises(SystemExit):
         train_mod.config_from_args(["--total-steps", "1.5"])
-    helps = field_help()
+    helps = field_help(TrainConfig)
     assert set(helps) == {f for f in TrainConfig.__dataclass_fields__}  # every option documented
     help_text = train_mod.build_parser().format_help()
     assert "--eval-seeds" in help_text and "Validation seeds" in help_text

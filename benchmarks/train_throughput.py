@@ -1,0 +1,181 @@
+"""MAPPO/IPPO training throughput against the raw batched engine, in one process, interleaved.
+
+For each number of worlds ``M`` it builds the trainer (:class:`swarm_env_baselines.mappo.Trainer`, the
+config's defaults without the warm start and validation unless ``--config`` says otherwise), optionally a
+peer trainer from another ``mappo.py`` (``--peer``, e.g. the trainer before a change), and a bare
+:class:`swarm_env.vector.SwarmVectorEnv` of the same worlds driven with uniform random actions. Each
+repeat runs one PPO iteration (rollout of ``n_steps`` steps of every world, then the update) of each
+trainer and ``n_steps`` engine steps, in an order that alternates between repeats; after one warm-up
+iteration each, the report gives medians over the repeats of agent-steps/s by wall time and by CPU time
+(``time.process_time``), the rollout/update split, and the ratios trainer / engine and trainer / peer
+(medians of the per-repeat paired ratios)::
+
+    OPENBLAS_NUM_THREADS=1 python benchmarks/train_throughput.py --worlds 8 64 --repeats 5
+    git show <commit>:baselines/mappo.py > /tmp/mappo_before.py
+    python benchmarks/train_throughput.py --worlds 64 --peer /tmp/mappo_before.py --peer-config '{"n_copies": 8}'
+    python benchmarks/train_throughput.py --worlds 64 --sweep '{"n_epochs": [1, 2, 4], "n_minibatches": [1, 4]}'
+
+``--sweep`` times one trainer per combination of the given fields (each against the same engine) and
+prints a table; ``--json`` writes the whole report.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: multithreaded BLAS is slower under load
+
+import argparse
+import importlib.util
+import itertools
+import json
+import sys
+import tempfile
+import time
+from pathlib import Path
+from statistics import median
+from typing import Any
+
+
+def _load_module(path: str, name: str) -> Any:
+    spec = importlib.util.spec_from_file_location(name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+class _TrainerRun:
+    """One trainer of a module, timed an iteration (collect + update) at a time."""
+
+    def __init__(self, module: Any, cfg_fields: dict[str, Any], tmp: str, label: str) -> None:
+        import torch
+
+        cfg = module.MAPPOConfig(**{"pretrain": "none", "eval_every": 0, "progress": False, **cfg_fields},
+                                 runs_dir=tmp, run_name=label)
+        self.trainer = module.Trainer(cfg, Path(tmp) / label)
+        self.trainer.start()
+        t = self.trainer
+        params = [*t.actor.parameters(), t.log_std, *t.critic.parameters()]
+        self.optim = torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
+        self.agent_steps = cfg.n_steps * t.m * t.n
+        self.u = 0
+
+    def iteration(self) -> dict[str, float]:
+        w0, c0 = time.perf_counter(), time.process_time()
+        batch = self.trainer.collect()
+        w1, c1 = time.perf_counter(), time.process_time()
+        self.trainer.update(batch, self.optim, self.u, 10**6)
+        w2, c2 = time.perf_counter(), time.process_time()
+        self.u += 1
+        return {"wall": w2 - w0, "cpu": c2 - c0, "rollout_wall": w1 - w0, "update_wall": w2 - w1,
+                "rollout_cpu": c1 - c0, "update_cpu": c2 - c1}
+
+    def close(self) -> None:
+        self.trainer.close()
+
+
+class _EngineRun:
+    """The bare engine of the same worlds, ``steps`` steps of uniform random actions at a time."""
+
+    def __init__(self, scenario: str, worlds: int, env_kwargs: dict[str, Any], steps: int) -> None:
+        import numpy as np
+
+        from swarm_env.vector import SwarmVectorEnv
+
+        self.venv = SwarmVectorEnv(scenario, num_envs=worlds, **env_kwargs)
+        self.venv.reset(seed=0)
+        self.rng = np.random.default_rng(0)
+        self.steps = steps
+        self.agent_steps = steps * worlds * self.venv.num_agents
+        self.shape = (worlds, self.venv.num_agents, 2)
+
+    def iteration(self) -> dict[str, float]:
+        actions = self.rng.uniform(-1.0, 1.0, (self.steps, *self.shape))
+        w0, c0 = time.perf_counter(), time.process_time()
+        for a in actions:
+            self.venv.step(a)
+        return {"wall": time.perf_counter() - w0, "cpu": time.process_time() - c0}
+
+    def close(self) -> None:
+        self.venv.close()
+
+
+def measure(runs: dict[str, Any], repeats: int) -> dict[str, dict[str, float]]:
+    """Warm up each run once, then ``repeats`` interleaved iterations; medians and paired ratios."""
+    for run in runs.values():
+        run.iteration()
+    rows: dict[str, list[dict[str, float]]] = {name: [] for name in runs}
+    names = list(runs)
+    for r in range(repeats):
+        for name in (names if r % 2 == 0 else names[::-1]):
+            row = runs[name].iteration()
+            row["steps_per_s"] = runs[name].agent_steps / row["wall"]
+            row["steps_per_cpu_s"] = runs[name].agent_steps / row["cpu"]
+            rows[name].append(row)
+    out = {name: {k: median(x[k] for x in rs) for k in rs[0]} for name, rs in rows.items()}
+    for name in names:
+        if name != "engine":
+            out[name]["ratio_to_engine"] = median(a["steps_per_s"] / b["steps_per_s"]
+                                                  for a, b in zip(rows[name], rows["engine"]))
+            out[name]["cpu_ratio_to_engine"] = median(a["steps_per_cpu_s"] / b["steps_per_cpu_s"]
+                                                      for a, b in zip(rows[name], rows["engine"]))
+    if "peer" in rows:
+        out["trainer"]["ratio_to_peer"] = median(a["steps_per_s"] / b["steps_per_s"]
+                                                 for a, b in zip(rows["trainer"], rows["peer"]))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--worlds", type=int, nargs="+", default=[8, 64])
+    parser.add_argument("--repeats", type=int, default=5)
+    parser.add_argument("--config", default="{}", help="MAPPOConfig fields as JSON (n_copies is set by --worlds)")
+    parser.add_argument("--peer", help="path of another mappo.py whose Trainer to time beside this one")
+    parser.add_argument("--peer-config", default="{}", help="the peer's MAPPOConfig fields as JSON (on --config), "
+                                                            "e.g. its own default number of worlds")
+    parser.add_argument("--sweep", help="JSON {field: [values]}: one trainer per combination, against the engine")
+    parser.add_argument("--json", help="write the report here")
+    args = parser.parse_args(argv)
+
+    from swarm_env_baselines import mappo
+
+    base = json.loads(args.config)
+    peer = _load_module(args.peer, "mappo_peer") if args.peer else None
+    report: dict[str, Any] = {"config": base, "repeats": args.repeats, "results": []}
+    for m in args.worlds:
+        variants = [{}]
+        if args.sweep:
+            grid = json.loads(args.sweep)
+            variants = [dict(zip(grid, values)) for values in itertools.product(*grid.values())]
+        for variant in variants:
+            fields = {**base, "n_copies": m, **variant}
+            cfg = mappo.MAPPOConfig(**{"pretrain": "none", **fields})
+            with tempfile.TemporaryDirectory() as tmp:
+                runs: dict[str, Any] = {"trainer": _TrainerRun(mappo, fields, tmp, "trainer")}
+                if peer is not None:
+                    runs["peer"] = _TrainerRun(peer, {**fields, **json.loads(args.peer_config)}, tmp, "peer")
+                env_kwargs = {**cfg.env_kwargs, **cfg.train_env_kwargs}
+                runs["engine"] = _EngineRun(cfg.scenario, m, env_kwargs, cfg.n_steps)
+                try:
+                    result = measure(runs, args.repeats)
+                finally:
+                    for run in runs.values():
+                        run.close()
+            report["results"].append({"worlds": m, "variant": variant, **result})
+            t, e = result["trainer"], result["engine"]
+            line = (f"M={m:5d} {json.dumps(variant) if variant else '':40s} trainer {t['steps_per_s']:9,.0f} "
+                    f"agent-steps/s (rollout {t['rollout_wall']:.2f} s, update {t['update_wall']:.2f} s)  engine "
+                    f"{e['steps_per_s']:9,.0f}  trainer/engine {t['ratio_to_engine']:.2f} (CPU "
+                    f"{t['cpu_ratio_to_engine']:.2f})")
+            if "peer" in result:
+                line += f"  peer {result['peer']['steps_per_s']:9,.0f}  trainer/peer {t['ratio_to_peer']:.2f}"
+            print(line, flush=True)
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
