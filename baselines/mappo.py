@@ -779,17 +779,6 @@ def _run(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict
         return _train_loop(cfg, run_dir, checkpoint, stop)
 
 
-def _episode_stats(batch: Batch) -> dict[str, float]:
-    """The episodes that ended in a rollout: how many, their mean return, collisions and formation error."""
-    nan = float("nan")
-    done = batch.episode_metrics
-    if not done:
-        return {"episodes": 0, "episode_return": nan, "collisions_per_episode": nan, "episode_formation_error": nan}
-    return {"episodes": len(done), "episode_return": float(np.mean(batch.episode_returns)),
-            "collisions_per_episode": float(np.mean([e["collisions"]["total"] for e in done])),
-            "episode_formation_error": float(np.mean([e["formation_error"]["mean"] for e in done]))}
-
-
 def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None,
                 stop: Any) -> Path:
     import torch
@@ -797,7 +786,7 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
 
     from swarm_env.harness.leaderboard import parse_seeds
     from swarm_env_baselines.checkpointing import TrainingInterrupted, csv_rows, truncate_csv, write_checkpoint
-    from swarm_env_baselines.run_log import RunLog
+    from swarm_env_baselines.run_log import RunLog, episode_stats
     from swarm_env_baselines.validation import Validation
 
     # --- the trainer, its optimiser, and the budget in PPO updates
@@ -887,7 +876,8 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
             row = {"agent_steps": steps_done, "wall_s": round(t_end - t0, 1), "rollout_s": round(t_upd - t_roll, 3),
                    "update_s": round(t_end - t_upd, 3), "agent_steps_per_s": batch_size / (t_end - t_roll),
                    "mean_reward": float(batch.rewards.mean()), "contacts_per_agent_step": batch.contacts / batch_size,
-                   "intervention_rate": float(batch.intervened.mean()), **_episode_stats(batch), **stats}
+                   "intervention_rate": float(batch.intervened.mean()),
+                   **episode_stats(batch.episode_returns, batch.episode_metrics), **stats}
             log.train(row)
             bar.update(batch_size)
             bar.set_postfix(ret=f"{row['episode_return']:.3g}", coll=f"{row['collisions_per_episode']:.2g}",

@@ -44,7 +44,10 @@ CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 #: The training seeds shipped for every method.
 SHIPPED_SEEDS = ("s0", "s1", "s2")
 
-__all__ = ["MAPPOPolicy", "ResidualPolicy", "save_run_policy", "load_run_policy", "shipped_run"]
+__all__ = ["MAPPOPolicy", "ResidualPolicy", "SquashedMeanActor", "load_run_policy", "load_sac_policy", "save_run_policy",
+           "shipped_run"]
+#: The format of a shared-parameter SAC run's policy.json (:mod:`swarm_env_baselines.sac`).
+SAC_FORMAT = "swarm_env.sac/1"
 
 
 class MAPPOPolicy:
@@ -114,6 +117,19 @@ class ResidualPolicy(MAPPOPolicy):
         return {a: action[i] for i, a in enumerate(agents)}
 
 
+class SquashedMeanActor:
+    """A SAC actor (outputs ``(mean, log std)`` of a pre-tanh Gaussian) as the deterministic map
+    ``tanh(mean)`` that :class:`MAPPOPolicy` plays."""
+
+    def __init__(self, net: Any) -> None:
+        self.net = net
+
+    def __call__(self, x: Any) -> Any:
+        import torch
+
+        return torch.tanh(self.net(x)[..., :2])
+
+
 def residual_action(base: np.ndarray, residual: np.ndarray, scale: float) -> np.ndarray:
     """The executed action of a residual policy: ``clip(base + scale * clip(residual, -1, 1), -1, 1)``."""
     return np.clip(base + scale * np.clip(residual, -1.0, 1.0), -1.0, 1.0)
@@ -170,6 +186,53 @@ def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd
     actor.eval()
     torch.set_num_threads(1)  # a small MLP on a few observations: threads only add overhead (and float noise)
     return config, actor, obs_rms
+
+
+def load_sac_policy(directory: str | Path, name: str | None = None) -> MAPPOPolicy:
+    """The actor of a saved :mod:`swarm_env_baselines.sac` run (``policy.json`` of format :data:`SAC_FORMAT`)
+    as a deterministic policy. Raises ``ValueError`` naming the file for a missing or bad file."""
+    import torch
+
+    from swarm_env_baselines.safe_io import one_line, read_description, read_tensors
+
+    d = Path(directory).expanduser()
+    meta = read_description(d / CONFIG_FILE, SAC_FORMAT)
+    try:
+        hidden = [int(h) for h in meta["config"]["hidden"]]
+        if not hidden or min(hidden) < 1 or max(hidden) > 4096 or len(hidden) > 8:
+            raise ValueError(f"hidden {hidden} outside 1-4096 units, 1-8 layers")
+        obs_rms = RunningMeanStd.from_json(meta["obs_rms"])
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{d / CONFIG_FILE}: not a run description of swarm_env_baselines.sac ({one_line(exc)})") from None
+    net = mlp([obs_rms.mean.shape[0], *hidden, 4])
+    tensors = read_tensors(d / WEIGHTS_FILE)
+    try:
+        net.load_state_dict({k[len("actor."):]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
+    except (RuntimeError, ValueError) as exc:
+        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({one_line(exc)})") from None
+    if not all(torch.isfinite(p).all() for p in net.parameters()):
+        raise ValueError(f"{d / WEIGHTS_FILE}: the actor's tensors are not all finite")
+    net.eval()
+    torch.set_num_threads(1)
+    return MAPPOPolicy(SquashedMeanActor(net), obs_rms, name=name or f"isac:{directory}")
+
+
+def make_isac(env: Any, arg: str | None = None) -> MAPPOPolicy:
+    """Entry point ``isac:PATH``: a shared-parameter SAC run directory of :mod:`swarm_env_baselines.sac`
+    (or its ``best/``), playing ``tanh`` of its actor's mean."""
+    from swarm_env.harness.policies import ModelFileError, PolicyError
+
+    if not arg:
+        raise PolicyError("isac needs a run directory: isac:runs/<run> (or isac:runs/<run>/best)")
+    try:
+        policy = load_sac_policy(arg, name=f"isac:{arg}")
+    except ValueError as exc:
+        raise ModelFileError(f"policy isac:{arg}: {exc}") from None
+    policy.reset(env, None)
+    return policy
+
+
+make_isac.acts_on = OBSERVATIONS  # type: ignore[attr-defined]
 
 
 def load_run_policy(directory: str | Path, env: Any | None = None, name: str | None = None) -> MAPPOPolicy:

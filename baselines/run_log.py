@@ -16,7 +16,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RunLog", "TB_GROUPS"]
+__all__ = ["RunLog", "TB_GROUPS", "episode_stats"]
 
 #: The TensorBoard group of each column (columns not listed go to ``train/``).
 TB_GROUPS = {
@@ -74,6 +74,18 @@ class RunLog:
     def close(self) -> None:
         if self.writer is not None:
             self.writer.close()
+
+
+def episode_stats(returns: list[float], metrics: list[dict[str, Any]]) -> dict[str, float]:
+    """The episodes that ended in a logging window: how many, their mean return (raw reward summed, mean
+    over followers), collisions and formation error (NaN when none ended)."""
+    nan = float("nan")
+    if not metrics:
+        return {"episodes": 0, "episode_return": nan, "collisions_per_episode": nan, "episode_formation_error": nan}
+    n = len(metrics)
+    return {"episodes": n, "episode_return": sum(returns) / n,
+            "collisions_per_episode": sum(e["collisions"]["total"] for e in metrics) / n,
+            "episode_formation_error": sum(e["formation_error"]["mean"] for e in metrics) / n}
 
 
 def _fmt(x: Any) -> Any:

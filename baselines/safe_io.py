@@ -179,9 +179,10 @@ def read_description(path: Path, fmt: str) -> dict[str, Any]:
 def _loader_of(fmt: Any) -> str | None:
     """The policy specs that load a description of format ``fmt`` (for the error that meets the wrong one)."""
     from swarm_env_baselines.mappo_policy import FORMAT as MAPPO_FORMAT
+    from swarm_env_baselines.mappo_policy import SAC_FORMAT
     from swarm_env_baselines.rllib_train import FORMAT as RLLIB_FORMAT
 
-    return {FORMAT: "ppo:PATH, sac:PATH or bc:PATH", RLLIB_FORMAT: "rllib:PATH",
+    return {FORMAT: "ppo:PATH, sac:PATH or bc:PATH", RLLIB_FORMAT: "rllib:PATH", SAC_FORMAT: "isac:PATH",
             MAPPO_FORMAT: "mappo:PATH, ippo:PATH, mappo_shielded:PATH or residual_vo:PATH"}.get(fmt)
 
 

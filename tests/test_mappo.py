@@ -93,6 +93,20 @@ def test_a_tiny_run_is_complete_and_loads_as_a_policy(tmp_path) -> None:
     assert [int(r["agent_steps"]) for r in evals] == [0, 512, 1024]  # the warm start is the first point
     rows = list(csv.DictReader(open(run / "train.csv")))
     assert len(rows) == 8 and all(float(r["rollout_s"]) > 0 and float(r["update_s"]) > 0 for r in rows)
+    for r in rows:  # the diagnostics a researcher reads: all finite, in their ranges
+        assert float(r["approx_kl"]) >= -1e-6 and 0.0 <= float(r["clip_fraction"]) <= 1.0
+        assert float(r["explained_variance"]) <= 1.0 and float(r["agent_steps_per_s"]) > 0
+    assert sum(int(r["episodes"]) for r in rows) == 2 * (1024 // 4 // 30)  # 2 worlds, 256 steps, 30-step episodes
+    assert all(float(r["episode_return"]) < 0 for r in rows if int(r["episodes"]))
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    tb = EventAccumulator(str(run / "tb"))
+    tb.Reload()
+    tags = tb.Tags()["scalars"]
+    for tag in ("train/approx_kl", "train/explained_variance", "rollout/collisions_per_episode", "eval/score",
+                "time/agent_steps_per_s"):
+        assert tag in tags, tag
+    assert [e.step for e in tb.Scalars("eval/score")] == [0, 512, 1024]
     env = SwarmEnv("random", **TINY_ENV)
     policy = load_policy(f"mappo:{run}", env)
     result = run_episode(env, policy, seed=1000)
@@ -147,6 +161,16 @@ def test_a_residual_policy_starts_at_its_expert(tmp_path) -> None:
         p.reset(env, 3)
     a, b = residual.act(obs, env.world_state()), vo.act(obs, env.world_state())
     assert all(np.abs(a[k] - b[k]).max() < 0.02 for k in a)
+
+
+def test_a_device_torch_does_not_see_is_refused(tmp_path) -> None:
+    import torch
+
+    with pytest.raises(ValueError, match="device must be"):
+        mappo.MAPPOConfig(device="gpu")
+    if not torch.cuda.is_available():
+        with pytest.raises(ValueError, match="torch sees no GPU"):
+            mappo.train(_cfg(tmp_path, device="cuda", pretrain="none"))
 
 
 def test_bad_input_is_refused(tmp_path, capsys) -> None:

@@ -525,6 +525,7 @@ def _pickle_trust(on: bool) -> Iterator[None]:
 #: ``swarm_env_agents`` or ``swarm_env_baselines``.
 MODULE_COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("train", "mappo"): ("swarm_env_baselines.mappo", "MAPPO / IPPO (--critic local), our PyTorch PPO: the shipped methods"),
+    ("train", "sac"): ("swarm_env_baselines.sac", "shared-parameter SAC on the batched engine (policy isac:RUN)"),
     ("train", "sb3"): ("swarm_env_baselines.train", "stable-baselines3 PPO / SAC / A2C / TD3 with parameter sharing"),
     ("train", "rllib"): ("swarm_env_baselines.rllib_train", "RLlib's PPO on Ray, one machine or a cluster (extras rl, ray)"),
     ("bc",): ("swarm_env_baselines.bc", "behaviour cloning (+ DAgger) of a scripted expert into PPO's policy network"),
@@ -537,7 +538,7 @@ MODULE_COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
 }
 
 _GROUP_HELP = {
-    "train": "train a learned policy: mappo (MAPPO/IPPO), sb3 (stable-baselines3) or rllib",
+    "train": "train a learned policy: mappo (MAPPO/IPPO), sac (shared-parameter SAC), sb3 (stable-baselines3) or rllib",
     "reproduce": "rerun a paper's experiments with its expert and write its report: vo (paper 003), cbs_rrt (paper 000)",
 }
 
