@@ -9,21 +9,27 @@
     swarm-env train mappo ... --residual vo --shield execute        # a learned correction of vo
     swarm-env train mappo --resume runs/<run>                       # go on after Ctrl-C or a crash
 
-A small PyTorch implementation in the CleanRL spirit, written to read top to bottom. The
-actor maps one follower's observation to a Gaussian over its normalised twist (parameter
-sharing: one network for all followers); the critic is **centralised** (``critic="central"``,
-MAPPO, Yu et al. 2022: the global ``env.state()`` joined to the follower's own observation,
-the "agent-specific global state") or **local** (``critic="local"``, IPPO: the observation
-alone). Observations and states are normalised by running statistics, rewards by a running
-estimate of the return's scale; truncated episodes are bootstrapped from the value of their
-last state; the update sees the actor inputs exactly as normalised when the actions were
-drawn (``train.csv``'s ``first_ratio_error`` stays 0).
+A small PyTorch implementation in the CleanRL spirit, written to read top to bottom (:func:`_train_loop`:
+collect, update, log, evaluate, checkpoint). The actor maps one follower's observation to a Gaussian
+over its normalised twist (parameter sharing: one network for all followers); the critic is
+**centralised** (``critic="central"``, MAPPO, Yu et al. 2022: the global ``env.state()`` joined to the
+follower's own observation, the "agent-specific global state", :class:`~swarm_env_baselines.nets.CentralCritic`)
+or **local** (``critic="local"``, IPPO: the observation alone). Observations and states are normalised
+by running statistics (moved once per rollout), rewards by a running estimate of the return's scale;
+truncated episodes are bootstrapped from the value of their last state; the update sees the actor
+inputs exactly as normalised when the actions were drawn (``train.csv``'s ``first_ratio_error`` stays 0).
 
-Rollouts go through the batched engine (:class:`swarm_env.vector.SwarmVectorEnv`, ``n_copies``
-worlds, their physics in ``env_procs`` processes): one call steps every world, observations,
-rewards and infos come back as arrays, and a finished world is reset in the same step (its
-generator going on). The training is bit for bit what the earlier loop over ``n_copies`` separate
-``SwarmEnv`` objects gave (``tests/test_mappo_engine.py`` holds reference runs of that loop).
+Rollouts run at the engine's speed: ``n_copies`` worlds (default 64) of the batched engine
+(:class:`swarm_env.vector.SwarmVectorEnv`, their physics in ``env_procs`` processes) step in one call,
+the critic's global state of every world is one compiled call, and everything the trainer does per
+step is over ``(worlds, followers)`` arrays: one actor forward for every agent of every world, the
+rewards, return statistics and bootstraps as array operations, the values and log-probabilities of the
+whole rollout in one forward each after it. Python loops over worlds remain only where an expert or
+the teaching shield reads each world (``residual``, ``shield="teach"``). ``tests/test_mappo_engine.py``
+holds reference runs, bit for bit, for every mode and number of worker processes;
+``benchmarks/train_throughput.py`` measures the trainer against the raw engine (docs/performance.md,
+"Training throughput"). Live metrics: ``train.csv``/``eval.csv`` and TensorBoard scalars under ``tb/``
+(:mod:`swarm_env_baselines.run_log`); a progress bar in agent-steps with their rate.
 
 Options that the shipped baselines use (docs/baselines.md gives their commands and results):
 
@@ -51,9 +57,11 @@ the test seeds ``1000-1049`` are left to the leaderboard.
 A run directory ``<runs_dir>/<run_name>/`` holds ``config.json``, ``versions.json``,
 ``policy.safetensors`` + ``policy.json`` (actor, critic and normalisation statistics as
 tensors and JSON: loading runs no code; :mod:`swarm_env_baselines.mappo_policy`), ``best/``,
-``pretrain.csv`` (DAgger rounds), ``eval.csv`` (validation, streamed), ``train.csv`` (losses,
-action std, contact and intervention rates per update, time spent in rollouts and updates),
-``learning_curve.png``, ``summary.json`` and ``checkpoint/`` (the latest resumable state: :func:`resume`,
+``pretrain.csv`` (DAgger rounds), ``eval.csv`` (validation, streamed), ``train.csv`` (per update: losses,
+entropy, approximate KL, clip fraction, explained variance, action std, episode return, collisions and
+formation error of the episodes that ended, contact and intervention rates, rollout and update seconds,
+agent-steps/s), ``tb/`` (the same as TensorBoard events), ``learning_curve.png``, ``summary.json`` and
+``checkpoint/`` (the latest resumable state: :func:`resume`,
 ``swarm-env train mappo --resume <run dir>``; SIGINT/SIGTERM save it and the policy before exiting).
 Load it with ``mappo:<run dir>`` (or ``mappo:<run dir>/best``) anywhere a policy spec is accepted.
 """
@@ -165,7 +173,7 @@ class MAPPOConfig:
     #: Background processes for validation (0: in the training process). Training is one thread, so on a
     #: machine with a free core 1 hides the validation time; the results are the same bit for bit.
     eval_workers: int = 0
-    #: Torch threads (1 is fastest for these small networks).
+    #: Torch threads of the PPO update (the rollout's per-step forwards always use one); results depend on it.
     torch_threads: int = 1
     #: Where the networks and the update run: cpu, or cuda / cuda:K when torch sees a GPU (the rollout's
     #: engine is on the CPU either way; bits differ between devices).
@@ -320,7 +328,7 @@ class Trainer:
 
         self.cfg = cfg
         self.run_dir = run_dir
-        torch.set_num_threads(cfg.torch_threads)
+        torch.set_num_threads(1)  # the rollout's per-step forwards are small: threads only add overhead
         torch.manual_seed(cfg.seed)
         torch.use_deterministic_algorithms(True)
         self.gen = torch.Generator().manual_seed(cfg.seed)  # on the CPU whatever the device: the same draws
@@ -532,8 +540,19 @@ class Trainer:
 
     # ---------------------------------------------------------------- update
     def update(self, batch: Batch, optim: Any, update_index: int, n_updates: int) -> dict[str, float]:
-        """PPO epochs over the rollout (critic only during the warm-up updates). Minibatches are world-steps,
-        each with its ``N`` followers (the critic's state part is computed once per world-step)."""
+        """PPO epochs over the rollout (critic only during the warm-up updates), on ``torch_threads`` threads.
+        Minibatches are world-steps, each with its ``N`` followers (the critic's state part is computed once
+        per world-step)."""
+        import torch
+
+        cfg = self.cfg
+        torch.set_num_threads(cfg.torch_threads)  # the update's large minibatches (the engine is idle meanwhile)
+        try:
+            return self._update(batch, optim, update_index, n_updates)
+        finally:
+            torch.set_num_threads(1)
+
+    def _update(self, batch: Batch, optim: Any, update_index: int, n_updates: int) -> dict[str, float]:
         import torch
 
         from swarm_env_baselines.ppo_core import explained_variance, ratio_stats

@@ -12,7 +12,8 @@ iteration each, the report gives medians over the repeats of agent-steps/s by wa
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/train_throughput.py --worlds 8 64 --repeats 5
     git show <commit>:baselines/mappo.py > /tmp/mappo_before.py
-    python benchmarks/train_throughput.py --worlds 64 --peer /tmp/mappo_before.py --peer-config '{"n_copies": 8}'
+    python benchmarks/train_throughput.py --worlds 64 --peer /tmp/mappo_before.py --peer-config '{"n_copies": 8}' \
+        --peer-per-world-state
     python benchmarks/train_throughput.py --worlds 64 --sweep '{"n_epochs": [1, 2, 4], "n_minibatches": [1, 4]}'
 
 ``--sweep`` times one trainer per combination of the given fields (each against the same engine) and
@@ -49,14 +50,19 @@ def _load_module(path: str, name: str) -> Any:
 class _TrainerRun:
     """One trainer of a module, timed an iteration (collect + update) at a time."""
 
-    def __init__(self, module: Any, cfg_fields: dict[str, Any], tmp: str, label: str) -> None:
+    def __init__(self, module: Any, cfg_fields: dict[str, Any], tmp: str, label: str,
+                 per_world_state: bool = False) -> None:
+        import numpy as np
         import torch
 
         cfg = module.MAPPOConfig(**{"pretrain": "none", "eval_every": 0, "progress": False, **cfg_fields},
                                  runs_dir=tmp, run_name=label)
         self.trainer = module.Trainer(cfg, Path(tmp) / label)
-        self.trainer.start()
         t = self.trainer
+        if per_world_state:  # the critic's state as the engine gave it before its compiled call: world by world
+            envs = t.venv._local.envs
+            t.venv.state = lambda: np.stack([e.state() for e in envs])
+        self.trainer.start()
         params = [*t.actor.parameters(), t.log_std, *t.critic.parameters()]
         self.optim = torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
         self.agent_steps = cfg.n_steps * t.m * t.n
@@ -135,10 +141,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--peer", help="path of another mappo.py whose Trainer to time beside this one")
     parser.add_argument("--peer-config", default="{}", help="the peer's MAPPOConfig fields as JSON (on --config), "
                                                             "e.g. its own default number of worlds")
+    parser.add_argument("--peer-per-world-state", action="store_true",
+                        help="give the peer the engine's state() as it was before issue 31 (one world at a time)")
     parser.add_argument("--sweep", help="JSON {field: [values]}: one trainer per combination, against the engine")
     parser.add_argument("--json", help="write the report here")
     args = parser.parse_args(argv)
 
+    from swarm_env.jsonio import dumps, write_json  # (imports numpy: after the BLAS setting above)
     from swarm_env_baselines import mappo
 
     base = json.loads(args.config)
@@ -155,7 +164,8 @@ def main(argv: list[str] | None = None) -> int:
             with tempfile.TemporaryDirectory() as tmp:
                 runs: dict[str, Any] = {"trainer": _TrainerRun(mappo, fields, tmp, "trainer")}
                 if peer is not None:
-                    runs["peer"] = _TrainerRun(peer, {**fields, **json.loads(args.peer_config)}, tmp, "peer")
+                    runs["peer"] = _TrainerRun(peer, {**fields, **json.loads(args.peer_config)}, tmp, "peer",
+                                               args.peer_per_world_state)
                 env_kwargs = {**cfg.env_kwargs, **cfg.train_env_kwargs}
                 runs["engine"] = _EngineRun(cfg.scenario, m, env_kwargs, cfg.n_steps)
                 try:
@@ -165,7 +175,7 @@ def main(argv: list[str] | None = None) -> int:
                         run.close()
             report["results"].append({"worlds": m, "variant": variant, **result})
             t, e = result["trainer"], result["engine"]
-            line = (f"M={m:5d} {json.dumps(variant) if variant else '':40s} trainer {t['steps_per_s']:9,.0f} "
+            line = (f"M={m:5d} {dumps(variant, indent=None) if variant else '':40s} trainer {t['steps_per_s']:9,.0f} "
                     f"agent-steps/s (rollout {t['rollout_wall']:.2f} s, update {t['update_wall']:.2f} s)  engine "
                     f"{e['steps_per_s']:9,.0f}  trainer/engine {t['ratio_to_engine']:.2f} (CPU "
                     f"{t['cpu_ratio_to_engine']:.2f})")
@@ -173,7 +183,7 @@ def main(argv: list[str] | None = None) -> int:
                 line += f"  peer {result['peer']['steps_per_s']:9,.0f}  trainer/peer {t['ratio_to_peer']:.2f}"
             print(line, flush=True)
     if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=1) + "\n")
+        write_json(args.json, report, indent=1)
     return 0
 
 

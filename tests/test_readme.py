@@ -119,8 +119,8 @@ def parse_command(cmd: list[str]) -> None:
             if m:
                 named = set((m.group(1) or m.group(2)).split(","))
                 assert named <= extras, f"{shlex.join(cmd)}: no extra {sorted(named - extras)} in pyproject.toml"
-    elif cmd[0] in ("ruff", "mypy"):  # the dev extra's linter and type checker, configured in pyproject.toml
-        assert shutil.which(cmd[0]), f"{shlex.join(cmd)}: {cmd[0]} is not installed (the dev extra has it)"
+    elif cmd[0] in ("ruff", "mypy", "tensorboard"):  # the dev extra's linter and type checker; the rl extra's viewer
+        assert shutil.which(cmd[0]), f"{shlex.join(cmd)}: {cmd[0]} is not installed (the dev or rl extra has it)"
     elif cmd[:3] != ["python", "-m", "pytest"]:
         raise AssertionError(f"no rule to check the README command {shlex.join(cmd)!r}")
 

@@ -30,7 +30,7 @@ from swarm_env_baselines.checkpointing import StopRequest, TrainingInterrupted  
 TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 1, "max_cycles": 30}
 ROOT = Path(__file__).resolve().parent.parent
 #: train.csv columns that are clocks (everything else must match exactly).
-CLOCKS = ("wall_s", "rollout_s", "update_s")
+CLOCKS = ("wall_s", "rollout_s", "update_s", "agent_steps_per_s")
 
 
 def _cfg(tmp_path, **overrides) -> mappo.MAPPOConfig:
