@@ -132,11 +132,12 @@ class MAPPOConfig:
     #: Largest residual correction (normalised action units).
     residual_scale: float = 0.5
     #: Training budget in agent-steps (one follower acting once), after the warm start.
-    total_steps: int = 2_000_000
+    total_steps: int = 20_000_000
     #: Seed of the networks, the action sampling and the training worlds.
     seed: int = 0
-    #: Env copies stepped together (the worlds of one batched engine, swarm_env.vector).
-    n_copies: int = 8
+    #: Env copies stepped together (the worlds of one batched engine, swarm_env.vector); 64 measured best
+    #: (docs/performance.md, "Training throughput").
+    n_copies: int = 64
     #: Worker processes for the worlds' physics (1: in the training process); the results do not depend on it.
     #: Not with --residual (its experts read the worlds in this process).
     env_procs: int = 1
@@ -150,8 +151,8 @@ class MAPPOConfig:
     gae_lambda: float = 0.95
     #: Clip range of the policy ratio.
     clip_range: float = 0.2
-    #: Optimisation epochs per rollout.
-    n_epochs: int = 5
+    #: Optimisation epochs per rollout (2: the validation of 5 at the same wall time, 1.7x the agent-steps/s).
+    n_epochs: int = 2
     #: Minibatches per epoch.
     n_minibatches: int = 4
     #: Entropy bonus coefficient.
@@ -167,7 +168,7 @@ class MAPPOConfig:
     #: Updates that train the critic alone before the actor learns (lets a warm-started actor keep its skill).
     critic_warmup: int = 0
     #: Evaluate every this many agent-steps (0 = only at the end).
-    eval_every: int = 400_000
+    eval_every: int = 2_000_000
     #: Validation seeds, e.g. 500-549.
     eval_seeds: str = "500-549"
     #: Background processes for validation (0: in the training process). Training is one thread, so on a
