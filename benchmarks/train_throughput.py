@@ -16,7 +16,9 @@ iteration each, the report gives medians over the repeats of agent-steps/s by wa
         --peer-per-world-state
     python benchmarks/train_throughput.py --worlds 64 --sweep '{"n_epochs": [1, 2, 4], "n_minibatches": [1, 4]}'
 
-``--sweep`` times one trainer per combination of the given fields (each against the same engine) and
+``--breakdown K`` times the parts of ``K`` iterations instead (µs per agent-step: the engine's step and
+``state()``, the forwards, the statistics, the rest of the rollout, the update). ``--sweep`` times one
+trainer per combination of the given fields (each against the same engine) and
 prints a table; ``--json`` writes the whole report.
 """
 
@@ -108,6 +110,51 @@ class _EngineRun:
         self.venv.close()
 
 
+def breakdown(module: Any, fields: dict[str, Any], iterations: int) -> dict[str, float]:
+    """Microseconds per agent-step of the parts of a trainer iteration (after a warm-up iteration): within
+    the rollout, the engine's ``step`` and ``state()``, the actor and critic forwards, the running statistics
+    (updates and normalisation) and the rest (the trainer's own array code); then the whole update."""
+    import collections
+
+    acc: dict[str, float] = collections.defaultdict(float)
+
+    def timed(name: str, f: Any) -> Any:
+        def g(*a: Any, **k: Any) -> Any:
+            t = time.perf_counter()
+            try:
+                return f(*a, **k)
+            finally:
+                acc[name] += time.perf_counter() - t
+        return g
+
+    with tempfile.TemporaryDirectory() as tmp:
+        run = _TrainerRun(module, fields, tmp, "breakdown")
+        run.iteration()
+        t = run.trainer
+        targets = [(t.venv, "step", "engine step"), (t.venv, "state", "engine state()"),
+                   (t.actor, "forward", "actor forward"), (t.critic, "forward", "critic forward"),
+                   (t.obs_rms, "update", "statistics"), (t.state_rms, "update", "statistics"),
+                   (t.ret_rms, "update", "statistics"), (t.obs_rms, "normalize", "statistics"),
+                   (t.state_rms, "normalize", "statistics")]
+        for _ in range(iterations):
+            for obj, attr, name in targets:  # instance attributes shadow the methods during the rollout only
+                setattr(obj, attr, timed(name, getattr(obj, attr)))
+            w = time.perf_counter()
+            batch = t.collect()
+            acc["rollout"] += time.perf_counter() - w
+            for obj, attr, _ in targets:
+                delattr(obj, attr)
+            w = time.perf_counter()
+            t.update(batch, run.optim, run.u, 10**6)
+            acc["update"] += time.perf_counter() - w
+            run.u += 1
+        run.close()
+    steps = run.agent_steps * iterations
+    parts = ("engine step", "engine state()", "actor forward", "critic forward", "statistics")
+    acc["rest of the rollout"] = acc["rollout"] - sum(acc[k] for k in parts)
+    return {k: 1e6 * v / steps for k, v in acc.items()}
+
+
 def measure(runs: dict[str, Any], repeats: int) -> dict[str, dict[str, float]]:
     """Warm up each run once, then ``repeats`` interleaved iterations; medians and paired ratios."""
     for run in runs.values():
@@ -144,6 +191,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--peer-per-world-state", action="store_true",
                         help="give the peer the engine's state() as it was before issue 31 (one world at a time)")
     parser.add_argument("--sweep", help="JSON {field: [values]}: one trainer per combination, against the engine")
+    parser.add_argument("--breakdown", type=int, metavar="ITERATIONS",
+                        help="instead: time the parts of this many trainer iterations at each --worlds")
     parser.add_argument("--json", help="write the report here")
     args = parser.parse_args(argv)
 
@@ -153,6 +202,14 @@ def main(argv: list[str] | None = None) -> int:
     base = json.loads(args.config)
     peer = _load_module(args.peer, "mappo_peer") if args.peer else None
     report: dict[str, Any] = {"config": base, "repeats": args.repeats, "results": []}
+    if args.breakdown:
+        for m in args.worlds:
+            parts = breakdown(mappo, {**base, "n_copies": m}, args.breakdown)
+            report["results"].append({"worlds": m, "breakdown_us_per_agent_step": parts})
+            print(f"M={m}: " + ", ".join(f"{k} {v:.2f}" for k, v in parts.items()) + " (µs per agent-step)")
+        if args.json:
+            write_json(args.json, report, indent=1)
+        return 0
     for m in args.worlds:
         variants = [{}]
         if args.sweep:
