@@ -11,9 +11,8 @@ iteration each, the report gives medians over the repeats of agent-steps/s by wa
 (medians of the per-repeat paired ratios)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/train_throughput.py --worlds 8 64 --repeats 5
-    git show <commit>:baselines/mappo.py > /tmp/mappo_before.py
-    python benchmarks/train_throughput.py --worlds 64 --peer /tmp/mappo_before.py --peer-config '{"n_copies": 8}' \
-        --peer-per-world-state
+    python benchmarks/train_throughput.py --worlds 8 64 --peer-commit 8ecad84 --peer-config '{"n_copies": 8}' \
+        --peer-per-world-state      # against the trainer before issue 31, with its default 8 worlds
     python benchmarks/train_throughput.py --worlds 64 --sweep '{"n_epochs": [1, 2, 4], "n_minibatches": [1, 4]}'
 
 ``--breakdown K`` times the parts of ``K`` iterations instead (µs per agent-step: the engine's step and
@@ -38,6 +37,24 @@ import time
 from pathlib import Path
 from statistics import median
 from typing import Any
+
+
+def _peer_from_commit(commit: str, tmp: str) -> Any:
+    """The ``mappo`` module of ``commit`` with that commit's ``ppo_core`` (so a trainer from before an API change
+    of the shared pieces loads as it was); both read with ``git show`` into ``tmp``."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    sources = {}
+    for name in ("mappo", "ppo_core"):
+        sources[name] = subprocess.run(["git", "show", f"{commit}:baselines/{name}.py"], cwd=root, check=True,
+                                       capture_output=True, text=True).stdout
+    core = Path(tmp) / "mappo_peer_core.py"
+    core.write_text(sources["ppo_core"])
+    _load_module(str(core), "mappo_peer_core")
+    trainer = Path(tmp) / "mappo_peer.py"
+    trainer.write_text(sources["mappo"].replace("from swarm_env_baselines.ppo_core import", "from mappo_peer_core import"))
+    return _load_module(str(trainer), "mappo_peer")
 
 
 def _load_module(path: str, name: str) -> Any:
@@ -186,6 +203,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--config", default="{}", help="MAPPOConfig fields as JSON (n_copies is set by --worlds)")
     parser.add_argument("--peer", help="path of another mappo.py whose Trainer to time beside this one")
+    parser.add_argument("--peer-commit", help="instead of --peer: the trainer of this git commit (its mappo.py and "
+                                              "ppo_core.py)")
     parser.add_argument("--peer-config", default="{}", help="the peer's MAPPOConfig fields as JSON (on --config), "
                                                             "e.g. its own default number of worlds")
     parser.add_argument("--peer-per-world-state", action="store_true",
@@ -200,7 +219,9 @@ def main(argv: list[str] | None = None) -> int:
     from swarm_env_baselines import mappo
 
     base = json.loads(args.config)
-    peer = _load_module(args.peer, "mappo_peer") if args.peer else None
+    peer_dir = tempfile.TemporaryDirectory()
+    peer = (_peer_from_commit(args.peer_commit, peer_dir.name) if args.peer_commit
+            else _load_module(args.peer, "mappo_peer") if args.peer else None)
     report: dict[str, Any] = {"config": base, "repeats": args.repeats, "results": []}
     if args.breakdown:
         for m in args.worlds:
