@@ -30,10 +30,13 @@ from typing import Any
 from swarm_env.jsonio import dumps
 
 STATE_TENSORS = "state.safetensors"
+#: A run directory's resumable checkpoint (the latest only).
+CHECKPOINT_DIR = "checkpoint"
 STATE_JSON = "state.json"
 
-__all__ = ["STATE_JSON", "STATE_TENSORS", "StopRequest", "TrainingInterrupted", "csv_rows", "ignore_interrupts",
-           "optimizer_from_files", "optimizer_to_files", "read_checkpoint", "truncate_csv", "write_checkpoint"]
+__all__ = ["CHECKPOINT_DIR", "STATE_JSON", "STATE_TENSORS", "StopRequest", "TrainingInterrupted", "csv_rows",
+           "ignore_interrupts", "optimizer_from_files", "optimizer_to_files", "read_checkpoint", "resume_run_dir",
+           "start_run_dir", "truncate_csv", "write_checkpoint"]
 
 
 class TrainingInterrupted(Exception):
@@ -154,6 +157,49 @@ def resume_config(run_dir: str | Path, overrides: dict[str, Any], allowed: tuple
         can = ", ".join("--" + b.replace("_", "-") for b in allowed)
         raise ValueError(f"--resume continues {cfg_path} as it is: {flags} cannot change (only {can} can)")
     return cfg_path
+
+
+def start_run_dir(cfg: Any, default_name: str, train_columns: tuple[str, ...], eval_columns: tuple[str, ...]) -> Path:
+    """A new run directory for the config ``cfg`` (its ``runs_dir``/``run_name``, else ``default_name`` plus a UTC
+    time stamp): ``config.json``, ``versions.json`` and the CSV logs' headers. ``FileExistsError`` if it holds a run."""
+    import time
+
+    from swarm_env.jsonio import write_json
+    from swarm_env_baselines.options import package_versions
+    from swarm_env_baselines.run_log import RunLog
+
+    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
+    run_dir = claim_run_dir(Path(cfg.runs_dir) / (cfg.run_name or f"{default_name}_{stamp}"))
+    (run_dir / "config.json").write_text(cfg.to_json() + "\n")
+    write_json(run_dir / "versions.json", package_versions())
+    RunLog.create(run_dir, train_columns, eval_columns)
+    return run_dir
+
+
+def resume_run_dir(run_dir: str | Path, overrides: dict[str, Any], allowed: tuple[str, ...], config: type,
+                   checkpoint_format: str) -> tuple[Any, tuple[dict[str, Any], dict[str, Any]]]:
+    """``(config, checkpoint)`` of the run ``--resume`` continues: its ``config.json`` with ``overrides`` (only the
+    ``allowed`` fields; written back if any) and its latest checkpoint (``run_dir/checkpoint``, of
+    ``checkpoint_format``). ``FileNotFoundError``/``ValueError`` naming the file for a missing or bad one."""
+    import json
+
+    from swarm_env_baselines.safe_io import _atomic
+
+    run_dir = Path(run_dir)
+    cfg_path = resume_config(run_dir, overrides, allowed)
+    try:
+        cfg = config(**{**json.loads(cfg_path.read_text()), **overrides})
+    except (ValueError, TypeError) as exc:
+        raise ValueError(f"{cfg_path}: not a {config.__name__} ({exc})") from None
+    checkpoint = run_dir / CHECKPOINT_DIR
+    if not (checkpoint / STATE_JSON).is_file():
+        raise FileNotFoundError(f"--resume {run_dir}: no checkpoint in it (the run stopped before its first one): "
+                                "start a new run")
+    state = read_checkpoint(checkpoint, checkpoint_format)
+    if overrides:
+        with _atomic(cfg_path) as tmp:
+            tmp.write_text(cfg.to_json() + "\n")
+    return cfg, state
 
 
 def write_checkpoint(directory: Path, tensors: dict[str, Any], meta: dict[str, Any]) -> Path:

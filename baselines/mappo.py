@@ -83,7 +83,8 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env.jsonio import dumps, write_json
+from swarm_env.jsonio import dumps
+from swarm_env_baselines.checkpointing import CHECKPOINT_DIR
 from swarm_env_baselines.mappo_policy import MAPPOPolicy, ResidualPolicy, residual_action, save_run_policy
 from swarm_env_baselines.ppo_core import RunningMeanStd, gae, mlp, ppo_policy_loss
 from swarm_env_baselines.validation import EVAL_COLUMNS
@@ -728,8 +729,6 @@ def _torch_device(name: str) -> Any:
     return device
 
 
-#: The run directory's resumable checkpoint (the latest only; :meth:`Trainer.checkpoint_state`).
-CHECKPOINT_DIR = "checkpoint"
 CHECKPOINT_FORMAT = "swarm_env.mappo-checkpoint/1"
 #: What ``--resume`` may change: the budget, and settings that leave the results as they are.
 RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "progress", "tensorboard")
@@ -744,16 +743,9 @@ def train(cfg: MAPPOConfig) -> Path:
     :class:`~swarm_env_baselines.checkpointing.TrainingInterrupted`; :func:`resume` goes on from there.
     Raises ``FileExistsError`` if the run directory already holds a run.
     """
-    from swarm_env_baselines.checkpointing import claim_run_dir
-    from swarm_env_baselines.options import package_versions
-    from swarm_env_baselines.run_log import RunLog
+    from swarm_env_baselines.checkpointing import start_run_dir
 
-    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    run_dir = Path(cfg.runs_dir) / (cfg.run_name or f"{cfg.kind}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}")
-    claim_run_dir(run_dir)
-    (run_dir / "config.json").write_text(cfg.to_json() + "\n")
-    write_json(run_dir / "versions.json", package_versions())
-    RunLog.create(run_dir, TRAIN_COLUMNS, EVAL_COLUMNS)
+    run_dir = start_run_dir(cfg, f"{cfg.kind}_{Path(cfg.scenario).stem}_s{cfg.seed}", TRAIN_COLUMNS, EVAL_COLUMNS)
     return _run(cfg, run_dir, None)
 
 
@@ -767,26 +759,10 @@ def resume(run_dir: str | Path, **overrides: Any) -> Path:
     larger ``total_steps`` trains a finished run further; it is written to ``config.json``).
     Raises ``FileNotFoundError`` / ``ValueError`` naming the file for a missing or bad checkpoint.
     """
-    from swarm_env_baselines.checkpointing import read_checkpoint, resume_config
+    from swarm_env_baselines.checkpointing import resume_run_dir
 
-    run_dir = Path(run_dir)
-    cfg_path = resume_config(run_dir, overrides, RESUME_OVERRIDES)
-    try:
-        saved = json.loads(cfg_path.read_text())
-        cfg = MAPPOConfig(**{**saved, **overrides})
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"{cfg_path}: not a baselines.mappo config ({exc})") from None
-    checkpoint = run_dir / CHECKPOINT_DIR
-    if not (checkpoint / "state.json").is_file():
-        raise FileNotFoundError(f"--resume {run_dir}: no checkpoint in it (the run stopped before its first one, "
-                                f"during the warm start): start a new run")
-    state = read_checkpoint(checkpoint, CHECKPOINT_FORMAT)
-    if overrides:
-        from swarm_env_baselines.safe_io import _atomic
-
-        with _atomic(cfg_path) as tmp:
-            tmp.write_text(cfg.to_json() + "\n")
-    return _run(cfg, run_dir, state)
+    cfg, state = resume_run_dir(run_dir, overrides, RESUME_OVERRIDES, MAPPOConfig, CHECKPOINT_FORMAT)
+    return _run(cfg, Path(run_dir), state)
 
 
 def _run(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None) -> Path:
@@ -804,7 +780,7 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
 
     from swarm_env.harness.leaderboard import parse_seeds
     from swarm_env_baselines.checkpointing import TrainingInterrupted, csv_rows, truncate_csv, write_checkpoint
-    from swarm_env_baselines.run_log import RunLog, episode_stats
+    from swarm_env_baselines.run_log import RunLog, episode_stats, finish_run
     from swarm_env_baselines.validation import Validation
 
     # --- the trainer, its optimiser, and the budget in PPO updates
@@ -928,45 +904,22 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
     # --- the run's files: the final policy, a summary and the learning curve
     wall = time.perf_counter() - t0
     trainer.save(run_dir)
-    history = validation.history
-    summary = {"agent_steps": steps_done, "wall_s": round(wall, 1), "pretrain_s": round(pretrain_s, 1),
-               "steps_per_s": round(steps_done / (wall - pretrain_s), 1), "best_score": validation.best,
-               "best": min(history, key=lambda r: r["score"]), "final": history[-1]}
-    write_json(run_dir / "summary.json", summary)
-    from swarm_env_baselines.plots import plot_learning_curve
-
-    plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
+    finish_run(run_dir, {"agent_steps": steps_done, "wall_s": round(wall, 1), "pretrain_s": round(pretrain_s, 1),
+                         "steps_per_s": round(steps_done / (wall - pretrain_s), 1), "best_score": validation.best},
+               validation.history)
     return run_dir
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from swarm_env_baselines.options import add_dataclass_options
+    from swarm_env_baselines.options import trainer_parser
 
-    parser = argparse.ArgumentParser(prog="swarm-env train mappo", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--resume", metavar="RUN_DIR", default=argparse.SUPPRESS,
-                        help="go on with this run from its latest checkpoint (its config.json; only --total-steps, "
-                             "--eval-workers, --env-procs and --progress may be given with it)")
-    add_dataclass_options(parser, MAPPOConfig)
-    return parser
+    return trainer_parser("swarm-env train mappo", __doc__, MAPPOConfig, RESUME_OVERRIDES)
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env_baselines.checkpointing import run_training
+    from swarm_env_baselines.options import trainer_main
 
-    args = vars(build_parser().parse_args(argv))
-    for name in ("env_kwargs", "train_env_kwargs"):
-        if name in args:
-            args[name] = dict(args[name])
-    if "resume" in args:
-        where = args.pop("resume")
-        run = run_training(lambda: resume(where, **args))
-    else:
-        run = run_training(lambda: train(MAPPOConfig(**args)))
-    if isinstance(run, int):
-        return run
-    print(run)
-    print((run / "summary.json").read_text())
-    return 0
+    return trainer_main(build_parser(), argv, MAPPOConfig, train, resume)
 
 
 if __name__ == "__main__":

@@ -15,11 +15,13 @@ import dataclasses
 import platform
 import subprocess
 import sys
+from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
-__all__ = ["PACKAGES", "add_dataclass_options", "field_help", "int_arg", "package_versions"]
+__all__ = ["PACKAGES", "add_dataclass_options", "field_help", "int_arg", "package_versions", "trainer_main",
+           "trainer_parser"]
 
 PACKAGES = ("swarm-env", "numpy", "torch", "stable-baselines3", "gymnasium", "pettingzoo", "pymunk", "tensorboard")
 
@@ -115,3 +117,38 @@ def add_dataclass_options(parser: argparse.ArgumentParser, cls: type, *, require
             parser.add_argument(flag, type=int, nargs="+", **kwargs)
         else:
             parser.add_argument(flag, type=str, required=f.name in required, **kwargs)
+
+
+def trainer_parser(prog: str, doc: str | None, config: type, resume_overrides: tuple[str, ...]) -> argparse.ArgumentParser:
+    """The command line of a trainer: one option per field of ``config`` and ``--resume RUN_DIR`` (with which only
+    the fields ``resume_overrides`` may be given)."""
+    parser = argparse.ArgumentParser(prog=prog, description=(doc or "").split("\n\n")[0])
+    allowed = ", ".join("--" + name.replace("_", "-") for name in resume_overrides)
+    parser.add_argument("--resume", metavar="RUN_DIR", default=argparse.SUPPRESS,
+                        help=f"go on with this run from its latest checkpoint (its config.json; only {allowed} may be "
+                             "given with it)")
+    add_dataclass_options(parser, config)
+    return parser
+
+
+def trainer_main(parser: argparse.ArgumentParser, argv: list[str] | None, config: type,
+                 train: Callable[[Any], Path], resume: Callable[..., Path]) -> int:
+    """Parse ``argv``, then train a new run of ``config`` or resume one; print the run directory and its summary.
+    Returns the process exit status (a signal's 128 + N after saving, see
+    :func:`swarm_env_baselines.checkpointing.run_training`)."""
+    from swarm_env_baselines.checkpointing import run_training
+
+    args = vars(parser.parse_args(argv))
+    for name in ("env_kwargs", "train_env_kwargs"):
+        if name in args:
+            args[name] = dict(args[name])
+    if "resume" in args:
+        where = args.pop("resume")
+        run = run_training(lambda: resume(where, **args))
+    else:
+        run = run_training(lambda: train(config(**args)))
+    if isinstance(run, int):
+        return run
+    print(run)
+    print((run / "summary.json").read_text())
+    return 0

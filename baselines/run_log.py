@@ -16,7 +16,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RunLog", "TB_GROUPS", "episode_stats"]
+__all__ = ["RunLog", "TB_GROUPS", "episode_stats", "finish_run"]
 
 #: The TensorBoard group of each column (columns not listed go to ``train/``).
 TB_GROUPS = {
@@ -86,6 +86,17 @@ def episode_stats(returns: list[float], metrics: list[dict[str, Any]]) -> dict[s
     return {"episodes": n, "episode_return": sum(returns) / n,
             "collisions_per_episode": sum(e["collisions"]["total"] for e in metrics) / n,
             "episode_formation_error": sum(e["formation_error"]["mean"] for e in metrics) / n}
+
+
+def finish_run(run_dir: Path, summary: dict[str, Any], history: list[dict[str, Any]]) -> None:
+    """A finished run's ``summary.json`` (``summary`` plus the best and the final validation rows of ``history``)
+    and ``learning_curve.png`` (from ``eval.csv``)."""
+    from swarm_env.jsonio import write_json
+    from swarm_env_baselines.plots import plot_learning_curve
+
+    write_json(run_dir / "summary.json", {**summary, "best": min(history, key=lambda r: r["score"]),
+                                          "final": history[-1]})
+    plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
 
 
 def _fmt(x: Any) -> Any:

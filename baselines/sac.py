@@ -48,11 +48,11 @@ from typing import Any
 import numpy as np
 
 from swarm_env.jsonio import dumps, write_json
+from swarm_env_baselines.checkpointing import CHECKPOINT_DIR
 from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
 from swarm_env_baselines.validation import EVAL_COLUMNS
 
 FORMAT = "swarm_env.sac/1"
-CHECKPOINT_DIR = "checkpoint"
 CHECKPOINT_FORMAT = "swarm_env.sac-checkpoint/1"
 #: What ``--resume`` may change: the budget, and settings that leave the results as they are.
 RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "progress", "tensorboard")
@@ -468,37 +468,18 @@ def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str,
 def train(cfg: SACConfig) -> Path:
     """Run ``cfg`` to completion in a new run directory and return it (see the module docstring);
     SIGINT/SIGTERM save a checkpoint and the policy, and :func:`resume` goes on from there."""
-    from swarm_env_baselines.checkpointing import claim_run_dir
-    from swarm_env_baselines.options import package_versions
-    from swarm_env_baselines.run_log import RunLog
+    from swarm_env_baselines.checkpointing import start_run_dir
 
-    stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
-    run_dir = Path(cfg.runs_dir) / (cfg.run_name or f"sac_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}")
-    claim_run_dir(run_dir)
-    (run_dir / "config.json").write_text(cfg.to_json() + "\n")
-    write_json(run_dir / "versions.json", package_versions())
-    RunLog.create(run_dir, TRAIN_COLUMNS, EVAL_COLUMNS)
+    run_dir = start_run_dir(cfg, f"sac_{Path(cfg.scenario).stem}_s{cfg.seed}", TRAIN_COLUMNS, EVAL_COLUMNS)
     return _run(cfg, run_dir, None)
 
 
 def resume(run_dir: str | Path, **overrides: Any) -> Path:
     """Go on with the run in ``run_dir`` from its latest checkpoint (only :data:`RESUME_OVERRIDES` may change)."""
-    from swarm_env_baselines.checkpointing import read_checkpoint, resume_config
-    from swarm_env_baselines.safe_io import _atomic
+    from swarm_env_baselines.checkpointing import resume_run_dir
 
-    run_dir = Path(run_dir)
-    cfg_path = resume_config(run_dir, overrides, RESUME_OVERRIDES)
-    try:
-        cfg = SACConfig(**{**json.loads(cfg_path.read_text()), **overrides})
-    except (ValueError, TypeError) as exc:
-        raise ValueError(f"{cfg_path}: not a baselines.sac config ({exc})") from None
-    if not (run_dir / CHECKPOINT_DIR / "state.json").is_file():
-        raise FileNotFoundError(f"--resume {run_dir}: no checkpoint in it: start a new run")
-    state = read_checkpoint(run_dir / CHECKPOINT_DIR, CHECKPOINT_FORMAT)
-    if overrides:
-        with _atomic(cfg_path) as tmp:
-            tmp.write_text(cfg.to_json() + "\n")
-    return _run(cfg, run_dir, state)
+    cfg, state = resume_run_dir(run_dir, overrides, RESUME_OVERRIDES, SACConfig, CHECKPOINT_FORMAT)
+    return _run(cfg, Path(run_dir), state)
 
 
 def _run(cfg: SACConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None) -> Path:
@@ -512,7 +493,7 @@ def _run(cfg: SACConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[s
         truncate_csv,
         write_checkpoint,
     )
-    from swarm_env_baselines.run_log import RunLog, episode_stats
+    from swarm_env_baselines.run_log import RunLog, episode_stats, finish_run
     from swarm_env_baselines.validation import Validation, evaluate_policy
 
     # --- the learner, the validation and the records
@@ -631,44 +612,22 @@ def _run(cfg: SACConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[s
     # --- the run's files
     wall = time.perf_counter() - t0
     sac.save(run_dir)
-    history = validation.history
-    summary = {"agent_steps": sac.agent_steps, "wall_s": round(wall, 1), "steps_per_s": round(sac.agent_steps / wall, 1),
-               "best_score": validation.best, "best": min(history, key=lambda r: r["score"]), "final": history[-1]}
-    write_json(run_dir / "summary.json", summary)
-    from swarm_env_baselines.plots import plot_learning_curve
-
-    plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
+    finish_run(run_dir, {"agent_steps": sac.agent_steps, "wall_s": round(wall, 1),
+                         "steps_per_s": round(sac.agent_steps / wall, 1), "best_score": validation.best},
+               validation.history)
     return run_dir
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from swarm_env_baselines.options import add_dataclass_options
+    from swarm_env_baselines.options import trainer_parser
 
-    parser = argparse.ArgumentParser(prog="swarm-env train sac", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--resume", metavar="RUN_DIR", default=argparse.SUPPRESS,
-                        help="go on with this run from its latest checkpoint (only --total-steps, --eval-workers, "
-                             "--env-procs, --progress and --tensorboard may be given with it)")
-    add_dataclass_options(parser, SACConfig)
-    return parser
+    return trainer_parser("swarm-env train sac", __doc__, SACConfig, RESUME_OVERRIDES)
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env_baselines.checkpointing import run_training
+    from swarm_env_baselines.options import trainer_main
 
-    args = vars(build_parser().parse_args(argv))
-    for name in ("env_kwargs", "train_env_kwargs"):
-        if name in args:
-            args[name] = dict(args[name])
-    if "resume" in args:
-        where = args.pop("resume")
-        run = run_training(lambda: resume(where, **args))
-    else:
-        run = run_training(lambda: train(SACConfig(**args)))
-    if isinstance(run, int):
-        return run
-    print(run)
-    print((run / "summary.json").read_text())
-    return 0
+    return trainer_main(build_parser(), argv, SACConfig, train, resume)
 
 
 if __name__ == "__main__":
