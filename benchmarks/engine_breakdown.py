@@ -9,9 +9,10 @@ targets and the snapshots: ``World.step`` + ``World.snapshot`` of all worlds in 
 :mod:`swarm_env.world_batch`, as the engine's ``_physics_stage``), then the batched stages of :class:`swarm_env.batch_step.BatchState`, each one call for all ``M`` worlds:
 ``rewards`` (contacts, slot distances, reward terms: ``BatchState.rewards``), ``metrics``
 (``EpisodeMetrics.update`` of every world: ``BatchState.metrics``), ``observations`` (everything but
-the lidar: ``BatchState.observations``), ``glue`` (stacking the snapshots' arrays, ``BatchState.gather``,
-and the episode end and infos, ``BatchState.finish``), and ``lidar`` (one kernel call for all
-``M x N`` followers with its per-world inputs, divided by M). The stages run the engine's code in its
+the lidar: ``BatchState.observations``), ``glue`` (the physics' stacked arrays,
+``WorldBatch.last_arrays`` + ``BatchState.arrays_of``, and the episode end and infos,
+``BatchState.finish``), and ``lidar`` (its inputs from the rows, ``BatchState.lidar_rows``, one kernel
+call for all ``M x N`` followers, and the observations' lidar columns, divided by M). The stages run the engine's code in its
 order; auto-resets are done outside the clock.
 """
 
@@ -24,7 +25,6 @@ import time
 import numpy as np
 
 from swarm_env.harness.bench import BATCH_WORLD
-from swarm_env.observations import lidar_input
 from swarm_env.vector import SwarmVectorEnv, _physics_stage
 
 STAGES = ("physics", "rewards", "metrics", "observations", "glue", "lidar")
@@ -34,35 +34,43 @@ def one_repeat(venv: SwarmVectorEnv, actions: np.ndarray, steps: int) -> dict[st
     block = venv._local
     assert block is not None and block._rows is not None and block._rows_live  # warmed up by venv.step
     rows = block._rows
+    envs = block.envs
     totals = dict.fromkeys(STAGES, 0.0)
     clock = time.perf_counter
+
+    def settle(indices: list[int], states: list) -> None:  # as the engine: each chunk's snapshots stored at once
+        for b in indices:
+            envs[b]._state = states[b]
+
     for k in range(steps):
         acts = actions[k % len(actions)]
         t0 = clock()
-        states = _physics_stage(block.envs, acts, block._physics)
+        states = _physics_stage(envs, acts, block._physics, speed=rows.speed, on_states=settle)
         totals["physics"] += clock() - t0
         t0 = clock()
-        for env, state in zip(block.envs, states):
-            env._state = state
-        a = rows.gather(states)
+        blocks = block._physics.last_arrays()
+        a = rows.arrays_of(blocks) if blocks is not None else rows.gather(states)
         t1 = clock()
-        floats, _, touching = rows.rewards(block.envs, states, a, acts)
+        floats, _, touching = rows.rewards(envs, states, a, acts)
         t2 = clock()
-        within = rows.metrics(block.envs, states, a, floats[-1], 0.0)
+        within = rows.metrics(envs, states, a, floats[-1], 0.0)
         t3 = clock()
-        rows.observations(block.envs, states, a)
+        obs = rows.observations(envs, states, a)
         t4 = clock()
-        terminated, truncated, _ = rows.finish(block.envs, states, a, floats, touching, within)
+        terminated, truncated, _ = rows.finish(envs, states, a, floats, touching, within)
         t5 = clock()
         for name, dt in (("glue", t1 - t0 + t5 - t4), ("rewards", t2 - t1), ("metrics", t3 - t2),
                          ("observations", t4 - t3)):
             totals[name] += dt
-        t0 = clock()
-        venv._scan([lidar_input(s) for s in states], range(venv.num_envs))
-        totals["lidar"] += clock() - t0
-        for b in np.flatnonzero(terminated | truncated).tolist():  # auto-reset, off the clock
+        ended = np.flatnonzero(terminated | truncated).tolist()
+        for b in ended:  # auto-reset, off the clock
             block._restart(int(b), None)
-            venv._maps[b] = block.envs[b]._state.static
+            venv._maps[b] = envs[b]._state.static
+        fresh = {b: envs[b]._state for b in ended}
+        t0 = clock()
+        lidar = venv._obs.scan_rows(rows.lidar_rows(a, fresh), venv._packed_batch())
+        venv._obs.fill_lidar(obs, lidar.reshape(venv.num_envs, venv.num_agents, -1))
+        totals["lidar"] += clock() - t0
     return {name: 1e6 * total / (steps * venv.num_envs) for name, total in totals.items()}
 
 

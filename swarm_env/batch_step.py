@@ -49,6 +49,7 @@ from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
     from swarm_env.env import SwarmEnv
+    from swarm_env.lidar import LidarRows
 
 __all__ = ["BatchState", "PaddedMaps", "StepArrays"]
 
@@ -111,7 +112,25 @@ class PaddedMaps:
 
 
 class StepArrays:
-    """The per-step arrays of ``M`` snapshots (what the stages read), stacked on a world axis."""
+    """The per-step arrays of ``M`` snapshots (what the stages read), stacked on a world axis, and the
+    worlds whose snapshot has pairs in touch (``touching``) or contact onsets (``contacts``)."""
+
+    pose: np.ndarray
+    vel: np.ndarray
+    twist: np.ndarray
+    slots: np.ndarray
+    lpose: np.ndarray
+    lvel: np.ndarray
+    ltwist: np.ndarray
+    time: np.ndarray
+    step: np.ndarray
+    leader_done: np.ndarray
+    k: np.ndarray
+    next_switch: np.ndarray
+    hpos: np.ndarray
+    hvel: np.ndarray
+    touching: list[int]
+    contacts: list[int]
 
     def __init__(self, states: Sequence[WorldState], hmax: int, hcount: np.ndarray) -> None:
         m = len(states)
@@ -129,6 +148,8 @@ class StepArrays:
         self.leader_done = np.array([s.leader_done for s in states], dtype=bool)
         self.k = np.array([s.formation_index for s in states], dtype=np.int64)
         self.next_switch = np.array([s.next_switch_time for s in states], dtype=np.float64)
+        self.touching = [b for b, s in enumerate(states) if s.touching]
+        self.contacts = [b for b in self.touching if states[b].contacts]
         self.hpos = np.zeros((m, hmax, 2))
         self.hvel = np.zeros((m, hmax, 2))
         if hmax and hcount.any():
@@ -143,6 +164,26 @@ class StepArrays:
                 slot = np.arange(len(world)) - np.repeat(np.cumsum(hcount) - hcount, hcount)
                 self.hpos[world, slot] = np.concatenate([s.human_pos for s in states])
                 self.hvel[world, slot] = np.concatenate([s.human_vel for s in states])
+
+    @classmethod
+    def of_blocks(cls, blocks: dict[str, Any], hmax: int, hcount: np.ndarray) -> StepArrays:
+        """The same arrays from :meth:`swarm_env.world_batch.WorldBatch.last_arrays` (the physics
+        kernel's stacked blocks: no per-world array to gather), humans padded to ``hmax`` rows."""
+        self = cls.__new__(cls)
+        if not np.array_equal(blocks["hcount"], hcount):  # the counts are an episode's constants, loaded at its start
+            raise RuntimeError(f"the worlds have {int(blocks['hcount'].sum())} humans, the batch's rows "
+                               f"{int(hcount.sum())}")
+        for key in ("pose", "vel", "twist", "slots", "lpose", "lvel", "ltwist", "time", "step", "leader_done", "k",
+                    "next_switch", "touching", "contacts"):
+            setattr(self, key, blocks[key])
+        for key in ("hpos", "hvel"):
+            got = blocks[key]
+            if got.shape[1] != hmax:  # (the physics pads to the most humans of a world, the rows to capacity)
+                out = np.zeros((len(got), hmax, 2))
+                out[:, :got.shape[1]] = got
+                got = out
+            setattr(self, key, got)
+        return self
 
 
 class BatchState:
@@ -277,8 +318,9 @@ class BatchState:
             counts[0], counts[1] = int(self.hold_n[b]), int(self.hold_in[b])
 
     # ------------------------------------------------------------------ one step
-    def step(self, envs: Sequence[SwarmEnv], states: Sequence[WorldState], actions: np.ndarray,
-             wall: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    def step(self, envs: Sequence[SwarmEnv], states: Sequence[WorldState], actions: np.ndarray, wall: float,
+             a: StepArrays | None = None, drawn: Sequence[int] | None = None,
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """Rewards, metrics, episode end and observations of the step that produced ``states`` with
         the ``(M, N, 2)`` float64 normalised ``actions`` (after the physics of every world).
 
@@ -287,17 +329,61 @@ class BatchState:
         worlds' bookkeeping (``EpisodeMetrics`` records, ``termination``, ``agents``, renderer) is
         done, except for the finished worlds' final metrics and restart, which are the caller's
         (after :meth:`store`). ``wall``: the seconds added to each world's ``wall_time``. The stages
-        are the methods below, in this order (``benchmarks/engine_breakdown.py`` times each)."""
-        a = self.gather(states)
+        are the methods below, in this order (``benchmarks/engine_breakdown.py`` times each).
+
+        ``a``: the snapshots' arrays if the caller has them (:meth:`StepArrays.of_blocks`), else
+        :meth:`gather` stacks them; ``drawn``: the worlds with a renderer, if the caller knows them
+        (see :meth:`finish`)."""
+        if a is None:
+            a = self.gather(states)
         floats, rewards, touching = self.rewards(envs, states, a, actions)
         obs = self.observations(envs, states, a)
         within = self.metrics(envs, states, a, floats[len(REWARD_TERMS)], wall)
-        terminated, truncated, infos = self.finish(envs, states, a, floats, touching, within)
+        terminated, truncated, infos = self.finish(envs, states, a, floats, touching, within, drawn)
         return obs, rewards, terminated, truncated, infos
 
     def gather(self, states: Sequence[WorldState]) -> StepArrays:
         """The snapshots' per-step arrays, stacked (humans padded to this batch's rows)."""
         return StepArrays(states, self.hmax, self.hcount)
+
+    def arrays_of(self, blocks: dict[str, Any]) -> StepArrays:
+        """:meth:`gather`'s arrays from the physics' stacked blocks
+        (:meth:`swarm_env.world_batch.WorldBatch.last_arrays`), the same bits without touching ``M``
+        snapshots."""
+        return StepArrays.of_blocks(blocks, self.hmax, self.hcount)
+
+    def lidar_rows(self, a: StepArrays, fresh: dict[int, WorldState]) -> LidarRows:
+        """The lidar's input for every world (:data:`swarm_env.lidar.LidarRows`) from the rows: what
+        :func:`swarm_env.lidar.flat_inputs` gives for the worlds' ``lidar_input(e._state)`` after the
+        step that produced ``a``, without a tuple per world. ``fresh``: the worlds that started a new
+        episode since (their rows are loaded, ``a`` still holds their last state), with their first
+        snapshot. The radii, human counts and leader discs are the rows' episode constants."""
+        m, n = self.m, self.n
+        pose, lpose, hpos = a.pose, a.lpose, a.hpos
+        width = max(hpos.shape[1], self.hrad.shape[1])
+        if fresh or hpos.shape[1] != width:
+            pose, lpose = pose.copy(), lpose.copy()
+            grown = np.zeros((m, width, 2))
+            grown[:, :hpos.shape[1]] = hpos
+            hpos = grown
+            for b, st in fresh.items():
+                pose[b] = st.follower_pose
+                lpose[b] = st.leader_pose
+                hpos[b] = 0.0
+                hpos[b, :len(st.human_pos)] = st.human_pos
+        hcount = self.hcount
+        if self.hmax and hcount.any():
+            present = np.arange(width) < hcount[:, None]
+            humans, human_radii = hpos[present], self.hrad[:, :width][present]
+        else:
+            humans, human_radii = np.zeros((0, 2)), np.zeros(0)
+        leaders = np.full((m, 3), np.nan)  # NaN radius: a virtual leader (no disc)
+        robots = np.flatnonzero(self.lrobot)
+        if len(robots):
+            leaders[robots, :2] = lpose[robots, :2]
+            leaders[robots, 2] = self.lradius[robots]
+        return (pose.reshape(m * n, 3), self.radius.reshape(m * n), humans, human_radii, np.full(m, n, np.int64),
+                hcount.copy(), leaders)
 
     def rewards(self, envs: Sequence[SwarmEnv], states: Sequence[WorldState], a: StepArrays,
                 actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -310,7 +396,7 @@ class BatchState:
         touching = np.zeros((m, n, len(CONTACT_GROUPS)))
         onsets = np.zeros((m, n))
         weights = self.weights.copy()
-        hit = [b for b, s in enumerate(states) if s.touching]
+        hit = a.touching
         if len(hit) < m:
             calm = np.ones(m, bool)
             calm[hit] = False
@@ -354,7 +440,7 @@ class BatchState:
             self.min_clear, self.min_sep, self.err_max, self.steps, self.sim_time, self.wall_time, a.time, float(wall),
             _LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS, *self.maps.kernel_arrays(), a.k, self.last_k,
             self.pending_k, self.hold_key, self.hold_n, self.hold_in, within, event, status, hum)
-        for b in [b for b, s in enumerate(states) if s.contacts]:  # collision counts stay in the objects
+        for b in a.contacts:  # collision counts stay in the objects
             envs[b]._metrics.count_contacts(states[b])
         for b in np.flatnonzero(status == 2).tolist():  # EpisodeMetrics._update_compiled's numpy static clearance
             s = states[b]
@@ -379,9 +465,11 @@ class BatchState:
         return within
 
     def finish(self, envs: Sequence[SwarmEnv], states: Sequence[WorldState], a: StepArrays, floats: np.ndarray,
-               touching: np.ndarray, within: np.ndarray) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+               touching: np.ndarray, within: np.ndarray, drawn: Sequence[int] | None = None,
+               ) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
         """``(terminated, truncated, infos)`` as ``SwarmEnv._advance`` decides them, and the end of an
-        episode recorded in the worlds that finished (``SwarmEnv._close_step``)."""
+        episode recorded in the worlds that finished (``SwarmEnv._close_step``). ``drawn``: the worlds
+        that have a renderer, ascending (``None``: looked up here)."""
         from swarm_env.env import _INFO_KEYS
 
         m, n = self.m, self.n
@@ -393,9 +481,11 @@ class BatchState:
         infos = dict(zip(_INFO_KEYS, [*floats, *counts, np.repeat(collided[:, None], n, axis=1)]))
         for b in np.flatnonzero(terminated | truncated).tolist():
             envs[b]._close_step(states[b], bool(terminated[b]), bool(truncated[b]), bool(collided[b]))
-        for b, e in enumerate(envs):  # (a renderer exists only after a world's render() was called)
-            if e._renderer is not None and not (terminated[b] or truncated[b]):
-                e._close_step(states[b], False, False, False)
+        if drawn is None:  # (a renderer exists only after a world's render() was called)
+            drawn = [b for b, e in enumerate(envs) if e._renderer is not None]
+        for b in drawn:
+            if not (terminated[b] or truncated[b]):
+                envs[b]._close_step(states[b], False, False, False)
         return terminated, truncated, infos
 
     def state(self, envs: Sequence[SwarmEnv]) -> np.ndarray | None:

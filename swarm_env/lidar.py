@@ -16,8 +16,8 @@ Issue 11 (1,024 worlds per call) made :func:`scan` ~2x faster again with the sam
 tests/test_lidar_fast.py compares bit for bit): a polygon's edges are skipped when its
 bounding disc is certainly out of range, each robot's candidates go to small contiguous
 arrays with their per-robot terms computed once, and the ray-circle test has no branches.
-The batched engine gathers its worlds with :func:`pack_inputs` (a few concatenations and
-one compiled loop) instead of one ``moving_discs`` array per world.
+The batched engine gathers its worlds with :func:`pack_rows` (one compiled loop over its stacked
+per-world arrays, :data:`LidarRows`) instead of one ``moving_discs`` array per world.
 
 Semantics (per ray, distance from the origin along the unit direction, clipped to
 ``max_range``; ``max_range`` where nothing is hit):
@@ -69,11 +69,14 @@ class PackedMaps:
     poly_bound: np.ndarray
     poly_edges: np.ndarray
     wall_start: np.ndarray
+    #: ``(W,)`` each world's own polygon columns (``Mmax`` is their maximum; :meth:`replaced` needs them).
+    widths: np.ndarray | None = None
 
     @classmethod
     def of(cls, maps: Sequence[StaticMap]) -> PackedMaps:
         """Pack ``maps`` (one per world, in world order; a map may repeat)."""
-        mmax = max(m.poly_normals.shape[1] for m in maps)
+        widths = np.fromiter((m.poly_normals.shape[1] for m in maps), dtype=np.int64, count=len(maps))
+        mmax = int(widths.max())
 
         def starts(counts: list[int]) -> np.ndarray:
             return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
@@ -97,6 +100,73 @@ class PackedMaps:
             poly_edges=np.ascontiguousarray(np.concatenate([np.column_stack([e[:-1], e[1:]]) for e in edges]),
                                             dtype=np.int64).reshape(-1, 2),
             wall_start=np.array([e[-1] for e in edges], dtype=np.int64),
+            widths=widths,
+        )
+
+    def replaced(self, maps: Sequence[StaticMap], changed: Sequence[int]) -> PackedMaps:
+        """``PackedMaps.of(maps)`` (the same arrays) for ``maps`` that differ from the ones packed here
+        only at the worlds ``changed``: the other worlds' rows are copied as blocks and only the changed
+        worlds are packed, so a step in which a few of ``M`` worlds start a new episode (with a new map)
+        costs a few memory copies rather than a repacking of ``M`` maps (``of`` spends ~25 us of
+        Python per map: at 1,024 worlds, where some episode ends nearly every step, that was a quarter
+        of a step). Falls back to ``of`` when the column count ``Mmax`` changes."""
+        m = len(self.seg_start) - 1
+        changed = sorted({int(w) for w in changed})
+        if not changed:
+            return self
+        if self.widths is None or len(maps) != m:
+            return PackedMaps.of(maps)
+        widths = self.widths.copy()
+        for w in changed:
+            widths[w] = maps[w].poly_normals.shape[1]
+        mmax = self.poly_normals.shape[1]
+        if int(widths.max()) != mmax:
+            return PackedMaps.of(maps)
+        new = {w: PackedMaps.of([maps[w]]) for w in changed}  # each changed world alone, world-relative indices
+
+        def padded(a: np.ndarray) -> np.ndarray:  # (as `of` pads: the last column repeated)
+            return a if a.shape[1] == mmax else np.concatenate([a] + [a[:, -1:]] * (mmax - a.shape[1]), axis=1)
+
+        def spliced(old: np.ndarray, start: np.ndarray, pieces: dict[int, np.ndarray]) -> np.ndarray:
+            parts = []
+            at = 0
+            for w in changed:
+                parts.append(old[start[at]:start[w]])  # the unchanged worlds at..w-1, as one block
+                parts.append(pieces[w])
+                at = w + 1
+            parts.append(old[start[at]:])
+            return np.ascontiguousarray(np.concatenate(parts))
+
+        def counts(start: np.ndarray, key: str) -> np.ndarray:
+            out = np.diff(start)
+            for w in changed:
+                out[w] = len(getattr(new[w], key)) if key != "poly_start" else len(new[w].poly_bound)
+            return np.concatenate([[0], np.cumsum(out)]).astype(np.int64)
+
+        seg_start = counts(self.seg_start, "segments")
+        poly_start = counts(self.poly_start, "poly_start")
+        # polygon edges and walls relative to their world's first segment, then placed anew
+        old_world = np.repeat(np.arange(m), np.diff(self.poly_start))
+        rel_edges = self.poly_edges - self.seg_start[old_world][:, None]
+        rel_edges = spliced(rel_edges, self.poly_start, {w: p.poly_edges for w, p in new.items()})
+        new_world = np.repeat(np.arange(m), np.diff(poly_start))
+        rel_walls = self.wall_start - self.seg_start[:-1]
+        for w, p in new.items():
+            rel_walls[w] = p.wall_start[0]
+        return PackedMaps(
+            seg_start=seg_start,
+            segments=spliced(self.segments, self.seg_start, {w: p.segments for w, p in new.items()}),
+            circ_start=counts(self.circ_start, "circles"),
+            circles=spliced(self.circles, self.circ_start, {w: p.circles for w, p in new.items()}),
+            poly_start=poly_start,
+            poly_normals=spliced(self.poly_normals, self.poly_start,
+                                 {w: padded(p.poly_normals) for w, p in new.items()}),
+            poly_offsets=spliced(self.poly_offsets, self.poly_start,
+                                 {w: padded(p.poly_offsets) for w, p in new.items()}),
+            poly_bound=spliced(self.poly_bound, self.poly_start, {w: p.poly_bound for w, p in new.items()}),
+            poly_edges=np.ascontiguousarray(rel_edges + seg_start[new_world][:, None], dtype=np.int64).reshape(-1, 2),
+            wall_start=rel_walls + seg_start[:-1],
+            widths=widths,
         )
 
 
@@ -108,16 +178,20 @@ def pack_discs(per_world: Sequence[np.ndarray]) -> tuple[np.ndarray, np.ndarray]
     return start, np.ascontiguousarray(discs, dtype=np.float64)
 
 
-def pack_inputs(
-    inputs: Sequence[LidarInput],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`scan`'s ``(poses, world, own_disc, disc_start, discs)`` for the worlds ``inputs``
-    (:func:`swarm_env.observations.lidar_input` tuples, world ``w`` = ``inputs[w]``), in one pass:
-    a few concatenations over all worlds, then one compiled loop that lays out each world's discs
-    as :func:`swarm_env.observations.moving_discs` does (followers, a robot leader, humans)."""
+#: :func:`pack_rows`' input, the moving bodies of ``M`` worlds in flat arrays: follower poses ``(Q, 3)``
+#: and radii ``(Q,)`` (world after world), human positions ``(Hq, 2)`` and radii ``(Hq,)``, followers and
+#: humans per world ``(M,)`` int64 each, and each world's leader disc ``(M, 3)`` ``(x, y, r)``, ``r`` NaN
+#: for a virtual leader (no disc). :func:`flat_inputs` builds it from :func:`~swarm_env.observations.lidar_input`
+#: tuples; the batched engine builds it from its stacked per-world arrays (no per-world tuples).
+LidarRows = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def flat_inputs(inputs: Sequence[LidarInput]) -> LidarRows:
+    """The :data:`LidarRows` of the worlds ``inputs`` (:func:`swarm_env.observations.lidar_input`
+    tuples, world ``w`` = ``inputs[w]``): a few concatenations over all worlds."""
     m = len(inputs)
     if m == 1:  # one env's step: no lists to join
-        poses, radii, humans, human_radii, leader = inputs[0]
+        poses, radii, humans, human_radii, _ = inputs[0]
     else:
         poses = np.concatenate([x[0] for x in inputs])
         radii = np.concatenate([x[1] for x in inputs])
@@ -129,15 +203,41 @@ def pack_inputs(
     for w, x in enumerate(inputs):
         if x[4] is not None:
             leaders[w] = x[4]
+    return poses, radii, humans, human_radii, n_fol, n_hum, leaders
+
+
+def join_rows(parts: Sequence[LidarRows]) -> LidarRows:
+    """The :data:`LidarRows` of several groups of worlds, one group after the other."""
+    if len(parts) == 1:
+        return parts[0]
+    return tuple(np.concatenate([p[k] for p in parts]) for k in range(7))  # type: ignore[return-value]
+
+
+def pack_inputs(
+    inputs: Sequence[LidarInput],
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`scan`'s ``(poses, world, own_disc, disc_start, discs)`` for the worlds ``inputs``
+    (:func:`swarm_env.observations.lidar_input` tuples, world ``w`` = ``inputs[w]``), in one pass:
+    a few concatenations over all worlds (:func:`flat_inputs`), then one compiled loop that lays out
+    each world's discs as :func:`swarm_env.observations.moving_discs` does (followers, a robot leader,
+    humans): :func:`pack_rows`."""
+    return pack_rows(flat_inputs(inputs))
+
+
+def pack_rows(rows: LidarRows) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`pack_inputs` of worlds given as :data:`LidarRows`."""
+    poses, radii, humans, human_radii, n_fol, n_hum, leaders = rows
+    m = len(n_fol)
     q = int(n_fol.sum())
     world = np.empty(q, dtype=np.int64)
     own = np.empty(q, dtype=np.int64)
     disc_start = np.empty(m + 1, dtype=np.int64)
     discs = np.empty((q + int(n_hum.sum()) + m - int(np.isnan(leaders[:, 2]).sum()), 3))
-    _pack(_c(poses, np.float64).reshape(-1, 3), _c(radii, np.float64).reshape(-1),
-          _c(humans, np.float64).reshape(-1, 2), _c(human_radii, np.float64).reshape(-1), n_fol, n_hum, leaders,
-          world, own, disc_start, discs)
-    return _c(poses, np.float64).reshape(-1, 3), world, own, disc_start, discs
+    poses = _c(poses, np.float64).reshape(-1, 3)
+    _pack(poses, _c(radii, np.float64).reshape(-1), _c(humans, np.float64).reshape(-1, 2),
+          _c(human_radii, np.float64).reshape(-1), _c(n_fol, np.int64), _c(n_hum, np.int64),
+          _c(leaders, np.float64), world, own, disc_start, discs)
+    return poses, world, own, disc_start, discs
 
 
 @numba.njit(cache=True, nogil=True)

@@ -43,7 +43,7 @@ from swarm_env.scenario import SensorSpec
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:  # the lidar kernel (numba) is imported on first use: batched-engine workers never load it
-    from swarm_env.lidar import PackedMaps
+    from swarm_env.lidar import LidarRows, PackedMaps
 
 OBS_OWN_TWIST = slice(0, 2)
 OBS_SLOT = slice(2, 4)
@@ -224,7 +224,8 @@ class ObservationBuilder:
         """Write the lidar columns of ``obs`` (``(..., size)`` float32, from
         :meth:`build_without_lidar`) from ``lidar`` (``(..., rays)`` m), as :meth:`build` does."""
         cols = self.layout["lidar"]
-        obs[..., cols] = np.clip(lidar / self.sensors.lidar_range, self.low[cols], self.high[cols])
+        scaled = np.divide(lidar, self.sensors.lidar_range)
+        obs[..., cols] = np.clip(scaled, self.low[cols], self.high[cols], out=scaled)
 
     def _assemble(self, state: WorldState) -> np.ndarray:
         """(N, size) float64 observations, unclipped, lidar columns 0."""
@@ -335,6 +336,14 @@ class ObservationBuilder:
             disc_start = np.array([0, len(discs)], dtype=np.int64)
             return scan(poses, index[0], index[1], self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
         poses, world, own, disc_start, discs = pack_inputs(inputs)
+        return scan(poses, world, own, self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
+
+    def scan_rows(self, rows: LidarRows, maps: PackedMaps) -> np.ndarray:
+        """:meth:`scan` of worlds given as :data:`swarm_env.lidar.LidarRows` (the batched engine's
+        stacked arrays; the same bits as their :func:`lidar_input` tuples)."""
+        from swarm_env.lidar import pack_rows, scan
+
+        poses, world, own, disc_start, discs = pack_rows(rows)
         return scan(poses, world, own, self._ray_angles, self.sensors.lidar_range, maps, disc_start, discs)
 
     def _packed(self, static: StaticMap) -> PackedMaps:

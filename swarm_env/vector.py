@@ -71,7 +71,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, Listener
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import gymnasium
 import numpy as np
@@ -84,6 +84,9 @@ from swarm_env.observations import LidarInput, lidar_input
 from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS
 from swarm_env.state import WorldState
 from swarm_env.wrappers import SHIELD_INFO_KEYS, SafetyShield
+
+if TYPE_CHECKING:  # the lidar kernel (numba) is imported on first use: workers without kernels never load it
+    from swarm_env.lidar import LidarRows, PackedMaps
 
 __all__ = ["SwarmVectorEnv", "EnvFactory", "INFO_KEYS"]
 
@@ -117,7 +120,9 @@ class _BlockResult:
     """What a block of ``B`` worlds returns from a reset or a step (see :class:`_WorldBlock`)."""
 
     obs: np.ndarray  # (B, N, D) float32, lidar columns still 0
-    scans: list[LidarInput]  # per world: observations.lidar_input of its current state
+    # What the lidar needs of every world's current state: observations.lidar_input per world, or the same
+    # for all worlds as lidar.LidarRows (the batched stages build it from their rows).
+    scans: list[LidarInput] | LidarRows
     maps: dict[int, StaticMap]  # worlds (block index) whose map changed since the last result
     rewards: np.ndarray | None = None  # (B, N)
     terminated: np.ndarray | None = None  # (B,)
@@ -187,11 +192,18 @@ class _WorldBlock:
 
     def _step_batched(self, norm: np.ndarray) -> _BlockResult:
         """:meth:`_step_per_world`'s results with the rewards, metrics and observations of all worlds in
-        one compiled call per stage (:class:`swarm_env.batch_step.BatchState`): the same bits."""
+        one compiled call per stage (:class:`swarm_env.batch_step.BatchState`): the same bits.
+
+        Python touches each world as few times as it can (at 1,024 worlds a pass over the worlds'
+        objects misses the caches at every world): the physics (:mod:`swarm_env.world_batch`) stores
+        each world's snapshot chunk by chunk, and the stages, the lidar's input and the maps read the
+        physics' stacked blocks and the rows (:meth:`BatchState.arrays_of`, :meth:`BatchState.lidar_rows`)
+        instead of ``M`` snapshots."""
         if self._rows is None:
             self._rows = BatchState(self.envs)
         rows = self._rows
-        if not self._rows_live:
+        reloaded = not self._rows_live
+        if reloaded:
             for b, e in enumerate(self.envs):
                 rows.load(b, e)
             self._rows_live = True
@@ -210,26 +222,42 @@ class _WorldBlock:
         if self._physics is None:
             from swarm_env.world_batch import WorldBatch  # numba: only where the compiled kernels are on
             self._physics = WorldBatch()
-        states = _physics_stage(self.envs, acts, self._physics)
-        for e, st in zip(self.envs, states):
-            e._state = st
-        wall = (time.perf_counter() - t0) / len(self.envs)  # the physics' share; the rest is counted below
+        envs = self.envs
+        drawn: list[int] = []
+
+        def settle(indices: list[int], states: list[WorldState]) -> None:
+            # each world's new snapshot as soon as its chunk is done (its objects still in the caches; the
+            # previous snapshots are freed chunk by chunk), and the worlds with a renderer (BatchState.finish)
+            for b in indices:
+                e = envs[b]
+                e._state = states[b]
+                if e._renderer is not None:
+                    drawn.append(b)
+
+        states = _physics_stage(envs, acts, self._physics, speed=rows.speed, on_states=settle)
+        wall = (time.perf_counter() - t0) / len(envs)  # the physics' share; the rest is counted below
         t1 = time.perf_counter()
-        obs, rewards, terminated, truncated, infos = rows.step(self.envs, states, acts, wall)
+        blocks = self._physics.last_arrays()
+        a = rows.arrays_of(blocks) if blocks is not None else rows.gather(states)
+        obs, rewards, terminated, truncated, infos = rows.step(envs, states, acts, wall, a=a, drawn=sorted(drawn))
         if self.shielded:
             infos.update(_stack_columns(shield_cols, SHIELD_INFO_KEYS))
             infos["shield_action"] = np.stack(safe)
-        rows.wall_time += (time.perf_counter() - t1) / len(self.envs)
+        rows.wall_time += (time.perf_counter() - t1) / len(envs)
         final = []
+        fresh = {}
         for b in np.flatnonzero(terminated | truncated).tolist():
-            w, e, st = self.worlds[b], self.envs[b], states[b]
+            w, e, st = self.worlds[b], envs[b], states[b]
             rows.store(b, e)
             final.append((b, obs[b].copy(), lidar_input(st), w.episode_metrics(), e.state(), st))
             self._restart(b, None)
             assert e._state is not None
+            fresh[b] = e._state
             obs[b] = e._obs.build_without_lidar(e._state)
+        # the maps change only where a world started a new episode (or anything, while the rows were not live)
+        maps = self._changed_maps(None if reloaded else list(fresh))
         return _BlockResult(
-            obs, [lidar_input(e._state) for e in self.envs], self._changed_maps(),  # type: ignore[arg-type]
+            obs, rows.lidar_rows(a, fresh), maps,
             rewards=rewards, terminated=terminated, truncated=truncated, infos=infos, final=final,
         )
 
@@ -286,10 +314,12 @@ class _WorldBlock:
             assert self._rows is not None
             self._rows.load(b, self.envs[b])
 
-    def _changed_maps(self) -> dict[int, StaticMap]:
+    def _changed_maps(self, worlds: Sequence[int] | None = None) -> dict[int, StaticMap]:
+        """The worlds (of ``worlds``, all by default) whose map is not the last one sent, with their map."""
         out = {}
-        for b, e in enumerate(self.envs):
-            static = e._state.static  # type: ignore[union-attr]
+        envs = self.envs
+        for b in range(len(envs)) if worlds is None else worlds:
+            static = envs[b]._state.static  # type: ignore[union-attr]
             if static is not self._sent[b]:
                 out[b] = self._sent[b] = static
         return out
@@ -357,21 +387,27 @@ class _WorldBlock:
 _STATE_READERS = frozenset({"world_state", "state"})
 
 
-def _physics_stage(envs: Sequence[SwarmEnv], norm: np.ndarray, batch: Any = None) -> list[WorldState]:
+def _physics_stage(envs: Sequence[SwarmEnv], norm: np.ndarray, batch: Any = None, speed: np.ndarray | None = None,
+                   on_states: Callable[[list[int], list[WorldState]], None] | None = None) -> list[WorldState]:
     """Step every world's physics with its ``(N, 2)`` row of the normalised actions ``norm`` and
     return the snapshots: what ``SwarmEnv._advance`` does before the rewards. With a
     :class:`swarm_env.world_batch.WorldBatch` ``batch``, in one compiled call for the worlds it can
-    take (the same bits); without, world by world."""
+    take (the same bits); without, world by world. ``speed``: ``(M, 2)``, each world's ``e._speed``
+    (the batched rows hold them; looked up here if not given). ``on_states``: as for
+    :meth:`WorldBatch.step_and_snapshot <swarm_env.world_batch.WorldBatch.step_and_snapshot>`."""
     if batch is not None:
-        speed = np.stack([e._speed for e in envs])[:, None, :]
+        if speed is None:
+            speed = np.stack([e._speed for e in envs])
         worlds = [e._world for e in envs]
-        return batch.step_and_snapshot(norm * speed, worlds=worlds)
+        return batch.step_and_snapshot(norm * speed[:, None, :], worlds=worlds, on_states=on_states)
     out = []
     for e, act in zip(envs, norm):
         world = e._world
         assert world is not None
         world.step(act * e._speed)
         out.append(world.snapshot())
+    if on_states is not None:
+        on_states(list(range(len(out))), out)
     return out
 
 
@@ -600,7 +636,10 @@ class SwarmVectorEnv:
     def _merge(self, results: list[_BlockResult]) -> tuple[np.ndarray, dict[str, Any], list[tuple]]:
         """Concatenate the blocks' results and fill every lidar column with one kernel call."""
         obs = results[0].obs if len(results) == 1 else np.concatenate([r.obs for r in results])
-        infos = {k: np.concatenate([r.infos[k] for r in results]) for k in results[0].infos}
+        if len(results) == 1:
+            infos = dict(results[0].infos)
+        else:
+            infos = {k: np.concatenate([r.infos[k] for r in results]) for k in results[0].infos}
         finals = [(a + f[0], *f[1:]) for (a, _), r in zip(self._spans, results) for f in r.final]
         final_obs = []
         if finals:  # the finished episodes' last observations, in the maps they were played in
@@ -612,21 +651,34 @@ class SwarmVectorEnv:
         for (a, _), r in zip(self._spans, results):
             for b, static in r.maps.items():
                 self._maps[a + b] = static
-        scans = [s for r in results for s in r.scans]
-        self._obs.fill_lidar(obs, self._scan(scans, range(self.num_envs)).reshape(self.num_envs, self.num_agents, -1))
+        from swarm_env.lidar import flat_inputs, join_rows
+
+        scans = join_rows([r.scans if isinstance(r.scans, tuple) else flat_inputs(r.scans) for r in results])
+        lidar = self._obs.scan_rows(scans, self._packed_batch())
+        self._obs.fill_lidar(obs, lidar.reshape(self.num_envs, self.num_agents, -1))
         return obs, infos, final_obs
+
+    def _packed_batch(self) -> PackedMaps:
+        """Every world's current map, packed for the lidar; kept while no map changes, and updated
+        world by world where some do (:meth:`PackedMaps.replaced <swarm_env.lidar.PackedMaps.replaced>`:
+        with many worlds some episode ends, with a new map, nearly every step)."""
+        from swarm_env.lidar import PackedMaps
+
+        ids = [id(s) for s in self._maps]
+        if self._packed is None:
+            self._packed = (ids, PackedMaps.of(self._maps))  # type: ignore[arg-type]
+        elif self._packed[0] != ids:
+            changed = [w for w, (a, b) in enumerate(zip(self._packed[0], ids)) if a != b]
+            self._packed = (ids, self._packed[1].replaced(self._maps, changed))
+        return self._packed[1]
 
     def _scan(self, inputs: list[LidarInput], worlds: Sequence[int]) -> np.ndarray:
         from swarm_env.lidar import PackedMaps
 
-        maps = [self._maps[m] for m in worlds]
         if len(inputs) == self.num_envs:  # the whole batch: keep the packing while no map changes
-            ids = [id(s) for s in maps]
-            if self._packed is None or self._packed[0] != ids:
-                self._packed = (ids, PackedMaps.of(maps))  # type: ignore[arg-type]
-            packed = self._packed[1]
+            packed = self._packed_batch()
         else:
-            packed = PackedMaps.of(maps)  # type: ignore[arg-type]
+            packed = PackedMaps.of([self._maps[m] for m in worlds])  # type: ignore[misc]
         return self._obs.scan(inputs, packed)
 
     def _seeds(self, seed: int | Sequence[Seed] | None) -> list[Seed]:

@@ -17,7 +17,9 @@ from chipmunk's ``cpBody`` structs, and places the virtual leader and the format
 (:mod:`swarm_env.slot_kernel`'s inner functions); all results land in a handful of ``(M, ...)``
 blocks allocated once per call, and each world's ``WorldState`` holds read-only views of its rows.
 The blocks are new every call, so a ``WorldState`` stays valid after later steps (the experts and
-``final_world_state`` keep them).
+``final_world_state`` keep them). :meth:`WorldBatch.last_arrays` hands the blocks, stacked, to a
+caller that wants the per-step arrays of all worlds (the engine's batched stages: no gathering from
+``M`` snapshots), and ``on_states`` lets it take each chunk's snapshots as soon as they exist.
 
 Which worlds take the batched path: those :meth:`World.step <swarm_env.world.World.step>` itself
 would step with :func:`swarm_env.physics_kernel.scripted_step` and a compiled virtual leader, i.e.
@@ -59,7 +61,7 @@ from __future__ import annotations
 
 import math
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any, Literal
 
 import numba
@@ -303,6 +305,9 @@ class WorldBatch:
             self._append(w)
         #: How many worlds the last :meth:`step_and_snapshot` stepped on the batched path.
         self.last_batched = 0
+        # The last step's compiled calls: (rows, the kernel's blocks, projected slots, worlds touching,
+        # worlds with contact onsets) per chunk (last_arrays).
+        self._last: list[tuple[np.ndarray, tuple, list[tuple[int, np.ndarray]], list[int], list[int]]] = []
 
     def __len__(self) -> int:
         return len(self._worlds)
@@ -352,7 +357,8 @@ class WorldBatch:
             self._flts[m] = rec.flts
         return rec if isinstance(rec, _Record) else None
 
-    def step_and_snapshot(self, commands: np.ndarray, worlds: Sequence[World] | None = None) -> list[WorldState]:
+    def step_and_snapshot(self, commands: np.ndarray, worlds: Sequence[World] | None = None,
+                          on_states: Callable[[list[int], list[Any]], None] | None = None) -> list[WorldState]:
         """Step every world with its command and return the worlds' snapshots: what
         ``[(w.step(c), w.snapshot())[1] for w, c in zip(worlds, commands)]`` returns, bit for bit,
         with the worlds left in the same state.
@@ -363,7 +369,15 @@ class WorldBatch:
                 command as it does).
             worlds: the current worlds; where given, the batch first takes in every world that is
                 not the one it holds at that index (and drops the ones beyond ``len(worlds)``).
-        """
+            on_states: called as ``on_states(indices, states)`` as soon as the snapshots of the
+                worlds ``indices`` are in ``states`` (the list returned at the end), chunk after
+                chunk, then once for the worlds stepped by themselves; every world once, each
+                call's indices ascending. The engine stores each world's new snapshot there while
+                the chunk's objects are still in the caches (and the previous snapshots are freed
+                chunk by chunk rather than all at the end).
+
+        After the call, :meth:`last_arrays` gives the snapshots' per-step arrays stacked (when every
+        world took the batched path)."""
         if worlds is not None:
             self._sync(worlds)
         held = self._worlds
@@ -371,17 +385,67 @@ class WorldBatch:
         if cmd.ndim != 3 or cmd.shape[0] != len(held) or cmd.shape[2] != 2:
             raise ValueError(f"commands must be (M={len(held)}, N, 2), got shape {np.shape(commands)}")
         states: list[Any] = [None] * len(held)
+        self._last = []
         if _FAST_SPACE_STEP and compiled_kernels() and available():
-            self._step_batched(cmd, states)
+            self._step_batched(cmd, states, on_states)
         else:
             self.last_batched = 0
-        for m, w in enumerate(held):  # the rest: the worlds' own step and snapshot
-            if states[m] is None:
-                w.step(cmd[m])
-                states[m] = w.snapshot()
+        rest = [m for m, s in enumerate(states) if s is None]
+        for m in rest:  # the rest: the worlds' own step and snapshot
+            w = held[m]
+            w.step(cmd[m])
+            states[m] = w.snapshot()
+        if on_states is not None and rest:
+            on_states(rest, states)
         return states
 
-    def _step_batched(self, cmd: np.ndarray, states: list[Any]) -> None:
+    def last_arrays(self) -> dict[str, Any] | None:
+        """The per-step arrays of the last :meth:`step_and_snapshot`'s snapshots, stacked on a world
+        axis, when every world took the batched path (else ``None``): what stacking the snapshots'
+        fields gives, bit for bit, read from the kernel's blocks instead of ``M`` snapshots.
+
+        Keys: ``pose`` ``(M, N, 3)``, ``vel``, ``twist`` and ``slots`` (the slot targets, moved out of
+        obstacles where a world did) ``(M, N, 2)``, ``lpose`` ``(M, 3)``, ``lvel`` and ``ltwist``
+        ``(M, 2)``, ``hpos`` and ``hvel`` ``(M, H, 2)`` (world ``m``'s humans in its first ``hcount[m]``
+        rows, zeros after; ``H``: the most humans of a world), ``hcount``, ``time``, ``step``,
+        ``leader_done``, ``k`` (formation index), ``next_switch`` ``(M,)``, and ``touching`` /
+        ``contacts``: the worlds (ascending) whose snapshot has pairs in touch / contact onsets.
+        New, writeable arrays (the snapshots keep their own read-only ones)."""
+        chunks = self._last
+        m = len(self._worlds)
+        if self.last_batched != m or not chunks:
+            return None
+        outs = [c[1] for c in chunks]
+        width = max(o[9].shape[1] for o in outs)
+
+        def stacked(k: int) -> np.ndarray:
+            return np.concatenate([o[k] for o in outs]) if len(outs) > 1 else outs[0][k].copy()
+
+        def humans(k: int) -> np.ndarray:
+            if all(o[k].shape[1] == width for o in outs):
+                return stacked(k)
+            out = np.zeros((m, width, 2))
+            at = 0
+            for o in outs:
+                out[at:at + len(o[k]), :o[k].shape[1]] = o[k]
+                at += len(o[k])
+            return out
+
+        rows = np.concatenate([c[0] for c in chunks])
+        arrays: dict[str, Any] = {
+            "pose": stacked(0), "vel": stacked(1), "twist": stacked(2), "slots": stacked(3), "lpose": stacked(5),
+            "lvel": stacked(6), "ltwist": stacked(7), "leader_done": stacked(8), "hpos": humans(9),
+            "hvel": humans(10), "time": stacked(11), "k": stacked(12), "next_switch": stacked(13),
+            "hcount": self._ints[rows, _C_H], "step": self._ints[rows, _C_STEP] + 1,
+            "touching": [m for c in chunks for m in c[3]], "contacts": [m for c in chunks for m in c[4]],
+        }
+        for c in chunks:
+            for m_, s in c[2]:  # slots moved out of an obstacle (World._advance_virtual_leader_and_slots)
+                arrays["slots"][m_] = s
+        return arrays
+
+    def _step_batched(self, cmd: np.ndarray, states: list[Any],
+                      on_states: Callable[[list[int], list[Any]], None] | None) -> None:
         """Step the worlds that can take the batched path and put their snapshots in ``states``,
         :attr:`chunk` worlds at a time, so a world's Python objects are touched before and after its
         physics with at most ``chunk - 1`` other worlds' work in between (at 1,024 worlds the Python
@@ -390,9 +454,10 @@ class WorldBatch:
         self.last_batched = 0
         for start in range(0, len(self._worlds), self.chunk):
             self.last_batched += self._step_chunk(range(start, min(start + self.chunk, len(self._worlds))), cmd,
-                                                  states)
+                                                  states, on_states)
 
-    def _step_chunk(self, chunk: range, cmd: np.ndarray, states: list[Any]) -> int:
+    def _step_chunk(self, chunk: range, cmd: np.ndarray, states: list[Any],
+                    on_states: Callable[[list[int], list[Any]], None] | None) -> int:
         held, records = self._worlds, self._records
         n_cmd = cmd.shape[1]
         rows: list[int] = []
@@ -436,6 +501,9 @@ class WorldBatch:
         free_l, done_l, times_l, form_l = free.tolist(), done.tolist(), times.tolist(), form.tolist()
         next_l = next_switch.tolist()
         build_state = WorldState.build
+        projected: list[tuple[int, np.ndarray]] = []
+        touching: list[int] = []
+        contacts: list[int] = []
         for r, m in enumerate(rows):
             w = held[m]
             h = records[m].h  # type: ignore[union-attr]
@@ -453,8 +521,14 @@ class WorldBatch:
             if not free_l[r]:  # a slot too close to an obstacle: as World._advance_virtual_leader_and_slots
                 s = w.static.project_free(s, w._slot_clearance)
                 s.flags.writeable = False
+                projected.append((m, s))
             w._slots = s
             w._settle_contacts()
+            touched, onsets = w._touching_step, w._onsets
+            if touched:
+                touching.append(m)
+                if onsets:
+                    contacts.append(m)
             # World.snapshot's WorldState (the same fields, the same order)
             states[m] = build_state(
                 time=t,
@@ -474,11 +548,14 @@ class WorldBatch:
                 slot_targets=s,
                 formation_index=f,
                 next_switch_time=next_l[r],
-                contacts=w._onsets,
+                contacts=onsets,
                 static=w.static,
                 scenario=w.scenario,
-                touching=w._touching_step,
+                touching=touched,
             )
+        self._last.append((idx, out, projected, touching, contacts))
+        if on_states is not None:
+            on_states(rows, states)
         return len(rows)
 
 

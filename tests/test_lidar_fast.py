@@ -175,3 +175,49 @@ def test_packed_maps_index_each_polygons_edges_and_the_walls() -> None:
             assert stop - first == count
             assert np.array_equal(packed.segments[first, :2], static.poly_vertices[p, 0])
         assert packed.seg_start[w + 1] - packed.wall_start[w] == 4  # the walls come last
+
+
+def _same_packing(a: PackedMaps, b: PackedMaps) -> None:
+    for key in ("seg_start", "segments", "circ_start", "circles", "poly_start", "poly_normals", "poly_offsets",
+                "poly_bound", "poly_edges", "wall_start", "widths"):
+        x, y = getattr(a, key), getattr(b, key)
+        assert (x.dtype, x.shape, x.tobytes()) == (y.dtype, y.shape, y.tobytes()), key
+        assert y.flags.c_contiguous, key
+
+
+def test_replacing_some_worlds_maps_packs_what_packing_them_all_gives() -> None:
+    """``PackedMaps.replaced`` (the batched engine's update when a few worlds start a new episode) gives
+    ``PackedMaps.of``'s arrays exactly: changes at the ends and in the middle, runs of neighbours, maps
+    without obstacles, and a change of the padded polygon width (which repacks everything)."""
+    rng = np.random.default_rng(11)
+    pool = [_random_map(rng, (20.0, 12.0)) for _ in range(40)] + [StaticMap.from_obstacles((5.0, 5.0), [])]
+    maps = [pool[int(k)] for k in rng.integers(0, len(pool), 24)]
+    packed = PackedMaps.of(maps)
+    widths = {packed.poly_normals.shape[1]}
+    for trial in range(60):
+        k = int(rng.integers(1, 6))
+        changed = [0, 23] if trial == 0 else rng.choice(24, k, replace=False).tolist()
+        for w in changed:
+            maps[w] = pool[int(rng.integers(0, len(pool)))]
+        packed = packed.replaced(maps, changed)
+        _same_packing(PackedMaps.of(maps), packed)
+        widths.add(packed.poly_normals.shape[1])
+    assert packed.replaced(maps, []) is packed
+    # the padded polygon width Mmax grows and shrinks (repacked from scratch), or stays while a wide map
+    # remains elsewhere (replaced): the same arrays either way
+    wide = max(pool, key=lambda m: m.poly_normals.shape[1])
+    maps = [pool[-1]] * 24  # no polygons: Mmax 1
+    packed = PackedMaps.of(maps)
+    for w, static in ((5, wide), (9, wide), (5, pool[-1]), (9, pool[-1])):
+        maps[w] = static
+        packed = packed.replaced(maps, [w])
+        _same_packing(PackedMaps.of(maps), packed)
+        widths.add(packed.poly_normals.shape[1])
+    assert len(widths) > 1
+    # the scans agree too
+    poses = np.c_[rng.uniform(0, 20, (48, 2)), rng.uniform(-np.pi, np.pi, 48)]
+    world = np.repeat(np.arange(24), 2)
+    own = np.zeros(48, dtype=np.int64)
+    start, discs = pack_discs([np.c_[poses[2 * w:2 * w + 2, :2], np.full(2, 0.2)] for w in range(24)])
+    got = scan(poses, world, own, RAYS, 5.0, packed, start, discs)
+    assert got.tobytes() == scan(poses, world, own, RAYS, 5.0, PackedMaps.of(maps), start, discs).tobytes()

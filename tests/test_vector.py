@@ -20,12 +20,18 @@ def _rows(d: dict, agents: list[str], key: str | None = None) -> np.ndarray:
 
 
 def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: bool = False, n_procs: int = 1,
-              shield: bool = False, worker_kernels: bool = False, **kwargs) -> int:
+              shield: bool = False, worker_kernels: bool = False, chunk: int | None = None, **kwargs) -> int:
     """Step a SwarmVectorEnv and num_envs SwarmEnvs with the same actions; assert every output is
-    bitwise equal; return the number of episodes that ended (and were auto-reset)."""
+    bitwise equal; return the number of episodes that ended (and were auto-reset). ``chunk``: the
+    engine's physics steps that many worlds per compiled call (default: WorldBatch's)."""
     if discrete:
         kwargs["action_type"] = "discrete"
     venv = SwarmVectorEnv(scenario, num_envs, n_procs=n_procs, shield=shield, worker_kernels=worker_kernels, **kwargs)
+    if chunk is not None:
+        from swarm_env.world_batch import WorldBatch
+
+        assert venv._local is not None
+        venv._local._physics = WorldBatch(chunk=chunk)
     refs = [EnvFactory(scenario, kwargs, shield)() for _ in range(num_envs)]
     keys = INFO_KEYS + (SHIELD_INFO_KEYS if shield else ())
     agents = refs[0].possible_agents
@@ -87,6 +93,13 @@ def test_each_builtin_scenario_matches_swarm_env_bitwise(scenario: str) -> None:
 def test_fifty_random_worlds_match_swarm_env_bitwise() -> None:
     # 50 worlds, seeds 1000-1049, each ending once (max_cycles) and continuing after its auto-reset.
     assert _lockstep("random", 50, 30, seed=1000, max_cycles=25) == 50
+
+
+def test_worlds_in_several_physics_chunks_with_different_human_counts() -> None:
+    """The batched stages and the lidar read the physics' stacked blocks and the rows (not the
+    snapshots): chunks of 2 worlds with 0 to 3 humans each, episodes ending and restarting with other
+    counts, the same bits."""
+    assert _lockstep("random", 7, 30, seed=70, max_cycles=12, n_humans=(0, 3), chunk=2) >= 14
 
 
 def test_random_with_humans_and_robot_leader_and_discrete_actions() -> None:

@@ -54,6 +54,40 @@ def assert_same_state(a: WorldState, b: WorldState, world: World) -> None:
             assert type(x) is type(y) and x == y, (key, x, y)
 
 
+def assert_stacked(batch: WorldBatch, states: list[WorldState]) -> None:
+    """``batch.last_arrays()`` is the snapshots' fields stacked, bit for bit (``None`` unless every
+    world took the batched path), in new writeable arrays."""
+    got = batch.last_arrays()
+    if batch.last_batched != len(states):
+        assert got is None
+        return
+    assert got is not None
+    h = max(len(s.human_pos) for s in states)
+
+    def padded(a: np.ndarray) -> np.ndarray:
+        return np.concatenate([a, np.zeros((h - len(a), 2))])
+
+    want = {
+        "pose": np.stack([s.follower_pose for s in states]), "vel": np.stack([s.follower_vel for s in states]),
+        "twist": np.stack([s.follower_twist for s in states]), "slots": np.stack([s.slot_targets for s in states]),
+        "lpose": np.stack([s.leader_pose for s in states]), "lvel": np.stack([s.leader_vel for s in states]),
+        "ltwist": np.stack([s.leader_twist for s in states]),
+        "hpos": np.stack([padded(s.human_pos) for s in states]), "hvel": np.stack([padded(s.human_vel) for s in states]),
+        "hcount": np.array([len(s.human_pos) for s in states], dtype=np.int64),
+        "time": np.array([s.time for s in states]), "step": np.array([s.step for s in states], dtype=np.int64),
+        "leader_done": np.array([s.leader_done for s in states]),
+        "k": np.array([s.formation_index for s in states], dtype=np.int64),
+        "next_switch": np.array([s.next_switch_time for s in states]),
+    }
+    assert set(got) == set(want) | {"touching", "contacts"}
+    for key, x in want.items():
+        y = got[key]
+        assert (x.dtype, x.shape, x.tobytes()) == (y.dtype, y.shape, y.tobytes()), key
+        assert y.flags.writeable and y.flags.c_contiguous, key
+    assert got["touching"] == [m for m, s in enumerate(states) if s.touching]
+    assert got["contacts"] == [m for m, s in enumerate(states) if s.contacts]
+
+
 def world_digest(w: World) -> bytes:
     """The state a world carries from one step to the next (what a later step reads)."""
     raw = w._reader._read_properties()
@@ -82,8 +116,16 @@ def lockstep(ref: list[World], bat: list[World], steps: int, seed: int, batch: W
     states: list[WorldState] = []
     for _ in range(steps):
         cmd = rng.uniform(-1.0, 1.0, (len(ref), n, 2)) * scale
-        states = batch.step_and_snapshot(cmd)
+        delivered: list[int] = []
+
+        def on_states(indices: list[int], got: list[Any]) -> None:
+            assert indices == sorted(indices) and all(got[m] is not None for m in indices)
+            delivered.extend(indices)
+
+        states = batch.step_and_snapshot(cmd, on_states=on_states)
+        assert sorted(delivered) == list(range(len(ref)))
         batched.append(batch.last_batched)
+        assert_stacked(batch, states)
         for w, c, s, wb in zip(ref, cmd, states, bat):
             w.step(c)
             assert_same_state(w.snapshot(), s, wb)
@@ -148,6 +190,24 @@ def test_random_worlds_exercise_contacts_projection_humans_and_switches(monkeypa
             seen["projected"] = 1
     assert seen["contacts"] > 0 and seen["switch"] > 0 and seen.get("projected")
     assert len({len(w._human_bodies) for w in bat}) > 1  # different human counts in one batch
+
+
+def test_stacked_arrays_over_chunks_with_different_human_counts_and_moved_slots() -> None:
+    """``last_arrays`` (what the engine's batched stages read instead of the snapshots) stacks chunks
+    whose kernel blocks have different human widths (padded), and the slots moved out of obstacles;
+    lockstep compares it with the stacked snapshots at every step."""
+    specs = [("random", {**RANDOM_SWITCHING, "n_followers": 8}, 10 + k) for k in range(6)]
+    specs.append(("paper_cbs_switch", {}, 1))  # 8 followers too: every world takes the batched path
+    ref, bat = _worlds(specs), _worlds(specs)
+    widths = moved = 0
+    batch = WorldBatch(bat, chunk=2)
+    for step in range(60):  # (paper_cbs_switch's slots are first moved at step 54)
+        lockstep(ref, bat, 1, seed=step, batch=batch)
+        if step:
+            assert batch.last_batched == len(bat)
+            widths += len({c[1][9].shape[1] for c in batch._last}) > 1
+            moved += sum(len(c[2]) for c in batch._last)
+    assert widths and moved
 
 
 def test_mixed_eligible_and_fallback_worlds_and_replacements() -> None:
