@@ -165,7 +165,7 @@ def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd
     """
     import torch
 
-    from swarm_env_baselines.safe_io import one_line, read_description, read_tensors
+    from swarm_env_baselines.safe_io import one_line, read_description
 
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FORMAT)
@@ -177,15 +177,22 @@ def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd
             float(config["residual_scale"])
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{d / CONFIG_FILE}: not a run description of swarm_env_baselines.mappo ({one_line(exc)})") from None
-    actor = mlp([obs_rms.mean.shape[0], *hidden, 2])
-    tensors = read_tensors(d / WEIGHTS_FILE)
-    try:
-        actor.load_state_dict({k[len("actor."):]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
-    except (RuntimeError, ValueError) as exc:  # missing/unexpected keys, shape mismatches
-        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({one_line(exc)})") from None
-    actor.eval()
+    actor = _load_actor(d, mlp([obs_rms.mean.shape[0], *hidden, 2]))
     torch.set_num_threads(1)  # a small MLP on a few observations: threads only add overhead (and float noise)
     return config, actor, obs_rms
+
+
+def _load_actor(d: Path, net: Any) -> Any:
+    """``net`` with the ``actor.*`` tensors of ``d/policy.safetensors``, in eval mode; ``ValueError`` naming the
+    file if they do not fit it (missing or unexpected keys, shapes)."""
+    from swarm_env_baselines.safe_io import one_line, read_tensors
+
+    tensors = read_tensors(d / WEIGHTS_FILE)
+    try:
+        net.load_state_dict({k[len("actor."):]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
+    except (RuntimeError, ValueError) as exc:  # missing/unexpected keys, shape mismatches
+        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({one_line(exc)})") from None
+    return net.eval()
 
 
 def load_sac_policy(directory: str | Path, name: str | None = None) -> MAPPOPolicy:
@@ -193,7 +200,7 @@ def load_sac_policy(directory: str | Path, name: str | None = None) -> MAPPOPoli
     as a deterministic policy. Raises ``ValueError`` naming the file for a missing or bad file."""
     import torch
 
-    from swarm_env_baselines.safe_io import one_line, read_description, read_tensors
+    from swarm_env_baselines.safe_io import one_line, read_description
 
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, SAC_FORMAT)
@@ -204,15 +211,9 @@ def load_sac_policy(directory: str | Path, name: str | None = None) -> MAPPOPoli
         obs_rms = RunningMeanStd.from_json(meta["obs_rms"])
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{d / CONFIG_FILE}: not a run description of swarm_env_baselines.sac ({one_line(exc)})") from None
-    net = mlp([obs_rms.mean.shape[0], *hidden, 4])
-    tensors = read_tensors(d / WEIGHTS_FILE)
-    try:
-        net.load_state_dict({k[len("actor."):]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
-    except (RuntimeError, ValueError) as exc:
-        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({one_line(exc)})") from None
+    net = _load_actor(d, mlp([obs_rms.mean.shape[0], *hidden, 4]))
     if not all(torch.isfinite(p).all() for p in net.parameters()):
         raise ValueError(f"{d / WEIGHTS_FILE}: the actor's tensors are not all finite")
-    net.eval()
     torch.set_num_threads(1)
     return MAPPOPolicy(SquashedMeanActor(net), obs_rms, name=name or f"isac:{directory}")
 
