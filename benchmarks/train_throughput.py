@@ -8,7 +8,10 @@ repeat runs one PPO iteration (rollout of ``n_steps`` steps of every world, then
 trainer and ``n_steps`` engine steps, in an order that alternates between repeats; after one warm-up
 iteration each, the report gives medians over the repeats of agent-steps/s by wall time and by CPU time
 (``time.process_time``), the rollout/update split, and the ratios trainer / engine and trainer / peer
-(medians of the per-repeat paired ratios)::
+(medians of the per-repeat paired ratios). The medians are the steady state: all worlds of ``random`` end
+their 600-step episodes together, and the iteration that holds that reset wave is an outlier the median drops.
+The totals (all repeats' agent-steps over their summed wall time, ``with resets``) count it: the default 5
+repeats of 128 steps span one episode, so they hold one wave, about the real rate::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/train_throughput.py --worlds 8 64 --repeats 5
     python benchmarks/train_throughput.py --worlds 8 64 --peer-commit 8ecad84 --peer-config '{"n_copies": 8}' \
@@ -185,6 +188,11 @@ def measure(runs: dict[str, Any], repeats: int) -> dict[str, dict[str, float]]:
             row["steps_per_cpu_s"] = runs[name].agent_steps / row["cpu"]
             rows[name].append(row)
     out = {name: {k: median(x[k] for x in rs) for k in rs[0]} for name, rs in rows.items()}
+    for name, rs in rows.items():  # totals: the reset waves counted (medians drop the iteration that holds one)
+        out[name]["total_steps_per_s"] = runs[name].agent_steps * len(rs) / sum(x["wall"] for x in rs)
+    for name in names:
+        if name != "engine":
+            out[name]["total_ratio_to_engine"] = out[name]["total_steps_per_s"] / out["engine"]["total_steps_per_s"]
     for name in names:
         if name != "engine":
             out[name]["ratio_to_engine"] = median(a["steps_per_s"] / b["steps_per_s"]
@@ -256,9 +264,11 @@ def main(argv: list[str] | None = None) -> int:
             line = (f"M={m:5d} {dumps(variant, indent=None) if variant else '':40s} trainer {t['steps_per_s']:9,.0f} "
                     f"agent-steps/s (rollout {t['rollout_wall']:.2f} s, update {t['update_wall']:.2f} s)  engine "
                     f"{e['steps_per_s']:9,.0f}  trainer/engine {t['ratio_to_engine']:.2f} (CPU "
-                    f"{t['cpu_ratio_to_engine']:.2f})")
+                    f"{t['cpu_ratio_to_engine']:.2f}); with resets trainer {t['total_steps_per_s']:9,.0f} engine "
+                    f"{e['total_steps_per_s']:9,.0f} ({t['total_ratio_to_engine']:.2f})")
             if "peer" in result:
-                line += f"  peer {result['peer']['steps_per_s']:9,.0f}  trainer/peer {t['ratio_to_peer']:.2f}"
+                line += (f"  peer {result['peer']['steps_per_s']:9,.0f}  trainer/peer {t['ratio_to_peer']:.2f} (with "
+                         f"resets {t['total_steps_per_s'] / result['peer']['total_steps_per_s']:.2f})")
             print(line, flush=True)
     if args.json:
         write_json(args.json, report, indent=1)

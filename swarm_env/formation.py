@@ -19,7 +19,7 @@ from functools import lru_cache
 import numpy as np
 
 from swarm_env.geometry import StaticMap
-from swarm_env.paths import PolylinePath, virtual_leader
+from swarm_env.paths import PolylinePath
 from swarm_env.scenario import FormationSpec, Scenario
 
 #: Extra clearance (m) beyond the robot radius kept between a slot target and obstacles.
@@ -337,16 +337,17 @@ def virtual_slot_trajectory(
 
 
 def unprojected_slot_trajectory(scn: Scenario, steps: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`virtual_slot_trajectory` before the projection out of obstacles."""
-    n = scn.robots.count
-    dt = scn.world.dt
+    """:func:`virtual_slot_trajectory` before the projection out of obstacles.
+
+    Row ``k`` is ``slot_targets(virtual_leader(path, speed, k * dt, start_delay) pose,
+    offsets[active_formation(formations, k * dt)], None, 0.0)``; the rows are computed in one compiled
+    call (:func:`swarm_env.slot_kernel.slot_trajectory`, the same bits: the random scenario generator
+    asks for a whole episode of them per map, which step by step in Python took ~40 % of a reset).
+    """
+    from swarm_env import slot_kernel  # numba: imported where it is first needed, as World does
+
     line = PolylinePath(scn.leader.path)
-    offsets = [formation_offsets(f, n) for f in scn.formations]
-    raw = np.empty((steps + 1, n, 2))
-    index = np.empty(steps + 1, dtype=np.intp)
-    for k in range(steps + 1):
-        t = k * dt
-        pose = virtual_leader(line, scn.leader.speed, t, scn.leader.start_delay)[0]
-        index[k] = active_formation(scn.formations, t)
-        raw[k] = slot_targets(pose, offsets[index[k]], None, 0.0)
-    return raw, index
+    offsets = np.stack([formation_offsets(f, scn.robots.count) for f in scn.formations])
+    ats = np.array([f.at for f in scn.formations], dtype=np.float64)
+    return slot_kernel.slot_trajectory(slot_kernel.pack_path(line), line.length, scn.leader.speed,
+                                       scn.leader.start_delay, scn.world.dt, offsets, ats, steps)

@@ -91,6 +91,17 @@ def rotate_rectangle(
     return local @ rot.T + np.asarray(center, dtype=np.float64)
 
 
+def _next(a: np.ndarray) -> np.ndarray:
+    """``np.roll(a, -1, axis=0)`` (row ``i`` holds row ``i + 1``, the last the first) without np.roll's
+    overhead, which dominated building the small polygons of a random map."""
+    return np.concatenate((a[1:], a[:1]))
+
+
+def _prev(a: np.ndarray) -> np.ndarray:
+    """``np.roll(a, 1, axis=0)``: row ``i`` holds row ``i - 1``, the first the last."""
+    return np.concatenate((a[-1:], a[:-1]))
+
+
 def convex_ccw(points: Sequence[Sequence[float]] | np.ndarray) -> np.ndarray:
     """Validate a convex polygon and return its vertices counter-clockwise.
 
@@ -111,13 +122,13 @@ def convex_ccw(points: Sequence[Sequence[float]] | np.ndarray) -> np.ndarray:
         raise ValueError("polygon points must be finite")
     if len(pts):
         scale = max(float(np.ptp(pts, axis=0).max()), 1e-300)
-        keep = np.linalg.norm(pts - np.roll(pts, 1, axis=0), axis=1) > 1e-12 * scale
+        keep = np.linalg.norm(pts - _prev(pts), axis=1) > 1e-12 * scale
         if len(pts) > 1:
             pts = pts[keep]
     if len(pts) < 3:
         raise ValueError(f"a polygon needs at least 3 distinct vertices, got {len(pts)}")
     x, y = pts[:, 0], pts[:, 1]
-    area2 = float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+    area2 = float(np.dot(x, _next(y)) - np.dot(_next(x), y))
     scale = float(np.ptp(pts, axis=0).max())
     if abs(area2) <= 1e-12 * scale * scale:
         # Zero signed area: either every vertex is on one line, or the boundary crosses itself
@@ -129,8 +140,8 @@ def convex_ccw(points: Sequence[Sequence[float]] | np.ndarray) -> np.ndarray:
         raise ValueError("polygon is self-intersecting (its boundary crosses itself, so its signed area is zero)")
     if area2 < 0.0:
         pts = pts[::-1].copy()
-    e = np.roll(pts, -1, axis=0) - pts  # edge i goes from vertex i to vertex i+1
-    e_next = np.roll(e, -1, axis=0)
+    e = _next(pts) - pts  # edge i goes from vertex i to vertex i+1
+    e_next = _next(e)
     cross = e[:, 0] * e_next[:, 1] - e[:, 1] * e_next[:, 0]
     dot = np.einsum("ij,ij->i", e, e_next)
     lengths = np.linalg.norm(e, axis=1) * np.linalg.norm(e_next, axis=1)
@@ -228,7 +239,7 @@ class StaticMap:
         edges = np.zeros((P, mmax, 2))
         for i, p in enumerate(polys):  # construction only; hot paths use the padded arrays
             m = len(p)
-            e = np.roll(p, -1, axis=0) - p
+            e = _next(p) - p
             verts[i, :m], edges[i, :m] = p, e
             verts[i, m:], edges[i, m:] = p[-1], e[-1]  # repeat the last edge as padding
         lengths = np.linalg.norm(edges, axis=2)
@@ -240,7 +251,7 @@ class StaticMap:
         put(self, "poly_offsets", _frozen(offsets))
         put(self, "poly_counts", _frozen(np.array([len(p) for p in polys], dtype=np.int64)))
 
-        seg_list = [np.hstack([p, np.roll(p, -1, axis=0)]) for p in polys]
+        seg_list = [np.hstack([p, _next(p)]) for p in polys]
         walls = np.array([[0, 0, W, 0], [W, 0, W, H], [W, H, 0, H], [0, H, 0, 0]], dtype=np.float64)
         put(self, "segments", _frozen(np.vstack(seg_list + [walls])))
 
@@ -866,9 +877,9 @@ class StaticMap:
         for pid, poly in zip(self.polygon_ids, self.polygons):  # construction-time, cached
             circ.append(np.column_stack([poly, np.full(len(poly), cp)]))
             circ_owner.append(np.full(len(poly), pid))
-            e = np.roll(poly, -1, axis=0) - poly
+            e = _next(poly) - poly
             nrm = np.stack([e[:, 1], -e[:, 0]], axis=1) / np.linalg.norm(e, axis=1)[:, None]
-            segs.append(np.hstack([poly + cp * nrm, np.roll(poly, -1, axis=0) + cp * nrm]))
+            segs.append(np.hstack([poly + cp * nrm, _next(poly) + cp * nrm]))
             seg_owner.append(np.full(len(poly), pid))
         lo_x, lo_y, hi_x, hi_y = cp, cp, W - cp, H - cp
         segs.append(np.array([[lo_x, lo_y, hi_x, lo_y], [hi_x, lo_y, hi_x, hi_y],

@@ -109,6 +109,9 @@ _MAX_TURN = math.radians(60.0)  # largest heading change at a waypoint
 _PATH_ATTEMPTS = 300
 _HUMAN_ATTEMPTS = 30
 _OBSTACLE_TRIES = 40  # candidates per requested obstacle
+# How far (m) a drawn obstacle may reach beyond its nominal bounding radius: coordinates and sizes are
+# rounded to mm (a polygon's vertices by up to 0.0007 m, a rectangle's half-diagonal by 0.0005 m).
+_BOUND_SLACK = 0.002
 _SAMPLE_STEP = 0.1  # m between the points that stand for a path in clearance tests
 _SLOT_SPEED_SHARE = 0.9  # slot targets move at most this share of max_speed while the leader turns
 _DEFAULT_WORLD = 20.0  # m, the side of an ``auto`` world for small formations
@@ -416,8 +419,24 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
     steps = int(math.floor(cfg.max_time / cfg.dt + 1e-9))
     raw = unprojected_slot_trajectory(scn, steps)
 
-    def slots_can_follow(obstacle: Any) -> bool:  # this obstacle alone makes no slot jump (see _feasible_obstacles)
-        return not len(_violations(scn, *virtual_slot_trajectory(scn, StaticMap.from_obstacles((W, H), [obstacle]), steps, raw)))
+    # A candidate whose bounding disc stays the projection's clearance away from every unprojected slot moves
+    # none of them (project_free leaves free points untouched), so it passes exactly when the unprojected slots
+    # do; most candidates are such, and this skips building their map (what the check below costs) and
+    # projecting thousands of points. Only when no slot comes near a wall: there the walls alone move slots.
+    clear = r + SLOT_MARGIN  # virtual_slot_trajectory's clearance
+    raw_xy = raw[0].reshape(-1, 2)
+    off_walls = bool(np.all(np.minimum(np.minimum(raw_xy[:, 0], W - raw_xy[:, 0]),
+                                       np.minimum(raw_xy[:, 1], H - raw_xy[:, 1])) >= clear + _BOUND_SLACK))
+    raw_follows = not len(_violations(scn, *raw))
+
+    def slots_can_follow(obstacle: Any, centre: np.ndarray, rho: float) -> bool:
+        """Whether this obstacle alone makes no slot jump (see _feasible_obstacles)."""
+        if off_walls:
+            d2 = (raw_xy[:, 0] - centre[0]) ** 2 + (raw_xy[:, 1] - centre[1]) ** 2
+            if float(d2.min()) >= (rho + clear + _BOUND_SLACK) ** 2:
+                return raw_follows
+        static = StaticMap.from_obstacles((W, H), [obstacle])
+        return not len(_violations(scn, *virtual_slot_trajectory(scn, static, steps, raw)))
 
     obstacles = _draw_obstacles(
         rng, cfg, (W, H), n_obs, line, extent, np.vstack(pts), np.concatenate(need), slots_can_follow
@@ -698,7 +717,7 @@ def _draw_obstacles(
             dist = StaticMap.from_obstacles((W, H), [obj]).obstacle_distances(keep_pts)[:, 0]
             if np.any(dist < keep_clear):
                 continue
-        if not slots_can_follow(obj):
+        if not slots_can_follow(obj, centre, rho):
             continue
         accepted.append((obj, centre, rho))
     return [a[0] for a in accepted]

@@ -147,6 +147,45 @@ def _slots(pose, offsets, screen, size_reach):  # pragma: no cover - compiled
     return targets, _screen(targets, screen, size_reach)
 
 
+@_jit
+def _slot_trajectory(path, params, offsets, ats, raw, index):  # pragma: no cover - compiled
+    """Rows ``k = 0..len(raw) - 1`` of the unprojected slots at ``t = k * dt``: ``_virtual_pose``, the
+    formation whose ``at`` is the last ``<= t`` (formation.active_formation), ``_place_slots``."""
+    leader = np.empty(6)
+    for k in range(raw.shape[0]):
+        t = k * params[3]
+        _virtual_pose(path, params[0], params[1], t, params[2], leader)
+        f = 0
+        for i in range(ats.shape[0]):
+            if ats[i] <= t:
+                f = i
+        index[k] = f
+        _place_slots(leader[0], leader[1], leader[2], offsets[f], raw[k])
+
+
+def slot_trajectory(path: np.ndarray, length: float, speed: float, delay: float, dt: float, offsets: np.ndarray,
+                    ats: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray]:
+    """The unprojected slots of a virtual leader at ``t = k * dt`` for ``k = 0..steps``, in one call:
+    :func:`virtual_slots` at every step with the formation schedule applied.
+
+    Args:
+        path: :func:`pack_path` of the leader's path; ``length`` its length.
+        speed, delay: the leader's speed and start delay; ``dt`` the control step.
+        offsets: ``(F, n, 2)`` float64 offsets of the ``F`` formations of the schedule.
+        ats: ``(F,)`` their start times (sorted).
+
+    Returns:
+        ``(slots (steps + 1, n, 2), formation index (steps + 1,))``, bit for bit what
+        :func:`swarm_env.formation.unprojected_slot_trajectory` defines step by step.
+    """
+    raw = np.empty((steps + 1, offsets.shape[1], 2))
+    index = np.empty(steps + 1, dtype=np.intp)
+    params = np.array([float(length), float(speed), float(delay), float(dt)])
+    _slot_trajectory(path, params, np.ascontiguousarray(offsets, dtype=np.float64),
+                     np.ascontiguousarray(ats, dtype=np.float64), raw, index)
+    return raw, index
+
+
 def virtual_slots(path: np.ndarray, length: float, speed: float, delay: float, t: float, offsets: np.ndarray,
                   screen: np.ndarray, size_reach: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
     """The virtual leader at time ``t`` and the slots around it, in one call.
@@ -174,4 +213,4 @@ def slots(pose: np.ndarray, offsets: np.ndarray, screen: np.ndarray, size_reach:
     return targets, bool(free)
 
 
-__all__ = ["pack_path", "slots", "virtual_slots"]
+__all__ = ["pack_path", "slot_trajectory", "slots", "virtual_slots"]

@@ -82,6 +82,28 @@ def test_virtual_slots_match_virtual_leader_and_slot_targets(points: list[tuple[
         assert frees == {True, False}  # both outcomes exercised on the first path
 
 
+@pytest.mark.parametrize("points", PATHS)
+def test_unprojected_slot_trajectory_is_the_leader_step_by_step(points: list[tuple[float, float]]) -> None:
+    """The compiled trajectory (slot_kernel.slot_trajectory) is, row by row, virtual_leader at k * dt, the
+    formation active then and slot_targets: the definition the random generator's checks rely on."""
+    import dataclasses
+
+    scn = load_scenario("paper_cbs_switch")  # a formation switch mid-episode
+    scn = dataclasses.replace(scn, leader=dataclasses.replace(scn.leader, path=tuple(points), start_delay=1.5))
+    steps = 2000
+    raw, index = formation_lib.unprojected_slot_trajectory(scn, steps)
+    assert raw.shape == (steps + 1, scn.robots.count, 2) and index.shape == (steps + 1,)
+    line = PolylinePath(scn.leader.path)
+    offsets = [formation_lib.formation_offsets(f, scn.robots.count) for f in scn.formations]
+    for k in range(steps + 1):
+        t = k * scn.world.dt
+        pose = virtual_leader(line, scn.leader.speed, t, scn.leader.start_delay)[0]
+        f = formation_lib.active_formation(scn.formations, t)
+        assert index[k] == f, k
+        assert raw[k].tobytes() == formation_lib.slot_targets(pose, offsets[f], None, 0.0).tobytes(), k
+    assert len(set(index.tolist())) == len(scn.formations) > 1  # the switch is in the trajectory
+
+
 def test_slot_screen_rejects_non_finite_and_wall_points() -> None:
     smap = StaticMap(size=(10.0, 8.0), circles=np.array([[5.0, 4.0, 1.0]]), circle_ids=np.array([0]),
                      polygons=(), polygon_ids=np.zeros(0, dtype=np.int64))

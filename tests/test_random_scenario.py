@@ -184,3 +184,27 @@ def test_bad_knobs(knobs: dict, key: str) -> None:
     assert err.value.key == key and str(err.value).startswith("random:")
     if key == "n_folowers":
         assert "n_followers" in str(err.value)  # lists the known knobs
+
+
+def test_far_obstacle_shortcut_changes_no_scenario(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Candidates whose bounding disc keeps clear of every unprojected slot skip their one-obstacle map (they
+    move no slot); with the shortcut turned off (an infinite slack) the same seeds give the same scenarios, and
+    the shortcut does fire (fewer maps are built)."""
+    import swarm_env.random_scenario as module
+
+    built = []
+    real = StaticMap.from_obstacles.__func__  # type: ignore[attr-defined]
+
+    def counting(cls, size, obstacles):  # type: ignore[no-untyped-def]
+        built.append(len(obstacles))
+        return real(cls, size, obstacles)
+
+    monkeypatch.setattr(StaticMap, "from_obstacles", classmethod(counting))
+    knobs = [{}, {"n_obstacles": (10, 14), "n_followers": (6, 8)}]
+    fast = [_scn(seed, **k) for seed in range(12) for k in knobs]
+    fast_maps = len(built)
+    monkeypatch.setattr(module, "_BOUND_SLACK", float("inf"))
+    built.clear()
+    slow = [_scn(seed, **k) for seed in range(12) for k in knobs]
+    assert fast == slow
+    assert fast_maps < 0.6 * len(built)
