@@ -43,6 +43,7 @@ import numpy as np
 
 from swarm_env.harness.policies import OBSERVATIONS, ModelFileError, PolicyError
 from swarm_env.state import WorldState
+from swarm_env_baselines.mappo_policy import SHIPPED_SEEDS, shipped_run
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -55,7 +56,7 @@ VECNORM_FILE = "vecnormalize.pkl"
 #: What a bare ``ppo`` / ``bc`` says since their v0 checkpoints were retired.
 RETIRED = ("the v0 checkpoint that {algo!r} loaded without a path was retired (trained on swarm_env_v0 from an "
            "uncommitted tree); give a run directory, {algo}:PATH, or use a shipped method: ippo, mappo, "
-           "mappo_shielded, residual_vo (docs/baselines.md)")
+           "mappo_shielded, residual_vo, sb3_ppo (docs/baselines.md)")
 
 
 def _running_mean_std_base() -> type:
@@ -347,7 +348,19 @@ def make_sac_policy(env: SwarmEnv, arg: str | None = None) -> SB3Policy:
     return _make("sac", env, arg)
 
 
+def make_sb3_ppo(env: SwarmEnv, arg: str | None = None) -> SB3Policy:
+    """Entry point ``sb3_ppo[:s<k>|:PATH]``: the shipped SB3 PPO runs (``baselines/checkpoints/sb3_ppo/s<k>``,
+    trained by ``swarm-env train sb3`` through the SB3 bridge), the first training seed without an argument,
+    or any SB3 run directory; a leaderboard plays all three seeds."""
+    run = shipped_run("sb3_ppo", arg or SHIPPED_SEEDS[0]) if arg in (None, *SHIPPED_SEEDS) else Path(arg)
+    policy = _make("ppo", env, str(run))
+    policy.name = "sb3_ppo" if arg is None else f"sb3_ppo:{arg}"
+    return policy
+
+
+make_sb3_ppo.training_runs = SHIPPED_SEEDS  # type: ignore[attr-defined]
 # What the leaderboard's "acts on" column says: the networks read each follower's own observation.
+make_sb3_ppo.acts_on = OBSERVATIONS  # type: ignore[attr-defined]
 make_ppo_policy.acts_on = OBSERVATIONS  # type: ignore[attr-defined]
 make_bc_policy.acts_on = OBSERVATIONS  # type: ignore[attr-defined]
 make_sac_policy.acts_on = OBSERVATIONS  # type: ignore[attr-defined]

@@ -1,4 +1,4 @@
-"""Ship a :mod:`swarm_env_baselines.mappo` run as a checkpoint: copy its model-selected policy and records, write the README.
+"""Ship a training run as a checkpoint: copy its model-selected policy and records, write the README.
 
 ``swarm-env ship RUN_DIR --method residual_vo --seed s0`` copies, from ``RUN_DIR``,
 the best validation policy (``best/policy.safetensors`` + ``best/policy.json``) and the run's
@@ -7,6 +7,10 @@ records (``config.json``, ``versions.json``, ``summary.json``, ``eval.csv``, ``t
 ``baselines/checkpoints/<method>/<seed>/``, then rewrites ``baselines/checkpoints/<method>/README.md``
 from every seed shipped so far: the exact training command, the commit, wall time, where the time
 went (warm start, rollouts, updates, validation) and the selected model's validation figures.
+
+A run of ``swarm-env train sb3`` (its ``config.json`` names an ``algo``) ships the same way, with SB3's
+training log ``logs/progress.csv`` as ``progress.csv`` in place of ``train.csv`` (SB3 does not split its
+wall time, so its README gives the wall time and rate only); its safe pair loads as ``ppo:DIR``.
 
 Rules, each an error naming the file and what was expected:
 
@@ -34,6 +38,9 @@ from swarm_env_baselines.safe_io import swap_in_dir
 #: Records copied from the run directory (the ones marked optional may be absent).
 RECORDS = ("config.json", "versions.json", "summary.json", "eval.csv", "train.csv", "learning_curve.png")
 OPTIONAL_RECORDS = ("pretrain.csv",)
+#: Records of a ``swarm-env train sb3`` run, and where its SB3 training log is (shipped as ``progress.csv``).
+SB3_RECORDS = ("config.json", "versions.json", "summary.json", "eval.csv", "learning_curve.png")
+SB3_LOG = Path("logs") / "progress.csv"
 
 #: The head of each shipped method's README (what the method is; the commands come from the runs).
 DESCRIPTIONS = {
@@ -51,6 +58,11 @@ DESCRIPTIONS = {
         "correction is a reward penalty (`--intervention-coef 1.0`) and, where the shield intervened, a loss pulls "
         "the actor's mean to the safe twist (`--imitation-coef 1.0`). The entry point `mappo_shielded` executes "
         "it through the shield; `mappo_shielded_bare` loads the same files and acts alone (observations only)."),
+    "sb3_ppo": (
+        "stable-baselines3's PPO trained through the project's SB3 bridge (`swarm_env_baselines.vec_env`: the "
+        "batched engine's 64 worlds as 256 single-agent environments, one network shared by every follower), from "
+        "scratch on the v1 reward with SB3's own `VecNormalize`. No warm start, no central critic: what a user "
+        "who starts from SB3 gets with `swarm-env train sb3`. Acts on observations only; loads as `ppo:DIR` too."),
     "residual_vo": (
         "`vo`'s twist plus a learned bounded correction (at most `residual_scale` = 0.5 normalised action units), "
         "trained and executed through the safety layer (`--shield execute`), with the shield's correction as a "
@@ -59,7 +71,7 @@ DESCRIPTIONS = {
         "a zero correction is already `vo`)."),
 }
 
-__all__ = ["ShipError", "ship_run", "time_breakdown", "write_method_readme"]
+__all__ = ["ShipError", "is_sb3_run", "selected", "ship_run", "time_breakdown", "write_method_readme"]
 
 
 class ShipError(ValueError):
@@ -84,18 +96,43 @@ def ship_run(run_dir: str | os.PathLike[str], method: str, seed: str, *, dest: P
     if versions.get("git_dirty") is not False and not allow_dirty:
         raise ShipError(f"{run / 'versions.json'}: git_dirty is {versions.get('git_dirty')!r}, expected false "
                         "(train shipped models from a clean commit, or pass --allow-dirty)")
-    files = [run / "best" / WEIGHTS_FILE, run / "best" / CONFIG_FILE, *(run / r for r in RECORDS)]
-    files += [run / r for r in OPTIONAL_RECORDS if (run / r).exists()]
-    for f in files:
+    sb3 = is_sb3_run(run)
+    names = {run / "best" / WEIGHTS_FILE: WEIGHTS_FILE, run / "best" / CONFIG_FILE: CONFIG_FILE}
+    if sb3:
+        names.update({run / r: r for r in SB3_RECORDS})
+        names[run / SB3_LOG] = SB3_LOG.name
+    else:
+        names.update({run / r: r for r in RECORDS})
+        names.update({run / r: r for r in OPTIONAL_RECORDS if (run / r).exists()})
+    kind = "swarm-env train sb3" if sb3 else "swarm_env_baselines.mappo"
+    for f in names:
         if not f.is_file():
-            raise ShipError(f"{f}: missing (expected a finished swarm_env_baselines.mappo run directory)")
+            raise ShipError(f"{f}: missing (expected a finished {kind} run directory)")
     target = dest / method / seed
     staging = target.with_name(f".{seed}.staging")
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir(parents=True)
-    for f in files:
-        shutil.copy2(f, staging / f.name)
+    for f, name in names.items():
+        shutil.copy2(f, staging / name)
     return swap_in_dir(staging, target)
+
+
+def is_sb3_run(run: Path) -> bool:
+    """Whether ``run`` (a run directory or a shipped seed) is a ``swarm-env train sb3`` run: its config names an ``algo``."""
+    return "algo" in _read_json(run / "config.json")
+
+
+def selected(seed_dir: Path) -> dict[str, Any]:
+    """The validation row of the shipped model: ``summary.json``'s ``best`` (MAPPO, SAC), or for an SB3 run the
+    first row of ``eval.csv`` with the lowest score (the model its ``EvalCallback`` kept in ``best/``)."""
+    summary = _read_json(seed_dir / "summary.json")
+    if "best" in summary:
+        return dict(summary["best"])
+    with open(seed_dir / "eval.csv", newline="") as fh:
+        rows = [{k: int(v) if k == "agent_steps" else float(v) for k, v in r.items()} for r in csv.DictReader(fh)]
+    if not rows:
+        raise ShipError(f"{seed_dir / 'eval.csv'}: no validation rows")
+    return min(rows, key=lambda r: r["score"])  # min keeps the first of equal scores, as the callback's strict <
 
 
 def time_breakdown(seed_dir: Path) -> dict[str, float]:
@@ -145,7 +182,8 @@ def write_method_readme(method: str, *, dest: Path = CHECKPOINTS, description: s
         f"and every seed for a leaderboard (mean ± 95 % CI across seeds); `{method}:s1` one seed. Each `s<k>/`",
         "holds the model selected on validation seeds 500-549 (`policy.safetensors` + `policy.json`: tensors and",
         "JSON, nothing unpickled) and the run's records (`config.json`, `versions.json`, `summary.json`,",
-        "`eval.csv`, `train.csv`, `learning_curve.png`, and `pretrain.csv` where there was a DAgger warm start).",
+        "`eval.csv`, `train.csv` (SB3's `progress.csv` for an SB3 run), `learning_curve.png`, and `pretrain.csv`",
+        "where there was a DAgger warm start).",
         "",
         "## How each seed was trained",
         "",
@@ -167,20 +205,24 @@ def write_method_readme(method: str, *, dest: Path = CHECKPOINTS, description: s
     ]
     for name, d in seeds:
         summary = _read_json(d / "summary.json")
-        t = time_breakdown(d)
-        best = summary["best"]
+        # SB3 logs no split of its wall time: only the total and the rate.
+        t = None if is_sb3_run(d) else time_breakdown(d)
+        parts = (f"{t['pretrain']:.0f} | {t['rollout']:.0f} | {t['update']:.0f} | {t['validation']:.0f}"
+                 if t else "- | - | - | -")
+        best = selected(d)
         # Selection can keep the starting point (the warm start, or a residual's near-zero correction).
         at = "0 (the start)" if best["agent_steps"] == 0 else f"{best['agent_steps']:,}"
         lines.append(
-            f"| {name} | {summary['agent_steps']:,} | {t['wall']:.0f} | {t['pretrain']:.0f} | {t['rollout']:.0f} "
-            f"| {t['update']:.0f} | {t['validation']:.0f} | {summary['steps_per_s']:,.0f} | {at} "
+            f"| {name} | {summary['agent_steps']:,} | {float(summary['wall_s']):.0f} | {parts} "
+            f"| {summary['steps_per_s']:,.0f} | {at} "
             f"| {best['formation_error']:.3f} ± {best['formation_error_ci95']:.3f} "
             f"| {best['collisions']:.2f} ± {best['collisions_ci95']:.2f} |")
     lines += [
         "",
         "Agent-steps/s count training steps over the wall time after the warm start (validation included);",
         "rollouts = stepping the env copies and the actor, updates = the PPO epochs, validation = the",
-        "50-episode evaluations every `eval_every` agent-steps (the rest of the wall time). The",
+        "50-episode evaluations every `eval_every` agent-steps (the rest of the wall time; `-`: an SB3 run,",
+        "whose log does not split it, `progress.csv` is SB3's own). The",
         "last two columns are the selected model on the 50 validation worlds (mean ± 95 % CI); the test figures",
         "(seeds 1000-1049, never used for selection) are in [docs/baselines.md](../../../docs/baselines.md).",
         "Each seed's `learning_curve.png` plots its `eval.csv`.",
@@ -195,7 +237,7 @@ def write_method_readme(method: str, *, dest: Path = CHECKPOINTS, description: s
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="swarm-env ship", description=__doc__.split("\n\n")[0])
-    parser.add_argument("run_dir", help="a finished swarm_env_baselines.mappo run directory")
+    parser.add_argument("run_dir", help="a finished run directory of swarm-env train mappo or train sb3")
     parser.add_argument("--method", required=True, help="checkpoint name, e.g. residual_vo")
     parser.add_argument("--seed", required=True, help="training-seed label, e.g. s0")
     parser.add_argument("--description", default="", help="one paragraph for the README's head (default: the method's own)")

@@ -208,3 +208,41 @@ def test_progress_bar_ends_at_the_steps_actually_taken(tmp_path, capsys):
     assert json.loads((run / "summary.json").read_text())["agent_steps"] == 128
     final = capsys.readouterr().err.replace("\r", "\n").strip().splitlines()[-1]
     assert "100%" in final and "128/128" in final, final
+
+
+def test_an_sb3_run_ships_and_loads_as_sb3_ppo(tmp_path):
+    """``swarm-env ship`` takes a finished ``train sb3`` run: the safe pair of ``best/``, its records and SB3's
+    log as ``progress.csv``; the README names the command and the selected row of ``eval.csv``; the seed loads
+    as ``sb3_ppo:DIR`` and acts like ``ppo:`` on the run's best model."""
+    import csv
+
+    from swarm_env.harness.policies import acts_on, training_runs
+    from swarm_env_baselines import ship
+
+    run = train_mod.train(_tiny(tmp_path, checkpoint_every=0))
+    versions = json.loads((run / "versions.json").read_text())
+    versions["git_dirty"] = False  # as a run from a clean commit
+    (run / "versions.json").write_text(json.dumps(versions))
+    dest = tmp_path / "checkpoints"
+    target = ship.ship_run(run, "sb3_ppo", "s0", dest=dest)
+    assert sorted(p.name for p in target.iterdir()) == sorted(
+        ["policy.safetensors", "policy.json", "progress.csv", *ship.SB3_RECORDS])
+    assert ship.is_sb3_run(target)
+    with open(run / "eval.csv", newline="") as fh:
+        scores = [float(r["score"]) for r in csv.DictReader(fh)]
+    best = ship.selected(target)
+    assert best["score"] == min(scores) and best["agent_steps"] >= 0
+    readme = ship.write_method_readme("sb3_ppo", dest=dest).read_text()
+    assert "stable-baselines3's PPO" in readme and "| s0 |" in readme and f"{best['formation_error']:.3f}" in readme
+
+    env = SwarmEnv("random", **TINY_ENV)
+    shipped, original = load_policy(f"sb3_ppo:{target}", env), load_policy(f"ppo:{run}/best", env)
+    obs, _ = env.reset(seed=3)
+    state = env.world_state()
+    a, b = shipped.act(obs, state), original.act(obs, state)
+    assert all(np.array_equal(a[k], b[k]) for k in a)
+    assert shipped.name == f"sb3_ppo:{target}"
+    assert training_runs("sb3_ppo") == ("sb3_ppo:s0", "sb3_ppo:s1", "sb3_ppo:s2") and acts_on("sb3_ppo") == "observations"
+    (run / "logs" / "progress.csv").unlink()
+    with pytest.raises(ship.ShipError, match="progress.csv: missing"):
+        ship.ship_run(run, "sb3_ppo", "s1", dest=dest)
