@@ -187,8 +187,8 @@ def write_method_readme(method: str, *, dest: Path = CHECKPOINTS, description: s
         "",
         "## How each seed was trained",
         "",
-        "Run from the repository root at the commit shown, with `OPENBLAS_NUM_THREADS=1`, two runs side by side on",
-        "the project's 2-core machine (`--runs-dir`/`--run-name` only name the output directory):",
+        "Run from the repository root at the commit shown, with `OPENBLAS_NUM_THREADS=1`, two or three runs side by",
+        "side on the project's 2-core machine (`--runs-dir`/`--run-name` only name the output directory):",
         "",
     ]
     for name, d in seeds:
