@@ -218,22 +218,34 @@ def load_sac_policy(directory: str | Path, name: str | None = None) -> MAPPOPoli
     return MAPPOPolicy(SquashedMeanActor(net), obs_rms, name=name or f"isac:{directory}")
 
 
-def make_isac(env: Any, arg: str | None = None) -> MAPPOPolicy:
-    """Entry point ``isac:PATH``: a shared-parameter SAC run directory of :mod:`swarm_env_baselines.sac`
-    (or its ``best/``), playing ``tanh`` of its actor's mean."""
-    from swarm_env.harness.policies import ModelFileError, PolicyError
+def directory_entry_point(label: str, loader: Callable[..., MAPPOPolicy], usage: str, doc: str
+                          ) -> Callable[..., MAPPOPolicy]:
+    """A policy entry point ``label:DIR`` for a run directory that ``loader(DIR, name=...)`` reads: no ``DIR``
+    is a :class:`PolicyError` saying ``usage``, a file ``loader`` refuses (``ValueError``) a :class:`ModelFileError`
+    naming the spec; the policy acts on observations only."""
 
-    if not arg:
-        raise PolicyError("isac needs a run directory: isac:runs/<run> (or isac:runs/<run>/best)")
-    try:
-        policy = load_sac_policy(arg, name=f"isac:{arg}")
-    except ValueError as exc:
-        raise ModelFileError(f"policy isac:{arg}: {exc}") from None
-    policy.reset(env, None)
-    return policy
+    def factory(env: Any, arg: str | None = None) -> MAPPOPolicy:
+        from swarm_env.harness.policies import ModelFileError, PolicyError
+
+        if not arg:
+            raise PolicyError(usage)
+        try:
+            policy = loader(arg, name=f"{label}:{arg}")
+        except ValueError as exc:
+            raise ModelFileError(f"policy {label}:{arg}: {exc}") from None
+        policy.reset(env, None)
+        return policy
+
+    factory.acts_on = OBSERVATIONS  # type: ignore[attr-defined]
+    factory.__name__ = factory.__qualname__ = f"make_{label}"
+    factory.__doc__ = doc
+    return factory
 
 
-make_isac.acts_on = OBSERVATIONS  # type: ignore[attr-defined]
+make_isac = directory_entry_point(
+    "isac", load_sac_policy, "isac needs a run directory: isac:runs/<run> (or isac:runs/<run>/best)",
+    "Entry point ``isac:PATH``: a shared-parameter SAC run directory of :mod:`swarm_env_baselines.sac` (or its "
+    "``best/``), playing ``tanh`` of its actor's mean.")
 
 
 def load_run_policy(directory: str | Path, env: Any | None = None, name: str | None = None) -> MAPPOPolicy:

@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from swarm_env.jsonio import write_json
+from swarm_env_baselines.mappo_policy import directory_entry_point
 
 FORMAT = "swarm_env.rllib/1"
 WEIGHTS_FILE = "policy.safetensors"
@@ -174,21 +175,9 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
     return MAPPOPolicy(actor, _Unnormalised(sizes[0]), name=name or f"rllib:{directory}")  # type: ignore[arg-type]
 
 
-def make_rllib_policy(env: Any, arg: str | None = None) -> Any:
-    """Entry point ``rllib:DIR``: the actor exported by ``swarm-env train rllib --out DIR``."""
-    from swarm_env.harness.policies import ModelFileError, PolicyError
-
-    if not arg:
-        raise PolicyError("policy 'rllib' needs a run directory: rllib:DIR (written by swarm-env train rllib)")
-    try:
-        policy = load_rllib_policy(arg, name=f"rllib:{arg}")
-    except ValueError as exc:
-        raise ModelFileError(f"policy rllib:{arg}: {exc}") from None
-    policy.reset(env, None)
-    return policy
-
-
-make_rllib_policy.acts_on = "observations"  # type: ignore[attr-defined]
+make_rllib_policy = directory_entry_point(
+    "rllib", load_rllib_policy, "policy 'rllib' needs a run directory: rllib:DIR (written by swarm-env train rllib)",
+    "Entry point ``rllib:DIR``: the actor exported by ``swarm-env train rllib --out DIR``.")
 
 
 # --------------------------------------------------------------------------- training
