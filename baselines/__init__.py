@@ -25,5 +25,6 @@ OpenAI Baselines' import name). Its dependencies come with the ``rl`` extra
 * :mod:`swarm_env_baselines.evaluate` — ``python -m swarm_env_baselines.evaluate``, the leaderboard
   command (the same as ``swarm-env evaluate``).
 
-Nothing here is imported by ``swarm_env`` or ``swarm_env_agents`` (see DESIGN.md).
+Nothing here is imported by ``swarm_env_agents`` or by the simulation core (``tests/test_layout.py`` checks the
+core); the harness finds the policies through their entry points and `swarm-env` its commands by module name.
 """

@@ -7,7 +7,7 @@ for every follower (parameter sharing); SB3 sees ``M * N`` ordinary single-agent
 The engine steps all worlds with one call (one lidar kernel call for all followers, arrays
 throughout); this module only reshapes its arrays and builds the per-sub-env info dicts SB3 reads.
 
-Contract (what SB3's algorithms rely on, and what SuperSuit gets wrong; see DESIGN.md):
+Contract (what SB3's algorithms rely on, and what SuperSuit gets wrong; see docs/baselines.md, "The SB3 bridge"):
 
 * **Worlds are built, not cloned**: each is ``env_fn()`` (a :class:`~swarm_env.env.SwarmEnv`,
   or a :class:`~swarm_env.wrappers.SafetyShield` of one); no state or RNG is shared.

@@ -31,7 +31,7 @@ __version__ = "0.1.0"
 
 raw_env = SwarmEnv
 
-_moved.install()  # the harness modules' old names (swarm_env.harness.cli, swarm_env.policies, ...) until 0.2
+_moved.install()  # the harness modules' old names (swarm_env.cli, swarm_env.policies, ...) until 0.2
 
 
 def parallel_env(scenario: Any = "paper_vo_0", **kwargs: Any) -> SwarmEnv:

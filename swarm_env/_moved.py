@@ -1,8 +1,8 @@
 """Old module names that still import: the harness modules moved to :mod:`swarm_env.harness` in 0.1.
 
-``import swarm_env.harness.cli`` (and the others below) gives the module itself, ``swarm_env.harness.cli``,
+``import swarm_env.cli`` (and the other old names below) gives the module itself, ``swarm_env.harness.cli``,
 with a ``DeprecationWarning``; the old names go in 0.2. A finder on ``sys.meta_path`` serves them,
-so there is no file at the old path (``python -m swarm_env.harness.cli`` is ``python -m swarm_env.harness.cli``
+so there is no file at the old path (``python -m swarm_env.cli`` is ``python -m swarm_env.harness.cli``
 now).
 """
 

@@ -4,7 +4,7 @@ Two kernels replace a few dozen small numpy calls of a step with one call each:
 
 * :func:`reward_table` - the slot distances and every weighted term of
   :data:`swarm_env.rewards.REWARD_TERMS` with their sum; the numpy reference is
-  :func:`swarm_env.rewards._reward_table_numpy`.
+  :func:`swarm_env.rewards.reward_table` with :func:`swarm_env.compiled.use_compiled_kernels` off.
 * :func:`metrics_step` - the accumulators of :meth:`swarm_env.metrics.EpisodeMetrics.update`
   (summed slot error and twists, distance travelled) and the robot-robot and robot-human
   parts of its proximity minima; the numpy reference is ``EpisodeMetrics``' own code with

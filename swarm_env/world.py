@@ -1,4 +1,5 @@
-"""The physical world: the only module that imports pymunk.
+"""The physical world: the module that owns the pymunk space (the drive and physics kernels reach into
+chipmunk through ``pymunk._chipmunk`` for its bodies' memory).
 
 :class:`World` turns a :class:`~swarm_env.scenario.Scenario` into a pymunk
 ``Space`` and advances it one control period at a time:

@@ -6,6 +6,6 @@ episodes, paired statistics), ``bench`` (throughput), ``video`` and ``cli`` (``s
 
 The dependency runs one way: the harness imports the simulation core (``swarm_env.env`` and the
 modules below it), never the reverse (``tests/test_layout.py`` checks it). The modules' old names
-(``swarm_env.harness.cli``, ``swarm_env.policies``, ...) still import, with a ``DeprecationWarning``, until
+(``swarm_env.cli``, ``swarm_env.policies``, ...) still import, with a ``DeprecationWarning``, until
 version 0.2.
 """

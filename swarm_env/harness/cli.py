@@ -530,7 +530,7 @@ MODULE_COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("train", "rllib"): ("swarm_env_baselines.rllib_train", "RLlib's PPO on Ray, one machine or a cluster (extras rl, ray)"),
     ("bc",): ("swarm_env_baselines.bc", "behaviour cloning (+ DAgger) of a scripted expert into PPO's policy network"),
     ("demos",): ("swarm_env_baselines.demos", "record a scripted expert's demonstrations (cached .npz)"),
-    ("ship",): ("swarm_env_baselines.ship", "copy a finished `train mappo` run into checkpoints/<method>/s<k>"),
+    ("ship",): ("swarm_env_baselines.ship", "copy a finished `train mappo` or `train sb3` run into checkpoints/<method>/s<k>"),
     ("curves",): ("swarm_env_baselines.plots", "the shipped methods' learning curves in one figure"),
     ("convert",): ("swarm_env_baselines.safe_io", "write tensors + JSON beside an older SB3 run's pickles"),
     ("reproduce", "vo"): ("swarm_env_agents.vo_paper", "paper 003's experiments with the vo expert (docs/vo_expert.md)"),
