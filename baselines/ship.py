@@ -123,7 +123,7 @@ def is_sb3_run(run: Path) -> bool:
 
 
 def selected(seed_dir: Path) -> dict[str, Any]:
-    """The validation row of the shipped model: ``summary.json``'s ``best`` (MAPPO, SAC), or for an SB3 run the
+    """The validation row of the shipped model: ``summary.json``'s ``best`` (a MAPPO run), or for an SB3 run the
     first row of ``eval.csv`` with the lowest score (the model its ``EvalCallback`` kept in ``best/``)."""
     summary = _read_json(seed_dir / "summary.json")
     if "best" in summary:
