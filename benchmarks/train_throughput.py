@@ -11,7 +11,8 @@ iteration each, the report gives medians over the repeats of agent-steps/s by wa
 (medians of the per-repeat paired ratios). The medians are the steady state: all worlds of ``random`` end
 their 600-step episodes together, and the iteration that holds that reset wave is an outlier the median drops.
 The totals (all repeats' agent-steps over their summed wall time, ``with resets``) count it: the default 5
-repeats of 128 steps span one episode, so they hold one wave, about the real rate::
+repeats of 128 steps span one episode, so they hold one wave, about the real rate. The engine draws its next
+random worlds in a worker process as the trainer's worlds do (``--engine-no-prefetch``: by itself)::
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/train_throughput.py --worlds 8 64 --repeats 5
     python benchmarks/train_throughput.py --worlds 8 64 --peer-commit 8ecad84 --peer-config '{"n_copies": 8}' \
@@ -107,12 +108,12 @@ class _TrainerRun:
 class _EngineRun:
     """The bare engine of the same worlds, ``steps`` steps of uniform random actions at a time."""
 
-    def __init__(self, scenario: str, worlds: int, env_kwargs: dict[str, Any], steps: int) -> None:
+    def __init__(self, scenario: str, worlds: int, env_kwargs: dict[str, Any], steps: int, prefetch: bool) -> None:
         import numpy as np
 
         from swarm_env.vector import SwarmVectorEnv
 
-        self.venv = SwarmVectorEnv(scenario, num_envs=worlds, **env_kwargs)
+        self.venv = SwarmVectorEnv(scenario, num_envs=worlds, prefetch_scenarios=prefetch, **env_kwargs)
         self.venv.reset(seed=0)
         self.rng = np.random.default_rng(0)
         self.steps = steps
@@ -220,6 +221,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sweep", help="JSON {field: [values]}: one trainer per combination, against the engine")
     parser.add_argument("--breakdown", type=int, metavar="ITERATIONS",
                         help="instead: time the parts of this many trainer iterations at each --worlds")
+    parser.add_argument("--engine-no-prefetch", action="store_true",
+                        help="the raw engine draws its next random worlds itself (default: in a worker process, as "
+                             "the trainer's worlds do: SwarmVectorEnv(prefetch_scenarios=True))")
     parser.add_argument("--json", help="write the report here")
     args = parser.parse_args(argv)
 
@@ -253,7 +257,7 @@ def main(argv: list[str] | None = None) -> int:
                     runs["peer"] = _TrainerRun(peer, {**fields, **json.loads(args.peer_config)}, tmp, "peer",
                                                args.peer_per_world_state)
                 env_kwargs = {**cfg.env_kwargs, **cfg.train_env_kwargs}
-                runs["engine"] = _EngineRun(cfg.scenario, m, env_kwargs, cfg.n_steps)
+                runs["engine"] = _EngineRun(cfg.scenario, m, env_kwargs, cfg.n_steps, not args.engine_no_prefetch)
                 try:
                     result = measure(runs, args.repeats)
                 finally:

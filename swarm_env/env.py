@@ -332,8 +332,10 @@ class SwarmEnv(ParallelEnv):
             self.render()
         return observations, infos
 
-    def _start(self, seed: int | None) -> None:
-        """Everything :meth:`reset` does but the observations and infos (the batched engine's reset)."""
+    def _start(self, seed: int | None, drawn: Scenario | None = None) -> None:
+        """Everything :meth:`reset` does but the observations and infos (the batched engine's reset).
+        ``drawn``: this episode's random scenario, already drawn from this env's generator (which has
+        been moved past the draw: :class:`swarm_env.scenario_prefetch.ScenarioPrefetcher`)."""
         if seed is not None or self._rng is None:
             seq = np.random.SeedSequence(seed)
             env_seq, space_seq = seq.spawn(2)
@@ -341,7 +343,8 @@ class SwarmEnv(ParallelEnv):
             space_seeds = space_seq.generate_state(len(self.possible_agents))
             for agent, s in zip(self.possible_agents, space_seeds):
                 self.action_spaces[agent].seed(int(s))
-        scn = random_scenario(self._rng, self._random) if self._random is not None else self._fixed
+        scn = drawn if drawn is not None else (
+            random_scenario(self._rng, self._random) if self._random is not None else self._fixed)
         assert scn is not None
         self._world = World(scn, self._static_for(scn))
         assert scn.robots.count == len(self.possible_agents)  # fixed teams (see the class docstring)

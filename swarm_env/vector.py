@@ -82,6 +82,7 @@ from swarm_env.env import _INFO_KEYS, StepOutcome, SwarmEnv, clip_to_action_spac
 from swarm_env.geometry import StaticMap
 from swarm_env.observations import LidarInput, lidar_input
 from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS
+from swarm_env.scenario_prefetch import ScenarioPrefetcher
 from swarm_env.state import WorldState
 from swarm_env.wrappers import SHIELD_INFO_KEYS, SafetyShield
 
@@ -137,7 +138,7 @@ class _BlockResult:
 class _WorldBlock:
     """Worlds stepped one after the other, everything but the lidar (which needs the kernel)."""
 
-    def __init__(self, factories: Sequence[Callable[[], World]]) -> None:
+    def __init__(self, factories: Sequence[Callable[[], World]], prefetch: bool = False) -> None:
         self.worlds = [f() for f in factories]
         self.envs: list[SwarmEnv] = [w.unwrapped for w in self.worlds]
         for w, e in zip(self.worlds, self.envs):
@@ -148,6 +149,9 @@ class _WorldBlock:
             raise ValueError("either every world is in a SafetyShield or none is (the infos must have the same keys)")
         self.shielded = shielded.pop()
         self._sent: list[StaticMap | None] = [None] * len(self.worlds)
+        # The random worlds' next scenarios, drawn ahead in a worker process (started at the first restart).
+        self._prefetch: ScenarioPrefetcher | None = None
+        self._want_prefetch = prefetch and any(e._random is not None for e in self.envs)
         # How each world's current episode began (episode_starts): {"seed": s, "rng": None} for a seeded
         # reset, {"seed": None, "rng": generator state} for an unseeded one.
         self.starts: list[dict[str, Any]] = [{} for _ in self.worlds]
@@ -185,6 +189,8 @@ class _WorldBlock:
     def step(self, norm: np.ndarray) -> _BlockResult:
         """Step every world with the ``(B, N, 2)`` normalised actions ``norm``: the batched stages
         (:meth:`_step_batched`) with the compiled kernels on, else world by world (the numpy references)."""
+        if self._prefetch is not None:
+            self._prefetch.poll()  # keep the worker's replies flowing between episode ends
         if compiled_kernels():
             return self._step_batched(norm)
         self._sync_out()
@@ -305,9 +311,20 @@ class _WorldBlock:
 
     def _restart(self, b: int, seed: Seed) -> None:
         """Reset world ``b`` as its ``reset(seed)`` would, without building observations there."""
-        rng = self.envs[b]._rng
+        env = self.envs[b]
+        rng = env._rng
         self.starts[b] = {"seed": seed, "rng": None if seed is not None or rng is None else rng.bit_generator.state}
-        self.envs[b]._start(seed)
+        drawn = None
+        if self._want_prefetch and self._prefetch is None:
+            self._prefetch = ScenarioPrefetcher()
+        if self._prefetch is not None and env._random is not None:
+            if seed is None and rng is not None:
+                drawn = self._prefetch.take(b, rng)  # the scenario env._start would draw, or None
+            env._start(seed, drawn)
+            assert env._rng is not None  # _start made one if there was none
+            self._prefetch.submit(b, env._rng, env._random)  # the next episode's, from the state after this draw
+        else:
+            env._start(seed)
         if self.shielded:
             self.worlds[b].start_episode()
         if self._rows_live:
@@ -380,6 +397,9 @@ class _WorldBlock:
     def close(self) -> None:
         for w in self.worlds:
             w.close()
+        if self._prefetch is not None:
+            self._prefetch.close()
+            self._prefetch = None
 
 
 #: World methods that read only the current WorldState (``_state``, set every step): a ``call`` of
@@ -512,6 +532,11 @@ class SwarmVectorEnv:
             process with the kernels; ``True`` costs about 120 MiB more per worker and pays when there
             are free cores (measured in docs/performance.md).
         shield: put every world in a :class:`~swarm_env.wrappers.SafetyShield`.
+        prefetch_scenarios: with ``n_procs = 1`` and ``"random"`` worlds, draw each world's next scenario
+            in a worker process while the worlds step (:mod:`swarm_env.scenario_prefetch`): the same
+            scenarios bit for bit, and an episode start costs the world's construction only (a random
+            world's draw is several milliseconds, and worlds that started together end together). One
+            more process, started at the first reset.
         **kwargs: :class:`~swarm_env.env.SwarmEnv` keyword arguments, the same for every world
             (``render_mode`` is not supported: render a world with ``SwarmEnv`` itself).
 
@@ -519,29 +544,34 @@ class SwarmVectorEnv:
     """
 
     def __init__(self, scenario: Any = "random", num_envs: int = 8, *, n_procs: int = 1, shield: bool = False,
-                 worker_kernels: bool = False, **kwargs: Any) -> None:
+                 worker_kernels: bool = False, prefetch_scenarios: bool = False, **kwargs: Any) -> None:
         if isinstance(num_envs, bool) or not isinstance(num_envs, (int, np.integer)) or num_envs < 1:
             raise ValueError(f"num_envs must be an int >= 1, got {num_envs!r}")
         if kwargs.get("render_mode") is not None:
             raise ValueError("SwarmVectorEnv does not render; render one world with SwarmEnv(..., render_mode=...)")
-        self._init_from([EnvFactory(scenario, dict(kwargs), shield)] * int(num_envs), n_procs, worker_kernels)
+        self._init_from([EnvFactory(scenario, dict(kwargs), shield)] * int(num_envs), n_procs, worker_kernels,
+                        prefetch_scenarios)
 
     @classmethod
     def from_factories(cls, factories: Sequence[Callable[[], World]], n_procs: int = 1,
-                       worker_kernels: bool = False) -> SwarmVectorEnv:
+                       worker_kernels: bool = False, prefetch_scenarios: bool = False) -> SwarmVectorEnv:
         """Batch the worlds ``factories`` build (each returns a ``SwarmEnv``, or a ``SafetyShield``
         of one; picklable with cloudpickle when ``n_procs > 1``). They must have the same team,
-        spaces and sensors. ``worker_kernels``: as for the constructor."""
+        spaces and sensors. ``worker_kernels``, ``prefetch_scenarios``: as for the constructor."""
         self = cls.__new__(cls)
-        self._init_from(list(factories), n_procs, worker_kernels)
+        self._init_from(list(factories), n_procs, worker_kernels, prefetch_scenarios)
         return self
 
-    def _init_from(self, factories: list[Callable[[], World]], n_procs: int, worker_kernels: bool = False) -> None:
+    def _init_from(self, factories: list[Callable[[], World]], n_procs: int, worker_kernels: bool = False,
+                   prefetch_scenarios: bool = False) -> None:
         m = len(factories)
         if m < 1:
             raise ValueError("SwarmVectorEnv needs at least one world")
-        if not isinstance(worker_kernels, bool):
-            raise ValueError(f"worker_kernels must be a bool, got {worker_kernels!r}")
+        for name, flag in (("worker_kernels", worker_kernels), ("prefetch_scenarios", prefetch_scenarios)):
+            if not isinstance(flag, bool):
+                raise ValueError(f"{name} must be a bool, got {flag!r}")
+        if prefetch_scenarios and n_procs != 1:
+            raise ValueError("prefetch_scenarios needs n_procs=1 (the worlds of worker processes draw their own)")
         if isinstance(n_procs, bool) or not isinstance(n_procs, (int, np.integer)) or not 1 <= n_procs <= m:
             raise ValueError(f"n_procs must be an int in [1, num_envs={m}], got {n_procs!r}")
         bounds = np.linspace(0, m, int(n_procs) + 1).round().astype(int)
@@ -550,7 +580,7 @@ class SwarmVectorEnv:
         self._remotes: list[_RemoteBlock] = []
         self.closed = False
         if n_procs == 1:
-            self._local = _WorldBlock(factories)
+            self._local = _WorldBlock(factories, prefetch_scenarios)
             described = [self._local.describe()]
         else:
             try:

@@ -20,13 +20,16 @@ def _rows(d: dict, agents: list[str], key: str | None = None) -> np.ndarray:
 
 
 def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: bool = False, n_procs: int = 1,
-              shield: bool = False, worker_kernels: bool = False, chunk: int | None = None, **kwargs) -> int:
+              shield: bool = False, worker_kernels: bool = False, chunk: int | None = None,
+              prefetch: dict | None = None, **kwargs) -> int:
     """Step a SwarmVectorEnv and num_envs SwarmEnvs with the same actions; assert every output is
     bitwise equal; return the number of episodes that ended (and were auto-reset). ``chunk``: the
-    engine's physics steps that many worlds per compiled call (default: WorldBatch's)."""
+    engine's physics steps that many worlds per compiled call (default: WorldBatch's). ``prefetch``: a dict
+    to run the engine with ``prefetch_scenarios=True`` and receive its prefetcher's ``hits`` and ``misses``."""
     if discrete:
         kwargs["action_type"] = "discrete"
-    venv = SwarmVectorEnv(scenario, num_envs, n_procs=n_procs, shield=shield, worker_kernels=worker_kernels, **kwargs)
+    venv = SwarmVectorEnv(scenario, num_envs, n_procs=n_procs, shield=shield, worker_kernels=worker_kernels,
+                          prefetch_scenarios=prefetch is not None, **kwargs)
     if chunk is not None:
         from swarm_env.world_batch import WorldBatch
 
@@ -81,6 +84,9 @@ def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: boo
                 assert infos["final_state"][m] is None and infos["final_world_state"][m] is None
             assert np.array_equal(obs[m], last), (t, m)
         assert np.array_equal(venv.state(), np.stack([e.state() for e in refs]))
+    if prefetch is not None:
+        assert venv._local is not None
+        prefetch.update(hits=venv._local._prefetch.hits, misses=venv._local._prefetch.misses)
     venv.close()
     return ended
 
@@ -104,6 +110,48 @@ def test_worlds_in_several_physics_chunks_with_different_human_counts() -> None:
 
 def test_random_with_humans_and_robot_leader_and_discrete_actions() -> None:
     assert _lockstep("random", 4, 30, seed=3, discrete=True, max_cycles=12, n_humans=(2, 4), leader_kind="robot") >= 8
+
+
+def test_scenarios_drawn_ahead_give_the_same_bits() -> None:
+    """``prefetch_scenarios=True``: the next random worlds are drawn in a worker process; the episodes are the
+    reference's bit for bit, and most restarts took a drawn scenario (the reference envs step slowly enough
+    for the worker; a restart that finds none draws its own, with the same result)."""
+    stats: dict = {}
+    assert _lockstep("random", 6, 60, seed=90, max_cycles=12, n_humans=(0, 2), prefetch=stats) == 6 * 5
+    assert stats["hits"] + stats["misses"] == 6 * 5, stats  # every restart asked (how many hit is timing)
+
+
+def test_a_prefetched_scenario_is_the_local_draw_and_moves_the_generator_alike() -> None:
+    import time
+
+    from swarm_env.random_scenario import config_from_kwargs, random_scenario
+    from swarm_env.scenario_prefetch import ScenarioPrefetcher
+
+    config = config_from_kwargs(n_followers=3, n_humans=(0, 2))
+    prefetcher = ScenarioPrefetcher()
+    try:
+        rng, local = np.random.default_rng(5), np.random.default_rng(5)
+        random_scenario(rng, config), random_scenario(local, config)  # both one episode in
+        prefetcher.submit("w", rng, config)
+        deadline = time.monotonic() + 120
+        while not prefetcher.ready("w"):
+            assert time.monotonic() < deadline, "the worker did not answer"
+            time.sleep(0.01)
+        other = np.random.default_rng(6)
+        before = other.bit_generator.state
+        assert prefetcher.take("w", other) is None and other.bit_generator.state == before  # another state: a miss
+        prefetcher.submit("w", rng, config)
+        while not prefetcher.ready("w"):
+            assert time.monotonic() < deadline, "the worker did not answer"
+            time.sleep(0.01)
+        drawn = prefetcher.take("w", rng)
+        assert drawn == random_scenario(local, config)  # the local draw, bit for bit
+        assert rng.bit_generator.state == local.bit_generator.state  # the generator moved past it alike
+        assert (prefetcher.hits, prefetcher.misses) == (1, 1)
+        assert prefetcher.take("w", rng) is None  # taken once
+    finally:
+        prefetcher.close()
+    assert prefetcher._proc.poll() is not None  # the worker ended with it
 
 
 def test_worker_processes_give_the_same_bits() -> None:
