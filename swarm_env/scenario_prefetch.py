@@ -13,24 +13,23 @@ started from exactly the generator's current state and has come back, and ``None
 world draws it itself. The scenario is the same either way, so the timing of the worker never changes
 a result (``tests/test_scenario_prefetch.py``).
 
-The worker is a fresh interpreter (``python -m swarm_env.scenario_prefetch ADDRESS``, the key on its
-standard input), as :mod:`swarm_env.vector_worker` is, for the same reasons: a spawned child would
-re-import the parent's ``__main__``, a forked one inherit torch's threads.
+The worker is a fresh interpreter (``python -m swarm_env.scenario_prefetch ADDRESS``), started as the
+engine's workers are (:mod:`swarm_env.worker_process`).
 """
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from collections.abc import Mapping
-from multiprocessing.connection import Client, Connection, Listener
+from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
 
 from swarm_env.random_scenario import RandomScenarioConfig, random_scenario
 from swarm_env.scenario import Scenario
+from swarm_env.worker_process import connect, start_worker
 
 __all__ = ["ScenarioPrefetcher"]
 
@@ -42,15 +41,8 @@ class ScenarioPrefetcher:
     """
 
     def __init__(self) -> None:
-        authkey = os.urandom(32)
-        with Listener(authkey=authkey) as listener:
-            env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-            argv = [sys.executable, "-m", "swarm_env.scenario_prefetch", str(listener.address)]
-            self._proc = subprocess.Popen(argv, stdin=subprocess.PIPE, env=env)
-            assert self._proc.stdin is not None
-            self._proc.stdin.write(authkey.hex().encode() + b"\n")
-            self._proc.stdin.close()
-            self._conn: Connection | None = listener.accept()
+        self._proc, conn = start_worker("swarm_env.scenario_prefetch")
+        self._conn: Connection | None = conn
         self._asked: dict[Any, Mapping[str, Any]] = {}  # key -> the generator state its pending job started from
         self._drawn: dict[Any, tuple[Mapping[str, Any], Scenario, Mapping[str, Any]]] = {}  # key -> (from, scenario, after)
         self.hits = self.misses = 0
@@ -116,9 +108,9 @@ class ScenarioPrefetcher:
             self.close()
 
 
-def serve(address: str, authkey: bytes) -> None:
+def serve(address: str) -> None:
     """The worker: for each ``(key, state, config)`` received, send back ``(key, state, scenario, state after)``."""
-    conn = Client(address, authkey=authkey)
+    conn = connect(address)
     try:
         while True:
             key, state, config = conn.recv()
@@ -133,4 +125,4 @@ def serve(address: str, authkey: bytes) -> None:
 
 
 if __name__ == "__main__":
-    serve(sys.argv[1], bytes.fromhex(sys.stdin.readline().strip()))
+    serve(sys.argv[1])

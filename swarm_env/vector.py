@@ -64,13 +64,10 @@ Contract:
 
 from __future__ import annotations
 
-import os
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from multiprocessing.connection import Connection, Listener
 from typing import TYPE_CHECKING, Any
 
 import gymnasium
@@ -84,6 +81,7 @@ from swarm_env.observations import LidarInput, lidar_input
 from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS
 from swarm_env.scenario_prefetch import ScenarioPrefetcher
 from swarm_env.state import WorldState
+from swarm_env.worker_process import start_worker
 from swarm_env.wrappers import SHIELD_INFO_KEYS, SafetyShield
 
 if TYPE_CHECKING:  # the lidar kernel (numba) is imported on first use: workers without kernels never load it
@@ -452,26 +450,15 @@ def _stack_columns(per_world: list[list[np.ndarray]], keys: Sequence[str]) -> di
 
 
 class _RemoteBlock:
-    """A :class:`_WorldBlock` in a worker process (``python -m swarm_env.vector_worker``).
-
-    The worker is started as a fresh interpreter rather than by ``multiprocessing``: a spawned or
-    forkserver child re-imports the parent's ``__main__`` (a training script importing torch),
-    and a forked one inherits torch's threads. It connects back over an authenticated local
-    socket and imports neither torch nor numba unless ``compiled`` (see ``swarm_env.vector_worker``).
+    """A :class:`_WorldBlock` in a worker process (``python -m swarm_env.vector_worker``), a fresh interpreter
+    connected back over an authenticated local socket (:mod:`swarm_env.worker_process` says why) that imports
+    neither torch nor numba unless ``compiled`` (see ``swarm_env.vector_worker``).
     """
 
     def __init__(self, factories: Sequence[Callable[[], World]], compiled: bool = False) -> None:
         import cloudpickle  # gymnasium's dependency: pickles lambdas and local factories
 
-        authkey = os.urandom(32)
-        with Listener(authkey=authkey) as listener:
-            env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-            argv = [sys.executable, "-m", "swarm_env.vector_worker", str(listener.address)]
-            self.proc = subprocess.Popen(argv + (["--compiled"] if compiled else []), stdin=subprocess.PIPE, env=env)
-            assert self.proc.stdin is not None
-            self.proc.stdin.write(authkey.hex().encode() + b"\n")
-            self.proc.stdin.close()
-            self.conn: Connection = listener.accept()
+        self.proc, self.conn = start_worker("swarm_env.vector_worker", *(["--compiled"] if compiled else []))
         self.conn.send(cloudpickle.dumps(list(factories)))
         self._pending = False
         self._check(self._recv())  # the block's description, or the error that building it raised

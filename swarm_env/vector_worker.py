@@ -16,11 +16,12 @@ from __future__ import annotations
 import pickle
 import sys
 import traceback
-from multiprocessing.connection import Client
 from typing import Any
 
+from swarm_env.worker_process import connect
 
-def serve(address: str, authkey: bytes, compiled: bool = False) -> None:
+
+def serve(address: str, compiled: bool = False) -> None:
     """Serve one block of worlds; ``compiled``: run the compiled kernels and search (loads numba)."""
     from swarm_env import guidance
     from swarm_env.compiled import use_compiled_kernels
@@ -29,7 +30,7 @@ def serve(address: str, authkey: bytes, compiled: bool = False) -> None:
     guidance.use_compiled_search(compiled)
     use_compiled_kernels(compiled)
 
-    conn = Client(address, authkey=authkey)
+    conn = connect(address)
     block: Any = None
     try:
         try:
@@ -55,7 +56,7 @@ def serve(address: str, authkey: bytes, compiled: bool = False) -> None:
 
 
 def main() -> None:
-    serve(sys.argv[1], bytes.fromhex(sys.stdin.readline().strip()), compiled="--compiled" in sys.argv[2:])
+    serve(sys.argv[1], compiled="--compiled" in sys.argv[2:])
 
 
 if __name__ == "__main__":
