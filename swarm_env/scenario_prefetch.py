@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import subprocess
 import sys
+from collections import deque
 from collections.abc import Mapping
 from multiprocessing.connection import Connection
 from typing import Any
@@ -32,6 +33,10 @@ from swarm_env.scenario import Scenario
 from swarm_env.worker_process import connect, start_worker
 
 __all__ = ["ScenarioPrefetcher"]
+
+#: Jobs sent to the worker and not answered yet, at most: the rest wait here. Sends stay far below a socket's
+#: buffer, so this process never blocks on one while the worker blocks sending answers nobody reads.
+_IN_FLIGHT = 8
 
 
 class ScenarioPrefetcher:
@@ -45,6 +50,8 @@ class ScenarioPrefetcher:
         self._conn: Connection | None = conn
         self._asked: dict[Any, Mapping[str, Any]] = {}  # key -> the generator state its pending job started from
         self._drawn: dict[Any, tuple[Mapping[str, Any], Scenario, Mapping[str, Any]]] = {}  # key -> (from, scenario, after)
+        self._waiting: deque[tuple[Any, Mapping[str, Any], RandomScenarioConfig]] = deque()  # not sent yet
+        self._in_flight = 0
         self.hits = self.misses = 0
 
     def submit(self, key: Any, rng: np.random.Generator, config: RandomScenarioConfig) -> None:
@@ -55,10 +62,7 @@ class ScenarioPrefetcher:
         state = rng.bit_generator.state
         self._asked[key] = state
         self._drawn.pop(key, None)
-        try:
-            self._conn.send((key, state, config))
-        except (OSError, ValueError):  # the worker is gone: the worlds draw their own from now on
-            self._stop()
+        self._waiting.append((key, state, config))
         self.poll()
 
     def take(self, key: Any, rng: np.random.Generator) -> Scenario | None:
@@ -80,14 +84,20 @@ class ScenarioPrefetcher:
         return key in self._drawn
 
     def poll(self) -> None:
-        """Collect the drawn scenarios that have come back (without waiting)."""
+        """Collect the drawn scenarios that have come back and send waiting jobs (without waiting)."""
         conn = self._conn
         try:
             while conn is not None and conn.poll():
                 key, before, scenario, after = conn.recv()
+                self._in_flight -= 1
                 if self._asked.get(key) == before:  # not superseded since
                     self._drawn[key] = (before, scenario, after)
-        except (EOFError, OSError):
+            while conn is not None and self._waiting and self._in_flight < _IN_FLIGHT:
+                key, state, config = self._waiting.popleft()
+                if self._asked.get(key) == state:  # superseded or taken jobs are not sent
+                    conn.send((key, state, config))
+                    self._in_flight += 1
+        except (EOFError, OSError, ValueError):  # the worker is gone: the worlds draw their own from now on
             self._stop()
 
     def _stop(self) -> None:
