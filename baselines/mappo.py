@@ -142,6 +142,9 @@ class MAPPOConfig:
     #: Worker processes for the worlds' physics (1: in the training process); the results do not depend on it.
     #: Not with --residual (its experts read the worlds in this process).
     env_procs: int = 1
+    #: With env_procs 1: draw the next random worlds in a worker process while the worlds step (the same worlds
+    #: bit for bit: swarm_env.vector.SwarmVectorEnv(prefetch_scenarios=True)).
+    prefetch_worlds: bool = True
     #: Rollout length per copy between updates.
     n_steps: int = 128
     #: Adam learning rate.
@@ -255,7 +258,7 @@ def make_worlds(cfg: MAPPOConfig) -> Any:
     worlds (shielded for ``shield="execute"``), their physics in ``env_procs`` processes (1: this one)."""
     from swarm_env_baselines.worlds import TrainingWorlds
 
-    return TrainingWorlds(_world_factory(cfg, cfg.shield == "execute"), cfg.n_copies, cfg.env_procs)
+    return TrainingWorlds(_world_factory(cfg, cfg.shield == "execute"), cfg.n_copies, cfg.env_procs, cfg.prefetch_worlds)
 
 
 def evaluate(policy: MAPPOPolicy, cfg: MAPPOConfig, seeds: list[int]) -> dict[str, Any]:
@@ -731,7 +734,7 @@ def _torch_device(name: str) -> Any:
 
 CHECKPOINT_FORMAT = "swarm_env.mappo-checkpoint/1"
 #: What ``--resume`` may change: the budget, and settings that leave the results as they are.
-RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "progress", "tensorboard")
+RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "prefetch_worlds", "progress", "tensorboard")
 
 
 def train(cfg: MAPPOConfig) -> Path:

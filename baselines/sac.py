@@ -55,7 +55,7 @@ from swarm_env_baselines.validation import EVAL_COLUMNS
 FORMAT = "swarm_env.sac/1"
 CHECKPOINT_FORMAT = "swarm_env.sac-checkpoint/1"
 #: What ``--resume`` may change: the budget, and settings that leave the results as they are.
-RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "progress", "tensorboard")
+RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "prefetch_worlds", "progress", "tensorboard")
 #: (log_every is not among them: it decides where a checkpoint can fall.)
 TRAIN_COLUMNS = ("agent_steps", "wall_s", "rollout_s", "update_s", "agent_steps_per_s", "q_loss", "policy_loss",
                  "alpha", "entropy", "q_mean", "mean_reward", "episodes", "episode_return", "collisions_per_episode",
@@ -82,6 +82,9 @@ class SACConfig:
     n_copies: int = 64
     #: Worker processes for the worlds' physics (1: in the training process); the results do not depend on it.
     env_procs: int = 1
+    #: With env_procs 1: draw the next random worlds in a worker process while the worlds step (the same worlds
+    #: bit for bit: swarm_env.vector.SwarmVectorEnv(prefetch_scenarios=True)).
+    prefetch_worlds: bool = True
     #: Replay buffer capacity in agent transitions.
     buffer_size: int = 500_000
     #: Agent-steps of uniform random actions before the first update.
@@ -222,7 +225,7 @@ class SAC:
         self.gen = torch.Generator().manual_seed(cfg.seed)  # actions and minibatches, on the CPU
         self.device = _torch_device(cfg.device)
         self.worlds = TrainingWorlds(EnvFactory(cfg.scenario, {**cfg.env_kwargs, **cfg.train_env_kwargs}),
-                                     cfg.n_copies, cfg.env_procs)
+                                     cfg.n_copies, cfg.env_procs, cfg.prefetch_worlds)
         self.m, self.n = self.worlds.m, self.worlds.n
         self.obs_dim = self.worlds.venv.single_observation_space.shape[0]
         d, h = self.obs_dim, cfg.hidden

@@ -30,18 +30,17 @@ class TrainingWorlds:
         factory: builds one world (a picklable :class:`~swarm_env.vector.EnvFactory`).
         n_worlds: the number of worlds ``M``.
         n_procs: worker processes of the engine (1: this process).
-
-    With ``n_procs = 1`` the next random worlds are drawn in a worker process while the worlds step
-    (``SwarmVectorEnv(prefetch_scenarios=True)``): the same worlds bit for bit, without the wave of draws
-    when the worlds that started together end together.
+        prefetch: with ``n_procs = 1``, draw the next random worlds in a worker process while the worlds step
+            (``SwarmVectorEnv(prefetch_scenarios=True)``): the same worlds bit for bit, without the wave of
+            draws when the worlds that started together end together.
     """
 
-    def __init__(self, factory: Callable[[], Any], n_worlds: int, n_procs: int = 1) -> None:
+    def __init__(self, factory: Callable[[], Any], n_worlds: int, n_procs: int = 1, prefetch: bool = True) -> None:
         from swarm_env.vector import SwarmVectorEnv
 
         self.factory = factory
         self.venv = SwarmVectorEnv.from_factories([factory] * n_worlds, n_procs=n_procs,
-                                                  prefetch_scenarios=n_procs == 1)
+                                                  prefetch_scenarios=prefetch and n_procs == 1)
         self.m, self.n = n_worlds, self.venv.num_agents
         self.starts: list[dict[str, Any]] = [{} for _ in range(n_worlds)]
         self._log: list[np.ndarray] = []  # _log[i]: the (M, N, 2) actions of step _base + i

@@ -25,7 +25,7 @@ TINY_PRETRAIN = {"pretrain_rounds": 2, "pretrain_episodes": 2, "pretrain_epochs"
 def _cfg(tmp_path, **overrides) -> mappo.MAPPOConfig:
     base = dict(env_kwargs=dict(TINY_ENV), total_steps=1024, n_copies=2, n_steps=32, n_epochs=2, hidden=(16, 16),
                 eval_every=512, eval_seeds="500-501", runs_dir=str(tmp_path), run_name="tiny", progress=False,
-                **TINY_PRETRAIN)
+                **TINY_PRETRAIN, prefetch_worlds=False)
     return mappo.MAPPOConfig(**{**base, **overrides})
 
 

@@ -36,7 +36,7 @@ CLOCKS = ("wall_s", "rollout_s", "update_s", "agent_steps_per_s")
 def _cfg(tmp_path, **overrides) -> mappo.MAPPOConfig:
     base = dict(env_kwargs=dict(TINY_ENV), total_steps=640, n_copies=2, n_steps=32, n_epochs=2, hidden=(16, 16),
                 eval_every=256, eval_seeds="500-501", runs_dir=str(tmp_path), progress=False, pretrain_rounds=2,
-                pretrain_episodes=2, pretrain_epochs=1, checkpoint_every=2)
+                pretrain_episodes=2, pretrain_epochs=1, checkpoint_every=2, prefetch_worlds=False)
     return mappo.MAPPOConfig(**{**base, **overrides})
 
 

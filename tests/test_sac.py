@@ -25,7 +25,7 @@ TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 1, "max_cycles": 30}
 def _cfg(tmp_path, **overrides) -> sac.SACConfig:
     base = dict(env_kwargs=dict(TINY_ENV), total_steps=1200, n_copies=3, buffer_size=600, learning_starts=240,
                 batch_size=32, hidden=(16, 16), eval_every=600, eval_seeds="500-501", runs_dir=str(tmp_path),
-                run_name="tiny", progress=False, checkpoint_every=0, log_every=60)
+                run_name="tiny", progress=False, checkpoint_every=0, log_every=60, prefetch_worlds=False)
     return sac.SACConfig(**{**base, **overrides})
 
 
