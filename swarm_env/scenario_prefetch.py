@@ -11,7 +11,7 @@ a world's generator state as its episode begins; when the world starts its next 
 returns the drawn scenario (and moves the world's generator to the state after the draw) if that job
 started from exactly the generator's current state and has come back, and ``None`` otherwise, when the
 world draws it itself. The scenario is the same either way, so the timing of the worker never changes
-a result (``tests/test_scenario_prefetch.py``).
+a result (``tests/test_vector.py``).
 
 The worker is a fresh interpreter (``python -m swarm_env.scenario_prefetch ADDRESS``), started as the
 engine's workers are (:mod:`swarm_env.worker_process`).

@@ -152,6 +152,10 @@ def test_a_prefetched_scenario_is_the_local_draw_and_moves_the_generator_alike()
     finally:
         prefetcher.close()
     assert prefetcher._proc.poll() is not None  # the worker ended with it
+    with pytest.raises(ValueError, match="prefetch_scenarios needs n_procs=1"):
+        SwarmVectorEnv("random", 2, n_procs=2, prefetch_scenarios=True)
+    with pytest.raises(ValueError, match="prefetch_scenarios must be a bool"):
+        SwarmVectorEnv("random", 2, prefetch_scenarios="yes")  # type: ignore[arg-type]
 
 
 def test_worker_processes_give_the_same_bits() -> None:
