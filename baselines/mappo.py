@@ -85,8 +85,17 @@ import numpy as np
 
 from swarm_env.jsonio import dumps
 from swarm_env_baselines.checkpointing import CHECKPOINT_DIR
+from swarm_env_baselines.mappo_learner import (
+    LEARNER_SEED_OFFSET,
+    Batch,
+    Networks,
+    ProcessLearner,
+    build_networks,
+    make_optimizer,
+    ppo_update,
+)
 from swarm_env_baselines.mappo_policy import MAPPOPolicy, ResidualPolicy, residual_action, save_run_policy
-from swarm_env_baselines.ppo_core import RunningMeanStd, gae, mlp, ppo_policy_loss
+from swarm_env_baselines.ppo_core import RunningMeanStd
 from swarm_env_baselines.validation import EVAL_COLUMNS
 
 TRAIN_COLUMNS = ("agent_steps", "wall_s", "rollout_s", "update_s", "agent_steps_per_s", "policy_loss", "value_loss",
@@ -145,6 +154,10 @@ class MAPPOConfig:
     #: With env_procs 1: draw the next random worlds in a worker process while the worlds step (the same worlds
     #: bit for bit: swarm_env.vector.SwarmVectorEnv(prefetch_scenarios=True)).
     prefetch_worlds: bool = True
+    #: Run the PPO update in a learner process of its own, on rollout k while the trainer collects rollout k + 1
+    #: (a policy lag of one update; swarm_env_baselines.mappo_learner). Off: the update follows each rollout in
+    #: this process, on torch_threads threads. Results differ between the two; each is deterministic.
+    learner_process: bool = True
     #: Rollout length per copy between updates.
     n_steps: int = 128
     #: Adam learning rate.
@@ -288,36 +301,6 @@ def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str,
 # --------------------------------------------------------------------------- training
 
 
-@dataclass
-class Batch:
-    """One rollout of ``T`` steps of ``M`` worlds of ``N`` followers, as the update needs it.
-
-    Arrays keep the ``(T, M, ...)`` axes: the critic's global state is stored once per world-step,
-    and the update's minibatches are sets of world-steps (each with its ``N`` followers)."""
-
-    obs: np.ndarray  # (T, M, N, D) actor inputs, normalised as when the actions were drawn
-    states: np.ndarray  # (T, M, S) critic states, normalised likewise (S = 1 and unused for IPPO)
-    actions: np.ndarray  # (T, M, N, 2) sampled actions (before clipping)
-    logp: np.ndarray  # (T, M, N)
-    values: np.ndarray  # (T, M, N)
-    rewards: np.ndarray  # (T, M, N) scaled, truncation bootstraps folded in
-    dones: np.ndarray  # (T, M) the world's episode ended after this step
-    safe: np.ndarray  # (T, M, N, 2) the shield's actions (teach/execute)
-    intervened: np.ndarray  # (T, M, N) float 0/1
-    contacts: int = 0
-    #: The episodes that ended in this rollout: their return (raw reward summed, mean over followers)
-    #: and final metrics (collisions, formation error).
-    episode_returns: list[float] = field(default_factory=list)
-    episode_metrics: list[dict[str, Any]] = field(default_factory=list)
-
-    @classmethod
-    def empty(cls, t: int, m: int, n: int, d: int, s: int) -> Batch:
-        f32 = np.float32
-        return cls(np.zeros((t, m, n, d), f32), np.zeros((t, m, s), f32), np.zeros((t, m, n, 2), f32),
-                   np.zeros((t, m, n), f32), np.zeros((t, m, n), f32), np.zeros((t, m, n)), np.zeros((t, m)),
-                   np.zeros((t, m, n, 2), f32), np.zeros((t, m, n), f32))
-
-
 class Trainer:
     """The state of one run: the worlds (one :class:`~swarm_env.vector.SwarmVectorEnv` of ``n_copies``
     worlds), networks, statistics; :meth:`collect` then :meth:`update`.
@@ -329,8 +312,6 @@ class Trainer:
 
     def __init__(self, cfg: MAPPOConfig, run_dir: Path) -> None:
         import torch
-
-        from swarm_env_baselines.nets import make_critic
 
         self.cfg = cfg
         self.run_dir = run_dir
@@ -345,15 +326,8 @@ class Trainer:
         self.n, self.m = self.venv.num_agents, cfg.n_copies
         self.obs_dim = self.venv.single_observation_space.shape[0] + (2 if cfg.residual else 0)
         self.state_dim = self.venv.state_space.shape[0] if cfg.critic == "central" else 0
-        self.actor = mlp([self.obs_dim, *cfg.hidden, 2])
-        self.critic = make_critic(self.state_dim, self.obs_dim, cfg.hidden)
-        if cfg.residual:  # start at the expert: a zero correction
-            with torch.no_grad():
-                self.actor[-1].weight.mul_(0.01)
-                self.actor[-1].bias.zero_()
-        self.actor.to(self.device)
-        self.critic.to(self.device)
-        self.log_std = torch.nn.Parameter(torch.full((2,), float(cfg.log_std_init), device=self.device))
+        nets = build_networks(cfg, self.obs_dim, self.state_dim, self.device)
+        self.actor, self.critic, self.log_std = nets.actor, nets.critic, nets.log_std
         self.obs_rms = RunningMeanStd((self.obs_dim,))
         self.state_rms = RunningMeanStd((max(self.state_dim, 1),))
         self.ret_rms = RunningMeanStd(())
@@ -372,15 +346,13 @@ class Trainer:
                                                  side_bias=cfg.teach_side_bias)
         self.pretrain_log: list[dict[str, float]] = []
 
-    def _tensor(self, x: np.ndarray) -> Any:
-        """A numpy array as a tensor on the training device (no copy on the CPU)."""
-        import torch
-
-        return torch.from_numpy(x).to(self.device)
+    def networks(self) -> Networks:
+        """The actor, its log standard deviation and the critic (the trainer's own, not copies)."""
+        return Networks(self.actor, self.critic, self.log_std, self.device)
 
     def parameters(self) -> list[Any]:
         """Everything the optimiser trains: the actor, its log standard deviation, the critic."""
-        return [*self.actor.parameters(), self.log_std, *self.critic.parameters()]
+        return self.networks().parameters()
 
     def _world_envs(self, indices: list[int] | None = None) -> list[Any]:
         """The worlds' own ``SwarmEnv`` objects (what an expert's ``reset(env, seed)`` takes)."""
@@ -439,20 +411,18 @@ class Trainer:
         if self.state_dim:
             self.states[:] = self.venv.state()
 
-    def _normalised(self) -> tuple[np.ndarray, np.ndarray]:
+    def normalised(self) -> tuple[np.ndarray, np.ndarray]:
         """The current inputs ``(M, N, D)`` and states ``(M, S)``, normalised by the current statistics."""
         return self.obs_rms.normalize(self.inputs), self.state_rms.normalize(self.states)
 
     def value(self, obs: np.ndarray, states: np.ndarray) -> np.ndarray:
         """The critic's values ``(K, N)`` of normalised inputs ``(K, N, D)`` and states ``(K, S)``."""
-        import torch
+        return self.networks().value(obs, states)
 
-        with torch.no_grad():
-            return self.critic(self._tensor(states), self._tensor(obs)).cpu().numpy()
-
-    def collect(self) -> Batch:
+    def collect(self, values: bool = True) -> Batch:
         """One rollout of ``n_steps`` steps of every world: per step one engine step and one actor forward
-        for every agent; the values and log-probabilities of the whole rollout are then one forward each."""
+        for every agent; the values and log-probabilities of the whole rollout are then one forward each
+        (``values=False``: the values are left at 0, for a learner process that computes them)."""
         import torch
 
         cfg, m, n = self.cfg, self.m, self.n
@@ -462,9 +432,9 @@ class Trainer:
         raw_states = np.zeros((cfg.n_steps, m, max(self.state_dim, 1)), np.float32)
         for t in range(cfg.n_steps):
             raw_obs[t], raw_states[t] = self.inputs, self.states
-            batch.obs[t], batch.states[t] = self._normalised()
+            batch.obs[t], batch.states[t] = self.normalised()
             with torch.no_grad():
-                mean = self.actor(self._tensor(batch.obs[t])).cpu()
+                mean = self.actor(torch.from_numpy(batch.obs[t]).to(self.device)).cpu()
                 action = mean + self.log_std.exp().cpu() * torch.randn(mean.shape, generator=self.gen)
             means[t], batch.actions[t] = mean, action.numpy()
             sampled = np.clip(batch.actions[t], -1.0, 1.0)
@@ -473,7 +443,8 @@ class Trainer:
         with torch.no_grad():  # the networks did not change during the rollout: one large forward each
             dist = torch.distributions.Normal(means, self.log_std.exp().cpu().expand_as(means))
             batch.logp[:] = dist.log_prob(torch.from_numpy(batch.actions)).sum(-1).numpy()
-        batch.values[:] = self.value(batch.obs, batch.states)
+        if values:
+            batch.values[:] = self.value(batch.obs, batch.states)
         self._update_statistics(raw_obs, raw_states)
         return batch
 
@@ -551,68 +522,10 @@ class Trainer:
         cfg = self.cfg
         torch.set_num_threads(cfg.torch_threads)  # the update's large minibatches (the engine is idle meanwhile)
         try:
-            return self._update(batch, optim, update_index, n_updates)
+            return ppo_update(self.networks(), optim, self.gen, self.cfg, batch, self.value(*self.normalised()),
+                              update_index, n_updates)
         finally:
             torch.set_num_threads(1)
-
-    def _update(self, batch: Batch, optim: Any, update_index: int, n_updates: int) -> dict[str, float]:
-        import torch
-
-        from swarm_env_baselines.ppo_core import explained_variance, ratio_stats
-
-        cfg = self.cfg
-        T, m, n = batch.dones.shape[0], self.m, self.n
-        last_val = self.value(*self._normalised())
-        dones = np.repeat(batch.dones[:, :, None], n, axis=2)
-        adv = gae(batch.rewards.reshape(T, -1), batch.values.reshape(T, -1), dones.reshape(T, -1),
-                  last_val.reshape(-1), cfg.gamma, cfg.gae_lambda).reshape(T, m, n)
-        ret = adv + batch.values
-        size = T * m
-        b_x = self._tensor(batch.obs.reshape(size, n, self.obs_dim))
-        b_s = self._tensor(batch.states.reshape(size, -1))
-        b_a = self._tensor(batch.actions.reshape(size, n, 2))
-        b_logp = self._tensor(batch.logp.reshape(size, n))
-        b_adv = self._tensor(adv.reshape(size, n).astype(np.float32))
-        b_ret = self._tensor(ret.reshape(size, n).astype(np.float32))
-        b_safe = self._tensor(batch.safe.reshape(size, n, 2))
-        b_int = self._tensor(batch.intervened.reshape(size, n))
-        im_coef = cfg.imitation_coef
-        if cfg.imitation_anneal:
-            im_coef *= max(0.0, 1.0 - update_index / (cfg.imitation_anneal * n_updates))
-        actor_learns = update_index >= cfg.critic_warmup
-        params = self.parameters()
-        mb = max(1, size // cfg.n_minibatches)
-        stats = []
-        ratio0 = None  # the first minibatch's |ratio - 1|: 0 before any update (checked by the tests)
-        for _epoch in range(cfg.n_epochs):
-            order = torch.randperm(size, generator=self.gen)
-            for start in range(0, size, mb):
-                idx = order[start:start + mb].to(self.device)
-                mean = self.actor(b_x[idx])
-                dist = torch.distributions.Normal(mean, self.log_std.exp().expand_as(mean))
-                pg, ratio = ppo_policy_loss(dist.log_prob(b_a[idx]).sum(-1).reshape(-1), b_logp[idx].reshape(-1),
-                                            b_adv[idx].reshape(-1), cfg.clip_range)
-                ratio_err, kl, clipped = ratio_stats(ratio, cfg.clip_range)
-                if ratio0 is None:
-                    ratio0 = ratio_err
-                v_loss = 0.5 * (self.critic(b_s[idx], b_x[idx]) - b_ret[idx]).pow(2).mean()
-                entropy = dist.entropy().sum(-1).mean()
-                # The imitation term averages over the whole minibatch (zero where the shield let the action
-                # pass), so its weight relative to PPO's loss is the intervention rate times imitation_coef.
-                im = (b_int[idx] * (mean - b_safe[idx]).pow(2).sum(-1)).sum() / b_int[idx].numel()
-                loss = cfg.vf_coef * v_loss
-                if actor_learns:
-                    loss = loss + pg - cfg.ent_coef * entropy + im_coef * im
-                optim.zero_grad()
-                loss.backward()
-                torch.nn.utils.clip_grad_norm_(params, cfg.max_grad_norm)
-                optim.step()
-                stats.append((pg.item(), v_loss.item(), im.item(), entropy.item(), kl, clipped))
-        s = np.mean(stats, axis=0)
-        return {"policy_loss": s[0], "value_loss": s[1], "imitation_loss": s[2], "entropy": s[3],
-                "approx_kl": s[4], "clip_fraction": s[5],
-                "explained_variance": explained_variance(batch.values.ravel(), ret.ravel()),
-                "std": float(self.log_std.detach().exp().mean()), "first_ratio_error": ratio0 or 0.0}
 
     # ---------------------------------------------------------------- outputs
     def policy(self) -> MAPPOPolicy:
@@ -715,6 +628,39 @@ class Trainer:
         self.worlds.close()
 
 
+class InlineLearner:
+    """The update in the training process, right after each rollout (:meth:`Trainer.update`); the interface of
+    :class:`~swarm_env_baselines.mappo_learner.ProcessLearner`."""
+
+    def __init__(self, trainer: Trainer, optim: Any) -> None:
+        self._trainer, self._optim = trainer, optim
+        self._stats: dict[str, float] = {}
+
+    def submit(self, batch: Batch, last: tuple[np.ndarray, np.ndarray], update_index: int, n_updates: int) -> None:
+        self._stats = self._trainer.update(batch, self._optim, update_index, n_updates)
+
+    def result(self, batch: Batch) -> dict[str, float]:
+        return self._stats
+
+    def state(self) -> None:
+        return None  # the trainer's own optimiser and generator are the whole state
+
+    def close(self) -> None:
+        pass
+
+
+def learner_generator(cfg: MAPPOConfig, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None) -> Any:
+    """The state of a learner process's minibatch-order generator: the checkpoint's, or a fresh one of the seed."""
+    import torch
+
+    if checkpoint is not None:
+        try:
+            return checkpoint[0]["rng.learner"]
+        except KeyError:
+            raise ValueError("the checkpoint has no learner-process generator (rng.learner)") from None
+    return torch.Generator().manual_seed(cfg.seed + LEARNER_SEED_OFFSET).get_state()
+
+
 def _torch_device(name: str) -> Any:
     """``torch.device(name)``, refused with one line if it names a GPU that torch does not see."""
     import torch
@@ -765,6 +711,8 @@ def resume(run_dir: str | Path, **overrides: Any) -> Path:
     from swarm_env_baselines.checkpointing import resume_run_dir
 
     cfg, state = resume_run_dir(run_dir, overrides, RESUME_OVERRIDES, MAPPOConfig, CHECKPOINT_FORMAT)
+    # The checkpoint says where its updates ran (runs from before the learner process have no such key).
+    cfg = dataclasses.replace(cfg, learner_process=state[1].get("learner") == "process")
     return _run(cfg, Path(run_dir), state)
 
 
@@ -778,7 +726,6 @@ def _run(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict
 
 def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None,
                 stop: Any) -> Path:
-    import torch
     from tqdm import tqdm
 
     from swarm_env.harness.leaderboard import parse_seeds
@@ -789,10 +736,12 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
     # --- the trainer, its optimiser, and the budget in PPO updates
     eval_seeds = parse_seeds(cfg.eval_seeds)
     trainer = Trainer(cfg, run_dir)
-    optim = torch.optim.Adam(trainer.parameters(), lr=cfg.learning_rate, eps=1e-5)
+    optim = make_optimizer(cfg, trainer.networks())
     batch_size = cfg.n_steps * trainer.m * trainer.n
     n_updates = max(1, cfg.total_steps // batch_size)
     steps_done = updates_done = 0
+    pending: Batch | None = None  # a rollout collected but not yet learned from (with a learner process)
+    pending_s = 0.0  # the seconds its collection took
     next_eval = cfg.eval_every or None
     log: RunLog | None = None
     validation = Validation(run_dir, lambda: evaluate(trainer.policy(), cfg, eval_seeds),
@@ -835,6 +784,10 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
             print(f"resuming {run_dir} at update {updates_done} of {n_updates} ({steps_done} agent-steps)",
                   file=sys.stderr)
             trainer.restore(tensors, meta, optim, source)
+            pending = Batch.from_checkpoint(tensors, meta, source)
+        # The update's side: here after each rollout, or a learner process one rollout behind.
+        learner = (ProcessLearner(cfg, trainer.networks(), optim, learner_generator(cfg, checkpoint))
+                   if cfg.learner_process else InlineLearner(trainer, optim))
     except BaseException:
         trainer.close()
         validation.close(finished=False)
@@ -843,10 +796,16 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
         raise
 
     def save_checkpoint() -> None:
+        learner_rng = learner.state()  # (first: it brings the learner process's optimiser state into `optim`)
         tensors, meta = trainer.checkpoint_state(optim)
+        if learner_rng is not None:
+            tensors["rng.learner"] = learner_rng
+        pending_tensors, pending_meta = Batch.to_checkpoint(pending)
+        tensors.update(pending_tensors)
         meta = {"format": CHECKPOINT_FORMAT, "updates": updates_done, "agent_steps": steps_done,
                 "next_eval": next_eval, "pretrain_s": pretrain_s, "wall_s": time.perf_counter() - t0,
                 "csv_rows": {name: csv_rows(run_dir / name) for name in ("train.csv", "eval.csv")},
+                "learner": "process" if cfg.learner_process else "inline", **pending_meta,
                 **validation.state(), **meta}
         write_checkpoint(run_dir / CHECKPOINT_DIR, tensors, meta)
 
@@ -864,14 +823,25 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
             save_checkpoint()
         for u in range(updates_done, n_updates):
             t_roll = time.perf_counter()
-            batch = trainer.collect()
-            t_upd = time.perf_counter()
-            stats = trainer.update(batch, optim, u, n_updates)
+            if pending is None:
+                batch = trainer.collect(values=not cfg.learner_process)
+                rollout_s = collecting_s = time.perf_counter() - t_roll
+            else:  # collected during the previous update
+                batch, rollout_s, collecting_s = pending, pending_s, 0.0
+            learner.submit(batch, trainer.normalised(), u, n_updates)
+            pending = None
+            if cfg.learner_process and u + 1 < n_updates:  # the next rollout while the learner updates on this one
+                t_next = time.perf_counter()
+                pending = trainer.collect(values=False)
+                pending_s = time.perf_counter() - t_next
+                collecting_s += pending_s
+            stats = learner.result(batch)
             t_end = time.perf_counter()
             steps_done += batch_size
             updates_done = u + 1
-            row = {"agent_steps": steps_done, "wall_s": round(t_end - t0, 1), "rollout_s": round(t_upd - t_roll, 3),
-                   "update_s": round(t_end - t_upd, 3), "agent_steps_per_s": batch_size / (t_end - t_roll),
+            # update_s: the time spent on the update, or waiting for the learner process beyond the collection.
+            row = {"agent_steps": steps_done, "wall_s": round(t_end - t0, 1), "rollout_s": round(rollout_s, 3),
+                   "update_s": round(t_end - t_roll - collecting_s, 3), "agent_steps_per_s": batch_size / (t_end - t_roll),
                    "mean_reward": float(batch.rewards.mean()), "contacts_per_agent_step": batch.contacts / batch_size,
                    "intervention_rate": float(batch.intervened.mean()),
                    **episode_stats(batch.episode_returns, batch.episode_metrics), **stats}
@@ -900,6 +870,7 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
         finished = True
     finally:
         bar.close()
+        learner.close()
         trainer.close()
         validation.close(finished)
         log.close()

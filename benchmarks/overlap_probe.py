@@ -51,6 +51,8 @@ def main(argv: list[str] | None = None) -> int:
 
     import torch
 
+    from swarm_env_baselines import mappo
+
     sys.setswitchinterval(args.switch_interval)
     tmp = tempfile.mkdtemp()
     seq, seq_optim, cfg = _trainer(tmp, "sequential")
@@ -60,8 +62,13 @@ def main(argv: list[str] | None = None) -> int:
     learner.log_std = torch.nn.Parameter(ovl.log_std.detach().clone())
     learner.gen = torch.Generator().manual_seed(cfg.seed + 1)
     learner_optim = torch.optim.Adam(learner.parameters(), lr=cfg.learning_rate, eps=1e-5)
+
+    def learn(batch: Any, u: int) -> None:  # the update as the trainer runs it, on the learner's copies
+        mappo.ppo_update(learner.networks(), learner_optim, learner.gen, cfg, batch,
+                         learner.value(*learner.normalised()), u, 10**6)
+
     seq.update(seq.collect(), seq_optim, 0, 10**6)  # warm-up of both
-    learner._update(ovl.collect(), learner_optim, 0, 10**6)
+    learn(ovl.collect(), 0)
 
     pending: threading.Thread | None = None
     results: dict[str, list[tuple[float, float]]] = {"sequential": [], "overlapped": []}
@@ -77,7 +84,7 @@ def main(argv: list[str] | None = None) -> int:
                     batch = ovl.collect()
                     if pending is not None:
                         pending.join()
-                    pending = threading.Thread(target=learner._update, args=(batch, learner_optim, u, 10**6))
+                    pending = threading.Thread(target=learn, args=(batch, u))
                     pending.start()
                 u += 1
             if pending is not None:

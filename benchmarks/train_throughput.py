@@ -90,8 +90,16 @@ class _TrainerRun:
         self.optim = torch.optim.Adam(params, lr=cfg.learning_rate, eps=1e-5)
         self.agent_steps = cfg.n_steps * t.m * t.n
         self.u = 0
+        self.learner: Any = None
+        if getattr(cfg, "learner_process", False):  # as the training loop runs it: one rollout ahead of the update
+            from swarm_env_baselines.mappo_learner import ProcessLearner
+
+            self.learner = ProcessLearner(cfg, t.networks(), self.optim, torch.Generator().manual_seed(1).get_state())
+            self.pending = t.collect(values=False)
 
     def iteration(self) -> dict[str, float]:
+        if self.learner is not None:
+            return self._pipelined_iteration()
         w0, c0 = time.perf_counter(), time.process_time()
         batch = self.trainer.collect()
         w1, c1 = time.perf_counter(), time.process_time()
@@ -101,7 +109,25 @@ class _TrainerRun:
         return {"wall": w2 - w0, "cpu": c2 - c0, "rollout_wall": w1 - w0, "update_wall": w2 - w1,
                 "rollout_cpu": c1 - c0, "update_cpu": c2 - c1}
 
+    def _pipelined_iteration(self) -> dict[str, float]:
+        """Hand the rollout collected before to the learner process, collect the next meanwhile, take the update.
+        CPU time counts the learner process's as well; ``update_wall`` is the wait for it."""
+        t = self.trainer
+        w0, c0, l0 = time.perf_counter(), time.process_time(), self.learner.cpu_s
+        batch = self.pending
+        self.learner.submit(batch, t.normalised(), self.u, 10**6)
+        self.pending = t.collect(values=False)
+        w1, c1 = time.perf_counter(), time.process_time()
+        self.learner.result(batch)
+        w2, c2 = time.perf_counter(), time.process_time()
+        self.u += 1
+        learner_cpu = self.learner.cpu_s - l0
+        return {"wall": w2 - w0, "cpu": c2 - c0 + learner_cpu, "rollout_wall": w1 - w0, "update_wall": w2 - w1,
+                "rollout_cpu": c1 - c0, "update_cpu": c2 - c1 + learner_cpu}
+
     def close(self) -> None:
+        if self.learner is not None:
+            self.learner.close()
         self.trainer.close()
 
 
@@ -149,7 +175,8 @@ def breakdown(module: Any, fields: dict[str, Any], iterations: int) -> dict[str,
         return g
 
     with tempfile.TemporaryDirectory() as tmp:
-        run = _TrainerRun(module, fields, tmp, "breakdown")
+        # The parts of the loop in one process (with a learner process the update would run beside the rollout).
+        run = _TrainerRun(module, {**fields, "learner_process": False}, tmp, "breakdown")
         run.iteration()
         t = run.trainer
         targets = [(t.venv, "step", "engine step"), (t.venv, "state", "engine state()"),

@@ -26,6 +26,7 @@ from swarm_env.harness.evaluation import run_episode  # noqa: E402
 from swarm_env.harness.policies import load_policy  # noqa: E402
 from swarm_env_baselines import mappo  # noqa: E402
 from swarm_env_baselines.checkpointing import StopRequest, TrainingInterrupted  # noqa: E402
+from swarm_env_baselines.mappo_learner import ProcessLearner  # noqa: E402
 
 TINY_ENV = {"n_followers": 2, "n_obstacles": 1, "n_humans": 1, "max_cycles": 30}
 ROOT = Path(__file__).resolve().parent.parent
@@ -36,7 +37,8 @@ CLOCKS = ("wall_s", "rollout_s", "update_s", "agent_steps_per_s")
 def _cfg(tmp_path, **overrides) -> mappo.MAPPOConfig:
     base = dict(env_kwargs=dict(TINY_ENV), total_steps=640, n_copies=2, n_steps=32, n_epochs=2, hidden=(16, 16),
                 eval_every=256, eval_seeds="500-501", runs_dir=str(tmp_path), progress=False, pretrain_rounds=2,
-                pretrain_episodes=2, pretrain_epochs=1, checkpoint_every=2, prefetch_worlds=False)
+                pretrain_episodes=2, pretrain_epochs=1, checkpoint_every=2, prefetch_worlds=False,
+                learner_process=False)
     return mappo.MAPPOConfig(**{**base, **overrides})
 
 
@@ -61,6 +63,7 @@ def _stop_at(monkeypatch, update_index: int, how: str) -> None:
     """Make update ``update_index`` end the run: ``sigint`` sends the process SIGINT during it (the trainer
     finishes the update and saves), ``crash`` raises after it (nothing saved since the last checkpoint)."""
     original = mappo.Trainer.update
+    original_submit = ProcessLearner.submit
 
     def update(self, batch, optim, u, n_updates):
         if u == update_index and how == "sigint":
@@ -70,7 +73,14 @@ def _stop_at(monkeypatch, update_index: int, how: str) -> None:
             raise RuntimeError("simulated crash")
         return stats
 
+    def submit(self, batch, last, u, n_updates):  # with a learner process: while it updates
+        assert how == "sigint"
+        original_submit(self, batch, last, u, n_updates)
+        if u == update_index:
+            signal.raise_signal(signal.SIGINT)
+
     monkeypatch.setattr(mappo.Trainer, "update", update)
+    monkeypatch.setattr(ProcessLearner, "submit", submit)
 
 
 @pytest.mark.filterwarnings("error:.*rebuilt env copies differ")
@@ -79,6 +89,8 @@ def _stop_at(monkeypatch, update_index: int, how: str) -> None:
     ({"shield": "teach", "intervention_coef": 1.0, "imitation_coef": 1.0, "imitation_anneal": 0.5}, "sigint"),
     # A residual of vo (its expert replayed with the worlds), executed through the shield; a hard stop.
     ({"residual": "vo", "pretrain": "none", "shield": "execute", "critic": "local", "eval_every": 0}, "crash"),
+    # The update in a learner process: the checkpoint keeps the rollout collected while it updated.
+    ({"learner_process": True}, "sigint"),
 ])
 def test_a_stopped_and_resumed_run_ends_bit_for_bit_like_an_uninterrupted_one(tmp_path, monkeypatch, overrides,
                                                                                how) -> None:
