@@ -25,8 +25,11 @@ the critic's global state of every world is one compiled call, and everything th
 step is over ``(worlds, followers)`` arrays: one actor forward for every agent of every world, the
 rewards, return statistics and bootstraps as array operations, the values and log-probabilities of the
 whole rollout in one forward each after it. Python loops over worlds remain only where an expert or
-the teaching shield reads each world (``residual``, ``shield="teach"``). ``tests/test_mappo_engine.py``
-holds reference runs, bit for bit, for every mode and number of worker processes;
+the teaching shield reads each world (``residual``, ``shield="teach"``). The PPO update runs in a learner
+process (``learner_process``, the default; :mod:`swarm_env_baselines.mappo_learner`) on rollout ``k`` while
+rollout ``k + 1`` is collected on the other core, or here after each rollout (``--no-learner-process``).
+``tests/test_mappo_engine.py`` holds reference runs of the update here, bit for bit, for every mode and number
+of worker processes (``tests/test_mappo_learner.py``: the learner process computes the same update);
 ``benchmarks/train_throughput.py`` measures the trainer against the raw engine (docs/performance.md,
 "Training throughput"). Live metrics: ``train.csv``/``eval.csv`` and TensorBoard scalars under ``tb/``
 (:mod:`swarm_env_baselines.run_log`); a progress bar in agent-steps with their rate.
