@@ -266,8 +266,6 @@ class ProcessLearner:
     """
 
     def __init__(self, cfg: Any, nets: Networks, optim: Any, gen_state: Any) -> None:
-        import dataclasses
-
         from swarm_env.worker_process import start_worker
 
         self._proc, self._conn = start_worker("swarm_env_baselines.mappo_learner")
@@ -276,7 +274,7 @@ class ProcessLearner:
         self._pending = False
         #: CPU seconds the learner process has used (as of the last :meth:`result`).
         self.cpu_s = 0.0
-        config = json.loads(json.dumps(dataclasses.asdict(cfg), default=list))
+        config = json.loads(cfg.to_json())  # the fields as JSON values (the learner sees them as attributes)
         self._conn.send(("init", config, nets.tensors(), _arrays(optim.state_dict()), np.asarray(gen_state)))
         self._reply("ready")
 

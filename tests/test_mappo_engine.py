@@ -127,7 +127,7 @@ def test_a_run_resumed_with_its_worlds_in_worker_processes_ends_as_an_uninterrup
     from safetensors.numpy import load_file
 
     cfg = {**BASE, **CASES["shield_execute"], "total_steps": 5 * 3 * 24 * 2, "checkpoint_every": 1,
-           "runs_dir": str(tmp_path)}
+           "runs_dir": str(tmp_path), "learner_process": False}  # (the update here: Trainer.update is patched)
     whole = mappo.train(mappo.MAPPOConfig(**cfg, run_name="whole"))
     original = mappo.Trainer.update
 
