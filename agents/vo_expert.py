@@ -19,7 +19,7 @@ privileged :class:`~swarm_env.state.WorldState`:
    - p_L)``. One deviation from Eq. 4: a target behind the robot is turned to
    in place at the full turn rate (``full_turn``). *Preview* (``preview``, 0.5 s
    by default; ``0`` for none): the led point is moved out of obstacles
-   by the env's own slot rule (:meth:`~swarm_env.geometry.StaticMap.project_free`
+   by the env's own slot rule (:meth:`~swarm_env.geometry.static_map.StaticMap.project_free`
    with clearance ``radius + SLOT_MARGIN``), and the robot steers along the arc
    towards the slot ``preview`` s ahead (also moved out of obstacles) at the
    speed of the law above, so it starts bending around an obstacle that the
@@ -29,7 +29,7 @@ privileged :class:`~swarm_env.state.WorldState`:
    from its slot (after a formation switch) turns towards it before it drives
    instead of leaving on a wide arc (pure pursuit's curvature is ``2 sin(alpha) /
    l``: small for a far target).
-3. **Velocity obstacle** (Eq. 12): :func:`swarm_env.guidance.vo_select_batch`
+3. **Velocity obstacle** (Eq. 12): :func:`swarm_env.control.guidance.vo_select_batch`
    samples candidate twists ``(v, omega)`` within the robot's limits, rejects
    every candidate whose predicted motion enters the velocity obstacle of
    another follower (reciprocal: they all run this rule), the robot leader and
@@ -75,11 +75,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env import guidance
-from swarm_env.formation import SLOT_MARGIN
-from swarm_env.guidance import pure_pursuit, slot_velocities
+from swarm_env.control import guidance
+from swarm_env.control.guidance import pure_pursuit, slot_velocities
+from swarm_env.control.safety import AvoidanceParams, safe_follower_twists
+from swarm_env.geometry.formation import SLOT_MARGIN
 from swarm_env.harness.policies import expert_factory
-from swarm_env.safety import AvoidanceParams, safe_follower_twists
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -87,8 +87,8 @@ if TYPE_CHECKING:
 
 __all__ = ["EXPERT_AVOIDANCE", "LEGACY_SPEC", "VOExpert", "make_policy"]
 
-#: Where the expert's avoidance defaults differ from :class:`~swarm_env.safety.AvoidanceParams`' (which the
-#: safety layer keeps; see :func:`swarm_env.guidance.vo_select` for each):
+#: Where the expert's avoidance defaults differ from :class:`~swarm_env.control.safety.AvoidanceParams`' (which the
+#: safety layer keeps; see :func:`swarm_env.control.guidance.vo_select` for each):
 #:
 #: * ``move_first``: a blocked follower drives off on a safe detour before it turns in place;
 #: * ``recip_gap=0.2``: another follower nearer than the combined radius plus 0.2 m is avoided plainly
@@ -177,8 +177,8 @@ class VOExpert:
             the robots' 2.5 s: ``vo:human_horizon=0,reverse=0.2`` is that fallback.)
 
     Avoidance (velocity obstacles, Eq. 12): any field of
-    :class:`swarm_env.safety.AvoidanceParams` (the search's
-    :class:`~swarm_env.guidance.VOParams` plus ``human_margin``, ``human_horizon`` and ``reciprocal``), e.g.
+    :class:`swarm_env.control.safety.AvoidanceParams` (the search's
+    :class:`~swarm_env.control.guidance.VOParams` plus ``human_margin``, ``human_horizon`` and ``reciprocal``), e.g.
     ``horizon``, ``margin``, ``n_v``/``n_w``, ``tau``, ``w_pref``/``w_heading``/``side_bias``,
     ``escape``, ``w_current``, ``cost``, ``recip_gap``, ``move_first``, ``static_reach``; they are kept in :attr:`avoidance`
     (and read through: ``expert.horizon``). The expert's defaults are the shared ones except
@@ -216,7 +216,7 @@ class VOExpert:
         unknown = sorted(set(avoidance) - set(AvoidanceParams.names()))
         if unknown:
             raise TypeError(f"VOExpert got unknown parameter(s) {unknown}; known: {', '.join(self.policy_parameters())}")
-        # The avoidance itself is swarm_env.safety's (shared with the SafetyShield wrapper); it checks its own values.
+        # The avoidance itself is swarm_env.control.safety's (shared with the SafetyShield wrapper); it checks its own values.
         # The expert's own defaults (EXPERT_AVOIDANCE) on top of the shared ones, which the shield keeps.
         self.avoidance = AvoidanceParams(**{**EXPERT_AVOIDANCE, **avoidance})
         self.time_gap = float(time_gap)
@@ -312,8 +312,8 @@ class VOExpert:
     def preferred_twists(self, state: WorldState) -> np.ndarray:
         """Pure pursuit towards each follower's (led) slot target: ``(N, 2)`` twists before avoidance.
 
-        Without preview the pursuit itself runs compiled (:func:`swarm_env.vo_kernel.pursuit`) unless
-        :func:`swarm_env.guidance.use_compiled_search` turned the compiled search off; the numpy code
+        Without preview the pursuit itself runs compiled (:func:`swarm_env.control.vo_kernel.pursuit`) unless
+        :func:`swarm_env.control.guidance.use_compiled_search` turned the compiled search off; the numpy code
         below is its reference (same bits, ``tests/test_vo_kernel.py``)."""
         robots = state.scenario.robots
         slots = state.slot_targets
@@ -371,10 +371,10 @@ class VOExpert:
 
     def _pursuit_compiled(self, pose: np.ndarray, target: np.ndarray, v_max: float, omega_max: float) -> np.ndarray:
         """:meth:`preferred_twists` without preview from the pursued points ``target`` ``(N, 2)``, by
-        :func:`swarm_env.vo_kernel.pursuit`. The bearing of each target is numpy's ``arctan2``, as in
+        :func:`swarm_env.control.vo_kernel.pursuit`. The bearing of each target is numpy's ``arctan2``, as in
         the reference: the C library's ``atan2`` (what a kernel would call) differs from numpy's SIMD
         one in the last bit for a few per cent of inputs on this machine."""
-        from swarm_env import vo_kernel
+        from swarm_env.control import vo_kernel
 
         if v_max < 0.0 or omega_max < 0.0:  # (pure_pursuit's check)
             raise ValueError("v_max and omega_max must be >= 0")

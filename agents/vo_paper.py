@@ -14,7 +14,7 @@ Writes into ``--out``:
 * ``results.json`` — all numbers;
 
 and the report ``docs/vo_expert.md`` (``--doc``) with the side-by-side tables.
-Every episode goes through :func:`swarm_env.harness.evaluation.run_episode`, the one
+Every episode goes through :func:`swarm_env.harness.episode.run_episode`, the one
 evaluation path; the expert is wrapped by a recorder that keeps the states
 it was shown.
 """
@@ -33,7 +33,8 @@ os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 import numpy as np  # noqa: E402
 
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.harness.evaluation import mean_ci95, run_episode  # noqa: E402
+from swarm_env.harness.episode import run_episode  # noqa: E402
+from swarm_env.harness.evaluation import mean_ci95
 from swarm_env.harness.policies import load_policy  # noqa: E402
 from swarm_env.jsonio import write_json  # noqa: E402
 from swarm_env.outputs import atomic_write_text, save_figure
@@ -142,7 +143,7 @@ def _draw_scene(ax: Any, scn: Any) -> None:
         if hasattr(o, "radius") and hasattr(o, "center") and not hasattr(o, "size"):
             ax.add_patch(Circle(o.center, o.radius, color="0.55", zorder=1))
         else:
-            from swarm_env.geometry import rotate_rectangle
+            from swarm_env.geometry.static_map import rotate_rectangle
 
             pts = rotate_rectangle(o.center, o.size, o.angle) if hasattr(o, "size") else np.asarray(o.points)
             ax.add_patch(Polygon(pts, closed=True, color="0.55", zorder=1))
@@ -535,7 +536,7 @@ def reactive_section(results: dict[str, Any]) -> list[str]:
     lines = [
         "## With humans that react",
         "",
-        "The same random worlds with `human_behavior` set (`swarm_env.humans`: the humans head for the same",
+        "The same random worlds with `human_behavior` set (`swarm_env.sim.humans`: the humans head for the same",
         "waypoints but give way to robots, each other and obstacles; `social_force`: Helbing & Molnar's model",
         "with a keep-right share; `orca`: RVO2's ORCA):",
         "",
@@ -651,8 +652,8 @@ way) within 3.5 s, and static circles, polygons (exact Minkowski sums) and walls
 twist wins, a slow-down costing three times a turn (so a follower bends round an obstacle at speed). The
 pursuit steers towards the slot 0.5 s ahead (moved out of obstacles like the slots) and caps the pursued
 point at 0.875 s of travel at full speed, so a follower far from its slot turns towards it first; a
-follower turning in place to escape a block keeps its direction. All followers are evaluated in one pass (`swarm_env.guidance.vo_select_batch`, compiled:
-`swarm_env.vo_kernel`)."""
+follower turning in place to escape a block keeps its direction. All followers are evaluated in one pass (`swarm_env.control.guidance.vo_select_batch`, compiled:
+`swarm_env.control.vo_kernel`)."""
 
 #: Hand-written explanations of the failing random episodes (seed -> note), from their videos.
 FAILURE_NOTES: dict[int, str] = {

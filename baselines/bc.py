@@ -53,7 +53,7 @@ What it does, top to bottom (:func:`train_bc`):
    multiplies the training time by about six (1 -> 6 minutes here).
 7. **Validation rollouts** (``eval_seeds``, default 500-509): after BC and
    after each DAgger iteration the policy plays those seeds through
-   :func:`swarm_env.harness.evaluation.run_episode`; ``eval.csv`` has one row per stage.
+   :func:`swarm_env.harness.episode.run_episode`; ``eval.csv`` has one row per stage.
 
 Outputs in ``out``: ``policy.safetensors`` + ``policy.json`` (what ``bc:OUT`` loads, no pickle)
 and SB3's ``model.zip`` + ``vecnormalize.pkl`` (:func:`swarm_env_baselines.model_io.save_model`), ``bc_config.json`` (the config, the
@@ -416,7 +416,8 @@ def evaluate_model(
     from tqdm.auto import tqdm
 
     from swarm_env.env import SwarmEnv
-    from swarm_env.harness.evaluation import run_episode, summarize
+    from swarm_env.harness.episode import run_episode
+    from swarm_env.harness.evaluation import summarize
     from swarm_env_baselines.model_io import SB3Policy
 
     env = SwarmEnv(scenario, **dict(env_kwargs or {}))

@@ -2,7 +2,7 @@
 a clean stop on SIGINT/SIGTERM. Each picks up where a resumed run left off (``model.num_timesteps``).
 
 The evaluation callback scores the current model through the same path as the
-leaderboard (:func:`swarm_env.harness.evaluation.run_episode` with
+leaderboard (:func:`swarm_env.harness.episode.run_episode` with
 :class:`~swarm_env_baselines.model_io.SB3Policy`), so "eval" numbers during training and
 leaderboard numbers mean the same thing.
 """
@@ -21,7 +21,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecNormalize
 
 from swarm_env.env import SwarmEnv
-from swarm_env.harness.evaluation import run_episode, summarize
+from swarm_env.harness.episode import run_episode
+from swarm_env.harness.evaluation import summarize
 from swarm_env.harness.policies import ShieldedPolicy
 from swarm_env_baselines.model_io import SB3Policy, save_model
 

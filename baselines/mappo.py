@@ -20,7 +20,7 @@ truncated episodes are bootstrapped from the value of their last state; the upda
 inputs exactly as normalised when the actions were drawn (``train.csv``'s ``first_ratio_error`` stays 0).
 
 Rollouts run at the engine's speed: ``n_copies`` worlds (default 64) of the batched engine
-(:class:`swarm_env.vector.SwarmVectorEnv`, their physics in ``env_procs`` processes) step in one call,
+(:class:`swarm_env.vector.engine.SwarmVectorEnv`, their physics in ``env_procs`` processes) step in one call,
 the critic's global state of every world is one compiled call, and everything the trainer does per
 step is over ``(worlds, followers)`` arrays: one actor forward for every agent of every world, the
 rewards, return statistics and bootstraps as array operations, the values and log-probabilities of the
@@ -39,7 +39,7 @@ Options that the shipped baselines use (docs/baselines.md gives their commands a
 * ``pretrain`` (default ``vo``): a DAgger warm start of the actor from that expert
   (:mod:`swarm_env_baselines.imitation`, a few minutes) so that PPO starts from a policy that holds its
   slot; the observation statistics are then fixed. ``--pretrain none`` starts from scratch.
-* ``shield``: the VO safety layer of :mod:`swarm_env.safety`. ``execute``: every world is in a
+* ``shield``: the VO safety layer of :mod:`swarm_env.control.safety`. ``execute``: every world is in a
   :class:`swarm_env.wrappers.SafetyShield` (the engine's ``shield=True``), the env executes the safe
   actions and the policy is scored through it. ``teach``: the env executes the learner's own actions, but the shield
   computes the safe action nearest to each sampled one; ``intervention_coef`` charges the size
@@ -50,7 +50,7 @@ Options that the shipped baselines use (docs/baselines.md gives their commands a
   clip(sample))``; the actor reads the observation and the expert's action (privileged at
   execution, like the expert).
 * Reward shaping goes through the env's reward (``--env 'reward={approach: 5.0}'``: the
-  anticipatory clearance term of :mod:`swarm_env.rewards`).
+  anticipatory clearance term of :mod:`swarm_env.scoring.rewards`).
 
 Data split: PPO's worlds are the generator streams of seeds ``100 * seed + copy``; DAgger's
 seeds ``10000 + 1000 * seed`` onwards; model selection uses validation seeds ``500-549``
@@ -148,14 +148,14 @@ class MAPPOConfig:
     total_steps: int = 20_000_000
     #: Seed of the networks, the action sampling and the training worlds.
     seed: int = 0
-    #: Env copies stepped together (the worlds of one batched engine, swarm_env.vector); 64 measured best
+    #: Env copies stepped together (the worlds of one batched engine, swarm_env.vector.engine); 64 measured best
     #: (docs/performance.md, "Training throughput").
     n_copies: int = 64
     #: Worker processes for the worlds' physics (1: in the training process); the results do not depend on it.
     #: Not with --residual (its experts read the worlds in this process).
     env_procs: int = 1
     #: With env_procs 1: draw the next random worlds in a worker process while the worlds step (the same worlds
-    #: bit for bit: swarm_env.vector.SwarmVectorEnv(prefetch_scenarios=True)).
+    #: bit for bit: swarm_env.vector.engine.SwarmVectorEnv(prefetch_scenarios=True)).
     prefetch_worlds: bool = True
     #: Run the PPO update in a learner process of its own, on rollout k while the trainer collects rollout k + 1
     #: (a policy lag of one update; swarm_env_baselines.mappo_learner). Off: the update follows each rollout in
@@ -258,7 +258,7 @@ class MAPPOConfig:
 
 
 def _world_factory(cfg: MAPPOConfig, shielded: bool) -> Any:
-    from swarm_env.vector import EnvFactory
+    from swarm_env.vector.engine import EnvFactory
 
     return EnvFactory(cfg.scenario, {**cfg.env_kwargs, **cfg.train_env_kwargs}, shielded)
 
@@ -305,7 +305,7 @@ def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str,
 
 
 class Trainer:
-    """The state of one run: the worlds (one :class:`~swarm_env.vector.SwarmVectorEnv` of ``n_copies``
+    """The state of one run: the worlds (one :class:`~swarm_env.vector.engine.SwarmVectorEnv` of ``n_copies``
     worlds), networks, statistics; :meth:`collect` then :meth:`update`.
 
     Every array of the rollout has the worlds and followers as axes ``(M, N)``: one actor forward per
@@ -342,7 +342,7 @@ class Trainer:
             self.experts = [load_policy(cfg.residual, e) for e in self._world_envs()]
         self.shield_params: Any = None
         if cfg.shield == "teach":
-            from swarm_env.safety import AvoidanceParams
+            from swarm_env.control.safety import AvoidanceParams
 
             # The SafetyShield wrapper's defaults, plus the optional consistency terms of a teacher.
             self.shield_params = AvoidanceParams(w_heading=0.0, w_current=cfg.teach_w_current,
@@ -466,7 +466,7 @@ class Trainer:
         cfg = self.cfg
         correction = None
         if cfg.shield == "teach":  # the safe action nearest to each sampled one, in the state it was sampled in
-            from swarm_env.safety import shield_actions
+            from swarm_env.control.safety import shield_actions
 
             corrections = []
             for k, state in enumerate(self.venv.call("world_state")):

@@ -83,7 +83,7 @@ class SACConfig:
     #: Worker processes for the worlds' physics (1: in the training process); the results do not depend on it.
     env_procs: int = 1
     #: With env_procs 1: draw the next random worlds in a worker process while the worlds step (the same worlds
-    #: bit for bit: swarm_env.vector.SwarmVectorEnv(prefetch_scenarios=True)).
+    #: bit for bit: swarm_env.vector.engine.SwarmVectorEnv(prefetch_scenarios=True)).
     prefetch_worlds: bool = True
     #: Replay buffer capacity in agent transitions.
     buffer_size: int = 500_000
@@ -214,7 +214,7 @@ class SAC:
 
         import torch
 
-        from swarm_env.vector import EnvFactory
+        from swarm_env.vector.engine import EnvFactory
         from swarm_env_baselines.mappo import _torch_device
         from swarm_env_baselines.worlds import TrainingWorlds
 

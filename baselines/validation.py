@@ -33,7 +33,8 @@ def evaluate_policy(policy: Any, scenario: Any, env_kwargs: dict[str, Any], seed
     loop (through the safety layer if ``shielded``); the summary of
     :func:`swarm_env.harness.evaluation.summarize` plus ``score``."""
     from swarm_env.env import SwarmEnv
-    from swarm_env.harness.evaluation import run_episode, summarize
+    from swarm_env.harness.episode import run_episode
+    from swarm_env.harness.evaluation import summarize
     from swarm_env.harness.policies import ShieldedPolicy
 
     env = SwarmEnv(scenario, **env_kwargs)

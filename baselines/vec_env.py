@@ -1,7 +1,7 @@
 """Our SB3 bridge: the batched engine's M worlds as M x N sub-environments with parameter sharing.
 
 :class:`SwarmVecEnv` is a stable-baselines3 :class:`~stable_baselines3.common.vec_env.VecEnv`
-over a :class:`swarm_env.vector.SwarmVectorEnv` of ``M`` worlds: sub-environment ``m * N + i``
+over a :class:`swarm_env.vector.engine.SwarmVectorEnv` of ``M`` worlds: sub-environment ``m * N + i``
 is agent ``follower_i`` of world ``m`` (``N = len(possible_agents)``). One policy network acts
 for every follower (parameter sharing); SB3 sees ``M * N`` ordinary single-agent environments.
 The engine steps all worlds with one call (one lidar kernel call for all followers, arrays
@@ -40,7 +40,7 @@ import numpy as np
 from stable_baselines3.common.vec_env.base_vec_env import VecEnv, VecEnvIndices, VecEnvStepReturn
 
 from swarm_env.env import SwarmEnv
-from swarm_env.vector import EnvFactory, SwarmVectorEnv
+from swarm_env.vector.engine import EnvFactory, SwarmVectorEnv
 
 EnvFn = Callable[[], SwarmEnv]
 
@@ -54,7 +54,7 @@ class SwarmVecEnv(VecEnv):
         env_fn: builds one world (called once per world, in the process that owns it).
         n_copies: number of worlds ``M``.
         n_procs: processes stepping the physics (1 = everything in this process); the worlds
-            are split into ``n_procs`` contiguous blocks (:class:`swarm_env.vector.SwarmVectorEnv`).
+            are split into ``n_procs`` contiguous blocks (:class:`swarm_env.vector.engine.SwarmVectorEnv`).
 
     The observation and action spaces are those of one agent. See the module docstring for
     seeding, truncation and fixed teams.

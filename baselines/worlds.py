@@ -1,12 +1,12 @@
 """The training worlds of a trainer on the batched engine, and how a checkpoint rebuilds them.
 
-:class:`TrainingWorlds` wraps a :class:`~swarm_env.vector.SwarmVectorEnv` and records what a checkpoint
+:class:`TrainingWorlds` wraps a :class:`~swarm_env.vector.engine.SwarmVectorEnv` and records what a checkpoint
 needs to bring every world back as it is now: how its running episode began (the engine's
 ``episode_starts``: a seed, or the world generator's state) and every action it has executed since (an
 action log of all worlds, step by step, trimmed as episodes end). The physics lives in pymunk and is
 not saved; :meth:`TrainingWorlds.restore` rebuilds each world by resetting a fresh env as its episode
 began and playing its actions again (the env is deterministic), then puts it in the engine
-(:meth:`~swarm_env.vector.SwarmVectorEnv.set_world`). Shared by :mod:`swarm_env_baselines.mappo` and
+(:meth:`~swarm_env.vector.engine.SwarmVectorEnv.set_world`). Shared by :mod:`swarm_env_baselines.mappo` and
 :mod:`swarm_env_baselines.sac`.
 """
 
@@ -27,7 +27,7 @@ class TrainingWorlds:
     """``factory()`` worlds stepped by one engine (``n_procs`` processes for their physics).
 
     Args:
-        factory: builds one world (a picklable :class:`~swarm_env.vector.EnvFactory`).
+        factory: builds one world (a picklable :class:`~swarm_env.vector.engine.EnvFactory`).
         n_worlds: the number of worlds ``M``.
         n_procs: worker processes of the engine (1: this process).
         prefetch: with ``n_procs = 1``, draw the next random worlds in a worker process while the worlds step
@@ -36,7 +36,7 @@ class TrainingWorlds:
     """
 
     def __init__(self, factory: Callable[[], Any], n_worlds: int, n_procs: int = 1, prefetch: bool = True) -> None:
-        from swarm_env.vector import SwarmVectorEnv
+        from swarm_env.vector.engine import SwarmVectorEnv
 
         self.factory = factory
         self.venv = SwarmVectorEnv.from_factories([factory] * n_worlds, n_procs=n_procs,
@@ -54,7 +54,7 @@ class TrainingWorlds:
         return obs
 
     def step(self, actions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-        """:meth:`SwarmVectorEnv.step <swarm_env.vector.SwarmVectorEnv.step>`, with the actions logged and
+        """:meth:`SwarmVectorEnv.step <swarm_env.vector.engine.SwarmVectorEnv.step>`, with the actions logged and
         the worlds whose episode ended (and auto-reset) marked as beginning a new one."""
         out = self.venv.step(actions)
         self._log.append(np.array(actions, dtype=np.float32))

@@ -31,7 +31,7 @@ import numpy as np
 
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.policies import parse_policy_kwargs
-from swarm_env.scenario_io import load_scenario
+from swarm_env.scenarios.loader import load_scenario
 from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
 
 _NEAR = 0.15  # m: a plan/course this close to the slot is not the cause

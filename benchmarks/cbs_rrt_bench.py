@@ -33,7 +33,7 @@ import time
 from typing import Any
 
 import swarm_env
-from swarm_env.harness.evaluation import run_episode
+from swarm_env.harness.episode import run_episode
 from swarm_env.jsonio import dumps
 from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
 

@@ -2,11 +2,11 @@
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/engine_breakdown.py [--worlds 64] [--steps 40] [--repeats 3]
 
-Steps ``swarm_env.vector.SwarmVectorEnv("random", M, **swarm_env.harness.bench.BATCH_WORLD)`` with random
+Steps ``swarm_env.vector.engine.SwarmVectorEnv("random", M, **swarm_env.harness.bench.BATCH_WORLD)`` with random
 actions, timing each stage separately (median over repeats, microseconds per world-step):
 ``physics`` (pymunk substeps with the drive callbacks, the humans and the leader, the slot
 targets and the snapshots: ``World.step`` + ``World.snapshot`` of all worlds in one compiled call,
-:mod:`swarm_env.world_batch`, as the engine's ``_physics_stage``), then the batched stages of :class:`swarm_env.batch_step.BatchState`, each one call for all ``M`` worlds:
+:mod:`swarm_env.vector.world_batch`, as the engine's ``_physics_stage``), then the batched stages of :class:`swarm_env.vector.batch_step.BatchState`, each one call for all ``M`` worlds:
 ``rewards`` (contacts, slot distances, reward terms: ``BatchState.rewards``), ``metrics``
 (``EpisodeMetrics.update`` of every world: ``BatchState.metrics``), ``observations`` (everything but
 the lidar: ``BatchState.observations``), ``glue`` (the physics' stacked arrays,
@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from swarm_env.harness.bench import BATCH_WORLD
-from swarm_env.vector import SwarmVectorEnv, _physics_stage
+from swarm_env.vector.engine import SwarmVectorEnv, _physics_stage
 
 STAGES = ("physics", "rewards", "metrics", "observations", "glue", "lidar")
 

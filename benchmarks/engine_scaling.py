@@ -2,7 +2,7 @@
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/engine_scaling.py [--worlds 8 64 256 1024] [--rounds 100] [--steps 1]
 
-Builds one :class:`swarm_env.vector.SwarmVectorEnv` per world count (``random`` at
+Builds one :class:`swarm_env.vector.engine.SwarmVectorEnv` per world count (``random`` at
 ``swarm_env.harness.bench.BATCH_WORLD``: 8 followers, 10 obstacles, 3 humans, the worlds ``swarm-env
 bench --num-envs`` steps), resets it with seed 0 and steps it with random actions drawn before the
 clock starts. The engines live side by side and are stepped in turn, ``--steps`` steps each (a
@@ -37,7 +37,7 @@ import numpy as np
 
 from swarm_env.harness.bench import BATCH_WORLD
 from swarm_env.jsonio import write_json
-from swarm_env.vector import SwarmVectorEnv
+from swarm_env.vector.engine import SwarmVectorEnv
 
 
 class _GcClock:

@@ -8,11 +8,11 @@
 Issue 12's target: after the formation switch is reached (``settle_times[i]["settle_time"]``), every
 follower stays within ``world.settle_tolerance`` (0.3 m) of the env's slot target
 (``WorldState.slot_targets``) in >= 90 % of the remaining steps (``hold_fraction``,
-:mod:`swarm_env.metrics`). This script decides whether that is possible at all for followers with
+:mod:`swarm_env.scoring.metrics`). This script decides whether that is possible at all for followers with
 the robots' limits, ignoring the other robots, by computing what an *ideal* follower achieves.
 
 1. **Slots.** ``paper_cbs_switch`` has a virtual leader, so the slot targets are a function of time
-   and the map only: :func:`swarm_env.formation.virtual_slot_trajectory`. ``--check-env`` plays the
+   and the map only: :func:`swarm_env.geometry.formation.virtual_slot_trajectory`. ``--check-env`` plays the
    env with two different policies and seeds and checks the recorded ``slot_targets`` are bitwise
    the same as that trajectory (they do not depend on the followers or the seed).
 2. **Jumps.** Every step after the switch in which a slot moves more than ``max_speed * dt``
@@ -107,12 +107,12 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env.formation import SLOT_MARGIN, unprojected_slot_trajectory, virtual_slot_trajectory
-from swarm_env.geometry import StaticMap
+from swarm_env.geometry.formation import SLOT_MARGIN, unprojected_slot_trajectory, virtual_slot_trajectory
+from swarm_env.geometry.paths import PolylinePath, virtual_leader
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.jsonio import write_json
-from swarm_env.paths import PolylinePath, virtual_leader
 from swarm_env.scenario import Scenario
-from swarm_env.scenario_io import load_scenario
+from swarm_env.scenarios.loader import load_scenario
 from swarm_env_agents.cbs_rrt import hold_plan
 from swarm_env_agents.cbs_rrt.hold_plan import CHORD_ALLOWANCE, Lattice, PointDP, half_widths, substep_rollout
 

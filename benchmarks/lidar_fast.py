@@ -26,9 +26,9 @@ from collections.abc import Callable
 import numpy as np
 
 from swarm_env.harness.bench import BATCH_WORLD
-from swarm_env.lidar import pack_discs, pack_inputs, scan, scan_reference
-from swarm_env.observations import lidar_input, moving_discs
-from swarm_env.vector import SwarmVectorEnv
+from swarm_env.sensing.lidar import pack_discs, pack_inputs, scan, scan_reference
+from swarm_env.sensing.observations import lidar_input, moving_discs
+from swarm_env.vector.engine import SwarmVectorEnv
 
 
 def paths(m: int) -> dict[str, Callable[[], np.ndarray]]:

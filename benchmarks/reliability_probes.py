@@ -57,7 +57,7 @@ def _yaml(data: Any) -> str:
 
 
 def _base() -> dict:
-    from swarm_env.scenario_io import load_scenario, scenario_to_dict
+    from swarm_env.scenarios.loader import load_scenario, scenario_to_dict
 
     return scenario_to_dict(load_scenario("paper_vo_0"))
 
@@ -202,7 +202,7 @@ def _paths(obj: Any, prefix: tuple = ()) -> list[tuple]:
 
 def mutation_probes(count: int, seed: int) -> list[dict]:
     """``count`` seeded mutations (1-3 edits each) of the built-in scenarios, as dict probes."""
-    from swarm_env.scenario_io import list_scenarios, load_scenario, scenario_to_dict
+    from swarm_env.scenarios.loader import list_scenarios, load_scenario, scenario_to_dict
 
     bases = [scenario_to_dict(load_scenario(n)) for n in list_scenarios() if n != "random"]
     rng = random.Random(seed)
@@ -296,7 +296,7 @@ def run_probe(probe: dict) -> tuple[str, str]:
     """``(outcome, detail)`` of one probe (hangs are the caller's alarm)."""
     from swarm_env import SwarmEnv
     from swarm_env.scenario import ScenarioError
-    from swarm_env.scenario_io import load_scenario, scenario_from_dict
+    from swarm_env.scenarios.loader import load_scenario, scenario_from_dict
 
     try:
         if probe["kind"] == "file":

@@ -27,7 +27,7 @@ from typing import Any
 
 
 def _reset_wave(worlds: int, repeats: int) -> list[float]:
-    from swarm_env.vector import SwarmVectorEnv
+    from swarm_env.vector.engine import SwarmVectorEnv
 
     venv = SwarmVectorEnv("random", num_envs=worlds)
     venv.reset(seed=0)  # warm-up: compilation, first allocations
@@ -51,7 +51,7 @@ def _memory(pid: int) -> str:
 def _steps(worlds: int, steps: int, prefetch: bool) -> dict[str, Any]:
     import numpy as np
 
-    from swarm_env.vector import SwarmVectorEnv
+    from swarm_env.vector.engine import SwarmVectorEnv
 
     venv = SwarmVectorEnv("random", num_envs=worlds, prefetch_scenarios=prefetch)
     venv.reset(seed=0)

@@ -15,7 +15,7 @@ import numpy as np
 
 import swarm_env
 from swarm_env.harness.policies import load_policy
-from swarm_env.rewards import CONTACT_GROUPS, REWARD_TERMS, contact_counts, reward_terms
+from swarm_env.scoring.rewards import CONTACT_GROUPS, REWARD_TERMS, contact_counts, reward_terms
 
 
 def measure(policy_name: str, reward: str, seeds: range) -> dict[str, float]:

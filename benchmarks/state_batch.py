@@ -7,7 +7,7 @@ For each ``M``, steps ``SwarmVectorEnv("random", M, **swarm_env.harness.bench.BA
 (the batched rows live, the kernels compiled), checks that both give the same bits, then times, per
 repeat, ``--calls`` calls of ``old`` (``np.stack([e.state() for e in envs])``, the per-world numpy
 reference and what the engine did before) and ``new`` (``venv.state()``: ``BatchState.state``, one
-call of :func:`swarm_env.state_kernel.state_batch`), alternating the two within a repeat so that a
+call of :func:`swarm_env.sensing.state_kernel.state_batch`), alternating the two within a repeat so that a
 noisy shared machine slows both alike. Prints the medians over repeats of one call's wall time
 (``time.perf_counter``) and CPU time (``time.process_time``), in microseconds, and old / new.
 """
@@ -24,7 +24,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy: one thread, 
 import numpy as np  # noqa: E402
 
 from swarm_env.harness.bench import BATCH_WORLD  # noqa: E402
-from swarm_env.vector import SwarmVectorEnv  # noqa: E402
+from swarm_env.vector.engine import SwarmVectorEnv  # noqa: E402
 
 
 def measure(worlds: int, calls: int, repeats: int) -> dict[str, float]:

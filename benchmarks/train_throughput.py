@@ -3,7 +3,7 @@
 For each number of worlds ``M`` it builds the trainer (:class:`swarm_env_baselines.mappo.Trainer`, the
 config's defaults without the warm start and validation unless ``--config`` says otherwise), optionally a
 peer trainer from another ``mappo.py`` (``--peer``, e.g. the trainer before a change), and a bare
-:class:`swarm_env.vector.SwarmVectorEnv` of the same worlds driven with uniform random actions. Each
+:class:`swarm_env.vector.engine.SwarmVectorEnv` of the same worlds driven with uniform random actions. Each
 repeat runs one PPO iteration (rollout of ``n_steps`` steps of every world, then the update) of each
 trainer and ``n_steps`` engine steps, in an order that alternates between repeats; after one warm-up
 iteration each, the report gives medians over the repeats of agent-steps/s by wall time and by CPU time
@@ -137,7 +137,7 @@ class _EngineRun:
     def __init__(self, scenario: str, worlds: int, env_kwargs: dict[str, Any], steps: int, prefetch: bool) -> None:
         import numpy as np
 
-        from swarm_env.vector import SwarmVectorEnv
+        from swarm_env.vector.engine import SwarmVectorEnv
 
         self.venv = SwarmVectorEnv(scenario, num_envs=worlds, prefetch_scenarios=prefetch, **env_kwargs)
         self.venv.reset(seed=0)

@@ -11,7 +11,7 @@ noise). Reported over the states: median, p95 and max of ``act()`` and median
 and p95 of ``env.step`` (the peer: the cost of simulating one step), in
 microseconds, plus how often every follower's preferred twist was safe (the
 fast path). Timings are of this machine and this run: compare numbers from the
-same run only. ``act()`` runs compiled (:mod:`swarm_env.vo_kernel`: the pure
+same run only. ``act()`` runs compiled (:mod:`swarm_env.control.vo_kernel`: the pure
 pursuit and the search); the numpy reference (``guidance.use_compiled_search(False)``,
 same actions) is timed on the same states, interleaved with it, as its peer
 ("reference CPU median" and the ratio, the figure to compare on a loaded machine).
@@ -25,9 +25,9 @@ import time
 
 import numpy as np
 
-from swarm_env import guidance
+from swarm_env.control import guidance
+from swarm_env.control.safety import safe_follower_twists
 from swarm_env.env import SwarmEnv
-from swarm_env.safety import safe_follower_twists
 from swarm_env_agents.vo_expert import VOExpert
 
 SCENARIOS = ("paper_cbs_switch", "paper_vo_0")

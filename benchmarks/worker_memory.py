@@ -2,7 +2,7 @@
 
     python benchmarks/worker_memory.py [--workers 8] [--worlds 16] [--scenario paper_cbs_switch] [--worker-kernels]
 
-Starts :class:`swarm_env.vector.SwarmVectorEnv` with ``--workers`` worker processes, steps it
+Starts :class:`swarm_env.vector.engine.SwarmVectorEnv` with ``--workers`` worker processes, steps it
 20 times, and prints each worker's resident (RSS), proportional (PSS: shared pages split between
 the processes sharing them) and private memory, and their totals. Also says whether any worker
 mapped torch or numba's LLVM (it must not, unless ``--worker-kernels`` asks for the compiled kernels).
@@ -15,7 +15,7 @@ import sys
 
 import numpy as np
 
-from swarm_env.vector import SwarmVectorEnv
+from swarm_env.vector.engine import SwarmVectorEnv
 
 FIELDS = ("Rss", "Pss", "Private_Clean", "Private_Dirty")
 

@@ -1,5 +1,5 @@
 """Physics + snapshot per world-step: the per-world loop (``World.step`` then ``World.snapshot``)
-against :class:`swarm_env.world_batch.WorldBatch` (one compiled call for all worlds), on the batched
+against :class:`swarm_env.vector.world_batch.WorldBatch` (one compiled call for all worlds), on the batched
 benchmark's world (``random`` with ``swarm_env.harness.bench.BATCH_WORLD``: 8 followers, 10
 obstacles, 3 scripted humans, a virtual leader).
 
@@ -24,11 +24,11 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env import world_batch
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.bench import BATCH_WORLD
-from swarm_env.world import World
-from swarm_env.world_batch import WorldBatch
+from swarm_env.sim.world import World
+from swarm_env.vector import world_batch
+from swarm_env.vector.world_batch import WorldBatch
 
 
 def _worlds(m: int) -> tuple[list[World], list[World]]:

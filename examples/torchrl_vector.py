@@ -25,13 +25,13 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase
 
-from swarm_env.vector import SwarmVectorEnv
+from swarm_env.vector.engine import SwarmVectorEnv
 
 
 class SwarmVectorTorchRL(EnvBase):
     """``M`` swarm_env worlds as one TorchRL environment of batch size ``[M]`` (module docstring).
 
-    Args: ``scenario``, ``num_envs`` and ``**kwargs`` as for :class:`swarm_env.vector.SwarmVectorEnv`
+    Args: ``scenario``, ``num_envs`` and ``**kwargs`` as for :class:`swarm_env.vector.engine.SwarmVectorEnv`
     (``n_procs`` included).
     """
 

@@ -20,18 +20,15 @@ from typing import Any
 
 from pettingzoo.utils.conversions import parallel_to_aec
 
-from swarm_env import _moved
 from swarm_env.env import PRIMITIVE_ANGLES_DEG, SwarmEnv
-from swarm_env.observations import OBS_LEADER, OBS_OWN_TWIST, OBS_SLOT, OBS_SWITCH, observation_layout
 from swarm_env.scenario import Scenario, ScenarioError
-from swarm_env.scenario_io import list_scenarios, load_scenario
+from swarm_env.scenarios.loader import list_scenarios, load_scenario
+from swarm_env.sensing.observations import OBS_LEADER, OBS_OWN_TWIST, OBS_SLOT, OBS_SWITCH, observation_layout
 from swarm_env.state import WorldState
 
 __version__ = "0.1.0"
 
 raw_env = SwarmEnv
-
-_moved.install()  # the harness modules' old names (swarm_env.cli, swarm_env.policies, ...) until 0.2
 
 
 def parallel_env(scenario: Any = "paper_vo_0", **kwargs: Any) -> SwarmEnv:

@@ -15,11 +15,12 @@ import gymnasium
 import numpy as np
 from pettingzoo import ParallelEnv
 
-from swarm_env.geometry import StaticMap
-from swarm_env.metrics import EpisodeMetrics
-from swarm_env.observations import STATE_LIMIT, Capacity, ObservationBuilder
-from swarm_env.random_scenario import RandomScenarioConfig, config_from_kwargs, random_scenario
-from swarm_env.rewards import (
+from swarm_env.geometry.static_map import StaticMap
+from swarm_env.scenario import RewardSpec, Scenario
+from swarm_env.scenarios.generator import RandomScenarioConfig, config_from_kwargs, random_scenario
+from swarm_env.scenarios.loader import _parse_reward, load_scenario
+from swarm_env.scoring.metrics import EpisodeMetrics
+from swarm_env.scoring.rewards import (
     CONTACT_GROUPS,
     INFO_CONTACT_KEYS,
     INFO_REWARD_KEYS,
@@ -28,10 +29,9 @@ from swarm_env.rewards import (
     slot_distance,
     touching_per_follower,
 )
-from swarm_env.scenario import RewardSpec, Scenario
-from swarm_env.scenario_io import _parse_reward, load_scenario
+from swarm_env.sensing.observations import STATE_LIMIT, Capacity, ObservationBuilder
+from swarm_env.sim.world import World
 from swarm_env.state import LEADER_ID, Contact, WorldState
-from swarm_env.world import World
 
 #: Turn angles (degrees) of the discrete motion primitives (paper 000), after action 0 = stop.
 PRIMITIVE_ANGLES_DEG = (0.0, 12.0, -12.0, 24.0, -24.0, 36.0, -36.0, 48.0, -48.0)
@@ -81,7 +81,7 @@ class SwarmEnv(ParallelEnv):
     velocity, time to the next formation switch, the ``neighbors`` nearest
     followers and ``humans`` nearest humans (relative position and velocity,
     plus a presence mask), and a lidar. See
-    :mod:`swarm_env.observations` for the exact layout; the named slices are
+    :mod:`swarm_env.sensing.observations` for the exact layout; the named slices are
     ``OBS_OWN_TWIST``, ``OBS_SLOT``, ``OBS_LEADER``, ``OBS_SWITCH`` and
     ``observation_layout(sensors)`` (also ``env.obs_layout``).
 
@@ -90,7 +90,7 @@ class SwarmEnv(ParallelEnv):
     twist and slot, the leader, the humans, the time, and the map: each
     follower's nearest static surface (distance and direction) and a 16 x 16
     occupancy grid of the obstacles. Named slices: ``env.state_layout``
-    (:func:`swarm_env.observations.state_layout` documents each).
+    (:func:`swarm_env.sensing.observations.state_layout` documents each).
 
     ## Agents (fixed teams)
 
@@ -104,7 +104,7 @@ class SwarmEnv(ParallelEnv):
 
     ## Rewards (v1)
 
-    Per agent (see :mod:`swarm_env.rewards` for the formula; weights in the
+    Per agent (see :mod:`swarm_env.scoring.rewards` for the formula; weights in the
     scenario's ``reward`` section, or ``reward=`` here)::
 
         r = - 1.0 * slot distance (m)
@@ -138,13 +138,13 @@ class SwarmEnv(ParallelEnv):
 
     ``reset()`` and ``step()`` give every agent the same flat keys (zeros at
     reset), one number each, so that TorchRL and BenchMARL can make tensors of
-    them: ``reward_<term>`` for each of :data:`swarm_env.rewards.REWARD_TERMS`
+    them: ``reward_<term>`` for each of :data:`swarm_env.scoring.rewards.REWARD_TERMS`
     (``reward_formation``, ``reward_collision``, ``reward_contact_robot``, ...;
     floats that sum to the reward), ``slot_distance`` (m), ``contacts_<kind>``
     for ``robot, obstacle, human, wall`` (int: bodies of that kind in touch
     during the step) and ``collision_terminated`` (bool: this step ended the
-    episode by a collision). :func:`swarm_env.rewards.reward_terms` and
-    :func:`~swarm_env.rewards.contact_counts` read them back as dicts.
+    episode by a collision). :func:`swarm_env.scoring.rewards.reward_terms` and
+    :func:`~swarm_env.scoring.rewards.contact_counts` read them back as dicts.
 
     ## Episode end
 
@@ -157,7 +157,7 @@ class SwarmEnv(ParallelEnv):
     ``truncations`` are ``True`` at step ``env.max_steps`` (``world.max_time /
     dt``, or ``max_cycles`` if smaller; known from construction). Finished
     agents leave ``env.agents``. ``episode_metrics()`` then reports the metrics
-    of :mod:`swarm_env.metrics` and ``termination`` (``"formation"``,
+    of :mod:`swarm_env.scoring.metrics` and ``termination`` (``"formation"``,
     ``"collision"`` or ``"time_limit"``).
 
     ## Arguments
@@ -175,7 +175,7 @@ class SwarmEnv(ParallelEnv):
     * ``team_seed``: for ``random`` with an ``n_followers`` range, the seed of
       the one team-size draw of this instance.
     * ``**knobs``: for ``scenario="random"`` only, the fields of
-      :class:`~swarm_env.random_scenario.RandomScenarioConfig`
+      :class:`~swarm_env.scenarios.generator.RandomScenarioConfig`
       (``n_followers``, ``n_obstacles``, ``n_humans``, ...).
 
     ``metadata["render_fps"]`` is per instance: one frame per control step,
@@ -185,7 +185,7 @@ class SwarmEnv(ParallelEnv):
     ## Version history
 
     * v1, later additions: humans that react, opt in (``behavior: social_force | orca`` per
-      human, ``human_behavior`` for ``random``; :mod:`swarm_env.humans`; scripted humans move
+      human, ``human_behavior`` for ``random``; :mod:`swarm_env.sim.humans`; scripted humans move
       as before); the lidar computed by a compiled kernel (its distances, so the observations,
       differ from the first v1 release's in the last bits).
     * v1: fixed teams (``random`` draws its team size once per instance, default
@@ -335,7 +335,7 @@ class SwarmEnv(ParallelEnv):
     def _start(self, seed: int | None, drawn: Scenario | None = None) -> None:
         """Everything :meth:`reset` does but the observations and infos (the batched engine's reset).
         ``drawn``: this episode's random scenario, already drawn from this env's generator (which has
-        been moved past the draw: :class:`swarm_env.scenario_prefetch.ScenarioPrefetcher`)."""
+        been moved past the draw: :class:`swarm_env.vector.scenario_prefetch.ScenarioPrefetcher`)."""
         if seed is not None or self._rng is None:
             seq = np.random.SeedSequence(seed)
             env_seq, space_seq = seq.spawn(2)
@@ -393,7 +393,7 @@ class SwarmEnv(ParallelEnv):
     def _advance(self, norm: np.ndarray) -> StepOutcome:
         """One step of everything but the observations and the metrics: the physics with the
         ``(N, 2)`` normalised actions ``norm``, the rewards and the episode end. :meth:`step` and
-        the batched engine (:mod:`swarm_env.vector`) both call it, then :meth:`_account`."""
+        the batched engine (:mod:`swarm_env.vector.engine`) both call it, then :meth:`_account`."""
         assert self._world is not None
         self._world.step(norm * self._speed)
         state = self._world.snapshot()
@@ -501,7 +501,7 @@ class SwarmEnv(ParallelEnv):
         return self._state
 
     def episode_metrics(self) -> dict[str, Any]:
-        """Metrics of the current (or just finished) episode; see :mod:`swarm_env.metrics`."""
+        """Metrics of the current (or just finished) episode; see :mod:`swarm_env.scoring.metrics`."""
         if self._state is None:
             raise RuntimeError("call reset() before episode_metrics()")
         out: dict[str, Any] = {"scenario": self._state.scenario.name, **self._metrics.result()}
@@ -545,7 +545,7 @@ class SwarmEnv(ParallelEnv):
 def clip_to_action_space(actions: np.ndarray, warned: bool, stacklevel: int) -> bool:
     """Clip normalised ``actions`` to ``[-1, 1]`` in place, warning the first time (``warned``
     False) that something was clipped. Returns whether the warning has been given now. The rule of
-    :meth:`SwarmEnv.step` and of the batched engine (:mod:`swarm_env.vector`)."""
+    :meth:`SwarmEnv.step` and of the batched engine (:mod:`swarm_env.vector.engine`)."""
     if np.abs(actions).max(initial=0.0) > 1.0:
         if not warned:
             warnings.warn("actions outside [-1, 1] are clipped to the action space", stacklevel=stacklevel)
@@ -582,7 +582,7 @@ class StepOutcome:
 
     @property
     def terms(self) -> dict[str, np.ndarray]:
-        """``{term: (N,)}`` of :data:`~swarm_env.rewards.REWARD_TERMS` (rows of ``table``)."""
+        """``{term: (N,)}`` of :data:`~swarm_env.scoring.rewards.REWARD_TERMS` (rows of ``table``)."""
         return dict(zip(REWARD_TERMS, self.table))
 
 
@@ -603,7 +603,7 @@ def info_columns(dist: np.ndarray, terms: dict[str, np.ndarray] | np.ndarray, to
 
 def env_kwargs_for(scenario: Any, kwargs: Mapping[str, Any]) -> dict[str, Any]:
     """``kwargs`` as they apply to ``scenario``: generator knobs (the fields of
-    :class:`~swarm_env.random_scenario.RandomScenarioConfig`) are kept for ``"random"``
+    :class:`~swarm_env.scenarios.generator.RandomScenarioConfig`) are kept for ``"random"``
     only, everything else (``max_cycles``, ``reward``, ``terminate_on_collision``, ...)
     for every scenario. What ``swarm-env run/evaluate --env KEY=VALUE`` use, so one
     set of options can be applied to a list of scenarios."""

@@ -3,9 +3,9 @@
 A scenario file is input from anyone, so every value that sets an amount of work or memory
 has a bound, checked before that work is done: reading the file (its size, YAML aliases,
 nesting), parsing numbers, laying out geometry, and the counts an episode derives from the
-scenario (steps, substeps, rays x robots). :mod:`swarm_env.scenario_io` checks files and dicts
-against this table, :func:`swarm_env.scenario_io.validate_scenario` checks every scenario
-(the ``random`` generator's too), and :class:`swarm_env.random_scenario.RandomScenarioConfig`
+scenario (steps, substeps, rays x robots). :mod:`swarm_env.scenarios.loader` checks files and dicts
+against this table, :func:`swarm_env.scenarios.loader.validate_scenario` checks every scenario
+(the ``random`` generator's too), and :class:`swarm_env.scenarios.generator.RandomScenarioConfig`
 checks its knobs against the same numbers; each error message names the bound it broke.
 
 The bounds are generous for every built-in scenario and for the generator's whole range

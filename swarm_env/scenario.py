@@ -1,8 +1,8 @@
 """The scenario: an immutable description of one swarm-env world.
 
-A :class:`Scenario` is what a YAML file (see :mod:`swarm_env.scenario_io`) or the
-procedural generator (:mod:`swarm_env.random_scenario`) produces and what
-:class:`swarm_env.world.World` consumes. Every field is a frozen dataclass or a
+A :class:`Scenario` is what a YAML file (see :mod:`swarm_env.scenarios.loader`) or the
+procedural generator (:mod:`swarm_env.scenarios.generator`) produces and what
+:class:`swarm_env.sim.world.World` consumes. Every field is a frozen dataclass or a
 tuple, so a scenario can be hashed, shared between envs and pickled.
 
 Units: metres, seconds, radians, except where a field says degrees (formation
@@ -25,7 +25,7 @@ HUMAN_MODES = ("once", "loop", "pingpong")
 #: How a human moves: ``scripted`` walks its path exactly and ignores everyone (paper 003's
 #: humans); ``social_force`` walks towards its path's waypoints and is pushed away from robots,
 #: other humans and obstacles (Helbing & Molnar 1995); ``orca`` walks towards them avoiding
-#: everyone with RVO2's ORCA (the ``orca`` extra). See :mod:`swarm_env.humans`.
+#: everyone with RVO2's ORCA (the ``orca`` extra). See :mod:`swarm_env.sim.humans`.
 HUMAN_BEHAVIORS = ("scripted", "social_force", "orca")
 #: A reactive human's speed never exceeds this multiple of its walking ``speed`` (the
 #: anti-tunnelling rule and the observation bounds count with it).
@@ -189,7 +189,7 @@ class HumanSpec:
     forth. The human stands on the first waypoint for ``start_delay`` seconds.
     ``behavior``: ``scripted`` (default) humans do not react to robots; ``social_force``
     and ``orca`` humans head for the same waypoints in the same modes but give way to
-    robots, other humans and obstacles (:mod:`swarm_env.humans`), at most
+    robots, other humans and obstacles (:mod:`swarm_env.sim.humans`), at most
     ``REACTIVE_SPEED_FACTOR * speed``.
     """
 
@@ -219,7 +219,7 @@ class SensorSpec:
 
 @dataclass(frozen=True)
 class RewardSpec:
-    """Weights of the per-agent reward terms (see :mod:`swarm_env.rewards` for the formula).
+    """Weights of the per-agent reward terms (see :mod:`swarm_env.scoring.rewards` for the formula).
 
     All weights are magnitudes (the env fixes each term's sign):
 

@@ -1,6 +1,6 @@
 """``WorldState``: the frozen snapshot of the world after each step.
 
-It is the one data type that flows out of :class:`swarm_env.world.World`:
+It is the one data type that flows out of :class:`swarm_env.sim.world.World`:
 observations, rewards, metrics, the renderer and the scripted experts all read
 it (experts read it as privileged information, like CrowdNav's ``FullState``).
 Arrays are read-only copies; nothing in here refers back to pymunk.
@@ -17,7 +17,7 @@ from typing import Literal
 
 import numpy as np
 
-from swarm_env.geometry import StaticMap
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import Scenario
 
 ContactKind = Literal["robot_robot", "robot_obstacle", "robot_human", "robot_wall"]
@@ -97,8 +97,8 @@ class WorldState:
         """A new snapshot of the given fields (every field of the class, by name; ``_derived`` is
         added empty) without the frozen dataclass's ``__init__``: the fields go straight into the
         instance's ``__dict__``, what that ``__init__`` stores with one ``object.__setattr__`` each, at a
-        tenth of its cost. What :meth:`World.snapshot <swarm_env.world.World.snapshot>` and the batched
-        engine's physics (:mod:`swarm_env.world_batch`) build once per world-step."""
+        tenth of its cost. What :meth:`World.snapshot <swarm_env.sim.world.World.snapshot>` and the batched
+        engine's physics (:mod:`swarm_env.vector.world_batch`) build once per world-step."""
         state = object.__new__(cls)
         state.__dict__.update(fields, _derived={})
         return state

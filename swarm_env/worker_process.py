@@ -1,7 +1,7 @@
 """Starting a worker as a fresh interpreter connected back over an authenticated local socket.
 
-The engine's workers (:mod:`swarm_env.vector_worker`) and the scenario prefetcher
-(:mod:`swarm_env.scenario_prefetch`) are started this way rather than by ``multiprocessing``: a spawned or
+The engine's workers (:mod:`swarm_env.vector.worker`) and the scenario prefetcher
+(:mod:`swarm_env.vector.scenario_prefetch`) are started this way rather than by ``multiprocessing``: a spawned or
 forkserver child re-imports the parent's ``__main__`` (a training script importing torch), and a forked
 one inherits torch's threads. The worker reads the connection's key from its standard input and connects
 to the address given as its first argument (:func:`connect`).

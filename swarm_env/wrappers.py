@@ -2,7 +2,7 @@
 
 :class:`SafetyShield` is the safety layer any learner can use, in training and at execution:
 each follower's action is replaced by the nearest safe twist of the velocity-obstacle search
-the ``vo`` expert uses (:func:`swarm_env.safety.safe_follower_twists`: one implementation),
+the ``vo`` expert uses (:func:`swarm_env.control.safety.safe_follower_twists`: one implementation),
 and every intervention is reported.
 """
 
@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
-from swarm_env.safety import AvoidanceParams, ShieldResult, shield_actions
+from swarm_env.control.safety import AvoidanceParams, ShieldResult, shield_actions
 
 __all__ = ["SafetyShield", "SHIELD_INFO_KEYS"]
 
@@ -25,7 +25,7 @@ class SafetyShield(BaseParallelWrapper):
     """Replace each follower's action by the nearest safe twist (a VO safety layer).
 
     Before every step the learner's actions are turned into twists ``(v, omega)``, and
-    :func:`~swarm_env.safety.safe_follower_twists` returns for each follower the safe
+    :func:`~swarm_env.control.safety.safe_follower_twists` returns for each follower the safe
     twist closest to its own (unchanged when it is already safe) against the other
     followers, a robot leader, the humans and the static map over ``params.horizon``
     seconds; the env then steps with those. Observations, rewards and the episode are the
@@ -47,7 +47,7 @@ class SafetyShield(BaseParallelWrapper):
     Args:
         env: a :class:`~swarm_env.env.SwarmEnv` with ``action_type="continuous"`` (or a
             wrapper of one).
-        params: the VO search's :class:`~swarm_env.safety.AvoidanceParams` (the ``vo``
+        params: the VO search's :class:`~swarm_env.control.safety.AvoidanceParams` (the ``vo``
             expert's defaults); ``w_heading`` is set to 0 by default so the answer is the
             candidate nearest to the learner's twist, not one that also keeps a heading.
     """
@@ -98,9 +98,9 @@ class SafetyShield(BaseParallelWrapper):
         return obs, rewards, terms, truncs, infos
 
     def protect(self, wanted: np.ndarray) -> ShieldResult:
-        """The :func:`~swarm_env.safety.shield_actions` result for the live agents' normalised
+        """The :func:`~swarm_env.control.safety.shield_actions` result for the live agents' normalised
         actions ``wanted`` ``(N, 2)`` in the current state, counted in the episode's shield
-        metrics. :meth:`step` and the batched engine (:mod:`swarm_env.vector`) both use it."""
+        metrics. :meth:`step` and the batched engine (:mod:`swarm_env.vector.engine`) both use it."""
         base = self.env.unwrapped
         shield = shield_actions(base.world_state(), wanted, self.params)
         index = [base.possible_agents.index(a) for a in base.agents]

@@ -1,4 +1,4 @@
-"""The batched stages (swarm_env.batch_step / swarm_env.batch_kernel) against the per-world numpy references.
+"""The batched stages (swarm_env.vector.batch_step / swarm_env.vector.batch_kernel) against the per-world numpy references.
 
 ``tests/test_vector.py`` compares the engine with ``SwarmEnv``s running the same compiled kernels; here
 the reference worlds run the **numpy references** (``use_compiled_kernels(False)``), with every reward
@@ -13,12 +13,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from swarm_env.batch_step import PaddedMaps
 from swarm_env.compiled import use_compiled_kernels
 from swarm_env.env import SwarmEnv
-from swarm_env.observations import OBS_SLOT
 from swarm_env.scenario import RewardSpec
-from swarm_env.vector import INFO_KEYS, EnvFactory, SwarmVectorEnv
+from swarm_env.sensing.observations import OBS_SLOT
+from swarm_env.vector.batch_step import PaddedMaps
+from swarm_env.vector.engine import INFO_KEYS, EnvFactory, SwarmVectorEnv
 
 ALL_TERMS = RewardSpec(formation=1.5, collision=5.0, contact=2.0, clearance=1.0, clearance_margin=0.4,
                        smoothness=0.3, progress=2.0, approach=0.7, approach_horizon=2.0, approach_margin=0.5)
@@ -187,9 +187,9 @@ def test_batched_metrics_follow_switches_settling_holding_and_arrival_like_episo
     events) against EpisodeMetrics.update with the numpy references, result() for result()."""
     import dataclasses
 
-    from swarm_env.batch_step import BatchState
-    from swarm_env.metrics import EpisodeMetrics
-    from swarm_env.rewards import slot_distance
+    from swarm_env.scoring.metrics import EpisodeMetrics
+    from swarm_env.scoring.rewards import slot_distance
+    from swarm_env.vector.batch_step import BatchState
 
     envs = [SwarmEnv("random", n_followers=4, n_switches=2, n_humans=(0, 2)) for _ in range(4)]
     episodes = []

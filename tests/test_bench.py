@@ -14,7 +14,7 @@ from swarm_env.harness.cli import main
 
 def test_batched_bench_reports_each_size_for_the_engine() -> None:
     results = run_batched_bench((1, 3), repeats=2, budget=6)
-    assert [(r.name, r.num_envs, r.agents) for r in results] == [("swarm_env.vector", 1, 8), ("swarm_env.vector", 3, 8)]
+    assert [(r.name, r.num_envs, r.agents) for r in results] == [("swarm_env.vector.engine", 1, 8), ("swarm_env.vector.engine", 3, 8)]
     assert all(len(r.wall) == 2 and r.median_wall > 0 and r.median_cpu > 0 for r in results)
 
 

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from swarm_env.env import SwarmEnv
-from swarm_env.geometry import StaticMap
-from swarm_env.harness.evaluation import run_episode
+from swarm_env.geometry.static_map import StaticMap
+from swarm_env.harness.episode import run_episode
 from swarm_env.scenario import CircleObstacle
-from swarm_env.scenario_io import load_scenario
+from swarm_env.scenarios.loader import load_scenario
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
 from swarm_env_agents.cbs_rrt.hold import GeodesicMap, SlotHolder, unicycle_rollout
 from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from swarm_env.compiled import use_compiled_kernels
-from swarm_env.scenario_io import load_scenario
+from swarm_env.scenarios.loader import load_scenario
 from swarm_env_agents.cbs_rrt.constraints import Constraint, ConstraintTable
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
 
@@ -160,7 +160,7 @@ def test_rrt_plans_and_repairs_match_the_numpy_reference() -> None:
     """Many RRT calls on the paper's map (moving goals, moving constraints, starts inside the buffer
     zone) and repairs of their paths: the compiled planner returns the numpy planner's trees and
     paths bit for bit, and the same single- and many-time positions."""
-    from swarm_env.geometry import StaticMap
+    from swarm_env.geometry.static_map import StaticMap
     from swarm_env_agents.cbs_rrt.distance_field import distance_field
     from swarm_env_agents.cbs_rrt.primitives import MotionPrimitives
     from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
@@ -227,7 +227,7 @@ def _fingerprint(scenario: str, seed: int, **env_kwargs: object) -> dict:
     import hashlib
 
     import swarm_env
-    from swarm_env.harness.evaluation import run_episode
+    from swarm_env.harness.episode import run_episode
     from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
 
     env = swarm_env.parallel_env(scenario, **env_kwargs)
@@ -346,7 +346,7 @@ def test_cbs_expert_makes_the_recorded_plans(name: str, compiled: bool) -> None:
 def test_cbs_expert_plans_the_same_with_and_without_the_kernels() -> None:
     """A whole episode through the formation switch: the same metrics and planner counters."""
     import swarm_env
-    from swarm_env.harness.evaluation import run_episode
+    from swarm_env.harness.episode import run_episode
     from swarm_env.harness.leaderboard import _behaviour
     from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
 

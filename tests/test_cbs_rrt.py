@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from swarm_env.env import SwarmEnv
-from swarm_env.geometry import StaticMap
-from swarm_env.harness.evaluation import run_episode
+from swarm_env.geometry.static_map import StaticMap
+from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import load_policy
 from swarm_env.scenario import CircleObstacle, RectangleObstacle
-from swarm_env.scenario_io import load_scenario, scenario_from_dict
+from swarm_env.scenarios.loader import load_scenario, scenario_from_dict
 from swarm_env_agents.cbs_rrt.cbs import CBS
 from swarm_env_agents.cbs_rrt.conflicts import find_conflicts, pair_first_conflict, pair_min_distance
 from swarm_env_agents.cbs_rrt.constraints import Constraint, ConstraintTable

@@ -1,4 +1,4 @@
-"""The compiled clearances (swarm_env.clearance_kernel) give the numpy references' bits."""
+"""The compiled clearances (swarm_env.geometry.clearance_kernel) give the numpy references' bits."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 from swarm_env.compiled import use_compiled_kernels
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.leaderboard import _behaviour
-from swarm_env.rewards import clearance
-from swarm_env.scenario_io import list_scenarios
+from swarm_env.scenarios.loader import list_scenarios
+from swarm_env.scoring.rewards import clearance
 
 
 def _both(fn: Callable[[], Any]) -> tuple[Any, Any]:

@@ -45,6 +45,6 @@ def test_site_builds_strict(tmp_path: Path) -> None:
                           cwd=ROOT, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     html = (tmp_path / "site" / "api" / "core" / "index.html").read_text(encoding="utf-8")
-    assert "swarm_env.world" in html and "doc-function" in html  # the API reference was generated
+    assert "swarm_env.sim.world" in html and "doc-function" in html  # the API reference was generated
     env_page = (tmp_path / "site" / "environment" / "index.html").read_text(encoding="utf-8")
     assert "OBS_OWN_TWIST" in env_page  # the README section was included

@@ -10,7 +10,7 @@ from pettingzoo.test import api_test, max_cycles_test, parallel_api_test, render
 from pettingzoo.utils.conversions import parallel_to_aec
 
 import swarm_env
-from swarm_env.rewards import REWARD_TERMS, reward_terms
+from swarm_env.scoring.rewards import REWARD_TERMS, reward_terms
 
 SCENARIOS = swarm_env.list_scenarios()
 # The whole-episode tests use few cycles on the long scenarios to keep the suite fast.

@@ -7,11 +7,11 @@ import pytest
 
 import swarm_env
 from swarm_env.env import SwarmEnv
-from swarm_env.formation import virtual_slot_trajectory
-from swarm_env.geometry import StaticMap
-from swarm_env.random_scenario import KNOB_LIMITS, RandomScenarioConfig, random_scenario, slot_speed_violations
-from swarm_env.rewards import INFO_CONTACT_KEYS, INFO_REWARD_KEYS, REWARD_TERMS, contact_counts, reward_terms
+from swarm_env.geometry.formation import virtual_slot_trajectory
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import RewardSpec, ScenarioError
+from swarm_env.scenarios.generator import KNOB_LIMITS, RandomScenarioConfig, random_scenario, slot_speed_violations
+from swarm_env.scoring.rewards import INFO_CONTACT_KEYS, INFO_REWARD_KEYS, REWARD_TERMS, contact_counts, reward_terms
 from tests.test_physics import _scenario
 
 ALL = swarm_env.list_scenarios()
@@ -252,7 +252,7 @@ def test_count_knobs_out_of_range_name_the_knob_and_the_range(knob: str) -> None
 
 
 def test_generated_scenarios_pass_the_yaml_gate() -> None:
-    from swarm_env.scenario_io import scenario_from_dict, scenario_to_dict
+    from swarm_env.scenarios.loader import scenario_from_dict, scenario_to_dict
 
     for seed in range(10):
         scn = random_scenario(np.random.default_rng(seed), RandomScenarioConfig(n_followers=(2, 12)))
@@ -261,7 +261,7 @@ def test_generated_scenarios_pass_the_yaml_gate() -> None:
 
 def test_the_clearance_reward_screen_changes_no_value() -> None:
     from swarm_env.harness.policies import load_policy
-    from swarm_env.rewards import clearance
+    from swarm_env.scoring.rewards import clearance
 
     inside = 0
     for seed, kind in ((0, "virtual"), (1, "robot")):

@@ -20,7 +20,7 @@ def _overlap(a, b) -> bool:
 
 
 def test_vo_paths_figure_has_axes_in_metres_and_humans_apart_from_followers() -> None:
-    from swarm_env.scenario_io import load_scenario
+    from swarm_env.scenarios.loader import load_scenario
     from swarm_env_agents.vo_paper import paths_figure
 
     t = np.linspace(0, 1, 20)

@@ -1,4 +1,4 @@
-"""Tests for swarm_env.formation: slot offsets, schedule, slot targets."""
+"""Tests for swarm_env.geometry.formation: slot offsets, schedule, slot targets."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from swarm_env.formation import active_formation, formation_offsets, next_switch_time, slot_targets
-from swarm_env.geometry import StaticMap
+from swarm_env.geometry.formation import active_formation, formation_offsets, next_switch_time, slot_targets
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import CircleObstacle, FormationSpec, RectangleObstacle
 
 GENERATED = ["v", "line", "column", "wedge", "diamond", "circle", "grid"]

@@ -1,4 +1,4 @@
-"""Tests of swarm_env.geometry: signed distance, projection to free space, lidar."""
+"""Tests of swarm_env.geometry.static_map: signed distance, projection to free space, lidar."""
 
 from __future__ import annotations
 
@@ -8,15 +8,15 @@ import pickle
 import numpy as np
 import pytest
 
-from swarm_env.geometry import (
+from swarm_env.geometry.static_map import (
     NO_SURFACE,
     WALL_NAMES,
     StaticMap,
     convex_ccw,
     rotate_rectangle,
 )
-from swarm_env.lidar import cast_rays
 from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
+from swarm_env.sensing.lidar import cast_rays
 
 SQ2 = math.sqrt(2.0)
 
@@ -362,7 +362,7 @@ def test_project_free_fast_path_equals_exact_search_on_lattice_ties() -> None:
 
 
 def test_project_free_memo_returns_fresh_arrays_and_stays_bounded(monkeypatch: pytest.MonkeyPatch) -> None:
-    import swarm_env.geometry as geometry
+    import swarm_env.geometry.static_map as geometry
 
     m = random_map(np.random.default_rng(8), n=8, size=10.0)
     pts = np.random.default_rng(9).uniform(0.0, 10.0, (8, 2))

@@ -1,4 +1,4 @@
-"""Tests for swarm_env.guidance: pure pursuit and velocity-obstacle geometry."""
+"""Tests for swarm_env.control.guidance: pure pursuit and velocity-obstacle geometry."""
 
 from __future__ import annotations
 
@@ -7,8 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from swarm_env.geometry import StaticMap
-from swarm_env.guidance import (
+from swarm_env.control.guidance import (
     VOParams,
     disc_time_to_collision,
     lookahead_target,
@@ -24,7 +23,8 @@ from swarm_env.guidance import (
     vo_select_batch,
     wrap_angle,
 )
-from swarm_env.paths import PolylinePath
+from swarm_env.geometry.paths import PolylinePath
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
 
 EMPTY_D = np.zeros((0, 3))
@@ -150,7 +150,7 @@ def test_twist_trajectories_follow_the_unicycle():
 
 
 def test_preferred_row_matches_vectorised_trajectories():
-    from swarm_env.guidance import _trajectory_row
+    from swarm_env.control.guidance import _trajectory_row
 
     for v, w, theta in [(0.5, 0.0, 0.3), (0.65, -1.0, -2.0), (0.0, 0.7, 1.0), (0.2, 1e-14, 0.0)]:
         _, pts = twist_trajectories(theta, np.array([[v, w]]), 1.0, 3.0, 2)
@@ -562,7 +562,7 @@ def test_vo_select_recip_gap_avoids_a_close_robot_plainly():
 def test_vo_select_velocity_cost_measures_mean_velocities():
     # cost="velocity": the penalty's distance is between mean world-frame velocities (the chord of the
     # arc over tau), whatever the heading; guidance's plain-Python velocities are twist_velocities'.
-    from swarm_env.guidance import _body_velocity, _grid_velocities
+    from swarm_env.control.guidance import _body_velocity, _grid_velocities
 
     grid = sample_twists(0.65, 1.0, 7, 11)
     mine = _grid_velocities(0.65, 1.0, 7, 11, 0.0, 1.0)

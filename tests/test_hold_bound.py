@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from swarm_env.env import SwarmEnv
-from swarm_env.scenario_io import load_scenario
+from swarm_env.scenarios.loader import load_scenario
 
 _PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "hold_bound.py"
 

@@ -1,14 +1,14 @@
-"""The compiled scripted humans (swarm_env.human_kernel) give swarm_env.paths.human_states' bits."""
+"""The compiled scripted humans (swarm_env.sim.human_kernel) give swarm_env.geometry.paths.human_states' bits."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from swarm_env.human_kernel import PackedHumans
-from swarm_env.paths import human_paths, human_states
+from swarm_env.geometry.paths import human_paths, human_states
 from swarm_env.scenario import HumanSpec
-from swarm_env.scenario_io import list_scenarios, load_scenario
+from swarm_env.scenarios.loader import list_scenarios, load_scenario
+from swarm_env.sim.human_kernel import PackedHumans
 
 
 def _check(humans: list[HumanSpec], times: np.ndarray) -> None:

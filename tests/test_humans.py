@@ -7,7 +7,7 @@ import pytest
 
 from swarm_env.env import SwarmEnv
 from swarm_env.scenario import REACTIVE_SPEED_FACTOR, ScenarioError
-from swarm_env.scenario_io import scenario_from_dict, scenario_to_dict
+from swarm_env.scenarios.loader import scenario_from_dict, scenario_to_dict
 
 
 def _crossing(behavior: str | None, mode: str = "once") -> dict:

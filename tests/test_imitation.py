@@ -12,7 +12,7 @@ pytest.importorskip("stable_baselines3")
 
 import swarm_env_baselines.demos as demos_mod
 from swarm_env.env import SwarmEnv
-from swarm_env.harness.evaluation import run_episode
+from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import load_policy, policy_defaults
 from swarm_env_baselines.bc import (
     BCConfig,

@@ -1,94 +1,126 @@
-"""The package's layout: the simulation core never imports the harness, no module-level import
-cycles, and the harness modules' old names still import (deprecated) as the same modules."""
+"""The package's rooms and the direction of its imports (README, "Layout").
+
+``swarm_env`` is organised in rooms, one job each, with data flowing one way: a module may import its own room
+and the rooms below it, never one above. :data:`LEVELS` is the order, lowest first; the root's modules are
+placed one by one (the data types at the bottom, the env at the top). Every import counts: at module level,
+inside functions (a lazy import must not hide an upward arrow or a loop) and under ``TYPE_CHECKING``.
+"""
 
 from __future__ import annotations
 
 import ast
-import importlib
-import sys
-import warnings
 from pathlib import Path
 
-import pytest
+ROOT = Path(__file__).resolve().parent.parent
+PACKAGE = ROOT / "swarm_env"
 
-ROOT = Path(__file__).resolve().parents[1]
-# repository directory -> installed import name
-PACKAGES = {"swarm_env": "swarm_env", "agents": "swarm_env_agents", "baselines": "swarm_env_baselines"}
+#: Rooms and root modules, lowest first. A name is a room (a folder of swarm_env) or a module at the root.
+LEVELS: list[tuple[str, ...]] = [
+    ("_compat", "compiled", "extras", "jsonio", "limits", "outputs", "worker_process", "scenario"),
+    ("geometry",),
+    ("state",),
+    ("control",),
+    ("sim",),
+    ("sensing",),
+    ("scoring",),
+    ("scenarios",),
+    ("render",),
+    ("env",),
+    ("wrappers",),
+    ("__init__",),
+    ("vector",),
+    ("harness",),
+]
+LEVEL = {name: i for i, names in enumerate(LEVELS) for name in names}
 
 
-def _imports(path: Path, top_level_only: bool) -> set[str]:
-    """The ``swarm_env*`` modules ``path`` imports (at module level only, or anywhere)."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    nodes = tree.body if top_level_only else list(ast.walk(tree))
+def _module_name(path: Path) -> str:
+    parts = path.relative_to(ROOT).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _modules() -> dict[str, Path]:
+    return {_module_name(p): p for p in PACKAGE.rglob("*.py") if "__pycache__" not in p.parts}
+
+
+def _imports(path: Path, modules: dict[str, Path]) -> set[str]:
+    """The package's modules that ``path`` imports, wherever in the file."""
     found: set[str] = set()
-    for node in nodes:
-        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            names = {f"{node.module}.{a.name}" for a in node.names}
-            found.update(names)
-            # `from pkg import submodule` imports the submodule (its package is already being imported)
-            if not any((ROOT / Path(*_directory_parts(n))).with_suffix(".py").exists() for n in names):
-                found.add(node.module)
-        elif isinstance(node, ast.Import):
-            found.update(a.name for a in node.names)
-    return {m for m in found if m.split(".")[0] in PACKAGES.values()}
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            # `from package import module` imports the module; `from module import name`, the module.
+            names = [f"{node.module}.{a.name}" if f"{node.module}.{a.name}" in modules else node.module
+                     for a in node.names]
+        else:
+            continue
+        for name in names:
+            while name and name not in modules:  # a name inside a module: the module
+                name = name.rpartition(".")[0]
+            if name.startswith("swarm_env"):
+                found.add(name)
+    return found
 
 
-def _directory_parts(module: str) -> list[str]:
-    """Where ``module`` lives in the repository, as path parts (its installed name mapped back)."""
-    top, *rest = module.split(".")
-    directory = {v: k for k, v in PACKAGES.items()}.get(top, top)
-    return [directory, *rest]
+def _room(module: str) -> str:
+    """The room of a module: its folder under swarm_env, or its own name at the root."""
+    parts = module.split(".")
+    if len(parts) == 1:
+        return "__init__"
+    return parts[1]
 
 
-def _modules(directory: str) -> dict[str, Path]:
-    base = ROOT / directory
-    out = {}
-    for path in base.rglob("*.py"):
-        parts = list(path.relative_to(base).with_suffix("").parts)
-        if parts[-1] == "__init__":
-            parts = parts[:-1]
-        out[".".join([PACKAGES[directory], *parts])] = path
-    return out
+def _graph() -> dict[str, set[str]]:
+    modules = _modules()
+    return {m: _imports(p, modules) - {m} for m, p in modules.items()}
 
 
-def test_the_core_never_imports_the_harness() -> None:
-    core = {name: path for name, path in _modules("swarm_env").items() if not name.startswith("swarm_env.harness")}
-    assert "swarm_env.env" in core and "swarm_env.vector" in core
-    offenders = {name: sorted(m for m in _imports(path, top_level_only=False)
-                              if m.startswith(("swarm_env.harness", "swarm_env_agents", "swarm_env_baselines")))
-                 for name, path in core.items()}
-    assert not {k: v for k, v in offenders.items() if v}, offenders
+def test_every_module_has_a_room() -> None:
+    missing = sorted({_room(m) for m in _modules()} - set(LEVEL))
+    assert not missing, f"place these in LEVELS: {missing}"
 
 
-@pytest.mark.parametrize("directory", sorted(PACKAGES))
-def test_no_module_level_import_cycles(directory: str) -> None:
-    modules = _modules(directory)
-    graph = {name: {m for m in _imports(path, top_level_only=True) if m in modules and m != name}
-             for name, path in modules.items()}
-    state: dict[str, int] = {}  # 1 on the stack, 2 done
-
-    def visit(node: str, stack: list[str]) -> None:
-        state[node] = 1
-        for nxt in sorted(graph[node]):
-            if state.get(nxt) == 1:
-                pytest.fail(f"import cycle at module level: {' -> '.join(stack[stack.index(nxt):] + [nxt])}")
-            if nxt not in state:
-                visit(nxt, stack + [nxt])
-        state[node] = 2
-
-    for name in sorted(graph):
-        if name not in state:
-            visit(name, [name])
-    assert len(graph) > 5
+def test_no_module_imports_a_room_above_its_own() -> None:
+    upward = []
+    for module, deps in _graph().items():
+        for dep in deps:
+            here, there = _room(module), _room(dep)
+            if here != there and LEVEL[there] > LEVEL[here]:
+                upward.append(f"{module} -> {dep}")
+    assert not upward, "imports that run up: " + ", ".join(sorted(upward))
 
 
-@pytest.mark.parametrize("name", ["cli", "leaderboard", "evaluation", "bench", "policies", "video", "paired", "recording"])
-def test_old_harness_names_import_with_a_warning(name: str) -> None:
-    new = importlib.import_module(f"swarm_env.harness.{name}")
-    sys.modules.pop(f"swarm_env.{name}", None)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        old = importlib.import_module(f"swarm_env.{name}")
-    assert old is new
-    assert any(issubclass(w.category, DeprecationWarning) and f"swarm_env.harness.{name}" in str(w.message)
-               for w in caught)
+def test_no_import_loops() -> None:
+    graph = _graph()
+    loops: list[list[str]] = []
+    state: dict[str, int] = {}  # 1: on the current path, 2: done
+    path: list[str] = []
+
+    def visit(m: str) -> None:
+        state[m] = 1
+        path.append(m)
+        for d in sorted(graph.get(m, ())):
+            if state.get(d) == 1:
+                loops.append(path[path.index(d):] + [d])
+            elif d not in state:
+                visit(d)
+        path.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+    assert not loops, "import loops: " + "; ".join(" -> ".join(loop) for loop in loops)
+
+
+def test_the_package_imports_neither_the_experts_nor_the_baselines() -> None:
+    """swarm_env finds the experts and the baselines through entry points (swarm_env.harness.policies)."""
+    offenders = []
+    for path in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, (ast.Import, ast.ImportFrom)):
+                names = [a.name for a in node.names] if isinstance(node, ast.Import) else [node.module or ""]
+                if any(n.startswith(("swarm_env_agents", "swarm_env_baselines")) for n in names):
+                    offenders.append(str(path.relative_to(ROOT)))
+    assert not offenders, offenders

@@ -262,7 +262,7 @@ def test_worst_episode_video_is_replayed_from_its_record(tmp_path: Path, monkeyp
 def test_recording_leaves_the_metrics_unchanged() -> None:
     """The leaderboard records every episode it plays; the metrics are those of a plain run_episode."""
     from swarm_env.env import SwarmEnv
-    from swarm_env.harness.evaluation import run_episode
+    from swarm_env.harness.episode import run_episode
     from swarm_env.harness.policies import load_policy
 
     board = run_leaderboard(["random"], ["random"], [1000, 1001], env_kwargs={"max_cycles": 20}, progress=False)

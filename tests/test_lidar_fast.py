@@ -1,6 +1,6 @@
 """The faster lidar kernel (issue 11) gives the bits of the plain kernel it replaced.
 
-``swarm_env.lidar.scan`` culls polygons by their bounding disc, keeps per-robot candidate arrays and
+``swarm_env.sensing.lidar.scan`` culls polygons by their bounding disc, keeps per-robot candidate arrays and
 tests circles without branches; ``scan_reference`` is the previous kernel, kept verbatim. Every test
 here compares the two bit for bit, on random worlds and on placements built to sit on the edges of
 the culls: rays grazing discs, origins at ``max_range`` from an edge or a polygon's bounding disc,
@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from swarm_env.env import SwarmEnv
-from swarm_env.geometry import StaticMap
-from swarm_env.lidar import PackedMaps, pack_discs, pack_inputs, scan, scan_reference
-from swarm_env.observations import lidar_input, moving_discs
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
+from swarm_env.sensing.lidar import PackedMaps, pack_discs, pack_inputs, scan, scan_reference
+from swarm_env.sensing.observations import lidar_input, moving_discs
 
 RAYS = 2.0 * np.pi * np.arange(16) / 16
 
@@ -124,7 +124,7 @@ def test_fast_kernel_equals_reference_on_random_worlds(max_range: float) -> None
 def test_fast_kernel_equals_reference_in_the_batched_engine_world() -> None:
     """The benchmark world (random, 8 followers, humans) after some random steps, and a robot leader."""
     from swarm_env.harness.bench import BATCH_WORLD
-    from swarm_env.vector import SwarmVectorEnv
+    from swarm_env.vector.engine import SwarmVectorEnv
 
     venv = SwarmVectorEnv("random", 8, **BATCH_WORLD)
     venv.reset(seed=3)

@@ -13,7 +13,7 @@ pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.episode import run_episode  # noqa: E402
 from swarm_env.harness.policies import PolicyError, ShieldedPolicy, load_policy  # noqa: E402
 from swarm_env_baselines import mappo, mappo_policy  # noqa: E402
 from swarm_env_baselines.ppo_core import RunningMeanStd, gae  # noqa: E402

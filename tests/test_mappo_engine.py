@@ -1,4 +1,4 @@
-"""MAPPO's training on the batched engine (swarm_env_baselines.mappo.Trainer over swarm_env.vector.SwarmVectorEnv)
+"""MAPPO's training on the batched engine (swarm_env_baselines.mappo.Trainer over swarm_env.vector.engine.SwarmVectorEnv)
 is bit for bit its reference runs, whatever the number of worker processes for the worlds' physics.
 
 ``tests/data/mappo_reference.json`` holds reference runs of the vectorised trainer (re-baselined deliberately with

@@ -10,7 +10,8 @@ import pytest
 
 import swarm_env
 from swarm_env.env import SwarmEnv
-from swarm_env.harness.evaluation import evaluate, run_episode, summarize
+from swarm_env.harness.episode import run_episode
+from swarm_env.harness.evaluation import evaluate, summarize
 from swarm_env.harness.policies import (
     PredictPolicy,
     RandomPolicy,
@@ -19,7 +20,7 @@ from swarm_env.harness.policies import (
     load_policy,
     registered_policies,
 )
-from swarm_env.scenario_io import scenario_from_dict
+from swarm_env.scenarios.loader import scenario_from_dict
 from swarm_env.state import WorldState
 
 

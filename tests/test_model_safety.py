@@ -26,7 +26,7 @@ pytest.importorskip("safetensors")
 
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.harness import cli  # noqa: E402
-from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.episode import run_episode  # noqa: E402
 from swarm_env.harness.policies import TRUST_PICKLE_ENV, ModelFileError, PolicyError, load_policy, pickle_trusted  # noqa: E402
 from swarm_env_baselines import model_io, safe_io  # noqa: E402
 from swarm_env_baselines import train as train_mod  # noqa: E402

@@ -1,14 +1,14 @@
-"""The compiled observation assembly (swarm_env.obs_kernel) gives the numpy reference's bits."""
+"""The compiled observation assembly (swarm_env.sensing.obs_kernel) gives the numpy reference's bits."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from swarm_env import observations
 from swarm_env.compiled import use_compiled_kernels
 from swarm_env.env import SwarmEnv
-from swarm_env.scenario_io import list_scenarios
+from swarm_env.scenarios.loader import list_scenarios
+from swarm_env.sensing import observations
 
 
 def _both(builder: observations.ObservationBuilder, state) -> tuple[np.ndarray, np.ndarray]:

@@ -8,13 +8,13 @@ import numpy as np
 import pytest
 
 from swarm_env.env import SwarmEnv
-from swarm_env.lidar import cast_rays
-from swarm_env.observations import ObservationBuilder
+from swarm_env.sensing.lidar import cast_rays
+from swarm_env.sensing.observations import ObservationBuilder
 from swarm_env.state import WorldState
 
 
 def _reference(builder: ObservationBuilder, state: WorldState) -> np.ndarray:
-    """One follower at a time, straight from the table in swarm_env.observations."""
+    """One follower at a time, straight from the table in swarm_env.sensing.observations."""
     scn, sens, lay = state.scenario, builder.sensors, builder.layout
     n = state.n_followers
     out = np.zeros((n, builder.size))

@@ -8,7 +8,7 @@ import pytest
 
 from swarm_env.env import SwarmEnv
 from swarm_env.extras import MissingExtraError
-from swarm_env.harness.evaluation import run_episode
+from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import acts_on, load_policy
 
 

@@ -1,4 +1,4 @@
-"""Tests for swarm_env.paths: polylines, the virtual leader, human motion."""
+"""Tests for swarm_env.geometry.paths: polylines, the virtual leader, human motion."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pickle
 import numpy as np
 import pytest
 
-from swarm_env.paths import PolylinePath, human_states, virtual_leader
+from swarm_env.geometry.paths import PolylinePath, human_states, virtual_leader
 from swarm_env.scenario import HumanSpec
 
 L_PATH = [(0.0, 0.0), (3.0, 0.0), (3.0, 0.0), (3.0, 4.0)]  # an L with a duplicate vertex

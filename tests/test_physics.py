@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from swarm_env.env import SwarmEnv
-from swarm_env.scenario_io import scenario_from_dict
-from swarm_env.world import COLLISION_SLOP
+from swarm_env.scenarios.loader import scenario_from_dict
+from swarm_env.sim.world import COLLISION_SLOP
 
 
 def _scenario(starts: list[list[float]], *, speed: float = 0.65, humans: list[dict] | None = None,
@@ -137,11 +137,11 @@ def _deepest_overlaps(env: SwarmEnv, aim: Any, steps: int) -> dict[str, float]:
 
 
 def test_overlap_on_paper_cbs_switch_stays_within_the_stated_bound() -> None:
-    """README's overlap bound (swarm_env.world.max_overlap), measured where it is largest: paper_cbs_switch
+    """README's overlap bound (swarm_env.sim.world.max_overlap), measured where it is largest: paper_cbs_switch
     (dt 0.5 s, 4 substeps: 6.25 cm of travel per substep), all 8 followers driven at full speed into one
     another (a pile-up at their centroid) and into one obstacle. Both runs must reach at least a single
     contact's depth (so the test is aggressive enough to fail) and stay within the stated bound."""
-    from swarm_env.world import COLLISION_SLOP, PILEUP_FACTOR, max_overlap
+    from swarm_env.sim.world import COLLISION_SLOP, PILEUP_FACTOR, max_overlap
 
     env = SwarmEnv("paper_cbs_switch")
     bound = max_overlap(env.scenario)

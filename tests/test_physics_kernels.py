@@ -1,4 +1,4 @@
-"""The compiled physics stage (swarm_env.physics_kernel, swarm_env.slot_kernel, PackedHumans.states_at)
+"""The compiled physics stage (swarm_env.sim.physics_kernel, swarm_env.geometry.slot_kernel, PackedHumans.states_at)
 gives its numpy / Python references' bits; World.step's fast paths give the plain path's episodes."""
 
 from __future__ import annotations
@@ -11,15 +11,16 @@ import numpy as np
 import pymunk
 import pytest
 
-from swarm_env import formation as formation_lib
-from swarm_env import physics_kernel, slot_kernel
-from swarm_env import world as world_mod
 from swarm_env.env import SwarmEnv
-from swarm_env.geometry import StaticMap
-from swarm_env.human_kernel import PackedHumans
-from swarm_env.paths import PolylinePath, human_paths, virtual_leader
+from swarm_env.geometry import formation as formation_lib
+from swarm_env.geometry import slot_kernel
+from swarm_env.geometry.paths import PolylinePath, human_paths, virtual_leader
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import HumanSpec
-from swarm_env.scenario_io import load_scenario
+from swarm_env.scenarios.loader import load_scenario
+from swarm_env.sim import physics_kernel
+from swarm_env.sim import world as world_mod
+from swarm_env.sim.human_kernel import PackedHumans
 
 
 def _world(name: str, seed: int = 0, **kwargs: object) -> world_mod.World:

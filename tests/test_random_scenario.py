@@ -9,12 +9,17 @@ import numpy as np
 import pytest
 import yaml
 
-from swarm_env.formation import formation_offsets
-from swarm_env.geometry import StaticMap
-from swarm_env.paths import PolylinePath
-from swarm_env.random_scenario import RandomScenarioConfig, config_from_kwargs, random_scenario, slot_speed_violations
+from swarm_env.geometry.formation import formation_offsets
+from swarm_env.geometry.paths import PolylinePath
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import RewardSpec, ScenarioError, SensorSpec
-from swarm_env.scenario_io import load_scenario, scenario_from_dict, scenario_to_dict, start_poses
+from swarm_env.scenarios.generator import (
+    RandomScenarioConfig,
+    config_from_kwargs,
+    random_scenario,
+    slot_speed_violations,
+)
+from swarm_env.scenarios.loader import load_scenario, scenario_from_dict, scenario_to_dict, start_poses
 
 
 def _scn(seed: int, **knobs):
@@ -190,7 +195,7 @@ def test_far_obstacle_shortcut_changes_no_scenario(monkeypatch: pytest.MonkeyPat
     """Candidates whose bounding disc keeps clear of every unprojected slot skip their one-obstacle map (they
     move no slot); with the shortcut turned off (an infinite slack) the same seeds give the same scenarios, and
     the shortcut does fire (fewer maps are built)."""
-    import swarm_env.random_scenario as module
+    import swarm_env.scenarios.generator as module
 
     built = []
     real = StaticMap.from_obstacles.__func__  # type: ignore[attr-defined]

@@ -49,7 +49,7 @@ def test_rllib_ppo_trains_and_its_exported_actor_is_the_modules_mean(tmp_path: P
     import torch
 
     from swarm_env.env import SwarmEnv
-    from swarm_env.harness.evaluation import run_episode
+    from swarm_env.harness.episode import run_episode
     from swarm_env.harness.policies import load_policy
     from swarm_env_baselines.rllib_train import RLlibConfig, build_config, export_policy, load_rllib_policy, train
 

@@ -17,7 +17,7 @@ import pytest
 
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.cli import main
-from swarm_env.harness.evaluation import run_episode
+from swarm_env.harness.episode import run_episode
 from swarm_env.harness.leaderboard import _behaviour
 from swarm_env.harness.policies import load_policy
 from swarm_env.harness.recording import (

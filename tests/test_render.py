@@ -14,7 +14,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
-from swarm_env.geometry import StaticMap  # noqa: E402
+from swarm_env.geometry.static_map import StaticMap  # noqa: E402
 from swarm_env.harness.video import VideoWriter, save_frame_png  # noqa: E402
 from swarm_env.render import (  # noqa: E402
     BACKGROUND,

@@ -22,7 +22,7 @@ pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.episode import run_episode  # noqa: E402
 from swarm_env.harness.policies import load_policy  # noqa: E402
 from swarm_env_baselines import mappo  # noqa: E402
 from swarm_env_baselines.checkpointing import StopRequest, TrainingInterrupted  # noqa: E402

@@ -15,7 +15,7 @@ torch = pytest.importorskip("torch")
 pytest.importorskip("safetensors")
 
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.episode import run_episode  # noqa: E402
 from swarm_env.harness.policies import ModelFileError, PolicyError, load_policy  # noqa: E402
 from swarm_env_baselines import sac  # noqa: E402
 

@@ -14,7 +14,7 @@ pytest.importorskip("safetensors")
 import torch  # noqa: E402
 
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.episode import run_episode  # noqa: E402
 from swarm_env.harness.policies import PolicyError, load_policy  # noqa: E402
 from swarm_env_baselines import model_io, safe_io  # noqa: E402
 from swarm_env_baselines import train as train_mod  # noqa: E402

@@ -1,4 +1,4 @@
-"""The VO safety layer: swarm_env.safety (one implementation), the SafetyShield wrapper and shield:SPEC."""
+"""The VO safety layer: swarm_env.control.safety (one implementation), the SafetyShield wrapper and shield:SPEC."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import pytest
 from pettingzoo.test import parallel_api_test
 
 import swarm_env
+from swarm_env.control.safety import AvoidanceParams, safe_follower_twists, shield_actions
 from swarm_env.env import SwarmEnv
-from swarm_env.harness.evaluation import run_episode
+from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import PolicyError, load_policy
-from swarm_env.safety import AvoidanceParams, safe_follower_twists, shield_actions
 from swarm_env.wrappers import SHIELD_INFO_KEYS, SafetyShield
 from tests.test_physics import _scenario
 

@@ -28,7 +28,7 @@ from hypothesis import strategies as st
 from swarm_env import SwarmEnv
 from swarm_env.limits import MESSAGE_VALUE_CHARS
 from swarm_env.scenario import ScenarioError
-from swarm_env.scenario_io import load_scenario, scenario_from_dict, scenario_to_dict
+from swarm_env.scenarios.loader import load_scenario, scenario_from_dict, scenario_to_dict
 
 BASES = {name: scenario_to_dict(load_scenario(name)) for name in ("paper_vo_0", "paper_cbs_switch", "crowd_reactive")}
 # A custom formation and explicit start poses, so that those keys are mutated too.

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import yaml
 
-from swarm_env.formation import formation_offsets, slot_targets
-from swarm_env.geometry import StaticMap
-from swarm_env.paths import PolylinePath, human_states, virtual_leader
+from swarm_env.geometry.formation import formation_offsets, slot_targets
+from swarm_env.geometry.paths import PolylinePath, human_states, virtual_leader
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import PolygonObstacle, RewardSpec, Scenario, ScenarioError
-from swarm_env.scenario_io import (
+from swarm_env.scenarios.loader import (
     BUILTIN_DIR,
     list_scenarios,
     load_scenario,

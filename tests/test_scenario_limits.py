@@ -17,11 +17,11 @@ import pytest
 import yaml
 
 from swarm_env import SwarmEnv, limits
-from swarm_env.geometry import convex_ccw
+from swarm_env.geometry.static_map import convex_ccw
 from swarm_env.limits import LIMITS, clip_repr, printable
-from swarm_env.random_scenario import RandomScenarioConfig
 from swarm_env.scenario import ScenarioError
-from swarm_env.scenario_io import load_scenario, scenario_from_dict, scenario_to_dict
+from swarm_env.scenarios.generator import RandomScenarioConfig
+from swarm_env.scenarios.loader import load_scenario, scenario_from_dict, scenario_to_dict
 
 ROOT = Path(__file__).resolve().parent.parent
 BASE = scenario_to_dict(load_scenario("paper_vo_0"))

@@ -20,7 +20,7 @@ pytest.importorskip("stable_baselines3")
 from _numerics import fingerprint  # noqa: E402
 
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.episode import run_episode  # noqa: E402
 from swarm_env.harness.leaderboard import _behaviour, _json_roundtrip  # noqa: E402
 from swarm_env.harness.policies import PolicyError, load_policy  # noqa: E402
 from swarm_env_baselines.mappo_policy import CHECKPOINTS, SHIPPED_SEEDS  # noqa: E402

@@ -1,4 +1,4 @@
-"""The compiled snapshot arrays (swarm_env.snapshot_kernel) give the numpy reference's bits."""
+"""The compiled snapshot arrays (swarm_env.sim.snapshot_kernel) give the numpy reference's bits."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from swarm_env.env import SwarmEnv
-from swarm_env.snapshot_kernel import follower_arrays
+from swarm_env.sim.snapshot_kernel import follower_arrays
 
 
 @pytest.mark.parametrize("scenario", ["paper_cbs_switch", "corridor", "random"])

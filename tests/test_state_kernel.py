@@ -1,4 +1,4 @@
-"""``SwarmVectorEnv.state()`` in one compiled call (swarm_env.state_kernel via BatchState.state) against
+"""``SwarmVectorEnv.state()`` in one compiled call (swarm_env.sensing.state_kernel via BatchState.state) against
 each world's own ``SwarmEnv.state()`` (ObservationBuilder.state_vector), bit for bit."""
 
 from __future__ import annotations
@@ -9,15 +9,15 @@ import numpy as np
 import pytest
 
 import swarm_env
-from swarm_env.batch_step import BatchState
 from swarm_env.compiled import use_compiled_kernels
 from swarm_env.env import SwarmEnv
-from swarm_env.vector import EnvFactory, SwarmVectorEnv
+from swarm_env.vector.batch_step import BatchState
+from swarm_env.vector.engine import EnvFactory, SwarmVectorEnv
 
 
 def _same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     """Equal float32 arrays, and equal bit patterns but for the sign of a zero (the one freedom
-    of StaticMap.distance, see swarm_env.state_kernel)."""
+    of StaticMap.distance, see swarm_env.sensing.state_kernel)."""
     if a.dtype != np.float32 or b.dtype != np.float32 or not np.array_equal(a, b):
         return False
     zero = (a == 0.0) & (b == 0.0)

@@ -1,4 +1,4 @@
-"""The compiled step kernels (:mod:`swarm_env.step_kernel`) against their numpy references, bit for bit.
+"""The compiled step kernels (:mod:`swarm_env.scoring.step_kernel`) against their numpy references, bit for bit.
 
 ``tests/test_step_digests.py`` pins whole episodes under the default reward; here every reward term
 is switched on (and the v0 preset), the metrics run on robot and virtual leaders, and the rare paths
@@ -16,9 +16,9 @@ import pytest
 
 from swarm_env.compiled import use_compiled_kernels
 from swarm_env.env import SwarmEnv
-from swarm_env.metrics import EpisodeMetrics
-from swarm_env.rewards import REWARD_TERMS, compute_rewards, reward_table, touching_per_follower
 from swarm_env.scenario import RewardSpec
+from swarm_env.scoring.metrics import EpisodeMetrics
+from swarm_env.scoring.rewards import REWARD_TERMS, compute_rewards, reward_table, touching_per_follower
 from swarm_env.state import WorldState
 
 ALL_TERMS = RewardSpec(formation=1.5, collision=5.0, contact=2.0, clearance=1.0, clearance_margin=0.4,
@@ -121,7 +121,7 @@ def test_metrics_update_matches_numpy(name: str) -> None:
 def test_metrics_kernel_defers_to_numpy_when_the_fast_path_does_not_apply(force: str, monkeypatch) -> None:
     """``min_distance``'s numpy path (status 2): an infinite running minimum, or more followers
     than its fast path takes (forced by lowering that limit to 0)."""
-    import swarm_env.metrics as metrics_mod
+    import swarm_env.scoring.metrics as metrics_mod
 
     def forget_the_minimum(*metrics: EpisodeMetrics) -> None:
         for m in metrics:

@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("stable_baselines3")
 
 from swarm_env.env import SwarmEnv  # noqa: E402
-from swarm_env.harness.evaluation import run_episode  # noqa: E402
+from swarm_env.harness.episode import run_episode  # noqa: E402
 from swarm_env.harness.policies import PolicyError, load_policy  # noqa: E402
 from swarm_env_baselines import train as train_mod  # noqa: E402
 from swarm_env_baselines.config import TrainConfig, field_help, parse_seeds  # noqa: E402

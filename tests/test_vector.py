@@ -1,4 +1,4 @@
-"""The batched engine (swarm_env.vector) against its reference, M independent SwarmEnvs."""
+"""The batched engine (swarm_env.vector.engine) against its reference, M independent SwarmEnvs."""
 
 from __future__ import annotations
 
@@ -9,9 +9,9 @@ import pytest
 
 import swarm_env
 from swarm_env.env import SwarmEnv
-from swarm_env.lidar import PackedMaps, cast_rays, pack_discs, scan
-from swarm_env.observations import moving_discs
-from swarm_env.vector import INFO_KEYS, EnvFactory, SwarmVectorEnv
+from swarm_env.sensing.lidar import PackedMaps, cast_rays, pack_discs, scan
+from swarm_env.sensing.observations import moving_discs
+from swarm_env.vector.engine import INFO_KEYS, EnvFactory, SwarmVectorEnv
 from swarm_env.wrappers import SHIELD_INFO_KEYS
 
 
@@ -31,7 +31,7 @@ def _lockstep(scenario: str, num_envs: int, steps: int, seed: int, discrete: boo
     venv = SwarmVectorEnv(scenario, num_envs, n_procs=n_procs, shield=shield, worker_kernels=worker_kernels,
                           prefetch_scenarios=prefetch is not None, **kwargs)
     if chunk is not None:
-        from swarm_env.world_batch import WorldBatch
+        from swarm_env.vector.world_batch import WorldBatch
 
         assert venv._local is not None
         venv._local._physics = WorldBatch(chunk=chunk)
@@ -124,8 +124,8 @@ def test_scenarios_drawn_ahead_give_the_same_bits() -> None:
 def test_a_prefetched_scenario_is_the_local_draw_and_moves_the_generator_alike() -> None:
     import time
 
-    from swarm_env.random_scenario import config_from_kwargs, random_scenario
-    from swarm_env.scenario_prefetch import ScenarioPrefetcher
+    from swarm_env.scenarios.generator import config_from_kwargs, random_scenario
+    from swarm_env.vector.scenario_prefetch import ScenarioPrefetcher
 
     config = config_from_kwargs(n_followers=3, n_humans=(0, 2))
     prefetcher = ScenarioPrefetcher()

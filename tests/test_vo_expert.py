@@ -1,5 +1,5 @@
 """Tests for the pure-pursuit + velocity-obstacle expert (agents/vo_expert.py) and
-the batched VO selection it runs on (swarm_env.guidance.vo_select_batch).
+the batched VO selection it runs on (swarm_env.control.guidance.vo_select_batch).
 
 The VO geometry itself (ray/disc entry times, polygon Minkowski sums, overlap
 rules, arc trajectories) is tested in tests/test_guidance.py; here: the cone's
@@ -16,9 +16,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from swarm_env.env import SwarmEnv
-from swarm_env.geometry import StaticMap
-from swarm_env.guidance import (
+from swarm_env.control.guidance import (
     pure_pursuit,
     twist_trajectories,
     vo_discs_inside,
@@ -26,10 +24,12 @@ from swarm_env.guidance import (
     vo_select,
     vo_select_batch,
 )
-from swarm_env.harness.evaluation import run_episode
+from swarm_env.env import SwarmEnv
+from swarm_env.geometry.static_map import StaticMap
+from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import load_policy
 from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
-from swarm_env.scenario_io import scenario_from_dict
+from swarm_env.scenarios.loader import scenario_from_dict
 from swarm_env_agents.vo_expert import EXPERT_AVOIDANCE, LEGACY_SPEC, VOExpert, make_policy
 
 
@@ -416,9 +416,9 @@ def test_same_seed_same_actions():
 
 def test_one_parameter_object_for_the_search():
     """vo_select, vo_select_batch, the safety layer, VOExpert and the robot leader share VOParams."""
-    from swarm_env.guidance import VOParams
-    from swarm_env.safety import AvoidanceParams
-    from swarm_env.world import LEADER_VO
+    from swarm_env.control.guidance import VOParams
+    from swarm_env.control.safety import AvoidanceParams
+    from swarm_env.sim.world import LEADER_VO
 
     assert isinstance(AvoidanceParams(), VOParams) and LEADER_VO == VOParams()
     env = SwarmEnv("paper_vo_0")

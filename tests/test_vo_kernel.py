@@ -1,4 +1,4 @@
-"""The compiled velocity-obstacle search (swarm_env.vo_kernel) gives the numpy reference's bits.
+"""The compiled velocity-obstacle search (swarm_env.control.vo_kernel) gives the numpy reference's bits.
 
 Every field of the result (the twists, feasibility, ``n_safe``, the reported time to contact, the
 escape and fast-path flags) is compared exactly: on every state the ``vo`` expert saw in whole
@@ -20,11 +20,11 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from swarm_env import guidance, vo_kernel
+from swarm_env.control import guidance, vo_kernel
+from swarm_env.control.guidance import VOBatchResult, VOParams, vo_select, vo_select_batch
+from swarm_env.control.safety import AvoidanceParams, safe_follower_twists, shield_actions
 from swarm_env.env import SwarmEnv
-from swarm_env.geometry import StaticMap
-from swarm_env.guidance import VOBatchResult, VOParams, vo_select, vo_select_batch
-from swarm_env.safety import AvoidanceParams, safe_follower_twists, shield_actions
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
 from swarm_env.state import WorldState
 from swarm_env_agents.vo_expert import VOExpert

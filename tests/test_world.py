@@ -8,8 +8,9 @@ import pickle
 import numpy as np
 import pymunk
 
-from swarm_env import world as world_mod
 from swarm_env.env import SwarmEnv
+from swarm_env.sim import world as world_mod
+from swarm_env.sim.bodies import velocity_callback
 
 
 def _world(name: str = "paper_vo_45") -> world_mod.World:
@@ -36,7 +37,7 @@ def test_fast_velocity_callback_matches_the_python_one_bit_for_bit() -> None:
     plain = copy.deepcopy(fast)
     assert all(hasattr(b, "_fast_drive") for b in _robots(fast))
     for b in _robots(plain):
-        b.velocity_func = world_mod._drive  # back to pymunk's trampoline and the Python callback
+        b.velocity_func = velocity_callback  # back to pymunk's trampoline and the Python callback
     a, b = _run(fast, 60), _run(plain, 60)
     assert any(np.any(x[:, 3:] != 0.0) for x in a)  # robots moved
     for x, y in zip(a, b):
@@ -64,12 +65,12 @@ def test_copies_get_their_own_fast_callbacks_and_continue_identically() -> None:
 
 
 def test_compiled_velocity_callback_is_installed_and_matches_the_python_one_with_limits() -> None:
-    from swarm_env import drive_kernel
+    from swarm_env.sim import drive_kernel
 
     assert drive_kernel.available()  # probed layout and self-test passed on this platform
     import dataclasses
 
-    from swarm_env.scenario_io import load_scenario
+    from swarm_env.scenarios.loader import load_scenario
 
     scn = load_scenario("paper_cbs_switch")
     limited = dataclasses.replace(scn, robots=dataclasses.replace(scn.robots, max_accel=0.8, max_turn_accel=2.0))
@@ -79,7 +80,7 @@ def test_compiled_velocity_callback_is_installed_and_matches_the_python_one_with
     assert all(isinstance(b._fast_drive, tuple) for b in _robots(fast))  # the compiled callback
     plain = copy.deepcopy(fast)
     for b in _robots(plain):
-        b.velocity_func = world_mod._drive
+        b.velocity_func = velocity_callback
     a, b = _run(fast, 80), _run(plain, 80)
     assert any(np.any(x[:, 3:] != 0.0) for x in a)
     for x, y in zip(a, b):

@@ -1,4 +1,4 @@
-"""swarm_env.world_batch: the physics and snapshots of M worlds in one call give, bit for bit, what
+"""swarm_env.vector.world_batch: the physics and snapshots of M worlds in one call give, bit for bit, what
 ``World.step`` then ``World.snapshot`` give world by world, and leave the worlds in the same state."""
 
 from __future__ import annotations
@@ -10,15 +10,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from swarm_env import world_batch
 from swarm_env.compiled import compiled_kernels, use_compiled_kernels
 from swarm_env.env import SwarmEnv
-from swarm_env.geometry import StaticMap
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.harness.bench import BATCH_WORLD
-from swarm_env.scenario_io import list_scenarios
+from swarm_env.scenarios.loader import list_scenarios
+from swarm_env.sim.world import World
 from swarm_env.state import WorldState
-from swarm_env.world import World
-from swarm_env.world_batch import WorldBatch, step_and_snapshot
+from swarm_env.vector import world_batch
+from swarm_env.vector.world_batch import WorldBatch, step_and_snapshot
 
 
 def _envs(specs: list[tuple[str, dict[str, Any], int]]) -> list[SwarmEnv]:

@@ -1,7 +1,7 @@
 """A precomputed grid of a static map's signed clearance, with vectorised bilinear lookups.
 
 The planner checks thousands of points per replan against the obstacles; asking
-:meth:`swarm_env.geometry.StaticMap.distance` each time would loop over every
+:meth:`swarm_env.geometry.static_map.StaticMap.distance` each time would loop over every
 obstacle edge for every point. Instead the clearance (walls included) is
 sampled once on a regular grid covering the world ``[0, W] x [0, H]`` and read
 back by bilinear interpolation: a lookup costs the same whatever the number of
@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from swarm_env.compiled import compiled_kernels
-from swarm_env.geometry import StaticMap
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env_agents.cbs_rrt import kernels
 
 __all__ = ["DistanceField", "distance_field"]

@@ -2,16 +2,16 @@
 
 At a replanning time ``t0`` the layer predicts the leader's pose on a time grid
 ``t0, t0 + dt, ..., t1`` — exactly for a virtual leader (it moves along its
-path at constant speed, :func:`swarm_env.paths.virtual_leader`), by constant
+path at constant speed, :func:`swarm_env.geometry.paths.virtual_leader`), by constant
 speed along the path from its current projection for a robot leader — and
 composes it with the formation active at each grid time
-(:func:`swarm_env.formation.active_formation`, ``formation_offsets``): the
+(:func:`swarm_env.geometry.formation.active_formation`, ``formation_offsets``): the
 *slot course* of each follower, including the switches scheduled inside the
 window. Then, as the paper does for the current slot targets:
 
 1. a slot whose clearance is below ``clearance`` (the planner's buffer: radius +
    margin) is moved to the nearest point that has it
-   (:meth:`swarm_env.geometry.StaticMap.project_free`);
+   (:meth:`swarm_env.geometry.static_map.StaticMap.project_free`);
 2. two slots closer than ``separation`` (two radii + the conflict margin) at the
    same time — two projected slots can land on each other — are pushed apart
    symmetrically and projected again (a few rounds). So the formation's own
@@ -35,9 +35,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swarm_env.formation import formation_offsets
-from swarm_env.geometry import StaticMap
-from swarm_env.paths import PolylinePath
+from swarm_env.geometry.formation import formation_offsets
+from swarm_env.geometry.paths import PolylinePath
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import Scenario
 
 __all__ = ["GoalWindow", "FormationGoals"]
@@ -135,7 +135,7 @@ class FormationGoals:
 
         Virtual leader (``leader_pose`` ignored): ``s = speed * max(t - start_delay, 0)``
         along the path, the heading of the segment under it (outgoing at a vertex) —
-        the same as :func:`swarm_env.paths.virtual_leader`. Robot leader: its projection on
+        the same as :func:`swarm_env.geometry.paths.virtual_leader`. Robot leader: its projection on
         the path at ``t0`` (from ``leader_pose``) advanced at ``speed``.
         """
         spec = self.scenario.leader

@@ -17,7 +17,7 @@ The holder is a short-horizon search over the robots' own kinematics, robot by r
 * **targets**: each follower's slot at ``horizon`` points ahead, the next step and then every
   ``every`` steps (:meth:`SlotHolder.steps_ahead`; the expert spreads four points over two seconds
   whatever the env's step), for a virtual leader the env's exact slots
-  (:func:`swarm_env.formation.virtual_slot_trajectory`), otherwise the formation layer's predicted
+  (:func:`swarm_env.geometry.formation.virtual_slot_trajectory`), otherwise the formation layer's predicted
   course;
 * **candidates**: a grid of twists ``(v, omega)`` (reversing allowed) for the first step, then a
   second grid held for the rest of the horizon; each sequence is rolled out on exact unicycle arcs;

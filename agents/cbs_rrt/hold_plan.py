@@ -1,7 +1,7 @@
 """Holding a reached formation by planning it: joint space-time paths to the end (issue 12 item 1).
 
 With a virtual leader the slot targets are a function of time and the map only
-(:func:`swarm_env.formation.virtual_slot_trajectory`), so once the swarm has reached a formation
+(:func:`swarm_env.geometry.formation.virtual_slot_trajectory`), so once the swarm has reached a formation
 the whole rest of it is known in advance. :class:`CBSRRTExpert` (``hold_plan``, on by default)
 then plans where every follower should be at every remaining step (again only if a robot falls
 0.5 m off its path), and tracks that:
@@ -49,8 +49,8 @@ from dataclasses import dataclass
 import numba
 import numpy as np
 
-from swarm_env.geometry import StaticMap
-from swarm_env.paths import PolylinePath, virtual_leader
+from swarm_env.geometry.paths import PolylinePath, virtual_leader
+from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import Scenario
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
 from swarm_env_agents.cbs_rrt.kernels import _clear1

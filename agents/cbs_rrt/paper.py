@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 import swarm_env
-from swarm_env.harness.evaluation import run_episode
+from swarm_env.harness.episode import run_episode
 from swarm_env.jsonio import write_json
 from swarm_env.outputs import atomic_write_text, save_figure
 from swarm_env.state import WorldState
@@ -351,7 +351,7 @@ def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path,
         "   aimed at its furthest visible waypoint (every edge stays a legal primitive). Paths are timed",
         "   `(x, y, theta, t)`.",
         "",
-        "Every step, pure pursuit (`swarm_env.guidance.pure_pursuit`) tracks each timed path, aiming 1 s ahead;",
+        "Every step, pure pursuit (`swarm_env.control.guidance.pure_pursuit`) tracks each timed path, aiming 1 s ahead;",
         "a one-step safety check stops a robot's translation rather than let it come within 5 cm of an obstacle,",
         "a robot or a human, and a robot that a human walking at it would reach within 3 s (were it to stand",
         "still) takes the `vo` expert's velocity-obstacle twist for that step instead (the humans do not give",

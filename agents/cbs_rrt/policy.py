@@ -14,7 +14,7 @@ Three layers (paper 000 Fig. 1), run from the privileged
    over motion primitives in space-time with a buffer zone, CBS constraints
    and smoothing; the path joins the goal course and follows it.
 
-Every step a pure-pursuit controller (:func:`swarm_env.guidance.pure_pursuit`,
+Every step a pure-pursuit controller (:func:`swarm_env.control.guidance.pure_pursuit`,
 shared with the rest of the project) tracks each robot's timed path: it aims at
 the path's position ``lookahead_time`` seconds ahead, with the speed that
 reaches it in that time, so a robot that lags speeds up and one that is early
@@ -71,11 +71,11 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.formation import virtual_slot_trajectory
-from swarm_env.guidance import disc_time_to_collision, pure_pursuit
+from swarm_env.control.guidance import disc_time_to_collision, pure_pursuit
+from swarm_env.control.safety import AvoidanceParams, safe_follower_twists
+from swarm_env.geometry.formation import virtual_slot_trajectory
+from swarm_env.geometry.paths import human_states
 from swarm_env.harness.policies import expert_factory
-from swarm_env.paths import human_states
-from swarm_env.safety import AvoidanceParams, safe_follower_twists
 from swarm_env.state import WorldState
 from swarm_env_agents.cbs_rrt.cbs import CBS, CBSResult
 from swarm_env_agents.cbs_rrt.constraints import Constraint
@@ -752,7 +752,7 @@ class CBSRRTExpert:
 
     def _movers(self, state: WorldState, gw: GoalWindow) -> list[Constraint]:
         """Moving discs every robot keeps clear of over the whole planning window: the humans
-        (a scripted human's motion is a known function of time, :func:`swarm_env.paths.human_states`,
+        (a scripted human's motion is a known function of time, :func:`swarm_env.geometry.paths.human_states`,
         and it does not give way, so plans keep out of its way well ahead; a reactive one is
         predicted at its current velocity, as the VO does) and a robot leader (its predicted
         course; it also dodges, hence a wider margin). Paper 000 has neither."""
@@ -856,7 +856,7 @@ class CBSRRTExpert:
     def _track(self, state: WorldState) -> np.ndarray:
         """Twists that make each robot follow its timed path.
 
-        Pure pursuit (:func:`swarm_env.guidance.pure_pursuit`) towards the plan's position
+        Pure pursuit (:func:`swarm_env.control.guidance.pure_pursuit`) towards the plan's position
         ``lookahead_time`` ahead, with time gap ``lookahead_time``: on the path at the plan's
         speed the command is the plan's speed; a lagging robot speeds up. Two additions:
         where the plan barely moves over the lookahead (a spin primitive, a wait, the parked

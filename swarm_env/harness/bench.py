@@ -142,7 +142,7 @@ def _time_steps(step: Callable[[int], Any], steps: int, agent_steps_per_step: in
 
 def _swarm_batch(num_envs: int, seed: int, n_procs: int = 1,
                  worker_kernels: bool = False) -> tuple[Any, Callable[[int], Any], int]:
-    from swarm_env.vector import SwarmVectorEnv
+    from swarm_env.vector.engine import SwarmVectorEnv
 
     venv = SwarmVectorEnv("random", num_envs, n_procs=n_procs, worker_kernels=worker_kernels, **BATCH_WORLD)
     venv.reset(seed=seed)
@@ -176,7 +176,7 @@ def run_batched_bench(
     progress: Callable[[str], None] | None = None,
     worker_kernels: bool = False,
 ) -> list[BatchResult]:
-    """Agent-steps/s of :class:`~swarm_env.vector.SwarmVectorEnv` on :data:`BATCH_WORLD` for each
+    """Agent-steps/s of :class:`~swarm_env.vector.engine.SwarmVectorEnv` on :data:`BATCH_WORLD` for each
     batch size (and of VMAS ``navigation`` with 8 agents and 16 lidar rays, with ``peer="vmas"``),
     interleaved repeat by repeat, ``budget`` world-steps per repeat (at least 5 steps).
     ``n_procs`` and ``worker_kernels`` are the engine's arguments."""
@@ -185,7 +185,7 @@ def run_batched_bench(
     out = []
     for m in sizes:
         label = f"(n_procs={n_procs}{', worker_kernels' if worker_kernels else ''})" if n_procs > 1 else ""
-        cases = [("swarm_env.vector" + label, *_swarm_batch(m, seed, n_procs, worker_kernels))]
+        cases = [("swarm_env.vector.engine" + label, *_swarm_batch(m, seed, n_procs, worker_kernels))]
         if peer == "vmas":
             cases.append(("vmas:navigation", *_vmas_batch(m, seed)))
         steps = _batch_steps(m, budget)

@@ -110,7 +110,7 @@ def _print_scenario_error(exc: ScenarioError) -> None:
 
 def cmd_list(args: argparse.Namespace) -> int:
     from swarm_env.harness.policies import policy_extra, registered_policies
-    from swarm_env.scenario_io import list_scenarios, load_scenario
+    from swarm_env.scenarios.loader import list_scenarios, load_scenario
 
     print("scenarios:")
     for name in list_scenarios():
@@ -131,7 +131,7 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from swarm_env.scenario_io import load_scenario
+    from swarm_env.scenarios.loader import load_scenario
 
     status = 0
     for spec in args.files:
@@ -139,7 +139,7 @@ def cmd_validate(args: argparse.Namespace) -> int:
             if spec == "random":  # a generator, not a file: check that its default configuration builds a world
                 import numpy as np
 
-                from swarm_env.random_scenario import random_scenario
+                from swarm_env.scenarios.generator import random_scenario
 
                 scn = random_scenario(np.random.default_rng(0))
                 print(f"ok: random (the generator; seed 0 draws {scn.robots.count} followers, {len(scn.obstacles)} "
@@ -354,7 +354,7 @@ def _bench_batched(args: argparse.Namespace, progress: Any) -> int:
                         "us per agent-step"]))
     peers = {r.num_envs: r for r in results if r.name.startswith("vmas")}
     for r in results:
-        if r.name.startswith("swarm_env.vector") and r.num_envs in peers:
+        if r.name.startswith("swarm_env.vector.engine") and r.num_envs in peers:
             p = peers[r.num_envs]
             print(f"M={r.num_envs}: swarm_env / vmas = {r.median_wall / p.median_wall:.2f}x wall, "
                   f"{r.median_cpu / p.median_cpu:.2f}x CPU")
@@ -399,7 +399,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         validate_inputs,
     )
     from swarm_env.outputs import OutputError
-    from swarm_env.scenario_io import list_scenarios
+    from swarm_env.scenarios.loader import list_scenarios
 
     try:
         if args.resume and args.out and Path(args.out) != Path(args.resume):
@@ -616,7 +616,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="also run a peer in the same process, interleaved, and print the ratio (mpe2: one env; "
                         "vmas: the batched engine against VMAS navigation, for each --num-envs)")
     b.add_argument("--num-envs", type=int, nargs="+", metavar="M",
-                   help="batched engine (swarm_env.vector) at these batch sizes (default with --vs vmas: 1 8 64 256 1024)")
+                   help="batched engine (swarm_env.vector.engine) at these batch sizes (default with --vs vmas: 1 8 64 256 1024)")
     b.add_argument("--followers", type=int, nargs="+", metavar="N", help="one env per team size N (cost per follower)")
     b.add_argument("--n-procs", type=int, default=1, help="worker processes of the batched engine (default 1)")
     b.add_argument("--worker-kernels", action="store_true",

@@ -1,6 +1,6 @@
 """One evaluation path for every policy (scripted experts, RL models, random).
 
-:func:`run_episode` plays one seeded episode and returns its metrics;
+:func:`~swarm_env.harness.episode.run_episode` plays one seeded episode and returns its metrics;
 :func:`evaluate` runs several and aggregates them into the JSON document that
 ``swarm-env run --json`` writes::
 
@@ -10,59 +10,15 @@
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Callable, Iterable
 from typing import Any
 
 import numpy as np
 
 from swarm_env.env import SwarmEnv
-from swarm_env.harness.policies import Policy, load_policy
-
-
-def run_episode(
-    env: SwarmEnv,
-    policy: Policy,
-    seed: int | None,
-    on_frame: Callable[[np.ndarray], None] | None = None,
-    on_step: Callable[[dict[str, Any] | None], None] | None = None,
-) -> dict[str, Any]:
-    """Play one episode of ``policy`` in ``env`` from ``reset(seed)``.
-
-    ``on_frame`` (if given, and the env renders ``rgb_array``) receives every
-    frame, the initial one included. ``on_step`` (if given) is called with
-    ``None`` after the reset and with the actions dict after every
-    ``env.step`` that applied it (:mod:`swarm_env.harness.recording` records through
-    it); an exception it raises ends the episode and propagates. Returns
-    ``env.episode_metrics()`` plus ``seed``, ``policy_time`` (s spent in
-    ``policy.act``) and, if the policy has ``stats()``, ``policy_stats``.
-    """
-    obs, _ = env.reset(seed=seed)
-    policy.reset(env, seed)
-    policy_time = 0.0
-
-    def emit() -> None:
-        if on_frame is not None:
-            frame = env.render()
-            if frame is not None:
-                on_frame(frame)
-
-    emit()
-    if on_step is not None:
-        on_step(None)
-    while env.agents:
-        t0 = time.perf_counter()
-        actions = policy.act(obs, env.world_state())
-        policy_time += time.perf_counter() - t0
-        obs, _, _, _, _ = env.step(actions)
-        if on_step is not None:
-            on_step(actions)
-        emit()
-    result = {"seed": seed, **env.episode_metrics(), "policy_time": policy_time}
-    stats = getattr(policy, "stats", None)
-    if callable(stats):
-        result["policy_stats"] = stats()
-    return result
+from swarm_env.harness import recording
+from swarm_env.harness.episode import run_episode
+from swarm_env.harness.policies import load_policy
 
 
 def mean_ci95(values: Iterable[float | None]) -> dict[str, float | int | None]:
@@ -97,7 +53,7 @@ def summarize(episodes: list[dict[str, Any]]) -> dict[str, Any]:
     """Means (and 95 % normal-approximation half-widths, :func:`mean_ci95`) of the headline metrics.
 
     ``policy_time`` (policy wall seconds per episode) is included when the
-    episodes carry it (:func:`run_episode` results do).
+    episodes carry it (:func:`~swarm_env.harness.episode.run_episode` results do).
     """
     settle = [s["settle_time"] for e in episodes for s in e["settle_times"]]
     hold = [s.get("hold_fraction") for e in episodes for s in e["settle_times"]]  # absent in older records
@@ -140,8 +96,6 @@ def evaluate(
     if on_frame is not None:
         kwargs.setdefault("render_mode", "rgb_array")
     if record_dir is not None:
-        from swarm_env.harness import recording  # noqa: PLC0415 - it imports this module
-
         recording.ensure_new_recording_dir(record_dir)
     env = SwarmEnv(scenario, **kwargs)
     try:

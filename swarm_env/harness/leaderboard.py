@@ -3,7 +3,7 @@
 :func:`run_leaderboard` plays every policy spec (``vo``, ``cbs_rrt``,
 ``random``, ``ppo:PATH``, ... anything :func:`swarm_env.harness.policies.load_policy`
 builds) on every scenario for that scenario's seeds, each episode through
-:func:`swarm_env.harness.evaluation.run_episode`, and returns a :class:`Leaderboard`:
+:func:`swarm_env.harness.episode.run_episode`, and returns a :class:`Leaderboard`:
 one :class:`Row` per policy x scenario with the mean and 95 % confidence
 interval of the headline metrics, plus every episode's metrics.
 
@@ -87,7 +87,7 @@ from swarm_env.harness.policies import (
 )
 from swarm_env.harness.recording import EpisodeRecord, load_episode, record_episode, replay, save_episode
 from swarm_env.jsonio import dumps
-from swarm_env.scenario_io import RANDOM_NAME
+from swarm_env.scenarios.loader import RANDOM_NAME
 
 #: Seeds of a fixed scenario when none are given (deterministic up to the policy's own randomness).
 DEFAULT_FIXED_SEEDS: tuple[int, ...] = tuple(range(0, 5))
@@ -995,7 +995,7 @@ class Leaderboard:
 
     ``rows``: one :class:`Row` per policy x scenario (policies outer, scenarios inner).
     ``episodes``: ``{"policy", "scenario", "seed", "metrics"}`` per episode played, where
-    ``metrics`` is :func:`~swarm_env.harness.evaluation.run_episode`'s dict.
+    ``metrics`` is :func:`~swarm_env.harness.episode.run_episode`'s dict.
     ``failed``: the episodes whose worker died or timed out on every attempt (counted in the rows'
     ``failed``, left out of their summaries).
     ``records``: ``(policy, scenario, seed)`` -> the :class:`~swarm_env.harness.recording.EpisodeRecord`

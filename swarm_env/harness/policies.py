@@ -25,7 +25,7 @@ Policies are found by name in the Python entry-point group
 ``"name:arg"`` (e.g. ``ppo:runs/best.zip``) passes ``arg`` to it. This package
 registers ``random``, ``zero``, ``pursuit`` (pure pursuit to the slot, no
 avoidance) and ``shield:SPEC`` (any policy run through the VO safety layer of
-:mod:`swarm_env.safety`); the experts (``vo``, ``cbs_rrt``) and RL
+:mod:`swarm_env.control.safety`); the experts (``vo``, ``cbs_rrt``) and RL
 loaders register themselves from their own packages.
 """
 
@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from swarm_env.guidance import pure_pursuit
+from swarm_env.control.guidance import pure_pursuit
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -136,7 +136,7 @@ class ZeroPolicy:
 class PursuitPolicy:
     """Pure pursuit straight at each follower's slot target, with no collision avoidance.
 
-    The paper-003 tracking law (:func:`swarm_env.guidance.pure_pursuit`) alone: a
+    The paper-003 tracking law (:func:`swarm_env.control.guidance.pure_pursuit`) alone: a
     reference point for what the experts' avoidance layers add. ``arg`` is the
     time gap in seconds (default 0.5): the speed command is ``distance / gap``.
     """
@@ -253,14 +253,14 @@ class ShieldedPolicy:
     """``shield:SPEC``: the policy ``SPEC`` with every action replaced by the nearest safe one.
 
     The same safety layer as :class:`swarm_env.wrappers.SafetyShield` (one function,
-    :func:`swarm_env.safety.shield_actions`), applied at execution time to any registered
+    :func:`swarm_env.control.safety.shield_actions`), applied at execution time to any registered
     policy, e.g. ``shield:pursuit`` or ``shield:ppo:runs/x``. The shield reads the
     privileged world state, like the experts. ``stats()`` reports the interventions
     (they land in the leaderboard's ``policy_stats``).
     """
 
     def __init__(self, env: SwarmEnv, arg: str | None = None) -> None:
-        from swarm_env.safety import AvoidanceParams
+        from swarm_env.control.safety import AvoidanceParams
 
         if not arg:
             raise ValueError("policy 'shield' wraps another policy: write shield:SPEC, e.g. shield:pursuit")
@@ -273,7 +273,7 @@ class ShieldedPolicy:
     @classmethod
     def around(cls, inner: Any) -> ShieldedPolicy:
         """The shield around a policy object (e.g. a model being trained) instead of a spec."""
-        from swarm_env.safety import AvoidanceParams
+        from swarm_env.control.safety import AvoidanceParams
 
         self = cls.__new__(cls)
         self.inner = inner if isinstance(inner, Policy) else PredictPolicy(inner)
@@ -292,7 +292,7 @@ class ShieldedPolicy:
         self._reset_stats()
 
     def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
-        from swarm_env.safety import shield_actions
+        from swarm_env.control.safety import shield_actions
 
         actions = self.inner.act(observations, state)
         n = state.n_followers

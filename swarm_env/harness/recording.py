@@ -33,7 +33,7 @@ folder per episode, ``episode_<k>`` (``k`` = the episode's index in its run)::
                                     "digest": how the digest is made (text),
                                     "platform": {"swarm_env", "python", "numpy", "pymunk", "system", "machine"},
                                     "metrics": the episode's metrics as run_episode returned them (reference only)}
-    DIR/episode_<k>/scenario.yaml  the resolved scenario (swarm_env.scenario_io.scenario_to_dict)
+    DIR/episode_<k>/scenario.yaml  the resolved scenario (swarm_env.scenarios.loader.scenario_to_dict)
     DIR/episode_<k>/actions.npz    actions: (T, N, 2) float64 (continuous) or (T, N) int64 (discrete),
                                    rows in env.possible_agents order, as the policy gave them
                                    (before the env's clipping); digest_steps: (D,) int64;
@@ -64,12 +64,12 @@ import numpy as np
 import yaml
 
 from swarm_env.env import SwarmEnv
-from swarm_env.harness.evaluation import run_episode
+from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import Policy
 from swarm_env.jsonio import dumps
 from swarm_env.outputs import replace_dir
 from swarm_env.scenario import Scenario
-from swarm_env.scenario_io import scenario_from_dict, scenario_to_dict
+from swarm_env.scenarios.loader import scenario_from_dict, scenario_to_dict
 from swarm_env.state import CONTACT_KINDS, WorldState
 
 FORMAT = "swarm_env.harness.recording"
@@ -207,7 +207,7 @@ def _platform_note(recorded: Mapping[str, str]) -> str:
 
 # --------------------------------------------------------------------------- recording
 class Recorder:
-    """The ``on_step`` hook of :func:`swarm_env.harness.evaluation.run_episode` that records an episode:
+    """The ``on_step`` hook of :func:`swarm_env.harness.episode.run_episode` that records an episode:
     every action (rows in ``env.possible_agents`` order) and the digests of the states at steps
     ``0, K, 2K, ...`` and at the last step (``K = digest_every``)."""
 
@@ -260,7 +260,7 @@ def record_episode(
     digest_every: int = DIGEST_EVERY,
     on_frame: Callable[[np.ndarray], None] | None = None,
 ) -> tuple[dict[str, Any], EpisodeRecord]:
-    """Play one episode exactly as :func:`swarm_env.harness.evaluation.run_episode` does (the same metrics)
+    """Play one episode exactly as :func:`swarm_env.harness.episode.run_episode` does (the same metrics)
     and record it. ``policy_spec`` and ``scenario_spec`` (default: ``env.scenario_name``) are
     stored for reference; ``episode`` is the episode's index in its run (it names its folder)."""
     recorder = Recorder(env, digest_every)

@@ -1,0 +1,151 @@
+"""The global state of ``M`` worlds (``SwarmEnv.state()`` of each) in one compiled call.
+
+The reference is :meth:`ObservationBuilder.state_vector
+<swarm_env.sensing.observations.ObservationBuilder.state_vector>`: numpy, per world, whose follower
+clearance (:func:`swarm_env.sensing.observations._clearance_features`: one ``StaticMap.distance`` call on
+``5 N`` probe points and central differences) costs most of it; stacking it over 64 worlds costs
+more than a whole batched engine step. :func:`state_batch` writes the ``(M, state_size)`` float32
+rows of all worlds from the engine's stacked snapshot arrays (:class:`swarm_env.vector.batch_step.StepArrays`)
+and its per-world padded maps (:class:`swarm_env.vector.batch_step.PaddedMaps`);
+:meth:`swarm_env.vector.batch_step.BatchState.state` is its caller.
+
+Same bits as the reference, by construction and by test (``tests/test_state_kernel.py``, and every
+step of ``tests/test_vector.py``'s lockstep runs): every entry is the reference's float64 arithmetic
+in its order (a position divided by the world size, a velocity by twice the speed limit, Python's
+``min(next_switch - time, max_time) / max_time``, the gradient ``(d(x + h, y) - d(x - h, y),
+d(x, y + h) - d(x, y - h))`` normalised by ``sqrt(gx * gx + gy * gy)`` where that is above 0), each
+static distance is :func:`swarm_env.geometry.clearance_kernel.point_distance`, which gives
+``StaticMap.distance``'s bits, and the clips (``[0, 1]`` for the clearance, ``[-limit, limit]`` for
+the whole vector) and the float32 cast work entry by entry, as ``np.clip`` and ``astype`` do. The
+headings' cosines and sines are numpy's, computed by the caller as the reference does (the
+kernel's libm could round differently), and the occupancy grid is the builder's own
+(:meth:`ObservationBuilder._occupancy <swarm_env.sensing.observations.ObservationBuilder._occupancy>`), one
+row per world. The one freedom is ``StaticMap.distance``'s: a probe exactly on a boundary may give
+``-0.0`` where the reference has ``0.0`` (equal under ``==``).
+
+The layout is :func:`swarm_env.sensing.observations.state_layout`'s: the caller passes each block's first
+column; the columns of one follower, leader or human within its block are the ``*_COLUMNS`` below,
+in the order ``state_vector`` writes them (the caller checks the layout's block sizes against them).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from swarm_env.geometry.clearance_kernel import point_distance
+
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+#: Columns per follower in the state's ``followers`` block: x / W, y / H, cos, sin, v / vlim,
+#: omega / vlim, slot x / W, slot y / H, present.
+FOLLOWER_COLUMNS = 9
+#: Columns of the ``leader`` block: x / W, y / H, cos, sin, vx / vlim, vy / vlim.
+LEADER_COLUMNS = 6
+#: Columns per human slot in the ``humans`` block: x / W, y / H, vx / vlim, vy / vlim, present.
+HUMAN_COLUMNS = 5
+#: Columns of the ``time`` block: t / max_time, time to the next switch / max_time.
+TIME_COLUMNS = 2
+#: Columns per follower in the ``follower_clearance`` block: clearance / range, nx, ny.
+CLEARANCE_COLUMNS = 3
+
+
+@_jit
+def _put(out, j, v, limit):  # pragma: no cover - compiled
+    """``out[j] = float32(clip(v, -limit, limit))``: ``np.clip``'s result entry by entry (a NaN stays NaN)."""
+    if v < -limit:
+        v = -limit
+    elif v > limit:
+        v = limit
+    out[j] = np.float32(v)
+
+
+@_jit
+def state_batch(pose, twist, slots, lpose, lvel, cos_th, sin_th, cos_lead, sin_lead, time, next_switch, hpos, hvel,
+                hcount, occupancy, W, H, circles, ncirc, n_poly, n_edge, ax, ay, ex, ey, inv_ee, nx, ny, width, height,
+                vel_limit, max_time, clear_range, step, limit, fol_start, lead_start, hum_start, time_start, clear_start,
+                occ_start, out):  # pragma: no cover - compiled
+    """``out[m]`` = world ``m``'s ``ObservationBuilder.state_vector`` (float32 ``(M, state_size)``).
+
+    World arrays, stacked on a leading world axis: ``pose`` ``(M, N, 3)``, ``twist`` and ``slots``
+    ``(M, N, 2)``, ``lpose`` ``(M, 3)``, ``lvel`` ``(M, 2)``, the numpy cosines/sines of the
+    followers' headings ``(M, N)`` and of the leader's ``(M,)``, ``time`` and ``next_switch``
+    ``(M,)``, humans padded ``(M, Hmax, 2)`` with ``hcount`` ``(M,)``,
+    ``occupancy`` ``(M, STATE_GRID ** 2)`` each world's grid, and its map as the rows of
+    :meth:`PaddedMaps.kernel_arrays <swarm_env.vector.batch_step.PaddedMaps.kernel_arrays>` (the bounding
+    discs are not needed). The builder's constants: ``width``/``height`` its capacity's world
+    size, ``vel_limit`` twice its speed limit, ``max_time``, ``clear_range``
+    (``STATE_CLEARANCE_RANGE``), ``step`` (the clearance gradient's ``_GRADIENT_STEP``), ``limit``
+    (``STATE_LIMIT``), and each block's first column in ``state_layout`` (the caller checks that the
+    blocks have room for ``N`` followers and ``hcount`` humans). Rows and slots beyond a world's followers and
+    humans are 0.
+    """
+    n_worlds = pose.shape[0]
+    n = pose.shape[1]
+    size = out.shape[1]
+    for m in range(n_worlds):
+        row = out[m]
+        for j in range(size):
+            row[j] = 0.0
+        for i in range(n):
+            c = fol_start + FOLLOWER_COLUMNS * i
+            _put(row, c, pose[m, i, 0] / width, limit)
+            _put(row, c + 1, pose[m, i, 1] / height, limit)
+            _put(row, c + 2, cos_th[m, i], limit)
+            _put(row, c + 3, sin_th[m, i], limit)
+            _put(row, c + 4, twist[m, i, 0] / vel_limit, limit)
+            _put(row, c + 5, twist[m, i, 1] / vel_limit, limit)
+            _put(row, c + 6, slots[m, i, 0] / width, limit)
+            _put(row, c + 7, slots[m, i, 1] / height, limit)
+            _put(row, c + 8, 1.0, limit)
+        _put(row, lead_start, lpose[m, 0] / width, limit)
+        _put(row, lead_start + 1, lpose[m, 1] / height, limit)
+        _put(row, lead_start + 2, cos_lead[m], limit)
+        _put(row, lead_start + 3, sin_lead[m], limit)
+        _put(row, lead_start + 4, lvel[m, 0] / vel_limit, limit)
+        _put(row, lead_start + 5, lvel[m, 1] / vel_limit, limit)
+        for h in range(hcount[m]):
+            c = hum_start + HUMAN_COLUMNS * h
+            _put(row, c, hpos[m, h, 0] / width, limit)
+            _put(row, c + 1, hpos[m, h, 1] / height, limit)
+            _put(row, c + 2, hvel[m, h, 0] / vel_limit, limit)
+            _put(row, c + 3, hvel[m, h, 1] / vel_limit, limit)
+            _put(row, c + 4, 1.0, limit)
+        _put(row, time_start, time[m] / max_time, limit)
+        to_switch = next_switch[m] - time[m]
+        if max_time < to_switch:  # Python's min(to_switch, max_time): the first unless the second is smaller
+            to_switch = max_time
+        _put(row, time_start + 1, to_switch / max_time, limit)
+        circ = circles[m, :ncirc[m]]
+        P, Me, Wm, Hm = n_poly[m], n_edge[m], W[m], H[m]
+        axm, aym, exm, eym, iem, nxm, nym = ax[m], ay[m], ex[m], ey[m], inv_ee[m], nx[m], ny[m]
+        for i in range(n):
+            x = pose[m, i, 0]
+            y = pose[m, i, 1]
+            # The reference's probes: pos, pos + (h, 0), pos - (h, 0), pos + (0, h), pos - (0, h), with
+            # the 0.0 added too (it only changes the sign of a zero, kept for the same bits).
+            d0 = point_distance(x, y, Wm, Hm, circ, P, Me, axm, aym, exm, eym, iem, nxm, nym)
+            d1 = point_distance(x + step, y + 0.0, Wm, Hm, circ, P, Me, axm, aym, exm, eym, iem, nxm, nym)
+            d2 = point_distance(x - step, y - 0.0, Wm, Hm, circ, P, Me, axm, aym, exm, eym, iem, nxm, nym)
+            d3 = point_distance(x + 0.0, y + step, Wm, Hm, circ, P, Me, axm, aym, exm, eym, iem, nxm, nym)
+            d4 = point_distance(x - 0.0, y - step, Wm, Hm, circ, P, Me, axm, aym, exm, eym, iem, nxm, nym)
+            gx = d1 - d2
+            gy = d3 - d4
+            norm = math.sqrt(gx * gx + gy * gy)
+            free = d0 / clear_range
+            if free < 0.0:
+                free = 0.0
+            elif free > 1.0:
+                free = 1.0
+            c = clear_start + CLEARANCE_COLUMNS * i
+            _put(row, c, free, limit)
+            if norm > 0.0:  # else (0, 0): the gradient vanishes exactly between two surfaces
+                _put(row, c + 1, gx / norm, limit)
+                _put(row, c + 2, gy / norm, limit)
+        for j in range(occupancy.shape[1]):
+            _put(row, occ_start + j, occupancy[m, j], limit)
+
+
+__all__ = ["CLEARANCE_COLUMNS", "FOLLOWER_COLUMNS", "HUMAN_COLUMNS", "LEADER_COLUMNS", "TIME_COLUMNS", "state_batch"]

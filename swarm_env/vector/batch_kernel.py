@@ -1,0 +1,173 @@
+"""The batched engine's per-step stages for all ``M`` worlds in one compiled call each.
+
+:class:`swarm_env.vector.engine.SwarmVectorEnv` steps ``M`` worlds of one team size ``N``. Run one world
+at a time, the rewards, the metrics and the observations cost a kernel call each plus the Python
+around it (``python benchmarks/engine_breakdown.py --worlds 1024``: ~95 us a world-step, a third of
+the step). These kernels walk the worlds inside one call and run, per world, **the per-world
+kernels themselves** (:func:`swarm_env.scoring.step_kernel.reward_into`,
+:func:`swarm_env.geometry.clearance_kernel.clearance`, :func:`swarm_env.scoring.step_kernel.metrics_step`,
+:func:`swarm_env.sensing.obs_kernel.fill_rows` / :func:`~swarm_env.sensing.obs_kernel.clip_cast`) on views of
+stacked ``(M, N, ...)`` arrays, so each world gets exactly a ``SwarmEnv``'s bits (tested against
+the per-world references in ``tests/test_batch_kernel.py`` and on whole episodes in
+``tests/test_vector.py``).
+
+Inputs that vary in size between worlds are padded with counts: humans ``(M, Hmax, ...)`` with
+``hcount`` ``(M,)``, a robot leader ``(M, 1, 3)`` with ``n_leader`` ``(M,)`` 0 or 1, and each
+world's static map as :class:`swarm_env.vector.batch_step.PaddedMaps` (the arrays of
+:meth:`StaticMap.kernel_arrays <swarm_env.geometry.static_map.StaticMap.kernel_arrays>`, row ``m`` world
+``m``'s, ``nbound``/``ncirc`` counting the used rows and ``n_poly * n_edge`` the used edges).
+
+Numba's cache of these kernels is checked against this file only: after editing a kernel they call
+(``step_kernel``, ``obs_kernel``, ``clearance_kernel``), delete ``swarm_env/__pycache__/batch_kernel*.nb*``.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from swarm_env.geometry.clearance_kernel import clearance
+from swarm_env.scoring.step_kernel import N_TERMS, metrics_step, reward_into
+from swarm_env.sensing.obs_kernel import clip_cast, fill_rows
+
+_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+
+#: Columns of :func:`rewards_batch`'s ``weights``: the step's effective weights of
+#: :class:`~swarm_env.scenario.RewardSpec` in :func:`swarm_env.scoring.step_kernel.reward_table`'s order.
+WEIGHT_COLUMNS = ("formation", "collision", "contact", "clearance", "clearance_margin", "smoothness", "progress",
+                  "approach", "approach_margin")
+
+
+@_jit
+def rewards_batch(pose, slots, prev_dist, action, prev_action, touching, onsets, gap, weights, radius, leader, n_leader,
+                  hpos, hrad, hcount, W, H, bound, nbound, circles, ncirc, n_poly, n_edge, ax, ay, ex, ey, inv_ee, nx,
+                  ny, floats, total):  # pragma: no cover - compiled
+    """The rewards of ``M`` worlds: for world ``m``, what
+    :func:`swarm_env.scoring.rewards.reward_table` returns for its state with ``prev_dist[m]`` and
+    ``prev_action[m]``, written to ``floats[:N_TERMS, m]`` (the weighted terms), ``floats[N_TERMS, m]``
+    (the slot distances) and ``total[m]``; then ``prev_dist[m]`` and ``prev_action[m]`` become this
+    step's distances and ``action[m]`` (what ``SwarmEnv._advance`` keeps for the next step).
+
+    ``pose`` ``(M, N, 3)``, ``slots`` ``(M, N, 2)``, ``action`` ``(M, N, 2)``, ``touching``
+    ``(M, N, 4)``, ``onsets`` and ``gap`` ``(M, N)`` (read where their weight is not 0),
+    ``weights`` ``(M, 9)`` in :data:`WEIGHT_COLUMNS` order with ``collision`` already 0 in a world
+    without contact onsets and ``contact`` 0 without bodies in touch (as ``reward_table`` does);
+    ``radius`` ``(M, N)``; ``leader`` ``(M, 1, 3)`` a robot leader's ``(x, y, r)`` where
+    ``n_leader[m]`` is 1; humans and maps padded (module docstring). The clearance term is
+    :func:`swarm_env.geometry.clearance_kernel.clearance` below the margin, as in ``reward_table``.
+    """
+    n_worlds = pose.shape[0]
+    n = pose.shape[1]
+    no_dist = np.zeros(0)
+    no_fdist = np.zeros((0, 0))
+    no_clear = np.zeros(0)
+    for m in range(n_worlds):
+        hc = hcount[m]
+        clear = no_clear
+        if weights[m, 3] != 0.0:
+            clear = clearance(pose[m], radius[m], weights[m, 4], no_fdist, leader[m, :n_leader[m]], hpos[m, :hc],
+                              hrad[m, :hc], W[m], H[m], bound[m, :nbound[m]], circles[m, :ncirc[m]], n_poly[m],
+                              n_edge[m], ax[m], ay[m], ex[m], ey[m], inv_ee[m], nx[m], ny[m])
+        reward_into(floats[N_TERMS, m], floats[:N_TERMS, m], total[m], pose[m], slots[m], no_dist, prev_dist[m],
+                    action[m], prev_action[m], touching[m], onsets[m], clear, gap[m], weights[m, 0], weights[m, 1],
+                    weights[m, 2], weights[m, 3], weights[m, 4], weights[m, 5], weights[m, 6], weights[m, 7],
+                    weights[m, 8])
+        for i in range(n):
+            prev_dist[m, i] = floats[N_TERMS, m, i]
+            prev_action[m, i, 0] = action[m, i, 0]
+            prev_action[m, i, 1] = action[m, i, 1]
+
+
+@_jit
+def metrics_batch(err, tol, err_sum, twist_sum, travelled, f_twist, l_twist, prev_pos, pose, radius, l_pose, l_radius,
+                  leader_robot, hpos, hrad, hcount, lb, lb_valid, min_clear, min_sep, err_max, steps, sim_time,
+                  wall_time, time, wall, slack, screen, fast_max, W, H, bound, nbound, circles, ncirc, n_poly, n_edge,
+                  ax, ay, ex, ey, inv_ee, nx, ny, k_now, last_k, pending_k, hold_key, hold_n, hold_in, within_out,
+                  event_out, status_out, hum_out):  # pragma: no cover - compiled
+    """One :meth:`EpisodeMetrics.update <swarm_env.scoring.metrics.EpisodeMetrics.update>` of ``M`` worlds'
+    accumulators held as rows of arrays (:class:`swarm_env.vector.batch_step.BatchState`), in place.
+
+    Per world ``m``: :func:`swarm_env.scoring.step_kernel.metrics_step` on its rows (``err`` the slot
+    distances ``(M, N)``, ``tol`` the settle tolerances ``(M,)``), then what
+    ``EpisodeMetrics._update_compiled`` does with its result: ``steps += 1``, ``sim_time = time``,
+    ``wall_time += wall``, ``err_max = max(err_max, step max)`` and ``min_sep = min(min_sep, step
+    min)`` with Python's ``max``/``min`` semantics (the first argument kept unless the second
+    compares greater/smaller, so a NaN never replaces a number), the carried static lower bounds
+    ``lb[m]`` (valid where ``lb_valid[m]``) and ``min_clear``, then the human gaps where the world
+    has humans. ``status_out[m]`` is ``metrics_step``'s status: at 2 the caller still owes
+    ``min_clear[m] = StaticMap.min_distance(...)`` and then ``min(min_clear, hum_out[m])`` (with humans).
+
+    The formation settling stays Python (``EpisodeMetrics._observe_settling``) where something
+    happens: ``event_out[m]`` is set when the formation index ``k_now[m]`` differs from
+    ``last_k[m]`` (the index the Python code last saw) or the pending switch ``pending_k[m]`` is
+    reached this step (``within_out[m]``: every slot error within ``tol``). Elsewhere the step is
+    counted here in the held-formation counters ``hold_n``/``hold_in`` when ``hold_key[m] ==
+    k_now[m]`` (what ``_observe_settling`` would count).
+    """
+    n_worlds = pose.shape[0]
+    n = pose.shape[1]
+    no_lb = np.zeros(0)
+    for m in range(n_worlds):
+        hc = hcount[m]
+        robot = leader_robot[m]
+        lbm = lb[m] if lb_valid[m] else no_lb
+        lr = l_radius[m] if robot else 0.0
+        e_max, within, sep, hum, lb_out, status, clear = metrics_step(
+            err[m], tol[m], err_sum[m], twist_sum[m], travelled[m], f_twist[m], l_twist[m], prev_pos[m], pose[m],
+            radius[m], l_pose[m], lr, robot, hpos[m, :hc], hrad[m, :hc], lbm,
+            min_clear[m], slack, screen, fast_max, W[m], H[m], bound[m, :nbound[m]], circles[m, :ncirc[m]],
+            n_poly[m], n_edge[m], ax[m], ay[m], ex[m], ey[m], inv_ee[m], nx[m], ny[m])
+        steps[m] += 1
+        sim_time[m] = time[m]
+        wall_time[m] += wall
+        if e_max > err_max[m]:  # err_max = max(err_max, e_max)
+            err_max[m] = e_max
+        if sep < min_sep[m]:  # min_sep = min(min_sep, sep)
+            min_sep[m] = sep
+        status_out[m] = status
+        hum_out[m] = hum
+        if status < 3:
+            for i in range(n):
+                lb[m, i] = lb_out[i]
+            lb_valid[m] = True
+            if status == 1:
+                min_clear[m] = clear
+            if status != 2 and hc > 0 and hum < min_clear[m]:
+                min_clear[m] = hum
+        k = k_now[m]
+        event = k != last_k[m] or (pending_k[m] == k and within)
+        if not event and hold_key[m] == k:
+            hold_n[m] += 1
+            if within:
+                hold_in[m] += 1
+        event_out[m] = event
+        within_out[m] = within
+
+
+@_jit
+def observations_batch(pose, vel, twist, speed_scale, cos_th, sin_th, cos_rel, sin_rel, switch, leader_pose, leader_vel,
+                       slots, k, nb_start, hpos, hvel, hcount, hk, hu_start, low, high, res):  # pragma: no cover
+    """``res[m]`` = world ``m``'s :meth:`ObservationBuilder.build_without_lidar
+    <swarm_env.sensing.observations.ObservationBuilder.build_without_lidar>` (float32 ``(M, N, size)``):
+    :func:`swarm_env.sensing.obs_kernel.fill_rows` then :func:`~swarm_env.sensing.obs_kernel.clip_cast` per world,
+    with the inputs of ``ObservationBuilder._assemble_compiled`` stacked on a leading world axis
+    (``speed_scale`` ``(M, 2)``, ``switch`` ``(M,)``, the headings' numpy cosines/sines ``(M, N)``).
+    ``k`` neighbour rows for every world; ``hk`` human rows in a world with humans (``hcount[m] > 0``)."""
+    n_worlds = pose.shape[0]
+    n = pose.shape[1]
+    size = res.shape[2]
+    no_fdist = np.zeros((0, 0))
+    out = np.empty((n, size))
+    for m in range(n_worlds):
+        for i in range(n):
+            for j in range(size):
+                out[i, j] = 0.0
+        hc = hcount[m]
+        hkm = hk if hc else 0
+        fill_rows(out, pose[m], vel[m], twist[m], speed_scale[m], cos_th[m], sin_th[m], cos_rel[m], sin_rel[m],
+                  switch[m], leader_pose[m], leader_vel[m], slots[m], no_fdist, k, nb_start, hpos[m, :hc],
+                  hvel[m, :hc], hkm, hu_start)
+        clip_cast(res[m], out, low, high)
+
+
+__all__ = ["WEIGHT_COLUMNS", "metrics_batch", "observations_batch", "rewards_batch"]
