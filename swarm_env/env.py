@@ -16,6 +16,7 @@ import numpy as np
 from pettingzoo import ParallelEnv
 
 from swarm_env.geometry.static_map import StaticMap
+from swarm_env.render import Renderer
 from swarm_env.scenario import RewardSpec, Scenario
 from swarm_env.scenarios.generator import RandomScenarioConfig, config_from_kwargs, random_scenario
 from swarm_env.scenarios.loader import _parse_reward, load_scenario
@@ -524,14 +525,10 @@ class SwarmEnv(ParallelEnv):
         if self._state is None:
             raise RuntimeError("call reset() before render()")
         if self._renderer is None:
-            from swarm_env.render import Renderer
-
             self._renderer = Renderer(self.render_mode, self._state.scenario)
             self._renderer.record(self._state)
         elif self._renderer.scenario is not self._state.scenario:
             self._renderer.close()
-            from swarm_env.render import Renderer
-
             self._renderer = Renderer(self.render_mode, self._state.scenario)
             self._renderer.record(self._state)
         return self._renderer.render(self._state)

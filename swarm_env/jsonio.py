@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.outputs import atomic_write_text
+
 __all__ = ["dumps", "jsonable", "write_json"]
 
 
@@ -69,7 +71,5 @@ def write_json(path: str | os.PathLike[str], value: Any, *, indent: int | None =
     """Write ``dumps(value)`` and a final newline to ``path`` atomically (:func:`swarm_env.outputs.atomic_write_text`:
     a temporary file renamed onto ``path``; a symlink at ``path`` is refused, an existing file only replaced with
     ``overwrite``, and with ``root`` a path resolving outside that directory is refused); returns the path."""
-    from swarm_env.outputs import atomic_write_text
-
     text = dumps(value, indent=indent, sort_keys=sort_keys, default=default) + "\n"  # fails before any file is touched
     return atomic_write_text(path, text, overwrite=overwrite, root=root)

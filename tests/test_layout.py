@@ -114,6 +114,78 @@ def test_no_import_loops() -> None:
     assert not loops, "import loops: " + "; ".join(" -> ".join(loop) for loop in loops)
 
 
+#: Libraries that a module may import inside a function (and so, any module of the package that imports one at
+#: its top, directly or through another): optional extras and what costs seconds or a compiler to load.
+HEAVY = ("numba", "llvmlite", "torch", "pygame", "imageio", "imageio_ffmpeg", "matplotlib", "ray", "rvo2", "pyrvo",
+         "stable_baselines3", "safetensors", "tensorboard", "torchrl", "tensordict", "benchmarl", "vmas")
+
+
+def _top_imports(path: Path) -> set[str]:
+    """Every name imported at the top of ``path`` (not in a function, not under ``TYPE_CHECKING``)."""
+    found: set[str] = set()
+
+    def visit(node: ast.AST) -> None:
+        for child in ast.iter_child_nodes(node):
+            if isinstance(child, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda, ast.ClassDef)):
+                if isinstance(child, ast.ClassDef):
+                    visit(child)
+                continue
+            if isinstance(child, ast.If) and "TYPE_CHECKING" in ast.unparse(child.test):
+                continue
+            if isinstance(child, ast.Import):
+                found.update(a.name for a in child.names)
+            elif isinstance(child, ast.ImportFrom) and child.level == 0 and child.module:
+                found.update(f"{child.module}.{a.name}" for a in child.names)
+            visit(child)
+
+    visit(ast.parse(path.read_text(), str(path)))
+    return found
+
+
+def test_imports_inside_functions_only_defer_heavy_modules() -> None:
+    """A module of the package imported inside a function must load a heavy library when imported (numba for the
+    kernels, pygame for the renderer, ...): anything else belongs at the top of the file, where a loop would show."""
+    modules = _modules()
+    heavy: dict[str, bool] = {}
+
+    def is_heavy(module: str, seen: tuple[str, ...] = ()) -> bool:
+        if module not in heavy:
+            if module in seen:
+                return False
+            names = _top_imports(modules[module])
+            own = _imports_of(names, modules) - {module}
+            heavy[module] = (any(n.split(".")[0] in HEAVY for n in names)
+                             or any(is_heavy(d, (*seen, module)) for d in own))
+        return heavy[module]
+
+    deferred = []
+    for module, path in modules.items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                for inner in ast.walk(node):
+                    if isinstance(inner, ast.Import):
+                        names = {a.name for a in inner.names}
+                    elif isinstance(inner, ast.ImportFrom) and inner.level == 0 and inner.module:
+                        names = {f"{inner.module}.{a.name}" for a in inner.names}
+                    else:
+                        continue
+                    for dep in _imports_of(names, modules):
+                        if dep != "swarm_env" and not is_heavy(dep):
+                            deferred.append(f"{module}:{inner.lineno} {dep}")
+    assert not deferred, "move to the top of the file: " + ", ".join(sorted(set(deferred)))
+
+
+def _imports_of(names: set[str], modules: dict[str, Path]) -> set[str]:
+    """The package's modules among imported ``names`` (a name inside a module counts as the module)."""
+    found = set()
+    for name in names:
+        while name and name not in modules:
+            name = name.rpartition(".")[0]
+        if name.startswith("swarm_env"):
+            found.add(name)
+    return found
+
+
 def test_the_package_imports_neither_the_experts_nor_the_baselines() -> None:
     """swarm_env finds the experts and the baselines through entry points (swarm_env.harness.policies)."""
     offenders = []

@@ -136,14 +136,14 @@ def test_a_video_interrupted_mid_encoding_leaves_no_file(tmp_path: Path) -> None
 
 def test_cli_run_video_killed_mid_episode_leaves_no_file(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     pytest.importorskip("imageio_ffmpeg")
-    import swarm_env.harness.evaluation as evaluation
+    import swarm_env.harness.cli as cli
 
     def dies_midway(*args: Any, on_frame: Any = None, **kwargs: Any) -> Any:
         for _ in range(3):
             on_frame(np.zeros((40, 40, 3), np.uint8))
         raise RuntimeError("the process is dying")
 
-    monkeypatch.setattr(evaluation, "evaluate", dies_midway)
+    monkeypatch.setattr(cli, "evaluate", dies_midway)
     video = tmp_path / "run.mp4"
     with pytest.raises(RuntimeError, match="dying"):
         main(["run", "--policy", "zero", "--max-cycles", "3", "--video", str(video)])

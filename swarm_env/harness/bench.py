@@ -18,6 +18,11 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.env import SwarmEnv
+from swarm_env.extras import require
+from swarm_env.outputs import save_figure
+from swarm_env.vector.engine import SwarmVectorEnv
+
 
 @dataclass(frozen=True)
 class BenchResult:
@@ -52,8 +57,6 @@ def _time_loop(env: Any, actions: list[dict[str, Any]], seed: int) -> tuple[floa
 
 
 def _swarm_case(scenario: str, steps: int, seed: int) -> tuple[Any, list[dict[str, Any]]]:
-    from swarm_env.env import SwarmEnv
-
     env = SwarmEnv(scenario)
     rng = np.random.default_rng(seed)
     raw = rng.uniform(-1.0, 1.0, size=(steps, len(env.possible_agents), 2)).astype(np.float32)
@@ -62,8 +65,6 @@ def _swarm_case(scenario: str, steps: int, seed: int) -> tuple[Any, list[dict[st
 
 
 def _mpe2_case(n_agents: int, steps: int, seed: int) -> tuple[Any, list[dict[str, Any]]]:
-    from swarm_env.extras import require
-
     simple_spread_v3 = require("mpe2.simple_spread_v3", "bench", "--vs mpe2")
     env = simple_spread_v3.parallel_env(N=n_agents, max_cycles=25)
     rng = np.random.default_rng(seed)
@@ -142,8 +143,6 @@ def _time_steps(step: Callable[[int], Any], steps: int, agent_steps_per_step: in
 
 def _swarm_batch(num_envs: int, seed: int, n_procs: int = 1,
                  worker_kernels: bool = False) -> tuple[Any, Callable[[int], Any], int]:
-    from swarm_env.vector.engine import SwarmVectorEnv
-
     venv = SwarmVectorEnv("random", num_envs, n_procs=n_procs, worker_kernels=worker_kernels, **BATCH_WORLD)
     venv.reset(seed=seed)
     rng = np.random.default_rng(seed)
@@ -152,8 +151,6 @@ def _swarm_batch(num_envs: int, seed: int, n_procs: int = 1,
 
 
 def _vmas_batch(num_envs: int, seed: int) -> tuple[Any, Callable[[int], Any], int]:
-    from swarm_env.extras import require
-
     torch = require("torch", "rl,vmas", "--vs vmas")  # VMAS runs on torch
     vmas = require("vmas", "rl,vmas", "--vs vmas")
     torch.set_num_threads(1)
@@ -220,8 +217,6 @@ def run_followers_bench(
     """Agent-steps/s of one :class:`~swarm_env.env.SwarmEnv` (``random`` worlds, 10 obstacles, 3
     humans, the generator's world size for the team) per team size, interleaved: the cost per
     follower should stay flat as the team grows."""
-    from swarm_env.env import SwarmEnv
-
     cases = []
     for n in followers:
         env = SwarmEnv("random", n_followers=n, n_obstacles=10, n_humans=3)
@@ -252,8 +247,6 @@ def plot_batched(results: list[BatchResult], path: str, *, overwrite: bool = Tru
     """Agent-steps/s against the batch size M (log-log), one line per engine: median over the
     repeats, with the repeats' range as a band (the ``plots`` extra: matplotlib). Written atomically
     (:func:`swarm_env.outputs.open_atomic`; an existing file is replaced only with ``overwrite``)."""
-    from swarm_env.extras import require
-
     require("matplotlib", "plots", "--plot").use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6.4, 4.2), dpi=120)
@@ -270,8 +263,6 @@ def plot_batched(results: list[BatchResult], path: str, *, overwrite: bool = Tru
     ax.grid(True, which="both", alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    from swarm_env.outputs import save_figure
-
     try:
         save_figure(fig, path, overwrite=overwrite)
     finally:

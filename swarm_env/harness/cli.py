@@ -25,9 +25,33 @@ from pathlib import Path
 from typing import Any
 
 import swarm_env
+from swarm_env.env import SwarmEnv
 from swarm_env.extras import MissingExtraError, extra_for_module, missing_distributions, missing_extra_error
-from swarm_env.harness.policies import TRUST_PICKLE_ENV, PolicyError, UnknownPolicyError
+from swarm_env.harness import bench, recording
+from swarm_env.harness.evaluation import evaluate
+from swarm_env.harness.leaderboard import (
+    SweepInterrupted,
+    default_seeds,
+    parse_seeds,
+    read_sweep,
+    record_worst_videos,
+    run_leaderboard,
+    validate_inputs,
+)
+from swarm_env.harness.policies import (
+    TRUST_PICKLE_ENV,
+    PolicyError,
+    UnknownPolicyError,
+    policy_extra,
+    registered_policies,
+)
+from swarm_env.harness.recording import ensure_new_recording_dir
+from swarm_env.harness.video import VideoWriter
+from swarm_env.jsonio import write_json
+from swarm_env.outputs import OutputError, check_target
 from swarm_env.scenario import ScenarioError
+from swarm_env.scenarios.generator import random_scenario
+from swarm_env.scenarios.loader import list_scenarios, load_scenario
 
 
 def _table(rows: list[list[str]], header: list[str]) -> str:
@@ -109,9 +133,6 @@ def _print_scenario_error(exc: ScenarioError) -> None:
 
 
 def cmd_list(args: argparse.Namespace) -> int:
-    from swarm_env.harness.policies import policy_extra, registered_policies
-    from swarm_env.scenarios.loader import list_scenarios, load_scenario
-
     print("scenarios:")
     for name in list_scenarios():
         if name == "random":
@@ -131,15 +152,12 @@ def cmd_list(args: argparse.Namespace) -> int:
 
 
 def cmd_validate(args: argparse.Namespace) -> int:
-    from swarm_env.scenarios.loader import load_scenario
-
     status = 0
     for spec in args.files:
         try:
             if spec == "random":  # a generator, not a file: check that its default configuration builds a world
                 import numpy as np
 
-                from swarm_env.scenarios.generator import random_scenario
 
                 scn = random_scenario(np.random.default_rng(0))
                 print(f"ok: random (the generator; seed 0 draws {scn.robots.count} followers, {len(scn.obstacles)} "
@@ -180,19 +198,13 @@ def parse_env_items(items: Iterable[str]) -> dict[str, Any]:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from swarm_env.harness.evaluation import evaluate
-
     env_kwargs: dict[str, Any] = {"action_type": args.action_type, "max_cycles": args.max_cycles}
     try:
         env_kwargs.update(parse_env_items(args.env))
-        from swarm_env.env import SwarmEnv
-
         probe = SwarmEnv(args.scenario, **env_kwargs)  # bad keyword arguments fail here, before any output
         max_frames = args.episodes * (probe.max_steps + 1)  # an episode renders at most its steps and the reset
         probe.close()
         if args.record:
-            from swarm_env.harness.recording import ensure_new_recording_dir
-
             ensure_new_recording_dir(args.record)  # a RecordError (a ValueError) before any episode
         _check_outputs(args, args.json)  # an OutputError (a ValueError) before any episode
     except ScenarioError:
@@ -208,7 +220,6 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.video:
         from tqdm.auto import tqdm
 
-        from swarm_env.harness.video import VideoWriter
 
         try:
             writer = VideoWriter(args.video, fps=args.fps, overwrite=args.overwrite)
@@ -268,9 +279,6 @@ def cmd_run(args: argparse.Namespace) -> int:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """Re-simulate recorded episodes (:mod:`swarm_env.harness.recording`); exit 1 at a divergence with ``--check``."""
-    from swarm_env.harness import recording
-    from swarm_env.harness.video import VideoWriter
-
     try:
         records = recording.load_recording(args.dir)
         # checks the suffix, --fps and the output path (OutputError) before any replay
@@ -301,8 +309,6 @@ def cmd_replay(args: argparse.Namespace) -> int:
 
 
 def cmd_bench(args: argparse.Namespace) -> int:
-    from swarm_env.harness import bench
-
     progress = (lambda msg: print(msg, file=sys.stderr)) if not args.quiet else None
     try:
         _check_outputs(args, args.json, args.plot)
@@ -336,8 +342,6 @@ def cmd_bench(args: argparse.Namespace) -> int:
 
 def _bench_batched(args: argparse.Namespace, progress: Any) -> int:
     """``bench --vs vmas`` / ``--num-envs`` / ``--followers``: agent-steps/s tables (and a plot)."""
-    from swarm_env.harness import bench
-
     if args.vs == "mpe2":
         raise SystemExit("bench: --vs mpe2 compares single envs; drop --num-envs/--followers, or use --vs vmas")
     results = []
@@ -370,16 +374,12 @@ def _bench_batched(args: argparse.Namespace, progress: Any) -> int:
 def _check_outputs(args: argparse.Namespace, *paths: str | None) -> None:
     """Refuse (``OutputError``, a ``ValueError``) an output file that the command could not write safely
     (:func:`swarm_env.outputs.check_target`): checked before any work, and again when it is written."""
-    from swarm_env.outputs import check_target
-
     for path in paths:
         if path:
             check_target(path, overwrite=args.overwrite)
 
 
 def _write_json(path: str, doc: Any, overwrite: bool) -> None:
-    from swarm_env.jsonio import write_json
-
     write_json(path, doc, overwrite=overwrite)  # strict JSON (a non-finite metric as null), atomic, no symlink followed
     print(f"wrote {path}")
 
@@ -389,18 +389,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     Exit codes: 0 done, 2 a bad input (one line), 130 Ctrl-C (the finished episodes are written to
     ``--out``, and ``--resume DIR`` finishes the sweep)."""
-    from swarm_env.harness.leaderboard import (
-        SweepInterrupted,
-        default_seeds,
-        parse_seeds,
-        read_sweep,
-        record_worst_videos,
-        run_leaderboard,
-        validate_inputs,
-    )
-    from swarm_env.outputs import OutputError
-    from swarm_env.scenarios.loader import list_scenarios
-
     try:
         if args.resume and args.out and Path(args.out) != Path(args.resume):
             raise ValueError("--resume DIR writes to DIR: drop --out, or give the same directory")

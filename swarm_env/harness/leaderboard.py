@@ -73,6 +73,7 @@ import numpy as np
 
 from swarm_env._compat import add_note
 from swarm_env.env import SwarmEnv, env_kwargs_for
+from swarm_env.extras import require
 from swarm_env.harness.evaluation import mean_ci95_t, summarize
 from swarm_env.harness.policies import (
     TRUST_PICKLE_ENV,
@@ -86,7 +87,9 @@ from swarm_env.harness.policies import (
     training_runs,
 )
 from swarm_env.harness.recording import EpisodeRecord, load_episode, record_episode, replay, save_episode
-from swarm_env.jsonio import dumps
+from swarm_env.harness.video import VideoWriter
+from swarm_env.jsonio import dumps, write_json
+from swarm_env.outputs import OutputError, append_line, atomic_write_bytes, atomic_write_text, ensure_dir
 from swarm_env.scenarios.loader import RANDOM_NAME
 
 #: Seeds of a fixed scenario when none are given (deterministic up to the policy's own randomness).
@@ -341,8 +344,6 @@ class _Sweep:
 
     def _stream(self, entry: dict[str, Any]) -> None:
         if self.out is not None:
-            from swarm_env.outputs import append_line
-
             append_line(self.out / EPISODES_FILE, dumps(entry, indent=None), root=self.out)
 
     def episode(self, job: _Job, seed: int, metrics: dict[str, Any], rec: EpisodeRecord | None) -> None:
@@ -405,8 +406,6 @@ class _Sweep:
                 self.failed[key + (int(entry["seed"]),)] = entry
             good_until += len(raw) + (1 if i < len(lines) - 1 else 0)
         if good_until < len(data):
-            from swarm_env.outputs import atomic_write_bytes
-
             atomic_write_bytes(path, data[:good_until], root=path.parent)
 
 
@@ -438,8 +437,6 @@ def read_sweep(directory: str | os.PathLike[str]) -> dict[str, Any]:
 def _prepare_out(out: Path, spec: dict[str, Any], resume: bool, overwrite: bool) -> None:
     """Make ``out`` ready for streaming: a new sweep (refusing old results unless ``overwrite``) or, with
     ``resume``, the same sweep as the one stored there."""
-    from swarm_env.outputs import OutputError, atomic_write_bytes, ensure_dir
-
     if resume:
         stored = read_sweep(out)
         for key in ("policies", "scenarios", "seeds", "env_kwargs"):
@@ -453,8 +450,6 @@ def _prepare_out(out: Path, spec: dict[str, Any], resume: bool, overwrite: bool)
         raise OutputError(f"{out}: holds results ({', '.join(found)}); pass --overwrite to start again "
                           f"or --resume {out} to finish that sweep")
     atomic_write_bytes(out / EPISODES_FILE, b"", root=out)  # a new sweep starts from no episodes
-    from swarm_env.jsonio import write_json
-
     write_json(out / SWEEP_FILE, spec, indent=1, root=out)
 
 
@@ -652,8 +647,6 @@ def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep
     # at most one task per job at a time, as the pool does. The episodes come back through one
     # ray.util.queue.Queue (an actor) as they end rather than as a streaming generator's items, because Ray
     # Client (--ray-address ray://...) does not support streaming generators (ray-project/ray#43357).
-    from swarm_env.extras import require
-
     ray = require("ray", "ray", "--backend ray")
     started = not ray.is_initialized()
     if started:
@@ -1112,7 +1105,6 @@ class Leaderboard:
         (:func:`swarm_env.outputs.atomic_write_text`, whose ``overwrite`` and ``root`` rules apply)."""
         import io
 
-        from swarm_env.outputs import atomic_write_text
 
         rows = self.csv_rows()
         buf = io.StringIO(newline="")
@@ -1138,15 +1130,11 @@ class Leaderboard:
                 root: str | os.PathLike[str] | None = None) -> Path:
         """Write everything: inputs, rows with their summaries, every episode's metrics (and the failed
         episodes, if any), atomically (:func:`swarm_env.outputs.atomic_write_text`)."""
-        from swarm_env.outputs import atomic_write_text
-
         return atomic_write_text(path, dumps(self.to_dict(), indent=1), overwrite=overwrite, root=root)
 
     def write(self, out_dir: str | os.PathLike[str], *, overwrite: bool = True) -> list[Path]:
         """Write ``leaderboard.md``, ``.csv`` and ``.json`` into ``out_dir`` (created if missing), each
         atomically and never outside ``out_dir`` (:mod:`swarm_env.outputs`); returns their paths."""
-        from swarm_env.outputs import atomic_write_text, ensure_dir
-
         out = ensure_dir(out_dir)
         return [atomic_write_text(out / "leaderboard.md", self.to_markdown(), overwrite=overwrite, root=out),
                 self.to_csv(out / "leaderboard.csv", overwrite=overwrite, root=out),
@@ -1222,8 +1210,6 @@ def record_worst_videos(
     """
     from tqdm.auto import tqdm
 
-    from swarm_env.harness.video import VideoWriter
-    from swarm_env.outputs import ensure_dir
 
     out = ensure_dir(out_dir, root=root)
     if records_dir is not None:

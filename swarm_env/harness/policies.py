@@ -40,6 +40,14 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 import numpy as np
 
 from swarm_env.control.guidance import pure_pursuit
+from swarm_env.control.safety import AvoidanceParams, shield_actions
+from swarm_env.extras import (
+    DISTRIBUTION,
+    MissingExtraError,
+    extra_for_module,
+    missing_distributions,
+    missing_extra_error,
+)
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -260,8 +268,6 @@ class ShieldedPolicy:
     """
 
     def __init__(self, env: SwarmEnv, arg: str | None = None) -> None:
-        from swarm_env.control.safety import AvoidanceParams
-
         if not arg:
             raise ValueError("policy 'shield' wraps another policy: write shield:SPEC, e.g. shield:pursuit")
         if env.action_type != "continuous":
@@ -273,8 +279,6 @@ class ShieldedPolicy:
     @classmethod
     def around(cls, inner: Any) -> ShieldedPolicy:
         """The shield around a policy object (e.g. a model being trained) instead of a spec."""
-        from swarm_env.control.safety import AvoidanceParams
-
         self = cls.__new__(cls)
         self.inner = inner if isinstance(inner, Policy) else PredictPolicy(inner)
         self.params = AvoidanceParams(w_heading=0.0)
@@ -292,8 +296,6 @@ class ShieldedPolicy:
         self._reset_stats()
 
     def act(self, observations: dict[str, np.ndarray], state: WorldState) -> dict[str, Any]:
-        from swarm_env.control.safety import shield_actions
-
         actions = self.inner.act(observations, state)
         n = state.n_followers
         wanted = np.zeros((n, 2))
@@ -342,8 +344,6 @@ def policy_extra(name: str) -> tuple[str, str] | None:
     """``(distribution, extras)``: the optional extra that the registered policy ``name`` needs, as its
     entry point declares it (``ppo = "pkg.module:factory [rl]"`` in ``swarm-env``'s pyproject.toml ->
     ``("swarm-env", "rl")``; several extras joined by commas), or ``None``."""
-    from swarm_env.extras import DISTRIBUTION
-
     for ep in entry_points(group=ENTRY_POINT_GROUP, name=name):
         if not ep.extras:
             return None
@@ -356,8 +356,6 @@ def _missing_extra(name: str, exc: ImportError) -> Exception:
     the extra its entry point declares if that one is not (fully) installed, else swarm-env's extra that
     installs the missing module; ``exc`` itself otherwise (an import error with every extra in place is a
     bug, not a missing extra, and keeps its traceback)."""
-    from swarm_env.extras import extra_for_module, missing_distributions, missing_extra_error
-
     declared = policy_extra(name)
     if declared and missing_distributions(declared[1], declared[0]):
         return missing_extra_error(declared[1], f"policy {name!r}", str(exc), declared[0])
@@ -431,8 +429,6 @@ def acts_on(spec: str) -> str:
     (its ``acts_on`` attribute) or is not installed. ``shield:SPEC`` and a policy executed through
     the safety layer read the state (the shield does) and say so: ``"observations + shield"``.
     """
-    from swarm_env.extras import MissingExtraError
-
     name, _, arg = spec.partition(":")
     try:
         factory = _factory(name)

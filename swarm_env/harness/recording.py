@@ -61,8 +61,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pymunk
 import yaml
 
+from swarm_env import __version__
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import Policy
@@ -191,10 +193,6 @@ def state_digest(state: WorldState) -> bytes:
 
 
 def _platform() -> dict[str, str]:
-    import pymunk
-
-    from swarm_env import __version__
-
     return {"swarm_env": __version__, "python": platform.python_version(), "numpy": np.__version__,
             "pymunk": str(pymunk.version), "system": platform.system(), "machine": platform.machine()}
 

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.outputs import check_target, open_atomic, temp_path
+
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
 
@@ -59,8 +61,6 @@ class VideoWriter:
 
     def __init__(self, path: str | os.PathLike[str], fps: float, *, quality: float = 8.0, overwrite: bool = True,
                  root: str | os.PathLike[str] | None = None) -> None:
-        from swarm_env.outputs import check_target
-
         self.path = Path(path)
         suffix = self.path.suffix.lower()
         if suffix not in VIDEO_SUFFIXES:
@@ -110,8 +110,6 @@ class VideoWriter:
     def _temp_path(self) -> Path:
         """The hidden file the encoder writes (same directory and suffix as :attr:`path`)."""
         if self._tmp is None:
-            from swarm_env.outputs import temp_path
-
             self._tmp = temp_path(self.path)
         return self._tmp
 
@@ -121,8 +119,6 @@ class VideoWriter:
         if self._closed:
             return
         self._closed = True
-        from swarm_env.outputs import check_target
-
         try:
             if self._writer is not None:
                 self._writer.close()
@@ -175,7 +171,6 @@ def save_frame_png(path: str | os.PathLike[str], frame: np.ndarray, *, overwrite
     """Write one ``(H, W, 3)`` uint8 frame as a PNG file (atomically, :func:`swarm_env.outputs.open_atomic`)."""
     import imageio.v3 as iio3  # noqa: PLC0415
 
-    from swarm_env.outputs import open_atomic
 
     with open_atomic(path, overwrite=overwrite) as tmp:
         iio3.imwrite(tmp, _as_rgb(frame), extension=".png")

@@ -36,6 +36,8 @@ import numba
 from numba import types
 from numba.extending import intrinsic
 
+from swarm_env.sim.bodies import robot_body, velocity_callback
+
 _STATE: dict[str, Any] = {}  # "ok": whether the compiled callback passed its checks here
 
 
@@ -167,7 +169,6 @@ def _self_test() -> bool:
     import numpy as np
     import pymunk
 
-    from swarm_env.sim.bodies import robot_body, velocity_callback
 
     def make() -> tuple[pymunk.Space, list[pymunk.Body]]:
         space = pymunk.Space()

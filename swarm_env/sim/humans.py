@@ -32,6 +32,7 @@ import numpy as np
 from swarm_env.geometry.paths import PolylinePath
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import REACTIVE_SPEED_FACTOR, HumanSpec
+from swarm_env.sim.rvo import simulator
 
 #: Relaxation time of the goal force (s), interaction strength (m/s^2) and range (m), after
 #: Helbing & Molnar's pedestrian values scaled to a unit mass.
@@ -137,8 +138,6 @@ class ORCACrowd:
 
     def __init__(self, static: StaticMap, dt: float, human_radius: np.ndarray, human_speed: np.ndarray,
                  robot_radius: np.ndarray) -> None:
-        from swarm_env.sim.rvo import simulator
-
         self.sim = simulator(static, dt, self.NEIGHBOR_DIST, self.MAX_NEIGHBORS, self.HORIZON, self.HORIZON_STATIC,
                              0.3, 1.0, "humans with behavior: orca")
         for r, v in zip(human_radius.tolist(), human_speed.tolist()):

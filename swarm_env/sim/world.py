@@ -43,6 +43,7 @@ from swarm_env.geometry.paths import PolylinePath, human_paths, human_states, vi
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import Scenario
 from swarm_env.sim.bodies import CP_LIB, install_python_callback, robot_body, set_body_position, set_body_velocity
+from swarm_env.sim.humans import ORCACrowd, WaypointWalker, preferred_velocities, social_force_velocities
 from swarm_env.state import LEADER_ID, Contact, WorldState
 
 # Collision types (pymunk collision_type of each shape).
@@ -399,8 +400,6 @@ class World:
         self._reactive = np.array([j for j, h in enumerate(scenario.humans) if h.behavior != "scripted"], dtype=np.intp)
         self._walker = None
         if len(self._reactive):
-            from swarm_env.sim.humans import WaypointWalker
-
             self._walker = WaypointWalker([scenario.humans[j] for j in self._reactive],
                                           [self._human_paths[j] for j in self._reactive])
         self._crowd: Any = None  # swarm_env.sim.humans.ORCACrowd, built at the first step of ``orca`` humans
@@ -670,8 +669,6 @@ class World:
 
     def _reactive_velocities(self) -> np.ndarray:
         """The reactive humans' velocities for the coming control step (:mod:`swarm_env.sim.humans`)."""
-        from swarm_env.sim.humans import ORCACrowd, preferred_velocities, social_force_velocities
-
         idx = self._reactive
         assert self._walker is not None
         pos = self._human_pos[idx]

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm_env.env import _INFO_KEYS
 from swarm_env.geometry.static_map import _FAST_MAX_POINTS, _SCREEN_MARGIN, StaticMap
 from swarm_env.scoring.metrics import _LIPSCHITZ_SLACK
 from swarm_env.scoring.rewards import (
@@ -470,8 +471,6 @@ class BatchState:
         """``(terminated, truncated, infos)`` as ``SwarmEnv._advance`` decides them, and the end of an
         episode recorded in the worlds that finished (``SwarmEnv._close_step``). ``drawn``: the worlds
         that have a renderer, ascending (``None``: looked up here)."""
-        from swarm_env.env import _INFO_KEYS
-
         m, n = self.m, self.n
         touched = touching.reshape(m, -1).any(axis=1)
         collided = self.on_collision & touched

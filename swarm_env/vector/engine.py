@@ -77,7 +77,7 @@ from swarm_env.compiled import compiled_kernels
 from swarm_env.env import _INFO_KEYS, StepOutcome, SwarmEnv, clip_to_action_space, info_columns, primitive_table
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scoring.rewards import CONTACT_GROUPS, REWARD_TERMS
-from swarm_env.sensing.observations import lidar_input
+from swarm_env.sensing.observations import ObservationBuilder, lidar_input
 from swarm_env.state import WorldState
 from swarm_env.vector.batch_step import BatchState
 from swarm_env.vector.scenario_prefetch import ScenarioPrefetcher
@@ -589,8 +589,6 @@ class SwarmVectorEnv:
             if not same or not np.array_equal(d["primitives"], first["primitives"]):
                 self.close()
                 raise ValueError("the worlds differ in action type, sensors, shield or turn rate")
-        from swarm_env.sensing.observations import ObservationBuilder
-
         self.num_envs = m
         self.n_procs = int(n_procs)
         self.possible_agents = list(agents[0])

@@ -18,15 +18,14 @@ import sys
 import traceback
 from typing import Any
 
+from swarm_env.compiled import use_compiled_kernels
+from swarm_env.control import guidance
+from swarm_env.vector.engine import _WorldBlock
 from swarm_env.worker_process import connect
 
 
 def serve(address: str, compiled: bool = False) -> None:
     """Serve one block of worlds; ``compiled``: run the compiled kernels and search (loads numba)."""
-    from swarm_env.compiled import use_compiled_kernels
-    from swarm_env.control import guidance
-    from swarm_env.vector.engine import _WorldBlock
-
     guidance.use_compiled_search(compiled)
     use_compiled_kernels(compiled)
 
