@@ -33,9 +33,11 @@ os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 import numpy as np  # noqa: E402
 
 from swarm_env.env import SwarmEnv  # noqa: E402
+from swarm_env.geometry.static_map import rotate_rectangle
 from swarm_env.harness.episode import run_episode  # noqa: E402
 from swarm_env.harness.evaluation import mean_ci95
 from swarm_env.harness.policies import load_policy  # noqa: E402
+from swarm_env.harness.video import VideoWriter
 from swarm_env.jsonio import write_json  # noqa: E402
 from swarm_env.outputs import atomic_write_text, save_figure
 from swarm_env.state import WorldState  # noqa: E402
@@ -143,8 +145,6 @@ def _draw_scene(ax: Any, scn: Any) -> None:
         if hasattr(o, "radius") and hasattr(o, "center") and not hasattr(o, "size"):
             ax.add_patch(Circle(o.center, o.radius, color="0.55", zorder=1))
         else:
-            from swarm_env.geometry.static_map import rotate_rectangle
-
             pts = rotate_rectangle(o.center, o.size, o.angle) if hasattr(o, "size") else np.asarray(o.points)
             ax.add_patch(Polygon(pts, closed=True, color="0.55", zorder=1))
 
@@ -307,8 +307,6 @@ def contacts_of(seed: int, knobs: dict[str, Any], expert_kwargs: dict[str, Any] 
 
 def save_video(seed: int, knobs: dict[str, Any], path: Path, expert_kwargs: dict[str, Any] | None = None) -> None:
     """Replay an episode with rendering and write it as an mp4 (the same episode: all is seeded)."""
-    from swarm_env.harness.video import VideoWriter
-
     env = SwarmEnv("random", render_mode="rgb_array", team_seed=seed, **knobs)
     policy = VOExpert(**(expert_kwargs or {}))
     path.parent.mkdir(parents=True, exist_ok=True)

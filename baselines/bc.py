@@ -83,9 +83,15 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm_env.env import SwarmEnv
+from swarm_env.harness.episode import run_episode
+from swarm_env.harness.evaluation import summarize
+from swarm_env.harness.policies import PolicyError, UnknownPolicyError, load_policy
 from swarm_env.jsonio import write_json
 from swarm_env_baselines.config import NET_ARCH, add_dataclass_options, parse_seeds, policy_kwargs
-from swarm_env_baselines.demos import Demos, generate_demos, load_demos
+from swarm_env_baselines.demos import Demos, _stack, append_step, episode_arrays, generate_demos, load_demos
+from swarm_env_baselines.model_io import SB3Policy, save_model
+from swarm_env_baselines.options import package_versions
 
 if TYPE_CHECKING:
     import torch
@@ -369,10 +375,6 @@ def dagger_rollouts(
     """
     from tqdm.auto import tqdm
 
-    from swarm_env.env import SwarmEnv
-    from swarm_env.harness.policies import load_policy
-    from swarm_env_baselines.demos import _stack, append_step, episode_arrays
-    from swarm_env_baselines.model_io import SB3Policy
 
     rng = rng if rng is not None else np.random.default_rng(0)
     env = SwarmEnv(scenario, **dict(env_kwargs or {}))
@@ -415,10 +417,6 @@ def evaluate_model(
     """:func:`swarm_env.harness.evaluation.summarize` of the deterministic policy on ``seeds`` (one evaluation path)."""
     from tqdm.auto import tqdm
 
-    from swarm_env.env import SwarmEnv
-    from swarm_env.harness.episode import run_episode
-    from swarm_env.harness.evaluation import summarize
-    from swarm_env_baselines.model_io import SB3Policy
 
     env = SwarmEnv(scenario, **dict(env_kwargs or {}))
     try:
@@ -490,7 +488,6 @@ def train_bc(cfg: BCConfig) -> Path:
     import torch
     from tqdm.auto import tqdm
 
-    from swarm_env_baselines.model_io import save_model
 
     torch.set_num_threads(cfg.torch_threads)
     out = Path(cfg.out)
@@ -569,8 +566,6 @@ def train_bc(cfg: BCConfig) -> Path:
         _write_csv(out / "eval.csv", EVAL_COLUMNS, eval_rows)
     plot_bc_curve(log_rows, out / "learning_curve.png", title=f"BC of {cfg.expert} on {cfg.scenario} (seed {cfg.seed})")
     try:
-        from swarm_env_baselines.options import package_versions
-
         versions: dict[str, Any] = package_versions()
     except ImportError:  # the training module is optional for BC
         versions = {}
@@ -611,8 +606,6 @@ def config_from_args(argv: list[str] | None = None) -> BCConfig:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env.harness.policies import PolicyError, UnknownPolicyError
-
     try:
         cfg = config_from_args(argv)
         out = train_bc(cfg)

@@ -24,6 +24,7 @@ from swarm_env.env import SwarmEnv
 from swarm_env.harness.episode import run_episode
 from swarm_env.harness.evaluation import summarize
 from swarm_env.harness.policies import ShieldedPolicy
+from swarm_env_baselines.checkpointing import truncate_csv
 from swarm_env_baselines.model_io import SB3Policy, save_model
 
 #: Model selection score = formation error (m) + this many metres per collision (lower is better).
@@ -148,8 +149,6 @@ class EvalCallback(BaseCallback):
             self._resume_history()
 
     def _resume_history(self) -> None:
-        from swarm_env_baselines.checkpointing import truncate_csv
-
         with open(self._csv, newline="") as fh:
             rows = [r for r in csv.DictReader(fh) if int(r["agent_steps"]) <= self.num_timesteps]
         truncate_csv(self._csv, len(rows))

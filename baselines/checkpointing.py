@@ -27,7 +27,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from swarm_env.jsonio import dumps
+from swarm_env.jsonio import dumps, write_json
 
 STATE_TENSORS = "state.safetensors"
 #: A run directory's resumable checkpoint (the latest only).
@@ -164,7 +164,6 @@ def start_run_dir(cfg: Any, default_name: str, train_columns: tuple[str, ...], e
     time stamp): ``config.json``, ``versions.json`` and the CSV logs' headers. ``FileExistsError`` if it holds a run."""
     import time
 
-    from swarm_env.jsonio import write_json
     from swarm_env_baselines.options import package_versions
     from swarm_env_baselines.run_log import RunLog
 

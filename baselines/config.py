@@ -26,6 +26,7 @@ from typing import Any
 
 from swarm_env.harness.leaderboard import parse_seeds
 from swarm_env.jsonio import dumps
+from swarm_env_baselines.model_io import algorithm_class
 from swarm_env_baselines.options import add_dataclass_options, field_help, int_arg
 
 __all__ = ["NET_ARCH", "TrainConfig", "add_dataclass_options", "field_help", "int_arg", "parse_seeds", "policy_kwargs"]
@@ -112,8 +113,6 @@ class TrainConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        from swarm_env_baselines.model_io import algorithm_class
-
         algorithm_class(self.algo)  # raises on an unknown name
         if self.action_type not in ("continuous", "discrete"):
             raise ValueError(f"action_type must be 'continuous' or 'discrete', got {self.action_type!r}")

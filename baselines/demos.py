@@ -65,7 +65,12 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.env import SwarmEnv
+from swarm_env.harness.cli import parse_env_items
+from swarm_env.harness.evaluation import summarize
+from swarm_env.harness.policies import PolicyError, UnknownPolicyError, load_policy, policy_defaults
 from swarm_env.jsonio import write_json
+from swarm_env_baselines.config import parse_seeds
 
 #: Version of the on-disk layout; part of the cache key.
 FORMAT_VERSION = 1
@@ -167,9 +172,6 @@ def _record_episode(expert: str, scenario: str, env_kwargs: dict[str, Any], seed
 
     A module-level function so a process pool can pickle it.
     """
-    from swarm_env.env import SwarmEnv
-    from swarm_env.harness.policies import load_policy
-
     env = SwarmEnv(scenario, **env_kwargs)
     try:
         policy = load_policy(expert, env)
@@ -260,8 +262,6 @@ def demo_request(expert: str, scenario: str, seeds: Sequence[int], env_kwargs: d
     """The metadata that identifies a demonstration set (its hash is the cache key): the request, the
     expert's default parameters (:func:`swarm_env.harness.policies.policy_defaults`) and the versions."""
     from swarm_env import __version__
-    from swarm_env.harness.policies import policy_defaults
-
     return _jsonable(
         {
             "format": FORMAT_VERSION,
@@ -311,8 +311,6 @@ def generate_demos(
     written to a temporary name and renamed, the ``.json`` last, so an
     interrupted run never leaves a file that looks complete.
     """
-    from swarm_env.harness.evaluation import summarize
-
     request = demo_request(expert, scenario, seeds, env_kwargs)
     path = demo_path(expert, scenario, seeds, env_kwargs=env_kwargs, cache_dir=cache_dir)
     meta_path = path.with_suffix(".json")
@@ -387,10 +385,6 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env.harness.cli import parse_env_items
-    from swarm_env.harness.policies import PolicyError, UnknownPolicyError
-    from swarm_env_baselines.config import parse_seeds
-
     args = build_parser().parse_args(argv)
     try:
         seeds = parse_seeds(args.seeds)

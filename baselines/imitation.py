@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.harness.policies import load_policy
 from swarm_env_baselines.ppo_core import RunningMeanStd
 
 
@@ -97,7 +98,6 @@ def dagger(env: Any, actor: Any, obs_rms: RunningMeanStd, settings: DaggerSettin
     """
     import torch
 
-    from swarm_env.harness.policies import load_policy
 
     expert = load_policy(settings.expert, env)
 

@@ -86,8 +86,25 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.control.safety import AvoidanceParams, shield_actions
+from swarm_env.env import SwarmEnv
+from swarm_env.harness.leaderboard import parse_seeds
+from swarm_env.harness.policies import load_policy
 from swarm_env.jsonio import dumps
-from swarm_env_baselines.checkpointing import CHECKPOINT_DIR
+from swarm_env.vector.engine import EnvFactory
+from swarm_env_baselines.checkpointing import (
+    CHECKPOINT_DIR,
+    StopRequest,
+    TrainingInterrupted,
+    csv_rows,
+    optimizer_from_files,
+    optimizer_to_files,
+    resume_run_dir,
+    start_run_dir,
+    truncate_csv,
+    write_checkpoint,
+)
+from swarm_env_baselines.imitation import DaggerSettings, dagger
 from swarm_env_baselines.mappo_learner import (
     LEARNER_SEED_OFFSET,
     Batch,
@@ -97,9 +114,18 @@ from swarm_env_baselines.mappo_learner import (
     make_optimizer,
     ppo_update,
 )
-from swarm_env_baselines.mappo_policy import MAPPOPolicy, ResidualPolicy, residual_action, save_run_policy
+from swarm_env_baselines.mappo_policy import (
+    MAPPOPolicy,
+    ResidualPolicy,
+    load_run_policy,
+    residual_action,
+    save_run_policy,
+)
+from swarm_env_baselines.options import trainer_main, trainer_parser
 from swarm_env_baselines.ppo_core import RunningMeanStd
-from swarm_env_baselines.validation import EVAL_COLUMNS
+from swarm_env_baselines.run_log import RunLog, episode_stats, finish_run
+from swarm_env_baselines.validation import EVAL_COLUMNS, Validation, evaluate_policy
+from swarm_env_baselines.worlds import TrainingWorlds
 
 TRAIN_COLUMNS = ("agent_steps", "wall_s", "rollout_s", "update_s", "agent_steps_per_s", "policy_loss", "value_loss",
                  "imitation_loss", "entropy", "approx_kl", "clip_fraction", "explained_variance", "std", "mean_reward",
@@ -258,8 +284,6 @@ class MAPPOConfig:
 
 
 def _world_factory(cfg: MAPPOConfig, shielded: bool) -> Any:
-    from swarm_env.vector.engine import EnvFactory
-
     return EnvFactory(cfg.scenario, {**cfg.env_kwargs, **cfg.train_env_kwargs}, shielded)
 
 
@@ -272,16 +296,12 @@ def make_env(cfg: MAPPOConfig, shielded: bool) -> Any:
 def make_worlds(cfg: MAPPOConfig) -> Any:
     """The training worlds: :class:`~swarm_env_baselines.worlds.TrainingWorlds` of ``n_copies`` :func:`make_env`
     worlds (shielded for ``shield="execute"``), their physics in ``env_procs`` processes (1: this one)."""
-    from swarm_env_baselines.worlds import TrainingWorlds
-
     return TrainingWorlds(_world_factory(cfg, cfg.shield == "execute"), cfg.n_copies, cfg.env_procs, cfg.prefetch_worlds)
 
 
 def evaluate(policy: MAPPOPolicy, cfg: MAPPOConfig, seeds: list[int]) -> dict[str, Any]:
     """Score ``policy`` on ``seeds`` (:func:`swarm_env_baselines.validation.evaluate_policy`) in the run's
     validation worlds (``env_kwargs``), through the shield when the run executes through it."""
-    from swarm_env_baselines.validation import evaluate_policy
-
     return evaluate_policy(policy, cfg.scenario, cfg.env_kwargs, seeds, shielded=cfg.shield == "execute")
 
 
@@ -290,8 +310,6 @@ def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str,
     float32 weights and statistics as the live actor, so the same result bit for bit)."""
     import torch
 
-    from swarm_env.env import SwarmEnv
-    from swarm_env_baselines.mappo_policy import load_run_policy
 
     torch.set_num_threads(1)
     cfg = MAPPOConfig(**json.loads(cfg_json))
@@ -336,14 +354,10 @@ class Trainer:
         self.ret_rms = RunningMeanStd(())
         self.experts: list[Any] = []
         if cfg.residual:
-            from swarm_env.harness.policies import load_policy
-
             # One expert per world, given that world's env (the engine runs its worlds in this process).
             self.experts = [load_policy(cfg.residual, e) for e in self._world_envs()]
         self.shield_params: Any = None
         if cfg.shield == "teach":
-            from swarm_env.control.safety import AvoidanceParams
-
             # The SafetyShield wrapper's defaults, plus the optional consistency terms of a teacher.
             self.shield_params = AvoidanceParams(w_heading=0.0, w_current=cfg.teach_w_current,
                                                  side_bias=cfg.teach_side_bias)
@@ -364,8 +378,6 @@ class Trainer:
     # ---------------------------------------------------------------- warm start
     def pretrain(self) -> None:
         """DAgger from ``cfg.pretrain`` (worlds 10000 + 1000 * seed on), then fixed observation statistics."""
-        from swarm_env_baselines.imitation import DaggerSettings, dagger
-
         cfg = self.cfg
         settings = DaggerSettings(expert=cfg.pretrain, rounds=cfg.pretrain_rounds, episodes=cfg.pretrain_episodes,
                                   epochs=cfg.pretrain_epochs, first_seed=10_000 + 1000 * cfg.seed)
@@ -466,8 +478,6 @@ class Trainer:
         cfg = self.cfg
         correction = None
         if cfg.shield == "teach":  # the safe action nearest to each sampled one, in the state it was sampled in
-            from swarm_env.control.safety import shield_actions
-
             corrections = []
             for k, state in enumerate(self.venv.call("world_state")):
                 res = shield_actions(state, action[k], self.shield_params)
@@ -537,8 +547,6 @@ class Trainer:
 
         actor = self.actor if self.device.type == "cpu" else copy.deepcopy(self.actor).cpu()
         if self.cfg.residual:
-            from swarm_env.harness.policies import load_policy
-
             expert = load_policy(self.cfg.residual, self._world_envs([0])[0])
             return ResidualPolicy(actor, self.obs_rms.copy(), expert, self.cfg.residual_scale)
         return MAPPOPolicy(actor, self.obs_rms.copy())
@@ -553,7 +561,6 @@ class Trainer:
         optimizer, the statistics, the torch generators, and how each copy's episode began and went so far."""
         import torch
 
-        from swarm_env_baselines.checkpointing import optimizer_to_files
 
         tensors: dict[str, Any] = {f"actor.{k}": v for k, v in self.actor.state_dict().items()}
         tensors.update({f"critic.{k}": v for k, v in self.critic.state_dict().items()})
@@ -585,7 +592,6 @@ class Trainer:
         """
         import torch
 
-        from swarm_env_baselines.checkpointing import optimizer_from_files
 
         try:
             self.actor.load_state_dict({k[6:]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
@@ -695,8 +701,6 @@ def train(cfg: MAPPOConfig) -> Path:
     :class:`~swarm_env_baselines.checkpointing.TrainingInterrupted`; :func:`resume` goes on from there.
     Raises ``FileExistsError`` if the run directory already holds a run.
     """
-    from swarm_env_baselines.checkpointing import start_run_dir
-
     run_dir = start_run_dir(cfg, f"{cfg.kind}_{Path(cfg.scenario).stem}_s{cfg.seed}", TRAIN_COLUMNS, EVAL_COLUMNS)
     return _run(cfg, run_dir, None)
 
@@ -711,8 +715,6 @@ def resume(run_dir: str | Path, **overrides: Any) -> Path:
     larger ``total_steps`` trains a finished run further; it is written to ``config.json``).
     Raises ``FileNotFoundError`` / ``ValueError`` naming the file for a missing or bad checkpoint.
     """
-    from swarm_env_baselines.checkpointing import resume_run_dir
-
     cfg, state = resume_run_dir(run_dir, overrides, RESUME_OVERRIDES, MAPPOConfig, CHECKPOINT_FORMAT)
     # The checkpoint says where its updates ran (runs from before the learner process have no such key).
     cfg = dataclasses.replace(cfg, learner_process=state[1].get("learner") == "process")
@@ -721,8 +723,6 @@ def resume(run_dir: str | Path, **overrides: Any) -> Path:
 
 def _run(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None) -> Path:
     """The training loop of :func:`train` (``checkpoint`` None: from the start) and :func:`resume`."""
-    from swarm_env_baselines.checkpointing import StopRequest
-
     with StopRequest() as stop:
         return _train_loop(cfg, run_dir, checkpoint, stop)
 
@@ -731,10 +731,6 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
                 stop: Any) -> Path:
     from tqdm import tqdm
 
-    from swarm_env.harness.leaderboard import parse_seeds
-    from swarm_env_baselines.checkpointing import TrainingInterrupted, csv_rows, truncate_csv, write_checkpoint
-    from swarm_env_baselines.run_log import RunLog, episode_stats, finish_run
-    from swarm_env_baselines.validation import Validation
 
     # --- the trainer, its optimiser, and the budget in PPO updates
     eval_seeds = parse_seeds(cfg.eval_seeds)
@@ -888,14 +884,10 @@ def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from swarm_env_baselines.options import trainer_parser
-
     return trainer_parser("swarm-env train mappo", __doc__, MAPPOConfig, RESUME_OVERRIDES)
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env_baselines.options import trainer_main
-
     return trainer_main(build_parser(), argv, MAPPOConfig, train, resume)
 
 

@@ -26,6 +26,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from swarm_env.worker_process import connect, start_worker
 from swarm_env_baselines.ppo_core import explained_variance, gae, mlp, ppo_policy_loss, ratio_stats
 
 __all__ = ["Batch", "Networks", "ProcessLearner", "UpdateConfig", "build_networks", "ppo_update"]
@@ -266,8 +267,6 @@ class ProcessLearner:
     """
 
     def __init__(self, cfg: Any, nets: Networks, optim: Any, gen_state: Any) -> None:
-        from swarm_env.worker_process import start_worker
-
         self._proc, self._conn = start_worker("swarm_env_baselines.mappo_learner")
         self._nets = nets
         self._optim = optim
@@ -400,8 +399,6 @@ def _state_dim(tensors: dict[str, np.ndarray]) -> int:
 
 def main(argv: list[str] | None = None) -> int:
     """``python -m swarm_env_baselines.mappo_learner ADDRESS`` (started by :class:`ProcessLearner`)."""
-    from swarm_env.worker_process import connect
-
     args = sys.argv[1:] if argv is None else argv
     conn = connect(args[0])
     try:

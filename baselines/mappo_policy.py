@@ -31,7 +31,15 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env.harness.policies import OBSERVATIONS, STATE
+from swarm_env.harness.policies import (
+    OBSERVATIONS,
+    STATE,
+    ModelFileError,
+    PolicyError,
+    ShieldedPolicy,
+    UnknownPolicyError,
+    load_policy,
+)
 from swarm_env.jsonio import write_json
 from swarm_env.state import WorldState
 from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
@@ -59,8 +67,6 @@ class MAPPOPolicy:
         self.name = name
 
     def reset(self, env: Any, seed: int | None) -> None:
-        from swarm_env.harness.policies import PolicyError
-
         base = env.unwrapped
         have = base.observation_space(base.possible_agents[0]).shape[0] + self.extra_inputs
         want = self.obs_rms.mean.shape[0]
@@ -225,8 +231,6 @@ def directory_entry_point(label: str, loader: Callable[..., MAPPOPolicy], usage:
     naming the spec; the policy acts on observations only."""
 
     def factory(env: Any, arg: str | None = None) -> MAPPOPolicy:
-        from swarm_env.harness.policies import ModelFileError, PolicyError
-
         if not arg:
             raise PolicyError(usage)
         try:
@@ -258,8 +262,6 @@ def load_run_policy(directory: str | Path, env: Any | None = None, name: str | N
 def _policy_of_run(config: dict[str, Any], actor: Any, obs_rms: RunningMeanStd, env: Any | None, label: str) -> MAPPOPolicy:
     expert_spec = config.get("residual")
     if expert_spec:
-        from swarm_env.harness.policies import load_policy
-
         if env is None:
             raise ValueError(f"{label}: a residual run needs the env to build its expert {expert_spec!r}")
         return ResidualPolicy(actor, obs_rms, load_policy(expert_spec, env), float(config["residual_scale"]), name=label)
@@ -270,8 +272,6 @@ def _policy_of_run(config: dict[str, Any], actor: Any, obs_rms: RunningMeanStd, 
 
 
 def _load(env: Any, path: str | Path, name: str) -> MAPPOPolicy:
-    from swarm_env.harness.policies import ModelFileError, PolicyError, UnknownPolicyError
-
     try:
         config, actor, obs_rms = read_run(path)
     except ValueError as exc:
@@ -296,8 +296,6 @@ def shipped_run(method: str, seed: str) -> Path:
 def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str, acts_on: str = OBSERVATIONS
                     ) -> Callable[..., Any]:
     def factory(env: Any, arg: str | None = None) -> Any:
-        from swarm_env.harness.policies import ShieldedPolicy
-
         # No argument: the first training seed; ``s<k>``: that shipped seed; anything else: a run directory.
         run = shipped_run(checkpoints, arg or SHIPPED_SEEDS[0]) if arg in (None, *SHIPPED_SEEDS) else Path(arg)
         label = method if arg is None else f"{method}:{arg}"

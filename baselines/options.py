@@ -20,6 +20,8 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+from swarm_env.harness.cli import parse_env_item
+
 __all__ = ["PACKAGES", "add_dataclass_options", "field_help", "int_arg", "package_versions", "trainer_main",
            "trainer_parser"]
 
@@ -90,7 +92,6 @@ def add_dataclass_options(parser: argparse.ArgumentParser, cls: type, *, require
     """
     import argparse
 
-    from swarm_env.harness.cli import parse_env_item
 
     def env_item(text: str) -> tuple[str, Any]:
         try:

@@ -6,6 +6,8 @@ import csv
 from collections.abc import Mapping
 from pathlib import Path
 
+from swarm_env.harness.leaderboard import parse_seeds, run_leaderboard
+
 
 def read_eval_csv(path: str | Path) -> dict[str, list[float]]:
     """Columns of an ``eval.csv`` written by :class:`swarm_env_baselines.callbacks.EvalCallback`, as float lists."""
@@ -150,8 +152,6 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=1)
     parser.add_argument("--out", required=True, help="PNG to write")
     args = parser.parse_args(argv)
-    from swarm_env.harness.leaderboard import parse_seeds, run_leaderboard
-
     try:
         runs = shipped_eval_csvs(args.methods)
     except ValueError as exc:

@@ -39,8 +39,11 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.env import SwarmEnv
+from swarm_env.harness.policies import ModelFileError
 from swarm_env.jsonio import write_json
 from swarm_env_baselines.mappo_policy import directory_entry_point
+from swarm_env_baselines.ppo_core import mlp
 
 FORMAT = "swarm_env.rllib/1"
 WEIGHTS_FILE = "policy.safetensors"
@@ -72,7 +75,6 @@ class RLlibConfig:
 def _env_creator(config: dict[str, Any]) -> Any:
     from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
 
-    from swarm_env.env import SwarmEnv
 
     kwargs = dict(config)
     return ParallelPettingZooEnv(SwarmEnv(kwargs.pop("scenario"), **kwargs))
@@ -153,7 +155,6 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
     import torch
 
     from swarm_env_baselines.mappo_policy import MAPPOPolicy
-    from swarm_env_baselines.ppo_core import mlp
     from swarm_env_baselines.safe_io import one_line, read_description, read_tensors
 
     d = Path(directory).expanduser()
@@ -276,7 +277,6 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     import yaml
 
-    from swarm_env.harness.policies import ModelFileError
 
     env_kwargs = {}
     for item in args.env:

@@ -16,6 +16,8 @@ import warnings
 from pathlib import Path
 from typing import Any
 
+from swarm_env.jsonio import write_json
+
 __all__ = ["RunLog", "TB_GROUPS", "episode_stats", "finish_run"]
 
 #: The TensorBoard group of each column (columns not listed go to ``train/``).
@@ -91,7 +93,6 @@ def episode_stats(returns: list[float], metrics: list[dict[str, Any]]) -> dict[s
 def finish_run(run_dir: Path, summary: dict[str, Any], history: list[dict[str, Any]]) -> None:
     """A finished run's ``summary.json`` (``summary`` plus the best and the final validation rows of ``history``)
     and ``learning_curve.png`` (from ``eval.csv``)."""
-    from swarm_env.jsonio import write_json
     from swarm_env_baselines.plots import plot_learning_curve
 
     write_json(run_dir / "summary.json", {**summary, "best": min(history, key=lambda r: r["score"]),

@@ -47,10 +47,29 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.harness.leaderboard import parse_seeds
 from swarm_env.jsonio import dumps, write_json
-from swarm_env_baselines.checkpointing import CHECKPOINT_DIR
+from swarm_env.vector.engine import EnvFactory
+from swarm_env_baselines.checkpointing import (
+    CHECKPOINT_DIR,
+    StopRequest,
+    TrainingInterrupted,
+    csv_rows,
+    optimizer_from_files,
+    optimizer_to_files,
+    resume_run_dir,
+    start_run_dir,
+    truncate_csv,
+    write_checkpoint,
+)
+from swarm_env_baselines.mappo import _torch_device
+from swarm_env_baselines.mappo_policy import MAPPOPolicy, SquashedMeanActor, load_sac_policy
+from swarm_env_baselines.options import trainer_main, trainer_parser
 from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
-from swarm_env_baselines.validation import EVAL_COLUMNS
+from swarm_env_baselines.run_log import RunLog, episode_stats, finish_run
+from swarm_env_baselines.safe_io import _atomic
+from swarm_env_baselines.validation import EVAL_COLUMNS, Validation, evaluate_policy
+from swarm_env_baselines.worlds import TrainingWorlds
 
 FORMAT = "swarm_env.sac/1"
 CHECKPOINT_FORMAT = "swarm_env.sac-checkpoint/1"
@@ -214,9 +233,6 @@ class SAC:
 
         import torch
 
-        from swarm_env.vector.engine import EnvFactory
-        from swarm_env_baselines.mappo import _torch_device
-        from swarm_env_baselines.worlds import TrainingWorlds
 
         self.cfg = cfg
         torch.set_num_threads(cfg.torch_threads)
@@ -356,7 +372,6 @@ class SAC:
         """The current actor as a deterministic policy (``tanh`` of its mean, with a frozen copy of the statistics)."""
         import copy
 
-        from swarm_env_baselines.mappo_policy import MAPPOPolicy, SquashedMeanActor
 
         return MAPPOPolicy(SquashedMeanActor(copy.deepcopy(self.actor).cpu()), self.obs_rms.copy(), name="isac")
 
@@ -364,7 +379,6 @@ class SAC:
         """``policy.safetensors`` (actor and critics) and ``policy.json`` into ``directory``, atomically."""
         from safetensors.torch import save_file
 
-        from swarm_env_baselines.safe_io import _atomic
 
         directory.mkdir(parents=True, exist_ok=True)
         tensors = {f"actor.{k}": v.detach().cpu().contiguous() for k, v in self.actor.state_dict().items()}
@@ -380,7 +394,6 @@ class SAC:
         """Everything needed to go on bit for bit: ``(tensors, JSON values)``."""
         import torch
 
-        from swarm_env_baselines.checkpointing import optimizer_to_files
 
         tensors: dict[str, Any] = {f"actor.{k}": v for k, v in self.actor.state_dict().items()}
         tensors.update({f"q.{k}": v for k, v in self.q.state_dict().items()})
@@ -409,7 +422,6 @@ class SAC:
         :meth:`~swarm_env_baselines.worlds.TrainingWorlds.restore` and checked against the saved observations."""
         import torch
 
-        from swarm_env_baselines.checkpointing import optimizer_from_files
 
         def part(prefix: str) -> dict[str, Any]:
             return {k[len(prefix):]: v for k, v in tensors.items() if k.startswith(prefix)}
@@ -457,8 +469,6 @@ def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str,
     """The validation of a saved snapshot (what a validation worker runs)."""
     import torch
 
-    from swarm_env_baselines.mappo_policy import load_sac_policy
-    from swarm_env_baselines.validation import evaluate_policy
 
     torch.set_num_threads(1)
     cfg = SACConfig(**json.loads(cfg_json))
@@ -471,16 +481,12 @@ def evaluate_saved(directory: str, cfg_json: str, seeds: list[int]) -> dict[str,
 def train(cfg: SACConfig) -> Path:
     """Run ``cfg`` to completion in a new run directory and return it (see the module docstring);
     SIGINT/SIGTERM save a checkpoint and the policy, and :func:`resume` goes on from there."""
-    from swarm_env_baselines.checkpointing import start_run_dir
-
     run_dir = start_run_dir(cfg, f"sac_{Path(cfg.scenario).stem}_s{cfg.seed}", TRAIN_COLUMNS, EVAL_COLUMNS)
     return _run(cfg, run_dir, None)
 
 
 def resume(run_dir: str | Path, **overrides: Any) -> Path:
     """Go on with the run in ``run_dir`` from its latest checkpoint (only :data:`RESUME_OVERRIDES` may change)."""
-    from swarm_env_baselines.checkpointing import resume_run_dir
-
     cfg, state = resume_run_dir(run_dir, overrides, RESUME_OVERRIDES, SACConfig, CHECKPOINT_FORMAT)
     return _run(cfg, Path(run_dir), state)
 
@@ -488,16 +494,6 @@ def resume(run_dir: str | Path, **overrides: Any) -> Path:
 def _run(cfg: SACConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None) -> Path:
     from tqdm import tqdm
 
-    from swarm_env.harness.leaderboard import parse_seeds
-    from swarm_env_baselines.checkpointing import (
-        StopRequest,
-        TrainingInterrupted,
-        csv_rows,
-        truncate_csv,
-        write_checkpoint,
-    )
-    from swarm_env_baselines.run_log import RunLog, episode_stats, finish_run
-    from swarm_env_baselines.validation import Validation, evaluate_policy
 
     # --- the learner, the validation and the records
     eval_seeds = parse_seeds(cfg.eval_seeds)
@@ -622,14 +618,10 @@ def _run(cfg: SACConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[s
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from swarm_env_baselines.options import trainer_parser
-
     return trainer_parser("swarm-env train sac", __doc__, SACConfig, RESUME_OVERRIDES)
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env_baselines.options import trainer_main
-
     return trainer_main(build_parser(), argv, SACConfig, train, resume)
 
 

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING, Any
 import gymnasium
 import numpy as np
 
+from swarm_env.harness.policies import ModelFileError, pickle_trusted
 from swarm_env.jsonio import write_json
 from swarm_env.outputs import open_atomic, replace_dir
 
@@ -190,8 +191,6 @@ def refuse_pickle(path: Path, what: str, trust_pickle: bool | None, convert: boo
     """Raise a :class:`~swarm_env.harness.policies.ModelFileError` about ``path`` (which would unpickle ``what``)
     unless pickles are trusted (:func:`swarm_env.harness.policies.pickle_trusted` of ``trust_pickle``); the
     message says how to opt in and, with ``convert``, how to convert the directory once instead."""
-    from swarm_env.harness.policies import ModelFileError, pickle_trusted
-
     if pickle_trusted(trust_pickle):
         return
     remedy = (f", or convert it once: swarm-env convert {path.parent} --trust-pickle" if convert else "")

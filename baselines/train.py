@@ -40,8 +40,25 @@ from pathlib import Path
 from typing import Any
 
 from swarm_env.jsonio import dumps, write_json
+from swarm_env_baselines.checkpointing import (
+    StopRequest,
+    TrainingInterrupted,
+    claim_run_dir,
+    resume_config,
+    run_training,
+)
 from swarm_env_baselines.config import TrainConfig, add_dataclass_options, parse_seeds, policy_kwargs
+from swarm_env_baselines.model_io import (
+    MODEL_FILE,
+    VECNORM_FILE,
+    FrozenRunningMeanStd,
+    algorithm_class,
+    load_warm_start,
+    save_model,
+)
 from swarm_env_baselines.options import package_versions
+from swarm_env_baselines.plots import plot_learning_curve
+from swarm_env_baselines.safe_io import refuse_pickle
 
 
 def _env_kwargs(cfg: TrainConfig) -> dict[str, Any]:
@@ -49,8 +66,6 @@ def _env_kwargs(cfg: TrainConfig) -> dict[str, Any]:
 
 
 def _make_model(cfg: TrainConfig, venv: Any, log_dir: Path) -> Any:
-    from swarm_env_baselines.model_io import algorithm_class
-
     cls = algorithm_class(cfg.algo)
     common: dict[str, Any] = {
         "learning_rate": cfg.learning_rate,
@@ -84,8 +99,6 @@ def _make_model(cfg: TrainConfig, venv: Any, log_dir: Path) -> Any:
 def _warm_start(model: Any, venv: Any, cfg: TrainConfig, trust_pickle: bool | None = None) -> None:
     """Copy a saved model's weights (and VecNormalize observation and return statistics) into ``model``
     (:func:`swarm_env_baselines.model_io.load_warm_start`: a pickle only with ``trust_pickle``)."""
-    from swarm_env_baselines.model_io import load_warm_start
-
     assert cfg.init_from is not None
     weights, obs_rms, ret_rms = load_warm_start(cfg.init_from, cfg.algo, trust_pickle=trust_pickle)
     try:
@@ -114,8 +127,6 @@ def train(cfg: TrainConfig, *, trust_pickle: bool | None = None) -> Path:
     raised; :func:`resume` goes on from there. Raises ``FileExistsError`` if the run directory already
     holds a run.
     """
-    from swarm_env_baselines.checkpointing import claim_run_dir
-
     stamp = datetime.now(timezone.utc).strftime("%Y%m%d-%H%M%S")
     name = cfg.run_name or f"{cfg.algo}_{Path(cfg.scenario).stem}_s{cfg.seed}_{stamp}"
     run_dir = Path(cfg.runs_dir) / name
@@ -141,13 +152,9 @@ def resume(run_dir: str | Path, *, trust_pickle: bool | None = None, **overrides
     ``SWARM_ENV_TRUST_PICKLE=1``, :func:`swarm_env.harness.policies.pickle_trusted`): resume only your own
     runs. ``overrides`` may set only :data:`RESUME_OVERRIDES`.
     """
-    from swarm_env_baselines.checkpointing import resume_config
-
     run_dir = Path(run_dir)
     cfg_path = resume_config(run_dir, overrides, RESUME_OVERRIDES)
     cfg = dataclasses.replace(TrainConfig.from_json(cfg_path), **overrides)
-    from swarm_env_baselines.safe_io import refuse_pickle
-
     source = latest_model(run_dir)
     refuse_pickle(source / "model.zip", "an SB3 model to resume it (and vecnormalize.pkl beside it)", trust_pickle,
                   convert=False)
@@ -161,7 +168,6 @@ def latest_model(run_dir: Path) -> Path:
     whose ``model.zip`` has the most agent-steps (read from the zip's JSON ``data``, nothing unpickled)."""
     import zipfile
 
-    from swarm_env_baselines.model_io import MODEL_FILE
 
     def steps(d: Path) -> int | None:
         try:
@@ -189,9 +195,6 @@ def _learn(cfg: TrainConfig, run_dir: Path, source: Path | None, trust_pickle: b
     from stable_baselines3.common.vec_env import VecNormalize
 
     from swarm_env_baselines.callbacks import CheckpointCallback, EvalCallback, StopCallback, TqdmCallback
-    from swarm_env_baselines.checkpointing import StopRequest, TrainingInterrupted
-    from swarm_env_baselines.model_io import VECNORM_FILE, algorithm_class, save_model
-    from swarm_env_baselines.plots import plot_learning_curve
     from swarm_env_baselines.vec_env import make_vec_env
 
     torch.set_num_threads(cfg.torch_threads)
@@ -205,8 +208,6 @@ def _learn(cfg: TrainConfig, run_dir: Path, source: Path | None, trust_pickle: b
         if cfg.init_from:
             _warm_start(model, venv, cfg, trust_pickle)
         if cfg.freeze_obs_stats and vecnorm is not None:
-            from swarm_env_baselines.model_io import FrozenRunningMeanStd
-
             frozen = FrozenRunningMeanStd(shape=vecnorm.obs_rms.mean.shape)
             frozen.mean, frozen.var, frozen.count = vecnorm.obs_rms.mean.copy(), vecnorm.obs_rms.var.copy(), vecnorm.obs_rms.count
             vecnorm.obs_rms = frozen
@@ -295,8 +296,6 @@ def config_from_args(argv: list[str] | None = None) -> TrainConfig:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from swarm_env_baselines.checkpointing import run_training
-
     args = vars(build_parser().parse_args(argv))
     trust = args.pop("trust_pickle", False) or None
 

@@ -19,6 +19,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from swarm_env.env import SwarmEnv
+from swarm_env.harness.episode import run_episode
+from swarm_env.harness.evaluation import summarize
+from swarm_env.harness.policies import ShieldedPolicy
+from swarm_env_baselines.checkpointing import ignore_interrupts
+from swarm_env_baselines.safe_io import swap_in_dir
+
 #: Model selection: a collision costs as much as this many metres of mean formation error.
 COLLISION_COST_M = 1.0
 EVAL_COLUMNS = ("agent_steps", "wall_s", "score", "formation_error", "formation_error_ci95", "collisions",
@@ -32,11 +39,6 @@ def evaluate_policy(policy: Any, scenario: Any, env_kwargs: dict[str, Any], seed
     """Score ``policy`` on ``seeds`` of ``SwarmEnv(scenario, **env_kwargs)`` with the leaderboard's episode
     loop (through the safety layer if ``shielded``); the summary of
     :func:`swarm_env.harness.evaluation.summarize` plus ``score``."""
-    from swarm_env.env import SwarmEnv
-    from swarm_env.harness.episode import run_episode
-    from swarm_env.harness.evaluation import summarize
-    from swarm_env.harness.policies import ShieldedPolicy
-
     env = SwarmEnv(scenario, **env_kwargs)
     scored: Any = ShieldedPolicy.around(policy) if shielded else policy
     try:
@@ -50,8 +52,6 @@ def evaluate_policy(policy: Any, scenario: Any, env_kwargs: dict[str, Any], seed
 
 def replace_dir(src: Path, dst: Path) -> None:
     """Make ``dst`` a copy of ``src``, swapped in whole (a reader never sees half a model)."""
-    from swarm_env_baselines.safe_io import swap_in_dir
-
     tmp = dst.with_name(f".{dst.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
     shutil.copytree(src, tmp)
@@ -86,7 +86,6 @@ class Validation:
             import multiprocessing as mp
             from concurrent.futures import ProcessPoolExecutor
 
-            from swarm_env_baselines.checkpointing import ignore_interrupts
 
             self.pool = ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn"), initializer=ignore_interrupts)
 

@@ -17,6 +17,8 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.vector.engine import SwarmVectorEnv
+
 __all__ = ["TrainingWorlds"]
 
 #: Steps no running episode needs any more are dropped from the log in chunks of at least this many.
@@ -36,8 +38,6 @@ class TrainingWorlds:
     """
 
     def __init__(self, factory: Callable[[], Any], n_worlds: int, n_procs: int = 1, prefetch: bool = True) -> None:
-        from swarm_env.vector.engine import SwarmVectorEnv
-
         self.factory = factory
         self.venv = SwarmVectorEnv.from_factories([factory] * n_worlds, n_procs=n_procs,
                                                   prefetch_scenarios=prefetch and n_procs == 1)

@@ -28,7 +28,9 @@ from typing import Any
 import numpy as np
 
 import swarm_env
+from swarm_env.env import SwarmEnv
 from swarm_env.harness.episode import run_episode
+from swarm_env.harness.policies import load_policy
 from swarm_env.jsonio import write_json
 from swarm_env.outputs import atomic_write_text, save_figure
 from swarm_env.state import WorldState
@@ -277,9 +279,6 @@ def _fmt(x: Any, nd: int = 1) -> str:
 
 def run_reference(spec: str) -> dict[str, Any]:
     """One episode of another policy on the scenario (``vo``, ``orca``: both deterministic)."""
-    from swarm_env.env import SwarmEnv
-    from swarm_env.harness.policies import load_policy
-
     env = SwarmEnv(SCENARIO)
     return run_episode(env, load_policy(spec, env), 0)
 
