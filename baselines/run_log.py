@@ -18,7 +18,7 @@ from typing import Any
 
 from swarm_env.jsonio import write_json
 
-__all__ = ["RunLog", "TB_GROUPS", "episode_stats", "finish_run"]
+__all__ = ["RunLog", "TB_GROUPS", "draw_learning_curve", "episode_stats", "finish_run"]
 
 #: The TensorBoard group of each column (columns not listed go to ``train/``).
 TB_GROUPS = {
@@ -93,11 +93,23 @@ def episode_stats(returns: list[float], metrics: list[dict[str, Any]]) -> dict[s
 def finish_run(run_dir: Path, summary: dict[str, Any], history: list[dict[str, Any]]) -> None:
     """A finished run's ``summary.json`` (``summary`` plus the best and the final validation rows of ``history``)
     and ``learning_curve.png`` (from ``eval.csv``)."""
-    from swarm_env_baselines.plots import plot_learning_curve
-
     write_json(run_dir / "summary.json", {**summary, "best": min(history, key=lambda r: r["score"]),
                                           "final": history[-1]})
-    plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
+    draw_learning_curve(run_dir)
+
+
+def draw_learning_curve(run_dir: Path) -> Path | None:
+    """``run_dir/learning_curve.png`` from ``run_dir/eval.csv``; without matplotlib (the ``plots`` extra) one
+    warning and None: a finished run must not end in an error for want of its picture."""
+    try:
+        import matplotlib  # noqa: F401 - the plots extra, optional here
+    except ImportError:
+        warnings.warn(f"{run_dir / 'learning_curve.png'} not drawn: matplotlib is missing (pip install "
+                      "'swarm-env[plots]'); eval.csv holds the same numbers", stacklevel=2)
+        return None
+    from swarm_env_baselines.plots import plot_learning_curve  # (at use: plots is in the baselines' import loop)
+
+    return plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
 
 
 def _fmt(x: Any) -> Any:

@@ -57,7 +57,7 @@ from swarm_env_baselines.model_io import (
     save_model,
 )
 from swarm_env_baselines.options import package_versions
-from swarm_env_baselines.plots import plot_learning_curve
+from swarm_env_baselines.run_log import draw_learning_curve
 from swarm_env_baselines.safe_io import refuse_pickle
 
 
@@ -256,7 +256,7 @@ def _learn(cfg: TrainConfig, run_dir: Path, source: Path | None, trust_pickle: b
     if evaluator is not None and evaluator.history:
         summary["final_eval"] = evaluator.history[-1]
         summary["best_score"] = evaluator.best_score
-        plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
+        draw_learning_curve(run_dir)
     write_json(run_dir / "summary.json", summary)
     return run_dir
 

@@ -294,3 +294,14 @@ def test_validation_in_a_background_process_gives_the_same_run(tmp_path) -> None
     a, b = (json.loads((run / "best" / "policy.json").read_text()) for run in (here, there))
     assert {k: v for k, v in a.items() if k != "config"} == {k: v for k, v in b.items() if k != "config"}
     assert not (there / "evals").exists() and not list(there.glob(".best.*"))
+
+
+def test_a_run_without_matplotlib_finishes_with_a_warning_and_no_picture(tmp_path, monkeypatch) -> None:
+    """The `plots` extra is optional: `pip install swarm-env[rl]` trains to the end (summary, policy, no PNG)."""
+    import sys
+
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # import matplotlib -> ImportError
+    with pytest.warns(UserWarning, match=r"learning_curve.png not drawn: matplotlib is missing.*swarm-env\[plots\]"):
+        run = mappo.train(_cfg(tmp_path, total_steps=256, eval_every=0, pretrain="none", learner_process=False))
+    assert (run / "summary.json").is_file() and (run / "policy.safetensors").is_file()
+    assert not (run / "learning_curve.png").exists()
