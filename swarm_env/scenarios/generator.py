@@ -302,7 +302,7 @@ class RandomScenarioConfig:
             put(self, "sensors", _parse_sensors(SOURCE, self.sensors))
         if not isinstance(self.reward, RewardSpec):
             put(self, "reward", _parse_reward(SOURCE, self.reward))
-        # The anti-tunnelling rule of scenario_io, for the fastest humans this config can draw.
+        # The anti-tunnelling rule of the loader (swarm_env.scenarios.loader), for the fastest humans this config can draw.
         humans = _span(self.n_humans)[1] > 0
         v_rel = 2.0 * max(self.max_speed, self.leader_speed) + (self.top_human_speed() if humans else 0.0)
         r_min = min(self.radius, self.human_radius) if humans else self.radius
