@@ -18,6 +18,7 @@ Shared by both trainers (:mod:`swarm_env_baselines.mappo` and :mod:`swarm_env_ba
 
 from __future__ import annotations
 
+import argparse
 import csv
 import shutil
 import signal
@@ -28,6 +29,9 @@ from pathlib import Path
 from typing import Any
 
 from swarm_env.jsonio import dumps, write_json
+from swarm_env_baselines.options import package_versions
+from swarm_env_baselines.run_log import RunLog
+from swarm_env_baselines.safe_io import _atomic, read_description, swap_in_dir
 
 STATE_TENSORS = "state.safetensors"
 #: A run directory's resumable checkpoint (the latest only).
@@ -36,7 +40,7 @@ STATE_JSON = "state.json"
 
 __all__ = ["CHECKPOINT_DIR", "STATE_JSON", "STATE_TENSORS", "StopRequest", "TrainingInterrupted", "csv_rows",
            "ignore_interrupts", "optimizer_from_files", "optimizer_to_files", "read_checkpoint", "resume_run_dir",
-           "start_run_dir", "truncate_csv", "write_checkpoint"]
+           "start_run_dir", "trainer_main", "truncate_csv", "write_checkpoint"]
 
 
 class TrainingInterrupted(Exception):
@@ -164,8 +168,6 @@ def start_run_dir(cfg: Any, default_name: str, train_columns: tuple[str, ...], e
     time stamp): ``config.json``, ``versions.json`` and the CSV logs' headers. ``FileExistsError`` if it holds a run."""
     import time
 
-    from swarm_env_baselines.options import package_versions
-    from swarm_env_baselines.run_log import RunLog
 
     stamp = time.strftime("%Y%m%d-%H%M%S", time.gmtime())
     run_dir = claim_run_dir(Path(cfg.runs_dir) / (cfg.run_name or f"{default_name}_{stamp}"))
@@ -182,7 +184,6 @@ def resume_run_dir(run_dir: str | Path, overrides: dict[str, Any], allowed: tupl
     ``checkpoint_format``). ``FileNotFoundError``/``ValueError`` naming the file for a missing or bad one."""
     import json
 
-    from swarm_env_baselines.safe_io import _atomic
 
     run_dir = Path(run_dir)
     cfg_path = resume_config(run_dir, overrides, allowed)
@@ -206,7 +207,6 @@ def write_checkpoint(directory: Path, tensors: dict[str, Any], meta: dict[str, A
     values) to ``directory/state.json``, replacing a previous checkpoint there as a whole."""
     from safetensors.torch import save_file
 
-    from swarm_env_baselines.safe_io import swap_in_dir
 
     tmp = directory.with_name(f".{directory.name}.tmp")
     shutil.rmtree(tmp, ignore_errors=True)
@@ -221,7 +221,6 @@ def read_checkpoint(directory: Path, fmt: str) -> tuple[dict[str, Any], dict[str
     is ``fmt``. Raises ``FileNotFoundError`` or ``ValueError`` naming the file."""
     from safetensors.torch import load_file
 
-    from swarm_env_baselines.safe_io import read_description
 
     meta_path, tensor_path = directory / STATE_JSON, directory / STATE_TENSORS
     if not meta_path.is_file() or not tensor_path.is_file():
@@ -291,3 +290,24 @@ def truncate_csv(path: Path, rows: int) -> None:
         kept = [r for _, r in zip(range(rows + 1), csv.reader(fh))]
     with open(path, "w", newline="") as fh:
         csv.writer(fh).writerows(kept)
+
+
+def trainer_main(parser: argparse.ArgumentParser, argv: list[str] | None, config: type,
+                 train: Callable[[Any], Path], resume: Callable[..., Path]) -> int:
+    """Parse ``argv``, then train a new run of ``config`` or resume one; print the run directory and its summary.
+    Returns the process exit status (a signal's 128 + N after saving, see
+    :func:`run_training`)."""
+    args = vars(parser.parse_args(argv))
+    for name in ("env_kwargs", "train_env_kwargs"):
+        if name in args:
+            args[name] = dict(args[name])
+    if "resume" in args:
+        where = args.pop("resume")
+        run = run_training(lambda: resume(where, **args))
+    else:
+        run = run_training(lambda: train(config(**args)))
+    if isinstance(run, int):
+        return run
+    print(run)
+    print((run / "summary.json").read_text())
+    return 0

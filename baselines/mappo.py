@@ -101,6 +101,7 @@ from swarm_env_baselines.checkpointing import (
     optimizer_to_files,
     resume_run_dir,
     start_run_dir,
+    trainer_main,
     truncate_csv,
     write_checkpoint,
 )
@@ -121,7 +122,7 @@ from swarm_env_baselines.mappo_policy import (
     residual_action,
     save_run_policy,
 )
-from swarm_env_baselines.options import trainer_main, trainer_parser
+from swarm_env_baselines.options import trainer_parser
 from swarm_env_baselines.ppo_core import RunningMeanStd
 from swarm_env_baselines.run_log import RunLog, episode_stats, finish_run
 from swarm_env_baselines.validation import EVAL_COLUMNS, Validation, evaluate_policy

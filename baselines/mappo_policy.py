@@ -43,10 +43,17 @@ from swarm_env.harness.policies import (
 from swarm_env.jsonio import write_json
 from swarm_env.state import WorldState
 from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
+from swarm_env_baselines.safe_io import (
+    CONFIG_FILE,
+    SAC_FORMAT,
+    WEIGHTS_FILE,
+    _atomic,
+    one_line,
+    read_description,
+    read_tensors,
+)
+from swarm_env_baselines.safe_io import MAPPO_FORMAT as FORMAT
 
-FORMAT = "swarm_env.mappo/1"
-WEIGHTS_FILE = "policy.safetensors"
-CONFIG_FILE = "policy.json"
 #: Where the shipped runs live: ``CHECKPOINTS / <method> / s<k>``.
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 #: The training seeds shipped for every method.
@@ -54,8 +61,6 @@ SHIPPED_SEEDS = ("s0", "s1", "s2")
 
 __all__ = ["MAPPOPolicy", "ResidualPolicy", "SquashedMeanActor", "load_run_policy", "load_sac_policy", "save_run_policy",
            "shipped_run"]
-#: The format of a shared-parameter SAC run's policy.json (:mod:`swarm_env_baselines.sac`).
-SAC_FORMAT = "swarm_env.sac/1"
 
 
 class MAPPOPolicy:
@@ -149,7 +154,6 @@ def save_run_policy(directory: Path, actor: Any, log_std: Any, critic: Any, obs_
     """Write ``policy.safetensors`` (actor, log_std, critic) and ``policy.json`` into ``directory``, atomically."""
     from safetensors.torch import save_file
 
-    from swarm_env_baselines.safe_io import _atomic
 
     directory.mkdir(parents=True, exist_ok=True)
     tensors = {f"actor.{k}": v.detach().cpu().contiguous() for k, v in actor.state_dict().items()}
@@ -171,7 +175,6 @@ def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd
     """
     import torch
 
-    from swarm_env_baselines.safe_io import one_line, read_description
 
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FORMAT)
@@ -191,8 +194,6 @@ def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd
 def _load_actor(d: Path, net: Any) -> Any:
     """``net`` with the ``actor.*`` tensors of ``d/policy.safetensors``, in eval mode; ``ValueError`` naming the
     file if they do not fit it (missing or unexpected keys, shapes)."""
-    from swarm_env_baselines.safe_io import one_line, read_tensors
-
     tensors = read_tensors(d / WEIGHTS_FILE)
     try:
         net.load_state_dict({k[len("actor."):]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
@@ -206,7 +207,6 @@ def load_sac_policy(directory: str | Path, name: str | None = None) -> MAPPOPoli
     as a deterministic policy. Raises ``ValueError`` naming the file for a missing or bad file."""
     import torch
 
-    from swarm_env_baselines.safe_io import one_line, read_description
 
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, SAC_FORMAT)

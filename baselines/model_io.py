@@ -16,7 +16,7 @@ statistics from it, or, for an older directory without it, the tensors from ``mo
 directory as a policy, its ``vecnormalize.pkl``, and :func:`load_model` (the whole SB3 model), is
 refused with a :class:`~swarm_env.harness.policies.ModelFileError` unless the caller opts in
 (:func:`swarm_env.harness.policies.pickle_trusted`: ``trust_pickle=True``, ``SWARM_ENV_TRUST_PICKLE=1``,
-or ``--trust-pickle`` on the command lines). ``python -m swarm_env_baselines.safe_io DIR --trust-pickle``
+or ``--trust-pickle`` on the command lines). ``swarm-env convert DIR --trust-pickle``
 converts such a directory once.
 
 Every file problem (missing, truncated or corrupt, another algorithm's model, a refused pickle) is a
@@ -44,6 +44,20 @@ import numpy as np
 from swarm_env.harness.policies import OBSERVATIONS, ModelFileError, PolicyError
 from swarm_env.state import WorldState
 from swarm_env_baselines.mappo_policy import SHIPPED_SEEDS, shipped_run
+from swarm_env_baselines.safe_io import (
+    CONFIG_FILE,
+    WEIGHTS_FILE,
+    algorithm_class,
+    has_safe_policy,
+    load_policy_dir,
+    one_line,
+    read_description,
+    read_tensors,
+    refuse_pickle,
+    save_policy,
+    saved_statistics,
+)
+from swarm_env_baselines.safe_io import FORMAT as SAFE_FORMAT
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -76,16 +90,6 @@ class FrozenRunningMeanStd(_running_mean_std_base()):  # type: ignore[misc]
     def update(self, arr: Any) -> None:
         pass
 
-
-def algorithm_class(name: str) -> type[BaseAlgorithm]:
-    """The SB3 algorithm class for ``name`` (``ppo``, ``sac``, ``a2c``, ``td3``, ``ddpg``; ``bc`` = PPO)."""
-    import stable_baselines3 as sb3
-
-    classes = {"ppo": sb3.PPO, "bc": sb3.PPO, "sac": sb3.SAC, "a2c": sb3.A2C, "td3": sb3.TD3, "ddpg": sb3.DDPG}
-    try:
-        return classes[name.lower()]
-    except KeyError:
-        raise ValueError(f"unknown algorithm {name!r}; expected one of {sorted(classes)}") from None
 
 
 def same_family(a: str, b: str) -> bool:
@@ -122,7 +126,6 @@ def check_sb3_zip(path: Path, algo: str) -> dict[str, Any]:
     except ModelFileError:
         raise
     except (zipfile.BadZipFile, OSError, EOFError, ValueError) as exc:  # zlib errors and bad JSON are ValueErrors
-        from swarm_env_baselines.safe_io import one_line
 
         raise ModelFileError(f"{path}: not a readable stable-baselines3 model archive, truncated or corrupt "
                              f"({one_line(exc)})") from None
@@ -143,7 +146,6 @@ def load_vecnormalize(path: Path, *, trust_pickle: bool | None = None) -> VecNor
     a :class:`ModelFileError` naming the file if it is not a readable VecNormalize pickle."""
     from stable_baselines3.common.vec_env import VecNormalize
 
-    from swarm_env_baselines.safe_io import one_line, refuse_pickle
 
     refuse_pickle(path, "a Python pickle (VecNormalize statistics)", trust_pickle)
     try:
@@ -162,8 +164,6 @@ def save_model(model: BaseAlgorithm, directory: str | Path, vecnorm: VecNormaliz
     """Write the policy and its statistics as tensors + JSON (:func:`swarm_env_baselines.safe_io.save_policy`), and
     ``model.zip`` (and ``vecnormalize.pkl`` if given) for SB3's tools and resuming, into ``directory``;
     returns the directory."""
-    from swarm_env_baselines.safe_io import save_policy
-
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     model.save(out / MODEL_FILE)
@@ -184,8 +184,6 @@ def load_model(path: str | Path, algo: str = "ppo", *, trust_pickle: bool | None
     the file) for a refused, truncated, corrupt or other-algorithm file; a corrupt archive or another
     algorithm is reported before anything is unpickled.
     """
-    from swarm_env_baselines.safe_io import one_line, refuse_pickle
-
     model_path = resolve_model_path(path)
     check_sb3_zip(model_path, algo)
     stats = model_path.parent / VECNORM_FILE
@@ -213,17 +211,6 @@ def load_warm_start(path: str | Path, algo: str, *, trust_pickle: bool | None = 
     there is a ``vecnormalize.pkl``, its statistics (a pickle: refused unless trusted). Raises
     ``FileNotFoundError`` or :class:`ModelFileError` naming the file.
     """
-    from swarm_env_baselines.safe_io import (
-        CONFIG_FILE,
-        WEIGHTS_FILE,
-        has_safe_policy,
-        one_line,
-        read_description,
-        read_tensors,
-        saved_statistics,
-    )
-    from swarm_env_baselines.safe_io import FORMAT as SAFE_FORMAT
-
     p = Path(path).expanduser()
     d = p if p.is_dir() else p.parent
     if has_safe_policy(d) and (p.is_dir() or p.name == MODEL_FILE):
@@ -304,7 +291,6 @@ def _make(algo: str, env: SwarmEnv, arg: str | None) -> SB3Policy:
     # A policy loaded by name is for scoring, so the process gets one torch thread; load_model itself
     # (used by training's --init-from) leaves the thread count alone.
     torch.set_num_threads(1)
-    from swarm_env_baselines.safe_io import CONFIG_FILE, WEIGHTS_FILE, has_safe_policy, load_policy_dir
 
     where = Path(path).expanduser()
     # The directory, or the directory of its model.zip: save_model wrote the safe pair from the same model.

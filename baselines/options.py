@@ -15,15 +15,13 @@ import dataclasses
 import platform
 import subprocess
 import sys
-from collections.abc import Callable
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 from swarm_env.harness.cli import parse_env_item
 
-__all__ = ["PACKAGES", "add_dataclass_options", "field_help", "int_arg", "package_versions", "trainer_main",
-           "trainer_parser"]
+__all__ = ["PACKAGES", "add_dataclass_options", "field_help", "int_arg", "package_versions", "trainer_parser"]
 
 PACKAGES = ("swarm-env", "numpy", "torch", "stable-baselines3", "gymnasium", "pettingzoo", "pymunk", "tensorboard")
 
@@ -130,26 +128,3 @@ def trainer_parser(prog: str, doc: str | None, config: type, resume_overrides: t
                              "given with it)")
     add_dataclass_options(parser, config)
     return parser
-
-
-def trainer_main(parser: argparse.ArgumentParser, argv: list[str] | None, config: type,
-                 train: Callable[[Any], Path], resume: Callable[..., Path]) -> int:
-    """Parse ``argv``, then train a new run of ``config`` or resume one; print the run directory and its summary.
-    Returns the process exit status (a signal's 128 + N after saving, see
-    :func:`swarm_env_baselines.checkpointing.run_training`)."""
-    from swarm_env_baselines.checkpointing import run_training
-
-    args = vars(parser.parse_args(argv))
-    for name in ("env_kwargs", "train_env_kwargs"):
-        if name in args:
-            args[name] = dict(args[name])
-    if "resume" in args:
-        where = args.pop("resume")
-        run = run_training(lambda: resume(where, **args))
-    else:
-        run = run_training(lambda: train(config(**args)))
-    if isinstance(run, int):
-        return run
-    print(run)
-    print((run / "summary.json").read_text())
-    return 0

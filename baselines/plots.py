@@ -7,6 +7,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from swarm_env.harness.leaderboard import parse_seeds, run_leaderboard
+from swarm_env_baselines.mappo_policy import CHECKPOINTS
 
 
 def read_eval_csv(path: str | Path) -> dict[str, list[float]]:
@@ -128,8 +129,6 @@ def plot_methods_learning_curves(
 
 def shipped_eval_csvs(methods: list[str]) -> dict[str, list[Path]]:
     """Each shipped method's training seeds' ``eval.csv`` (``baselines/checkpoints/<method>/s<k>/``)."""
-    from swarm_env_baselines.mappo_policy import CHECKPOINTS
-
     found = {m: sorted((CHECKPOINTS / m).glob("s*/eval.csv")) for m in methods}
     missing = [m for m, paths in found.items() if not paths]
     if missing:

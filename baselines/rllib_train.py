@@ -42,12 +42,20 @@ import numpy as np
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.policies import ModelFileError
 from swarm_env.jsonio import write_json
-from swarm_env_baselines.mappo_policy import directory_entry_point
+from swarm_env_baselines.mappo_policy import MAPPOPolicy, directory_entry_point
+from swarm_env_baselines.options import package_versions
 from swarm_env_baselines.ppo_core import mlp
+from swarm_env_baselines.safe_io import (
+    CONFIG_FILE,
+    WEIGHTS_FILE,
+    _atomic,
+    one_line,
+    read_description,
+    read_tensors,
+    refuse_pickle,
+)
+from swarm_env_baselines.safe_io import RLLIB_FORMAT as FORMAT
 
-FORMAT = "swarm_env.rllib/1"
-WEIGHTS_FILE = "policy.safetensors"
-CONFIG_FILE = "policy.json"
 SHARED = "shared"
 ENV_NAME = "swarm_env_rllib"
 
@@ -114,7 +122,6 @@ def export_policy(module: Any, directory: Path, cfg: RLlibConfig) -> Path:
     import torch
     from safetensors.torch import save_file
 
-    from swarm_env_baselines.safe_io import _atomic
 
     parts = list(module.encoder.actor_encoder.modules()) + list(module.pi.modules())
     leaves = [m for m in parts if not list(m.children())]
@@ -154,8 +161,6 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
     """The exported actor of an RLlib run as a policy acting with its mean (no Ray, no pickle)."""
     import torch
 
-    from swarm_env_baselines.mappo_policy import MAPPOPolicy
-    from swarm_env_baselines.safe_io import one_line, read_description, read_tensors
 
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FORMAT)
@@ -191,14 +196,10 @@ def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = Tr
     which unpickles: refused (a :class:`~swarm_env.harness.policies.ModelFileError`) unless ``trust_pickle``
     (:func:`swarm_env.harness.policies.pickle_trusted`)."""
     if resume:
-        from swarm_env_baselines.safe_io import refuse_pickle
-
         refuse_pickle(out / "rllib_checkpoint", "RLlib's checkpoint (pickled state)", trust_pickle, convert=False)
     import ray
     from ray.tune.registry import register_env
 
-    from swarm_env_baselines.options import package_versions
-    from swarm_env_baselines.safe_io import _atomic
 
     out.mkdir(parents=True, exist_ok=True)
     started = not ray.is_initialized()

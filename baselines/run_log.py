@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm_env.jsonio import write_json
+from swarm_env_baselines.plots import plot_learning_curve
 
 __all__ = ["RunLog", "TB_GROUPS", "draw_learning_curve", "episode_stats", "finish_run"]
 
@@ -107,7 +108,6 @@ def draw_learning_curve(run_dir: Path) -> Path | None:
         warnings.warn(f"{run_dir / 'learning_curve.png'} not drawn: matplotlib is missing (pip install "
                       "'swarm-env[plots]'); eval.csv holds the same numbers", stacklevel=2)
         return None
-    from swarm_env_baselines.plots import plot_learning_curve  # (at use: plots is in the baselines' import loop)
 
     return plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
 

@@ -59,19 +59,20 @@ from swarm_env_baselines.checkpointing import (
     optimizer_to_files,
     resume_run_dir,
     start_run_dir,
+    trainer_main,
     truncate_csv,
     write_checkpoint,
 )
 from swarm_env_baselines.mappo import _torch_device
 from swarm_env_baselines.mappo_policy import MAPPOPolicy, SquashedMeanActor, load_sac_policy
-from swarm_env_baselines.options import trainer_main, trainer_parser
+from swarm_env_baselines.options import trainer_parser
 from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
 from swarm_env_baselines.run_log import RunLog, episode_stats, finish_run
+from swarm_env_baselines.safe_io import SAC_FORMAT as FORMAT
 from swarm_env_baselines.safe_io import _atomic
 from swarm_env_baselines.validation import EVAL_COLUMNS, Validation, evaluate_policy
 from swarm_env_baselines.worlds import TrainingWorlds
 
-FORMAT = "swarm_env.sac/1"
 CHECKPOINT_FORMAT = "swarm_env.sac-checkpoint/1"
 #: What ``--resume`` may change: the budget, and settings that leave the results as they are.
 RESUME_OVERRIDES = ("total_steps", "eval_workers", "env_procs", "prefetch_worlds", "progress", "tensorboard")

@@ -37,11 +37,20 @@ if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import VecNormalize
 
 FORMAT = "swarm_env.sb3-policy/1"
+#: The formats of the other run descriptions this package writes (each its own ``policy.json``).
+MAPPO_FORMAT = "swarm_env.mappo/1"
+SAC_FORMAT = "swarm_env.sac/1"
+RLLIB_FORMAT = "swarm_env.rllib/1"
+#: The policy specs that load a description of each format (for the error that meets the wrong one).
+LOADERS = {FORMAT: "ppo:PATH, sac:PATH or bc:PATH", RLLIB_FORMAT: "rllib:PATH", SAC_FORMAT: "isac:PATH",
+           MAPPO_FORMAT: "mappo:PATH, ippo:PATH, mappo_shielded:PATH or residual_vo:PATH"}
+#: Every saved policy directory's two files: the tensors and their description.
 WEIGHTS_FILE = "policy.safetensors"
 CONFIG_FILE = "policy.json"
 
-__all__ = ["FORMAT", "WEIGHTS_FILE", "CONFIG_FILE", "ObsNormalizer", "save_policy", "load_policy_dir", "has_safe_policy",
-           "saved_statistics", "read_tensors", "read_description", "refuse_pickle", "one_line"]
+__all__ = ["FORMAT", "MAPPO_FORMAT", "SAC_FORMAT", "RLLIB_FORMAT", "LOADERS", "WEIGHTS_FILE", "CONFIG_FILE", "ObsNormalizer",
+           "algorithm_class", "save_policy", "load_policy_dir", "has_safe_policy", "saved_statistics", "read_tensors",
+           "read_description", "refuse_pickle", "one_line"]
 
 
 class ObsNormalizer:
@@ -90,14 +99,23 @@ def save_policy(model: BaseAlgorithm, directory: str | Path, algo: str, vecnorm:
     return out
 
 
+def algorithm_class(name: str) -> type[BaseAlgorithm]:
+    """The SB3 algorithm class for ``name`` (``ppo``, ``sac``, ``a2c``, ``td3``, ``ddpg``; ``bc`` = PPO)."""
+    import stable_baselines3 as sb3
+
+    classes = {"ppo": sb3.PPO, "bc": sb3.PPO, "sac": sb3.SAC, "a2c": sb3.A2C, "td3": sb3.TD3, "ddpg": sb3.DDPG}
+    try:
+        return classes[name.lower()]
+    except KeyError:
+        raise ValueError(f"unknown algorithm {name!r}; expected one of {sorted(classes)}") from None
+
+
 def load_policy_dir(directory: str | Path) -> tuple[Any, ObsNormalizer | None, str]:
     """Rebuild ``(SB3 policy on CPU, observation normalizer or None, algo)`` from ``directory``.
 
     Raises ``ValueError`` naming the file and what is wrong (a missing or unreadable file, unknown
     format, a missing key, tensors that do not fit the network).
     """
-    from swarm_env_baselines.model_io import algorithm_class
-
     d = Path(directory)
     cfg_path = d / CONFIG_FILE
     config = read_description(cfg_path, FORMAT)
@@ -172,19 +190,10 @@ def read_description(path: Path, fmt: str) -> dict[str, Any]:
         raise ValueError(f"{path}: not a readable JSON policy description ({one_line(exc)})") from None
     got = config.get("format") if isinstance(config, dict) else config
     if got != fmt:
-        hint = _loader_of(got)
+        hint = LOADERS.get(got) if isinstance(got, str) else None
         raise ValueError(f"{path}: format: expected {fmt!r}, got {got!r}" + (f" (load it with {hint})" if hint else ""))
     return config
 
-
-def _loader_of(fmt: Any) -> str | None:
-    """The policy specs that load a description of format ``fmt`` (for the error that meets the wrong one)."""
-    from swarm_env_baselines.mappo_policy import FORMAT as MAPPO_FORMAT
-    from swarm_env_baselines.mappo_policy import SAC_FORMAT
-    from swarm_env_baselines.rllib_train import FORMAT as RLLIB_FORMAT
-
-    return {FORMAT: "ppo:PATH, sac:PATH or bc:PATH", RLLIB_FORMAT: "rllib:PATH", SAC_FORMAT: "isac:PATH",
-            MAPPO_FORMAT: "mappo:PATH, ippo:PATH, mappo_shielded:PATH or residual_vo:PATH"}.get(fmt)
 
 
 def refuse_pickle(path: Path, what: str, trust_pickle: bool | None, convert: bool = True) -> None:
@@ -270,37 +279,3 @@ def _normalization_from_json(d: dict[str, Any] | None, source: Path) -> ObsNorma
         return ObsNormalizer(np.asarray(d["mean"]), np.asarray(d["var"]), d["epsilon"], d["clip_obs"])
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{source}: normalization: {exc}") from None
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``swarm-env convert DIR [DIR ...] [--algo ppo] --trust-pickle``: write the tensors + JSON
-    files beside the ``model.zip`` / ``vecnormalize.pkl`` of older run directories.
-
-    Converting unpickles those files once, so it asks for the same opt-in as loading them
-    (``--trust-pickle`` or ``SWARM_ENV_TRUST_PICKLE=1``): run it only on files you trust (your own
-    runs). Exit code 2, with one line naming the file, for a missing, corrupt or refused file.
-    """
-    import argparse
-    import sys
-
-    from swarm_env_baselines.model_io import load_model
-
-    parser = argparse.ArgumentParser(prog="swarm-env convert", description=main.__doc__.split("\n\n")[0])
-    parser.add_argument("dirs", nargs="+", help="run or checkpoint directories holding model.zip")
-    parser.add_argument("--algo", default="ppo", help="the algorithm that saved them (ppo, sac, a2c, td3, ddpg; bc = ppo)")
-    parser.add_argument("--trust-pickle", action="store_true",
-                        help="unpickle the files (they can run code): only for files you trust")
-    args = parser.parse_args(argv)
-    for d in args.dirs:
-        try:
-            model, vecnorm = load_model(d, args.algo, trust_pickle=args.trust_pickle or None)  # None: SWARM_ENV_TRUST_PICKLE decides
-        except (FileNotFoundError, ValueError) as exc:
-            print(f"error: {exc}", file=sys.stderr)
-            return 2
-        out = save_policy(model, Path(d) if Path(d).is_dir() else Path(d).parent, type(model).__name__.lower(), vecnorm)
-        print(f"wrote {out / WEIGHTS_FILE} and {out / CONFIG_FILE}")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

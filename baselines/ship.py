@@ -32,8 +32,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from swarm_env_baselines.mappo_policy import CHECKPOINTS, CONFIG_FILE, WEIGHTS_FILE
-from swarm_env_baselines.safe_io import swap_in_dir
+from swarm_env_baselines.mappo_policy import CHECKPOINTS
+from swarm_env_baselines.safe_io import CONFIG_FILE, WEIGHTS_FILE, swap_in_dir
 
 #: Records copied from the run directory (the ones marked optional may be absent).
 RECORDS = ("config.json", "versions.json", "summary.json", "eval.csv", "train.csv", "learning_curve.png")

@@ -4,6 +4,10 @@
 and the rooms below it, never one above. :data:`LEVELS` is the order, lowest first; the root's modules are
 placed one by one (the data types at the bottom, the env at the top). Every import counts: at module level,
 inside functions (a lazy import must not hide an upward arrow or a loop) and under ``TYPE_CHECKING``.
+
+The experts (``agents/``, installed as ``swarm_env_agents``) and the baselines (``baselines/``, as
+``swarm_env_baselines``) stand above the package: the baselines may import the experts, never the reverse, and
+neither package has an import loop or a lazy import of its own light modules.
 """
 
 from __future__ import annotations
@@ -13,6 +17,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGE = ROOT / "swarm_env"
+#: Each installed package and its directory, lowest first: a package may import only itself and those before it.
+PACKAGES = {"swarm_env": PACKAGE, "swarm_env_agents": ROOT / "agents", "swarm_env_baselines": ROOT / "baselines"}
 
 #: Rooms and root modules, lowest first. A name is a room (a folder of swarm_env) or a module at the root.
 LEVELS: list[tuple[str, ...]] = [
@@ -34,13 +40,14 @@ LEVELS: list[tuple[str, ...]] = [
 LEVEL = {name: i for i, names in enumerate(LEVELS) for name in names}
 
 
-def _module_name(path: Path) -> str:
-    parts = path.relative_to(ROOT).with_suffix("").parts
+def _module_name(package: str, path: Path) -> str:
+    parts = (package, *path.relative_to(PACKAGES[package]).with_suffix("").parts)
     return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
 
 
-def _modules() -> dict[str, Path]:
-    return {_module_name(p): p for p in PACKAGE.rglob("*.py") if "__pycache__" not in p.parts}
+def _modules(packages: tuple[str, ...] = ("swarm_env",)) -> dict[str, Path]:
+    return {_module_name(package, p): p for package in packages for p in PACKAGES[package].rglob("*.py")
+            if "__pycache__" not in p.parts}
 
 
 def _imports(path: Path, modules: dict[str, Path]) -> set[str]:
@@ -58,7 +65,7 @@ def _imports(path: Path, modules: dict[str, Path]) -> set[str]:
         for name in names:
             while name and name not in modules:  # a name inside a module: the module
                 name = name.rpartition(".")[0]
-            if name.startswith("swarm_env"):
+            if name:
                 found.add(name)
     return found
 
@@ -71,8 +78,8 @@ def _room(module: str) -> str:
     return parts[1]
 
 
-def _graph() -> dict[str, set[str]]:
-    modules = _modules()
+def _graph(packages: tuple[str, ...] = ("swarm_env",)) -> dict[str, set[str]]:
+    modules = _modules(packages)
     return {m: _imports(p, modules) - {m} for m, p in modules.items()}
 
 
@@ -92,7 +99,7 @@ def test_no_module_imports_a_room_above_its_own() -> None:
 
 
 def test_no_import_loops() -> None:
-    graph = _graph()
+    graph = _graph(tuple(PACKAGES))
     loops: list[list[str]] = []
     state: dict[str, int] = {}  # 1: on the current path, 2: done
     path: list[str] = []
@@ -145,7 +152,7 @@ def _top_imports(path: Path) -> set[str]:
 def test_imports_inside_functions_only_defer_heavy_modules() -> None:
     """A module of the package imported inside a function must load a heavy library when imported (numba for the
     kernels, pygame for the renderer, ...): anything else belongs at the top of the file, where a loop would show."""
-    modules = _modules()
+    modules = _modules(tuple(PACKAGES))
     heavy: dict[str, bool] = {}
 
     def is_heavy(module: str, seen: tuple[str, ...] = ()) -> bool:
@@ -170,7 +177,7 @@ def test_imports_inside_functions_only_defer_heavy_modules() -> None:
                     else:
                         continue
                     for dep in _imports_of(names, modules):
-                        if dep != "swarm_env" and not is_heavy(dep):
+                        if dep not in PACKAGES and not is_heavy(dep):
                             deferred.append(f"{module}:{inner.lineno} {dep}")
     assert not deferred, "move to the top of the file: " + ", ".join(sorted(set(deferred)))
 
@@ -181,7 +188,7 @@ def _imports_of(names: set[str], modules: dict[str, Path]) -> set[str]:
     for name in names:
         while name and name not in modules:
             name = name.rpartition(".")[0]
-        if name.startswith("swarm_env"):
+        if name:
             found.add(name)
     return found
 
@@ -196,3 +203,10 @@ def test_the_package_imports_neither_the_experts_nor_the_baselines() -> None:
                 if any(n.startswith(("swarm_env_agents", "swarm_env_baselines")) for n in names):
                     offenders.append(str(path.relative_to(ROOT)))
     assert not offenders, offenders
+
+
+def test_each_package_imports_only_itself_and_those_below() -> None:
+    order = list(PACKAGES)
+    upward = [f"{m} -> {d}" for m, deps in _graph(tuple(PACKAGES)).items() for d in deps
+              if order.index(d.split(".")[0]) > order.index(m.split(".")[0])]
+    assert not upward, "imports that run up: " + ", ".join(sorted(upward))

@@ -28,7 +28,7 @@ from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.harness import cli  # noqa: E402
 from swarm_env.harness.episode import run_episode  # noqa: E402
 from swarm_env.harness.policies import TRUST_PICKLE_ENV, ModelFileError, PolicyError, load_policy, pickle_trusted  # noqa: E402
-from swarm_env_baselines import model_io, safe_io  # noqa: E402
+from swarm_env_baselines import convert, model_io, safe_io  # noqa: E402
 from swarm_env_baselines import train as train_mod  # noqa: E402
 from swarm_env_baselines.mappo_policy import shipped_run  # noqa: E402
 from tests.test_safe_io import _Payload  # noqa: E402
@@ -152,9 +152,9 @@ def test_the_opt_in_still_loads_legacy_directories(run, tmp_path, capsys, monkey
 
 def test_the_converter_asks_for_the_opt_in(run, tmp_path, capsys) -> None:
     d = _legacy(run, tmp_path / "old")
-    assert safe_io.main([str(d)]) == 2
+    assert convert.main([str(d)]) == 2
     assert "refused" in capsys.readouterr().err and not safe_io.has_safe_policy(d)
-    assert safe_io.main([str(d), "--trust-pickle"]) == 0 and safe_io.has_safe_policy(d)
+    assert convert.main([str(d), "--trust-pickle"]) == 0 and safe_io.has_safe_policy(d)
     assert run_episode(_env(), load_policy(f"ppo:{d}", _env()), seed=1000)["steps"] == 30  # no opt-in needed now
 
 

@@ -16,7 +16,7 @@ import torch  # noqa: E402
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.harness.episode import run_episode  # noqa: E402
 from swarm_env.harness.policies import PolicyError, load_policy  # noqa: E402
-from swarm_env_baselines import model_io, safe_io  # noqa: E402
+from swarm_env_baselines import convert, model_io, safe_io  # noqa: E402
 from swarm_env_baselines import train as train_mod  # noqa: E402
 from tests.test_train import TINY_ENV, _tiny  # noqa: E402
 
@@ -95,6 +95,6 @@ def test_the_converter_writes_safe_files_for_an_old_run(run, tmp_path, capsys) -
     shutil.copytree(run, d)
     for f in (safe_io.WEIGHTS_FILE, safe_io.CONFIG_FILE):
         (d / f).unlink()
-    assert safe_io.main([str(d), "--trust-pickle"]) == 0 and safe_io.has_safe_policy(d)
+    assert convert.main([str(d), "--trust-pickle"]) == 0 and safe_io.has_safe_policy(d)
     assert "wrote" in capsys.readouterr().out
-    assert safe_io.main([str(tmp_path / "missing"), "--trust-pickle"]) == 2
+    assert convert.main([str(tmp_path / "missing"), "--trust-pickle"]) == 2

@@ -520,7 +520,7 @@ MODULE_COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("demos",): ("swarm_env_baselines.demos", "record a scripted expert's demonstrations (cached .npz)"),
     ("ship",): ("swarm_env_baselines.ship", "copy a finished `train mappo` or `train sb3` run into checkpoints/<method>/s<k>"),
     ("curves",): ("swarm_env_baselines.plots", "the shipped methods' learning curves in one figure"),
-    ("convert",): ("swarm_env_baselines.safe_io", "write tensors + JSON beside an older SB3 run's pickles"),
+    ("convert",): ("swarm_env_baselines.convert", "write tensors + JSON beside an older SB3 run's pickles"),
     ("reproduce", "vo"): ("swarm_env_agents.vo_paper", "paper 003's experiments with the vo expert (docs/vo_expert.md)"),
     ("reproduce", "cbs_rrt"): ("swarm_env_agents.cbs_rrt.paper", "paper 000's experiment with the cbs_rrt expert (docs/cbs_rrt.md)"),
 }
