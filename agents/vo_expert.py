@@ -75,7 +75,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.control import guidance
+from swarm_env.compiled import compiled_search
 from swarm_env.control.guidance import pure_pursuit, slot_velocities
 from swarm_env.control.safety import AvoidanceParams, safe_follower_twists
 from swarm_env.geometry.formation import SLOT_MARGIN
@@ -313,7 +313,7 @@ class VOExpert:
         """Pure pursuit towards each follower's (led) slot target: ``(N, 2)`` twists before avoidance.
 
         Without preview the pursuit itself runs compiled (:func:`swarm_env.control.vo_kernel.pursuit`) unless
-        :func:`swarm_env.control.guidance.use_compiled_search` turned the compiled search off; the numpy code
+        :func:`swarm_env.compiled.use_compiled_search` turned the compiled search off; the numpy code
         below is its reference (same bits, ``tests/test_vo_kernel.py``)."""
         robots = state.scenario.robots
         slots = state.slot_targets
@@ -323,7 +323,7 @@ class VOExpert:
         if self.feed_forward:
             v_slot = slot_velocities(state.leader_pose, state.leader_vel, float(state.leader_twist[1]), slots)
             target = self._capped(state.follower_pose, slots + v_slot * T, v_max)
-            if not preview and guidance.compiled_search():
+            if not preview and compiled_search():
                 return self._pursuit_compiled(state.follower_pose, target, v_max, omega_max)
             if preview:
                 # The env's rule for slots (world.World: radius + SLOT_MARGIN): a led point inside
@@ -332,7 +332,7 @@ class VOExpert:
                 target = state.static.project_free(target, clearance)
         else:
             target = slots
-            if guidance.compiled_search():
+            if compiled_search():
                 return self._pursuit_compiled(state.follower_pose, target, v_max, omega_max)
         twist = pure_pursuit(state.follower_pose, target, v_max, omega_max, T)
         if preview:

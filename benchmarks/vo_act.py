@@ -12,7 +12,7 @@ and p95 of ``env.step`` (the peer: the cost of simulating one step), in
 microseconds, plus how often every follower's preferred twist was safe (the
 fast path). Timings are of this machine and this run: compare numbers from the
 same run only. ``act()`` runs compiled (:mod:`swarm_env.control.vo_kernel`: the pure
-pursuit and the search); the numpy reference (``guidance.use_compiled_search(False)``,
+pursuit and the search); the numpy reference (``compiled_mode(search=False)``,
 same actions) is timed on the same states, interleaved with it, as its peer
 ("reference CPU median" and the ratio, the figure to compare on a loaded machine).
 """
@@ -25,7 +25,7 @@ import time
 
 import numpy as np
 
-from swarm_env.control import guidance
+from swarm_env.compiled import compiled_mode
 from swarm_env.control.safety import safe_follower_twists
 from swarm_env.env import SwarmEnv
 from swarm_env_agents.vo_expert import VOExpert
@@ -51,20 +51,16 @@ def bench(scenario: str, repeat: int) -> dict[str, float]:
     act_us = np.empty((repeat, len(states)))
     act_cpu_us = np.empty((repeat, len(states)))
     ref_cpu_us = np.empty((repeat, len(states)))
-    try:
-        for r in range(repeat):
-            for k, (st, ob) in enumerate(zip(states, observations)):
-                guidance.use_compiled_search(False)
+    for r in range(repeat):
+        for k, (st, ob) in enumerate(zip(states, observations)):
+            with compiled_mode(search=False):
                 c0 = time.process_time()
                 policy.act(ob, st)
                 ref_cpu_us[r, k] = (time.process_time() - c0) * 1e6
-                guidance.use_compiled_search(True)
-                t0, c0 = time.perf_counter(), time.process_time()
-                policy.act(ob, st)
-                act_us[r, k] = (time.perf_counter() - t0) * 1e6
-                act_cpu_us[r, k] = (time.process_time() - c0) * 1e6
-    finally:
-        guidance.use_compiled_search(True)
+            t0, c0 = time.perf_counter(), time.process_time()
+            policy.act(ob, st)
+            act_us[r, k] = (time.perf_counter() - t0) * 1e6
+            act_cpu_us[r, k] = (time.process_time() - c0) * 1e6
     per_state = np.median(act_us, axis=0)
     cpu_per_state = np.median(act_cpu_us, axis=0)
     ref_per_state = np.median(ref_cpu_us, axis=0)

@@ -1,15 +1,26 @@
-"""Test-wide settings: headless rendering and a non-interactive plotting backend; the ``faults`` fixture."""
+"""Test-wide settings: headless rendering and a non-interactive plotting backend; every test starts with the
+compiled kernels and search and leaves them so; the ``faults`` fixture."""
 
 import os
 import shutil
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+
+from swarm_env.compiled import compiled_mode
 
 os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 os.environ.setdefault("SDL_AUDIODRIVER", "dummy")
 os.environ.setdefault("MPLBACKEND", "Agg")
 os.environ.setdefault("PYGAME_HIDE_SUPPORT_PROMPT", "1")
+
+
+@pytest.fixture(autouse=True)
+def _compiled_restored() -> Iterator[None]:
+    """A test that switches to the numpy references (:mod:`swarm_env.compiled`) cannot leak the choice."""
+    with compiled_mode(kernels=True, search=True):
+        yield
 
 
 @pytest.fixture()

@@ -20,6 +20,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from swarm_env.compiled import compiled_kernels, compiled_mode, compiled_search
 from swarm_env.control import guidance, vo_kernel
 from swarm_env.control.guidance import VOBatchResult, VOParams, vo_select, vo_select_batch
 from swarm_env.control.safety import AvoidanceParams, safe_follower_twists, shield_actions
@@ -33,14 +34,10 @@ FIELDS = ("twist", "feasible", "n_safe", "min_time_to_collision", "escaped", "fa
 
 
 def _both(call):
-    """``call()`` with the reference, then compiled; the compiled search is restored whatever happens."""
-    try:
-        guidance.use_compiled_search(False)
+    """``call()`` with the reference, then compiled."""
+    with compiled_mode(search=False):
         ref = call()
-        guidance.use_compiled_search(True)
-        return ref, call()
-    finally:
-        guidance.use_compiled_search(True)
+    return ref, call()
 
 
 def _assert_same(ref: VOBatchResult, fast: VOBatchResult, where: str) -> None:
@@ -59,11 +56,8 @@ def _same_array(a: np.ndarray, b: np.ndarray, where: str) -> None:
 
 def _act_both(ref_policy: VOExpert, policy: VOExpert, obs: dict, state: WorldState) -> tuple[dict, dict]:
     """``act()`` of two experts with the same parameters, the first on the reference path."""
-    try:
-        guidance.use_compiled_search(False)
+    with compiled_mode(search=False):
         ref = ref_policy.act(obs, state)
-    finally:
-        guidance.use_compiled_search(True)
     return ref, policy.act(obs, state)
 
 
@@ -227,7 +221,7 @@ def test_the_kernels_math_is_numpys_on_this_platform() -> None:
     # ranges the search meets and beyond). numpy's arctan2 (a SIMD implementation here) does NOT agree
     # with the C library's atan2 for a few per cent of inputs, which is why vo_kernel.pursuit takes
     # numpy's bearing as an input. If this test fails, the kernels' answers may differ from the
-    # reference's in a last bit on this platform: run the search with use_compiled_search(False).
+    # reference's in a last bit on this platform: run the search with compiled_mode(search=False).
     numba = pytest.importorskip("numba")
 
     @numba.njit
@@ -337,13 +331,15 @@ def test_single_robot_and_a_crowd_give_the_same_bits(clutter: StaticMap) -> None
         assert not ref.feasible[0]
 
 
-def test_the_switch_is_honoured() -> None:
-    assert guidance._COMPILED
-    guidance.use_compiled_search(False)
-    try:
-        assert not guidance._COMPILED
-    finally:
-        guidance.use_compiled_search(True)
+def test_the_switch_is_honoured_and_restored() -> None:
+    assert compiled_search() and compiled_kernels()
+    with pytest.raises(RuntimeError), compiled_mode(search=False):
+        assert not compiled_search() and compiled_kernels()
+        raise RuntimeError
+    assert compiled_search() and compiled_kernels()
+    with compiled_mode(kernels=False, search=False):
+        assert not compiled_search() and not compiled_kernels()
+    assert compiled_search() and compiled_kernels()
 
 
 def test_an_escape_with_reverse_candidates_only_turns_in_place() -> None:

@@ -63,6 +63,7 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.compiled import compiled_search
 from swarm_env.geometry.paths import PolylinePath
 from swarm_env.geometry.static_map import StaticMap
 
@@ -90,29 +91,11 @@ _TWO_PI = 2.0 * math.pi
 _EPS_DIST = 1e-9
 # vo_select_batch tests this many least-penalty candidates first (see there).
 _FIRST_STAGE = 24
-# The search runs compiled (swarm_env.control.vo_kernel, numba: the same bits, ~Nx faster for a few robots) unless
-# this is False: the batched engine's worker processes use the numpy reference (_VOBatch) so that they
-# never import numba (swarm_env.vector.worker). See use_compiled_search().
-_COMPILED = True
-
-
-def compiled_search() -> bool:
-    """Whether the search runs compiled (see :func:`use_compiled_search`)."""
-    return _COMPILED
-
 
 def _turning_in_place(v: float, omega: float, v_max: float, omega_max: float) -> bool:
     """Whether a robot driving the twist ``(v, omega)`` is turning in place (``escape_commit``): speed
     under 10 % of ``v_max``, turn rate over 10 % of ``omega_max``. (The kernel has the same test.)"""
     return abs(v) < 0.1 * v_max and abs(omega) > 0.1 * omega_max
-
-
-def use_compiled_search(flag: bool) -> None:
-    """Run :func:`vo_select_batch` compiled (``True``, the default) or with the numpy reference
-    (``False``). Both give the same bits (``tests/test_vo_kernel.py``); the reference imports no
-    numba, which is why the batched engine's worker processes use it."""
-    global _COMPILED
-    _COMPILED = bool(flag)
 
 
 def wrap_angle(a):
@@ -1511,7 +1494,7 @@ class _VOBatch:
     # ------------------------------------------------------------------ the rule
     def select(self, fast: bool) -> VOBatchResult:
         """The selection of :func:`vo_select_batch` (see its docstring)."""
-        if _COMPILED:
+        if compiled_search():
             return self.select_compiled(fast)
         self.prepare()
         n, pv, pw = self.n, self.pv, self.pw

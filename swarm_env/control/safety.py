@@ -17,6 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swarm_env.compiled import compiled_search
 from swarm_env.control import guidance
 from swarm_env.control.guidance import VOBatchResult, VOParams, vo_select_batch
 from swarm_env.state import WorldState
@@ -74,11 +75,11 @@ def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: Avoid
     heading term makes another candidate cheaper).
 
     Runs compiled (:func:`swarm_env.control.vo_kernel.follower_select`: the discs, the masks and the whole
-    search in one call) unless :func:`swarm_env.control.guidance.use_compiled_search` turned the compiled
+    search in one call) unless :func:`swarm_env.compiled.use_compiled_search` turned the compiled
     search off; this function's numpy body below is the reference (same bits,
     ``tests/test_vo_kernel.py``).
     """
-    if guidance.compiled_search() and params.model == "arc":
+    if compiled_search() and params.model == "arc":
         return _follower_twists_compiled(state, preferred, params)
     robots = state.scenario.robots
     pose = state.follower_pose

@@ -6,7 +6,7 @@ connection's authentication key on standard input; receives the pickled world fa
 away. Imports neither torch nor numba by default: the engine fills the lidar columns itself, and the
 velocity-obstacle search (robot leaders, the safety layer) and the per-step kernels (physics,
 rewards, metrics, observations, ...) run their numpy references here, which give the compiled bits
-(``swarm_env.control.guidance.use_compiled_search``, ``swarm_env.compiled.use_compiled_kernels``). With
+(``swarm_env.compiled.use_compiled_search``, ``swarm_env.compiled.use_compiled_kernels``). With
 ``--compiled`` (``SwarmVectorEnv(..., worker_kernels=True)``) they run compiled: faster, with numba
 loaded in the worker (more memory).
 """
@@ -18,15 +18,14 @@ import sys
 import traceback
 from typing import Any
 
-from swarm_env.compiled import use_compiled_kernels
-from swarm_env.control import guidance
+from swarm_env.compiled import use_compiled_kernels, use_compiled_search
 from swarm_env.vector.engine import _WorldBlock
 from swarm_env.worker_process import connect
 
 
 def serve(address: str, compiled: bool = False) -> None:
     """Serve one block of worlds; ``compiled``: run the compiled kernels and search (loads numba)."""
-    guidance.use_compiled_search(compiled)
+    use_compiled_search(compiled)
     use_compiled_kernels(compiled)
 
     conn = connect(address)
