@@ -31,7 +31,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.control.guidance import pure_pursuit, slot_velocities
+from swarm_env.control.pursuit import pure_pursuit, slot_velocities
 from swarm_env.extras import require
 from swarm_env.harness.policies import expert_factory
 from swarm_env.sim.rvo import simulator

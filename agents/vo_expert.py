@@ -29,7 +29,7 @@ privileged :class:`~swarm_env.state.WorldState`:
    from its slot (after a formation switch) turns towards it before it drives
    instead of leaving on a wide arc (pure pursuit's curvature is ``2 sin(alpha) /
    l``: small for a far target).
-3. **Velocity obstacle** (Eq. 12): :func:`swarm_env.control.guidance.vo_select_batch`
+3. **Velocity obstacle** (Eq. 12): :func:`swarm_env.control.vo.vo_select_batch`
    samples candidate twists ``(v, omega)`` within the robot's limits, rejects
    every candidate whose predicted motion enters the velocity obstacle of
    another follower (reciprocal: they all run this rule), the robot leader and
@@ -76,7 +76,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarm_env.compiled import compiled_search
-from swarm_env.control.guidance import pure_pursuit, slot_velocities
+from swarm_env.control.pursuit import pure_pursuit, slot_velocities
 from swarm_env.control.safety import AvoidanceParams, safe_follower_twists
 from swarm_env.geometry.formation import SLOT_MARGIN
 from swarm_env.harness.policies import expert_factory
@@ -88,7 +88,7 @@ if TYPE_CHECKING:
 __all__ = ["EXPERT_AVOIDANCE", "LEGACY_SPEC", "VOExpert", "make_policy"]
 
 #: Where the expert's avoidance defaults differ from :class:`~swarm_env.control.safety.AvoidanceParams`' (which the
-#: safety layer keeps; see :func:`swarm_env.control.guidance.vo_select` for each):
+#: safety layer keeps; see :func:`swarm_env.control.vo.vo_select` for each):
 #:
 #: * ``move_first``: a blocked follower drives off on a safe detour before it turns in place;
 #: * ``recip_gap=0.2``: another follower nearer than the combined radius plus 0.2 m is avoided plainly
@@ -99,11 +99,8 @@ __all__ = ["EXPERT_AVOIDANCE", "LEGACY_SPEC", "VOExpert", "make_policy"]
 #:   rather than slowing down (a slow-down only pushes the contact past the horizon);
 #: * ``escape_commit=1``: a follower turning in place to escape keeps its direction (no left-right dithering);
 #: * ``human_horizon=3.5``: the humans, who do not give way, are looked for 3.5 s ahead (the robots 2.5 s), so a
-#:   follower steps aside before a human walking at it has boxed it in against a neighbour or an obstacle.
-#:   On random worlds 0-2399 (``swarm-env evaluate --policies vo vo:human_horizon=0 --scenarios random
-#:   --scenario-seeds random=0-2399 --seeds 0``) episodes with a contact went 26 -> 17 and contacts 48 -> 27
-#:   (paired per episode -0.009 +- 0.008), formation error unchanged (-0.0001 +- 0.002 m); chosen on 0-1199
-#:   (3 s: 7 episodes, 3.5 s: 2, 4 s: 3, against 9), then 1200-2399 gave 15 against 17 (34 -> 25 contacts).
+#:   follower steps aside before a human walking at it has boxed it in against a neighbour or an obstacle
+#:   (fewer contacts, the same formation error: docs/vo_defaults.md).
 #:
 #: With the tracking defaults ``preview=0.5, lookahead=0.875``. Measured against the earlier expert and
 #: ORCA in docs/vo_expert.md ("Against ORCA"). ``LEGACY_SPEC`` is the earlier expert.
@@ -150,13 +147,10 @@ class VOExpert:
             pulled towards the robot to at most ``max_speed * lookahead`` from it. ``0``
             for none (Eq. 9's distance ``l`` to the slot itself).
 
-        Measured (``swarm-env run --scenario S --seed 0 --policy vo:KEY=VALUE``; mean formation
-        error in m), the defaults against each left out:
-        paper_vo_90 0.047 (``preview=0``: 0.114, ``lookahead=0``: 0.049, ``w_speed=1``: 0.049),
-        crowd_reactive 0.075 (0.089, 0.104, 0.088), corridor 0.249 (0.249, 0.265, 0.248); on
-        paper_cbs_switch each of those three, and ``escape_commit=0``, brings 1-3 contacts (the
-        defaults: none). The whole comparison with the earlier expert and ORCA is in
-        docs/vo_expert.md ("Against ORCA").
+        ``preview``, ``lookahead`` and ``w_speed`` each lower the formation error on some fixed
+        scenario, and leaving out any of them, or ``escape_commit``, brings contacts on
+        paper_cbs_switch (measurements: docs/vo_defaults.md; the comparison with
+        the earlier expert and ORCA: docs/vo_expert.md, "Against ORCA").
 
     Boxed in:
         reverse: off by default (``0``). With ``reverse > 0`` (a fraction in ``[0, 1]``), a follower
@@ -164,21 +158,14 @@ class VOExpert:
             the horizon) while a human could reach it within the horizon searches again with
             reversing candidates down to ``-reverse * max_speed`` and takes that search's twist if
             it is safe: the other followers give way (reciprocal avoidance), a scripted human does
-            not. Random world 31 is the case: a follower inside a neighbour's margin turns in place
-            and the human walks into it; with ``reverse=0.2`` it backs off. Only those steps differ
-            (worlds without humans are unchanged). Measured (``swarm-env evaluate --policies vo
-            vo:reverse=0.2 --scenarios random --scenario-seeds random=0-599 --seeds 0``): episodes
-            with a contact on worlds 0-199 1 -> 0, on 200-599 4 -> 4 (503 avoided, 225 new; 239, 305
-            and 513 fail either way, crowds where a human walks at a follower with no safe twist
-            at all), contacts 7 -> 5; ``reverse=0.1`` and ``0.3`` had 5 such episodes each, and
-            ``0.65`` backed world 31's follower along the human's path for seconds. On the report's
-            set (``swarm-env reproduce vo``'s 100 worlds) 96/100 either way. A gain within the
-            noise, so not the default. (Measured before ``human_horizon``, with the humans' horizon
-            the robots' 2.5 s: ``vo:human_horizon=0,reverse=0.2`` is that fallback.)
+            not (random world 31: a follower inside a neighbour's margin backs off instead of
+            turning in place into the human's path). Only those steps differ (worlds without humans
+            are unchanged). Off by default: the gain was within the noise (measurements:
+            docs/vo_defaults.md).
 
     Avoidance (velocity obstacles, Eq. 12): any field of
     :class:`swarm_env.control.safety.AvoidanceParams` (the search's
-    :class:`~swarm_env.control.guidance.VOParams` plus ``human_margin``, ``human_horizon`` and ``reciprocal``), e.g.
+    :class:`~swarm_env.control.vo.VOParams` plus ``human_margin``, ``human_horizon`` and ``reciprocal``), e.g.
     ``horizon``, ``margin``, ``n_v``/``n_w``, ``tau``, ``w_pref``/``w_heading``/``side_bias``,
     ``escape``, ``w_current``, ``cost``, ``recip_gap``, ``move_first``, ``static_reach``; they are kept in :attr:`avoidance`
     (and read through: ``expert.horizon``). The expert's defaults are the shared ones except

@@ -650,7 +650,7 @@ way) within 3.5 s, and static circles, polygons (exact Minkowski sums) and walls
 twist wins, a slow-down costing three times a turn (so a follower bends round an obstacle at speed). The
 pursuit steers towards the slot 0.5 s ahead (moved out of obstacles like the slots) and caps the pursued
 point at 0.875 s of travel at full speed, so a follower far from its slot turns towards it first; a
-follower turning in place to escape a block keeps its direction. All followers are evaluated in one pass (`swarm_env.control.guidance.vo_select_batch`, compiled:
+follower turning in place to escape a block keeps its direction. All followers are evaluated in one pass (`swarm_env.control.vo.vo_select_batch`, compiled:
 `swarm_env.control.vo_kernel`)."""
 
 #: Hand-written explanations of the failing random episodes (seed -> note), from their videos.

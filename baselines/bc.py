@@ -45,12 +45,10 @@ What it does, top to bottom (:func:`train_bc`):
    transitions join the training set (never the validation set) and training
    continues for ``dagger_epochs`` epochs. The normalisation statistics stay
    those of the expert demos. The value targets of DAgger transitions are the
-   returns of the executed (learner) behaviour. Measured (``vo`` on
-   ``random``, 200 demo episodes, seed 0; 50 validation seeds 500-549, paired
-   by seed): 8 iterations of 25 seeds cut collisions per episode from 7.1 to
-   5.6 (paired difference -1.5 +- 1.1, 95 % CI) at the same formation error
-   (0.57 vs 0.54, difference -0.03 +- 0.09), so 8 is the default; it
-   multiplies the training time by about six (1 -> 6 minutes here).
+   returns of the executed (learner) behaviour. The default of 8 iterations
+   cut collisions against plain cloning at the same formation error, for
+   about six times the training time (measurements: docs/baselines.md,
+   "Behaviour cloning: why 8 DAgger iterations").
 7. **Validation rollouts** (``eval_seeds``, default 500-509): after BC and
    after each DAgger iteration the policy plays those seeds through
    :func:`swarm_env.harness.episode.run_episode`; ``eval.csv`` has one row per stage.
@@ -134,7 +132,7 @@ class BCConfig:
     gamma: float = 0.99
     #: Lower bound of the policy's action std (the learned log_std is clamped at log(min_std)).
     min_std: float = 0.1
-    #: DAgger iterations after BC (0 = plain behaviour cloning; 8 measured better, see the module docstring).
+    #: DAgger iterations after BC (0 = plain behaviour cloning; 8 measured better: docs/baselines.md).
     dagger_iters: int = 8
     #: Seeds of the DAgger rollouts, split evenly over the iterations; disjoint from train_seeds.
     dagger_seeds: str = "300-499"

@@ -9,8 +9,8 @@ to recover from its own mistakes. After each round the student is fitted to all 
 
 :mod:`swarm_env_baselines.mappo` uses it to warm-start PPO (``--pretrain vo``): a few minutes of DAgger
 teach the network to hold its slot, which PPO from scratch needs millions of steps for. It
-does not teach avoidance: measured on validation seeds 500-549, a DAgger student of ``vo``
-has about as many collisions as ``pursuit`` (docs/baselines.md gives the figures), because the
+does not teach avoidance: a DAgger student of ``vo`` has about as many collisions as ``pursuit``
+(docs/baselines.md, "What was tried toward the unshielded target"), because the
 velocity-obstacle choice is a discontinuous function of the state that flips between sides
 from one step to the next; PPO and the safety layer have to add the avoidance.
 

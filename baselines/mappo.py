@@ -198,7 +198,8 @@ class MAPPOConfig:
     gae_lambda: float = 0.95
     #: Clip range of the policy ratio.
     clip_range: float = 0.2
-    #: Optimisation epochs per rollout (2: the validation of 5 at the same wall time, 1.7x the agent-steps/s).
+    #: Optimisation epochs per rollout (2 validates as well as 5 in the same wall time: docs/performance.md,
+    #: "The sweep behind the defaults").
     n_epochs: int = 2
     #: Minibatches per epoch.
     n_minibatches: int = 4
@@ -222,7 +223,7 @@ class MAPPOConfig:
     #: machine with a free core 1 hides the validation time; the results are the same bit for bit.
     eval_workers: int = 0
     #: Torch threads of the PPO update (the rollout's per-step forwards always use one; the engine is idle
-    #: meanwhile, so 2 uses the second core: 1.8x faster updates measured); results depend on it.
+    #: meanwhile, so 2 uses the second core: docs/performance.md, "Training throughput"); results depend on it.
     torch_threads: int = 2
     #: Where the networks and the update run: cpu, or cuda / cuda:K when torch sees a GPU (the rollout's
     #: engine is on the CPU either way; bits differ between devices).

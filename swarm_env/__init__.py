@@ -23,7 +23,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from swarm_env.env import PRIMITIVE_ANGLES_DEG, SwarmEnv
 from swarm_env.scenario import Scenario, ScenarioError
 from swarm_env.scenarios.loader import list_scenarios, load_scenario
-from swarm_env.sensing.observations import OBS_LEADER, OBS_OWN_TWIST, OBS_SLOT, OBS_SWITCH, observation_layout
+from swarm_env.sensing.layout import OBS_LEADER, OBS_OWN_TWIST, OBS_SLOT, OBS_SWITCH, observation_layout
 from swarm_env.state import WorldState
 
 __version__ = "0.1.0"

@@ -11,7 +11,7 @@ engine's global state of many worlds (:mod:`swarm_env.sensing.state_kernel`).
 Each kernel has a numpy reference beside it that gives the same bits (their tests compare the
 two on whole episodes). The references import no numba, which is why the batched engine's worker
 processes (:mod:`swarm_env.vector.worker`) switch the kernels off: the workers' memory target. The
-velocity-obstacle search (:func:`swarm_env.control.guidance.vo_select_batch` and
+velocity-obstacle search (:func:`swarm_env.control.vo.vo_select_batch` and
 :mod:`swarm_env.control.vo_kernel`) has a switch of its own here, as the experts' tests compare it alone.
 
 This module holds the only state of the choice: :func:`compiled_mode` sets it for a block and restores it after;

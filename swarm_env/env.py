@@ -114,16 +114,11 @@ class SwarmEnv(ParallelEnv):
             - 1.0 * max(0, 1 - clearance / 0.2 m)
 
     Every step of a contact is charged (v0 charged only its onset), and the
-    clearance term warns inside a 0.2 m margin (CrowdNav's
-    discomfort distance), where the lidar already sees the obstacle. Measured
-    with ``python benchmarks/reward_terms.py --episodes 20`` (``random``, seeds
-    1000-1019, per agent-step): under ``pursuit`` (no avoidance) 2.5 % of
-    agent-steps are in contact and 100 % of them are penalised (v0: 10.6 %);
-    contacts make 13 % of its penalty and clearance 9 % (v0: 7 % and 0). Under
-    ``vo`` (which avoids) the contact terms are 0 and the formation term is
-    91 % of the penalty: avoiding is worth it, and a policy that avoids is
-    scored mostly on its formation. Each weighted term is reported in the
-    infos as ``reward_<term>`` (they sum to the reward); rewards are
+    clearance term warns inside a 0.2 m margin (CrowdNav's discomfort
+    distance), where the lidar already sees the obstacle: a policy that avoids
+    is scored mostly on its formation (measured in docs/environment.md, "Why
+    reward v1 charges every contact step"). Each weighted term is reported in
+    the infos as ``reward_<term>`` (they sum to the reward); rewards are
     Python floats. ``reward="v0"`` gives the v0 reward (``-distance - 10 *
     onsets``) for comparison with published numbers.
 

@@ -16,7 +16,7 @@ import pytest
 from swarm_env.compiled import use_compiled_kernels
 from swarm_env.env import SwarmEnv
 from swarm_env.scenario import RewardSpec
-from swarm_env.sensing.observations import OBS_SLOT
+from swarm_env.sensing.layout import OBS_SLOT
 from swarm_env.vector.batch_step import PaddedMaps
 from swarm_env.vector.engine import INFO_KEYS, EnvFactory, SwarmVectorEnv
 

@@ -1,4 +1,4 @@
-"""Tests for swarm_env.control.guidance: pure pursuit and velocity-obstacle geometry."""
+"""Tests for swarm_env.control.pursuit and swarm_env.control.vo: pure pursuit and velocity-obstacle geometry."""
 
 from __future__ import annotations
 
@@ -7,11 +7,10 @@ import math
 import numpy as np
 import pytest
 
-from swarm_env.control.guidance import (
+from swarm_env.control.pursuit import lookahead_target, pure_pursuit, wrap_angle
+from swarm_env.control.vo import (
     VOParams,
     disc_time_to_collision,
-    lookahead_target,
-    pure_pursuit,
     sample_twists,
     static_time_to_collision,
     trajectory_disc_ttc,
@@ -21,7 +20,6 @@ from swarm_env.control.guidance import (
     vo_polygons_inside,
     vo_select,
     vo_select_batch,
-    wrap_angle,
 )
 from swarm_env.geometry.paths import PolylinePath
 from swarm_env.geometry.static_map import StaticMap
@@ -150,7 +148,7 @@ def test_twist_trajectories_follow_the_unicycle():
 
 
 def test_preferred_row_matches_vectorised_trajectories():
-    from swarm_env.control.guidance import _trajectory_row
+    from swarm_env.control.vo import _trajectory_row
 
     for v, w, theta in [(0.5, 0.0, 0.3), (0.65, -1.0, -2.0), (0.0, 0.7, 1.0), (0.2, 1e-14, 0.0)]:
         _, pts = twist_trajectories(theta, np.array([[v, w]]), 1.0, 3.0, 2)
@@ -561,8 +559,8 @@ def test_vo_select_recip_gap_avoids_a_close_robot_plainly():
 
 def test_vo_select_velocity_cost_measures_mean_velocities():
     # cost="velocity": the penalty's distance is between mean world-frame velocities (the chord of the
-    # arc over tau), whatever the heading; guidance's plain-Python velocities are twist_velocities'.
-    from swarm_env.control.guidance import _body_velocity, _grid_velocities
+    # arc over tau), whatever the heading; vo.py's plain-Python velocities are twist_velocities'.
+    from swarm_env.control.vo import _body_velocity, _grid_velocities
 
     grid = sample_twists(0.65, 1.0, 7, 11)
     mine = _grid_velocities(0.65, 1.0, 7, 11, 0.0, 1.0)

@@ -30,7 +30,7 @@ import pytest
 
 import swarm_env
 from swarm_env.compiled import use_compiled_kernels
-from swarm_env.control.guidance import pure_pursuit
+from swarm_env.control.pursuit import pure_pursuit
 from swarm_env.jsonio import dumps, write_json
 
 DATA = Path(__file__).parent / "data" / "step_digests.json"

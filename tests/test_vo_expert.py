@@ -1,5 +1,5 @@
 """Tests for the pure-pursuit + velocity-obstacle expert (agents/vo_expert.py) and
-the batched VO selection it runs on (swarm_env.control.guidance.vo_select_batch).
+the batched VO selection it runs on (swarm_env.control.vo.vo_select_batch).
 
 The VO geometry itself (ray/disc entry times, polygon Minkowski sums, overlap
 rules, arc trajectories) is tested in tests/test_guidance.py; here: the cone's
@@ -16,14 +16,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from swarm_env.control.guidance import (
-    pure_pursuit,
-    twist_trajectories,
-    vo_discs_inside,
-    vo_polygons_inside,
-    vo_select,
-    vo_select_batch,
-)
+from swarm_env.control.pursuit import pure_pursuit
+from swarm_env.control.vo import twist_trajectories, vo_discs_inside, vo_polygons_inside, vo_select, vo_select_batch
 from swarm_env.env import SwarmEnv
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.harness.episode import run_episode
@@ -416,8 +410,8 @@ def test_same_seed_same_actions():
 
 def test_one_parameter_object_for_the_search():
     """vo_select, vo_select_batch, the safety layer, VOExpert and the robot leader share VOParams."""
-    from swarm_env.control.guidance import VOParams
     from swarm_env.control.safety import AvoidanceParams
+    from swarm_env.control.vo import VOParams
     from swarm_env.sim.world import LEADER_VO
 
     assert isinstance(AvoidanceParams(), VOParams) and LEADER_VO == VOParams()

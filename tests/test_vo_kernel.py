@@ -21,9 +21,9 @@ import numpy as np
 import pytest
 
 from swarm_env.compiled import compiled_kernels, compiled_mode, compiled_search
-from swarm_env.control import guidance, vo_kernel
-from swarm_env.control.guidance import VOBatchResult, VOParams, vo_select, vo_select_batch
+from swarm_env.control import vo, vo_kernel
 from swarm_env.control.safety import AvoidanceParams, safe_follower_twists, shield_actions
+from swarm_env.control.vo import VOBatchResult, VOParams, vo_select, vo_select_batch
 from swarm_env.env import SwarmEnv
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
@@ -207,10 +207,10 @@ def test_the_preferred_trajectories_give_the_same_bits() -> None:
     w = np.where(rng.random(m) < 0.1, 0.0, rng.uniform(-2.0, 2.0, m)) * 10.0 ** rng.uniform(-13, 0, m)
     theta = rng.uniform(-math.pi, math.pi, m)
     for tau, horizon, n_arc in ((1.0, 3.0, 2), (0.5, 3.0, 3), (2.0, 1.5, 1), (1.0, 1.0, 2)):
-        _same_array(guidance._world_trajectories(v, w, theta, tau, horizon, n_arc),
+        _same_array(vo._world_trajectories(v, w, theta, tau, horizon, n_arc),
                     vo_kernel._preferred_trajectories(v, w, theta, tau, horizon, n_arc), f"batch {tau, horizon, n_arc}")
         for k in range(0, m, 97):
-            row = guidance._trajectory_row(float(v[k]), float(w[k]), tau, horizon, n_arc, float(theta[k]))[None]
+            row = vo._trajectory_row(float(v[k]), float(w[k]), tau, horizon, n_arc, float(theta[k]))[None]
             _same_array(row, vo_kernel._preferred_trajectories(v[k:k + 1], w[k:k + 1], theta[k:k + 1], tau, horizon, n_arc),
                         f"one robot {k} {tau, horizon, n_arc}")
 

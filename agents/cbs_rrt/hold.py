@@ -48,9 +48,9 @@ import heapq
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
+from swarm_env.kernel_cache import njit
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
 
 __all__ = ["GeodesicMap", "SlotHolder", "geodesic_grid", "unicycle_rollout"]
@@ -60,7 +60,7 @@ _PENALTY = 1e5  # cost per metre of a safety violation: dwarfs any distance term
 _UNREACHED = 50.0  # m: the geodesic distance of a point the search did not reach
 
 
-@numba.njit(cache=True)
+@njit()
 def geodesic_grid(
     values: np.ndarray, nx: int, ny: int, resolution: float, stride: int, gx: float, gy: float, free: float, half: int
 ) -> tuple[np.ndarray, float, float, float]:  # pragma: no cover - compiled

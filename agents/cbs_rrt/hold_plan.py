@@ -46,11 +46,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from swarm_env.geometry.paths import PolylinePath, virtual_leader
 from swarm_env.geometry.static_map import StaticMap
+from swarm_env.kernel_cache import njit
 from swarm_env.scenario import Scenario
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
 from swarm_env_agents.cbs_rrt.kernels import _clear1
@@ -74,7 +74,7 @@ _OFF_PLAN = 0.15  # m: the tracker expects a robot farther than this from its pl
 _CONTACT_GAP = 0.005  # m: robot surfaces closer than this over the next step exclude a twist sequence
 
 
-@numba.njit(cache=True)
+@njit()
 def _dp_step(vnext, free, others, sep2, half_widths, gx0, gy0, h, sx, sy, tol2, gain, reach, out, rowmax):  # pragma: no cover - compiled
     """``out[y, x] = gain held(y, x) + max over the disc footprint of vnext`` on free cells within
     ``reach`` cells of the slot ``(sx, sy)`` (a square), else NEG; a cell closer than ``sqrt(sep2)``
@@ -139,7 +139,7 @@ def _dp_step(vnext, free, others, sep2, half_widths, gx0, gy0, h, sx, sy, tol2, 
             out[y, x] = best + held
 
 
-@numba.njit(cache=True)
+@njit()
 def _walk(values, j0, cy, cx, half_widths, x0, y0, h, slots):  # pragma: no cover - compiled
     """Cells ``(T, 2)`` (row, column) of the path down the DP ``values`` from cell ``(cy, cx)`` at
     index ``j0``: each step the reachable cell of largest value, ties to the one nearest the next
@@ -353,7 +353,7 @@ def substep_rollout(state: np.ndarray, cmds: np.ndarray, substeps: int, sub_dt: 
     return np.stack([x, y, a, vx, vy, w], axis=-1), np.stack(pts)
 
 
-_jit_inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+_jit_inline = njit(nogil=True, error_model="numpy", inline="always")
 
 
 @_jit_inline
@@ -386,7 +386,7 @@ def _off_course(x, y, ref, slot, slot_counts, tol, ref_weight):  # pragma: no co
     return c
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@njit(nogil=True, error_model="numpy")
 def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, others, mates, separation, contact, floor,
                     tol, ref_weight, inv, xmax, ymax, nx, values):  # pragma: no cover - compiled
     """The cheapest twist sequence ``(first[a], later[b], later[b], ...)`` for one robot at ``s0 =

@@ -27,10 +27,11 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+from swarm_env.kernel_cache import njit
+
+_jit = njit(nogil=True, error_model="numpy")
 
 
 @_jit

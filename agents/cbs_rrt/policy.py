@@ -14,7 +14,7 @@ Three layers (paper 000 Fig. 1), run from the privileged
    over motion primitives in space-time with a buffer zone, CBS constraints
    and smoothing; the path joins the goal course and follows it.
 
-Every step a pure-pursuit controller (:func:`swarm_env.control.guidance.pure_pursuit`,
+Every step a pure-pursuit controller (:func:`swarm_env.control.pursuit.pure_pursuit`,
 shared with the rest of the project) tracks each robot's timed path: it aims at
 the path's position ``lookahead_time`` seconds ahead, with the speed that
 reaches it in that time, so a robot that lags speeds up and one that is early
@@ -71,8 +71,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from swarm_env.control.guidance import disc_time_to_collision, pure_pursuit
+from swarm_env.control.pursuit import pure_pursuit
 from swarm_env.control.safety import AvoidanceParams, safe_follower_twists
+from swarm_env.control.vo import disc_time_to_collision
 from swarm_env.geometry.formation import virtual_slot_trajectory
 from swarm_env.geometry.paths import human_states
 from swarm_env.harness.policies import expert_factory
@@ -856,7 +857,7 @@ class CBSRRTExpert:
     def _track(self, state: WorldState) -> np.ndarray:
         """Twists that make each robot follow its timed path.
 
-        Pure pursuit (:func:`swarm_env.control.guidance.pure_pursuit`) towards the plan's position
+        Pure pursuit (:func:`swarm_env.control.pursuit.pure_pursuit`) towards the plan's position
         ``lookahead_time`` ahead, with time gap ``lookahead_time``: on the path at the plan's
         speed the command is the plan's speed; a lagging robot speeds up. Two additions:
         where the plan barely moves over the lookahead (a spin primitive, a wait, the parked

@@ -1,7 +1,7 @@
 """Collision avoidance of the followers as one function of the world state: the VO safety rule.
 
 :func:`safe_follower_twists` takes each follower's preferred twist and returns the safe twist
-closest to it, from the velocity-obstacle search of :func:`swarm_env.control.guidance.vo_select_batch`
+closest to it, from the velocity-obstacle search of :func:`swarm_env.control.vo.vo_select_batch`
 (paper 003, Sec. II-D) against everything a follower may hit: the other followers (avoided
 reciprocally: each takes half), a robot leader, the humans (with an extra margin, since they
 do not avoid robots) and the static map. A preferred twist that is already safe comes back
@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarm_env.compiled import compiled_search
-from swarm_env.control import guidance
-from swarm_env.control.guidance import VOBatchResult, VOParams, vo_select_batch
+from swarm_env.control import vo
+from swarm_env.control.vo import VOBatchResult, VOParams, vo_select_batch
 from swarm_env.state import WorldState
 
 __all__ = ["AvoidanceParams", "ShieldResult", "safe_follower_twists", "shield_actions"]
@@ -30,11 +30,11 @@ _INTERVENTION_EPS = 1e-9
 
 @dataclass(frozen=True)
 class AvoidanceParams(VOParams):
-    """The followers' VO search: :class:`~swarm_env.control.guidance.VOParams` (see
-    :func:`swarm_env.control.guidance.vo_select` for each field) plus what is about their world:
+    """The followers' VO search: :class:`~swarm_env.control.vo.VOParams` (see
+    :func:`swarm_env.control.vo.vo_select` for each field) plus what is about their world:
     ``human_margin`` (m) added to the humans' radii on top of ``margin``, ``human_horizon`` (s: the
     horizon for the humans, who do not give way, in place of ``horizon``; ``0``, the default, keeps
-    ``horizon``; see :func:`swarm_env.control.guidance.vo_select_batch`'s ``disc_horizon``), and ``reciprocal``
+    ``horizon``; see :func:`swarm_env.control.vo.vo_select_batch`'s ``disc_horizon``), and ``reciprocal``
     (followers avoid each other reciprocally; the robot leader and the humans are always avoided
     fully). Defaults differ from the search's in two places: no keep-right bias
     (``side_bias = 0``), and ``allow_still_overlap`` on (two followers that stopped inside each
@@ -157,10 +157,10 @@ def _follower_twists_compiled(state: WorldState, preferred: np.ndarray, params: 
     own[:, 0] = pose[:, 2]
     own[:, 1:3] = state.follower_twist
     own[:, 3:] = np.asarray(preferred, dtype=np.float64).reshape(n, 2)
-    plan, scalars, flags = guidance._follower_plan(params, v_max, omega_max,
-                                                   guidance._trace_horizon(params.horizon, disc_horizon))
+    plan, scalars, flags = vo._follower_plan(params, v_max, omega_max,
+                                                   vo._trace_horizon(params.horizon, disc_horizon))
     static = state.static
-    return VOBatchResult(*vo_kernel.follower_select(moving, own, n, guidance._kernel_map(static), static is not None,
+    return VOBatchResult(*vo_kernel.follower_select(moving, own, n, vo._kernel_map(static), static is not None,
                                                     plan, scalars, flags))
 
 

@@ -1,7 +1,7 @@
-"""The velocity-obstacle selection of :func:`swarm_env.control.guidance.vo_select_batch`, compiled with numba,
+"""The velocity-obstacle selection of :func:`swarm_env.control.vo.vo_select_batch`, compiled with numba,
 and the ``vo`` expert's pure pursuit.
 
-:class:`swarm_env.control.guidance._VOBatch` is the reference: numpy, readable, one vectorised pass per
+:class:`swarm_env.control.vo._VOBatch` is the reference: numpy, readable, one vectorised pass per
 stage of the search. For the handful of robots of one world it spends most of its time in numpy's
 per-call overhead on small temporaries. These kernels run the same search robot by robot,
 candidate by candidate, and stop each robot at its first safe candidate of a pass, without
@@ -36,23 +36,24 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
+
+from swarm_env.kernel_cache import njit
 
 _INF = math.inf
 _TWO_PI = 2.0 * math.pi
 # error_model="numpy": a division by zero gives inf/nan as in numpy instead of raising.
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+_jit = njit(nogil=True, error_model="numpy")
 # The disc and static tests are inlined into their callers by numba (not only by LLVM): a call that takes
 # the tuples of arrays costs about a microsecond (measured on paper_cbs_switch), most of the search's
 # time when paid twice per candidate. Inlined into _contact (and _probe) only, not further: inlining
 # _contact into its caller too made the search another ~7 % faster but its compilation ~40 % slower.
-_inline = numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+_inline = njit(nogil=True, error_model="numpy", inline="always")
 
 
 @_jit
 def _ray_disc(px: float, py: float, R2: float, wx: float, wy: float, limit: float, still_ok: bool) -> float:
-    """``guidance._ray_disc_ttc`` for one pair (its docstring has the rules)."""
+    """``vo._ray_disc_ttc`` for one pair (its docstring has the rules)."""
     wp = wx * px + wy * py
     ww = wx * wx + wy * wy
     c = px * px + py * py - R2
@@ -74,7 +75,7 @@ def _ray_disc(px: float, py: float, R2: float, wx: float, wy: float, limit: floa
 @_inline
 def _disc_row(i, times, xs, ys, discs, still_ok, probe, hs):
     """Contact time of robot ``i``'s trajectory ``(xs, ys)`` (displacements at ``times``) with its
-    kept discs (``guidance._rows_disc_ttc`` and the horizon cut of ``_VOBatch.contact_times``).
+    kept discs (``vo._rows_disc_ttc`` and the horizon cut of ``_VOBatch.contact_times``).
     ``probe``: an escape probe (plain VO, moving discs only: ``_VOBatch.escape_turns``). ``hs``: the
     static circles' cut (the static horizon, or ``static_reach``'s limit for this trajectory)."""
     rel, R, dv, h, valid, recip, own, moving = discs
@@ -115,7 +116,7 @@ def _disc_row(i, times, xs, ys, discs, still_ok, probe, hs):
 
 @_inline
 def _static_row(i, times, xs, ys, static, circles, hs):
-    """Contact time of robot ``i``'s trajectory with the static map (``guidance._rows_static_ttc``:
+    """Contact time of robot ``i``'s trajectory with the static map (``vo._rows_static_ttc``:
     walls, then, with ``circles``, the static circles, then the exact polygon test behind its
     bounding-circle broad phase), cut at ``hs`` (the static horizon, or ``static_reach``'s limit)."""
     (_h_static, P, rad, wax, way, woff, circ, A, Nn, L, eux, euy, centre, bound, over_rn, over_nrm, free,
@@ -151,7 +152,7 @@ def _static_row(i, times, xs, ys, static, circles, hs):
                 out = t
         if circles:
             for c in range(circ.shape[0]):
-                # (guidance passes the circles to _rows_disc_ttc as discs at rest)
+                # (vo.py passes the circles to _rows_disc_ttc as discs at rest)
                 R = circ[c, 2] + rr
                 ox = (circ[c, 0] - px0) + 0.0 * tk
                 oy = (circ[c, 1] - py0) + 0.0 * tk
@@ -255,7 +256,7 @@ def _keep_discs(world):
             hk[i, q] = hd[j] if moving else h_static
             valid[i, q] = True
             moving_k[i, q] = moving
-            # Within the combined radius (plus recip_gap) of a reciprocal disc already: avoided plainly (see guidance).
+            # Within the combined radius (plus recip_gap) of a reciprocal disc already: avoided plainly (see vo.py).
             near = R + recip_gap
             recip[i, q] = has_recip and moving and recip_in[i, j] and relx * relx + rely * rely > near * near
             q += 1
@@ -264,7 +265,7 @@ def _keep_discs(world):
 
 @_jit
 def _static_context(world):
-    """``guidance._static_context`` (circles included): the walls, circles and polygons in reach of
+    """``vo._static_context`` (circles included): the walls, circles and polygons in reach of
     some robot, the polygons each robot is free of (``free`` ``(N, P)``, ``fcols``), and the robots
     already within their margin of a polygon with the outward normal there (``over_rn``, ``over_nrm``)."""
     (P, rad, ext, horizon, h_static, d, dv, spd_h, hd, has_recip, recip_in, own_speed, own_vel, has_mask, mask,
@@ -361,7 +362,7 @@ def _test(i, traj, cols, lo, hi, out, times, discs, static, has_static, still_ok
     ``c = cols[r]``, ``lo <= r < hi``, into ``out[c]``. The one place the contact test is inlined:
     a call per robot and pass, so the tuples of arrays are unpacked once per call, not per candidate.
     ``speeds[c]``: trajectory ``c``'s speed, ``pv_i`` the robot's preferred speed and ``reach``
-    ``(static_reach, t_cut)``: the static cut per trajectory (``guidance._static_limits``)."""
+    ``(static_reach, t_cut)``: the static cut per trajectory (``vo._static_limits``)."""
     h_static = static[0]
     on, t_cut = reach
     for r in range(lo, hi):
@@ -408,7 +409,7 @@ def _candidates(i, grid, pv, pw, theta, search, twists, penalty, order):
     g1 = grid.shape[0] + 1
     v_scale = v_max if v_max > 0 else 1.0
     w_scale = omega_max if omega_max > 0 else 1.0
-    # cost="velocity": the preferred twist's mean body-frame velocity over tau (guidance._body_velocity)
+    # cost="velocity": the preferred twist's mean body-frame velocity over tau (vo._body_velocity)
     half = 0.5 * tau * pw[i]
     scale = pv[i] * (math.sin(half) / half if half != 0.0 else 1.0)
     ux, uy = scale * math.cos(half), scale * math.sin(half)
@@ -470,7 +471,7 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
     ``static_reach``'s two terms, ``w_speed`` and ``escape_commit``, whose test reads the ``current`` twists).
 
     Returns ``twist`` ``(N, 2)``, ``feasible``, ``n_safe``, ``ttc_out``, ``escaped``, ``accepted``,
-    ``pref_safe`` (see :class:`~swarm_env.control.guidance.VOBatchResult`).
+    ``pref_safe`` (see :class:`~swarm_env.control.vo.VOBatchResult`).
     """
     has_goal = search[9]
     move_first = search[13]
@@ -645,7 +646,7 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
         j0 = choice[i]
         best_c = -1
         best_t = 0.0
-        # escape_commit (guidance._VOBatch.escape_turns): a robot already turning in place keeps turning that
+        # escape_commit (vo._VOBatch.escape_turns): a robot already turning in place keeps turning that
         # way unless the other way is open for longer by more than escape_commit s.
         turning = commit > 0.0 and abs(current[i, 0]) < 0.1 * v_max and abs(current[i, 1]) > 0.1 * omega_max
         probe_t = np.full(g1, -1.0)
@@ -712,7 +713,7 @@ def _np_min(a, b):
 @_jit
 def _preferred_trajectories(pv, pw, theta, tau, horizon, n_arc):
     """The preferred twists' trajectories ``(N, K+1, 2)`` of ``_VOBatch.__init__`` (arc model): for one
-    robot ``guidance._trajectory_row``'s plain-Python formula, for several ``_world_trajectories``'
+    robot ``vo._trajectory_row``'s plain-Python formula, for several ``_world_trajectories``'
     numpy one (``np.sinc``, whose rounding differs from ``sin(h) / h``: both are kept)."""
     n = pv.shape[0]
     t_hold = horizon if horizon < tau else tau  # Python's min(tau, horizon)
@@ -744,20 +745,20 @@ def _preferred_trajectories(pv, pw, theta, tau, horizon, n_arc):
 
 @_jit
 def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags):
-    """``guidance.vo_select_batch`` as ``safety.safe_follower_twists`` calls it (arc model), from the
+    """``vo.vo_select_batch`` as ``safety.safe_follower_twists`` calls it (arc model), from the
     world's arrays in one call: the discs, the reciprocity and the masks, the preferred twists' clipping
     and trajectories, then :func:`_search`.
 
     ``moving`` ``(D, 6)`` ``x, y, radius, vx, vy, horizon`` of the moving discs (``horizon``: the
-    disc's own, ``guidance.vo_select_batch``'s ``disc_horizon``), the ``n`` followers first (each
+    disc's own, ``vo.vo_select_batch``'s ``disc_horizon``), the ``n`` followers first (each
     left out of its own list; reciprocal among themselves when ``reciprocal``), then the robot leader
     and the humans; ``own`` ``(n, 5)`` each follower's heading, current twist ``(v, omega)`` and
-    preferred twist; ``static_map`` as ``guidance._kernel_map`` gives it; ``plan`` ``(grid, times,
+    preferred twist; ``static_map`` as ``vo._kernel_map`` gives it; ``plan`` ``(grid, times,
     body, gvel)`` the candidate grid, its body-frame trajectories and (``cost="velocity"``) mean
-    body-frame velocities (``guidance._grid_velocities``); ``scalars`` ``(margin, horizon,
+    body-frame velocities (``vo._grid_velocities``); ``scalars`` ``(margin, horizon,
     h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias, w_current, recip_gap,
-    t_cut, w_speed, escape_commit, trace)`` (``t_cut``: ``static_reach``'s latest static cut, ``guidance._reach_cut``;
-    ``trace``: the longest disc horizon, ``guidance._trace_horizon``; ``horizon`` is the escape probes');
+    t_cut, w_speed, escape_commit, trace)`` (``t_cut``: ``static_reach``'s latest static cut, ``vo._reach_cut``;
+    ``trace``: the longest disc horizon, ``vo._trace_horizon``; ``horizon`` is the escape probes');
     ``flags`` ``(fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first,
     static_reach)``.
     Returns what :func:`_search` returns.
@@ -809,7 +810,7 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
              has_static) + static_map + (recip_gap,)
     discs = _keep_discs(world)
     static = _static_context(world)
-    # (guidance._reach_end: the trajectories run to static_reach's latest cut if that is later)
+    # (vo._reach_end: the trajectories run to static_reach's latest cut if that is later)
     t_end = max(trace, t_cut) if static_reach else trace
     pref_pts = _preferred_trajectories(pv, pw, theta, tau, t_end, n_arc)
     no_goal = n < 0  # (False, typed bool rather than a literal: select and this entry share one _search)
@@ -822,7 +823,7 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
 @_jit
 def pursuit(pose, target, heading, v_max, omega_max, time_gap, full_turn, arrive2):
     """The ``vo`` expert's preferred twists without preview (``VOExpert.preferred_twists``, its numpy
-    reference): :func:`guidance.pure_pursuit` of each follower ``pose[i]`` towards ``target[i]``
+    reference): :func:`pursuit.pure_pursuit` of each follower ``pose[i]`` towards ``target[i]``
     (``keep_curvature``), then with ``full_turn`` a target behind turned to in place at ``omega_max``,
     and zero within ``sqrt(arrive2)`` of the target. ``heading`` ``(N,)`` is numpy's
     ``arctan2(target - pose)``: computed by numpy, as its SIMD ``arctan2`` differs from the C

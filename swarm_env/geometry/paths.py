@@ -2,7 +2,7 @@
 
 * :class:`PolylinePath` — an immutable polyline parametrised by arc length ``s``
   (metres from the first point). Used for the leader's path, the humans' paths
-  and pure pursuit's carrot (:func:`swarm_env.control.guidance.lookahead_target`).
+  and pure pursuit's carrot (:func:`swarm_env.control.pursuit.lookahead_target`).
 * :func:`virtual_leader` — the paper-000 leader: a point moving along the path at
   constant speed, a pure function of time.
 * :func:`human_states` — the humans' positions and velocities, a pure function of

@@ -25,12 +25,12 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from swarm_env.geometry.paths import PolylinePath
+from swarm_env.kernel_cache import njit
 
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+_jit = njit(nogil=True, error_model="numpy")
 
 
 def pack_path(path: PolylinePath) -> np.ndarray:

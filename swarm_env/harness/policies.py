@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from swarm_env.control.guidance import pure_pursuit
+from swarm_env.control.pursuit import pure_pursuit
 from swarm_env.control.safety import AvoidanceParams, shield_actions
 from swarm_env.extras import (
     DISTRIBUTION,
@@ -144,7 +144,7 @@ class ZeroPolicy:
 class PursuitPolicy:
     """Pure pursuit straight at each follower's slot target, with no collision avoidance.
 
-    The paper-003 tracking law (:func:`swarm_env.control.guidance.pure_pursuit`) alone: a
+    The paper-003 tracking law (:func:`swarm_env.control.pursuit.pure_pursuit`) alone: a
     reference point for what the experts' avoidance layers add. ``arg`` is the
     time gap in seconds (default 0.5): the speed command is ``distance / gap``.
     """

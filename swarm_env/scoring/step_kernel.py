@@ -21,12 +21,12 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from swarm_env.geometry.clearance_kernel import lower_bounds, static_min_distance
+from swarm_env.kernel_cache import njit
 
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+_jit = njit(nogil=True, error_model="numpy")
 
 #: Rows of :func:`reward_table`'s table (= ``len(swarm_env.scoring.rewards.REWARD_TERMS)``).
 N_TERMS = 10

@@ -8,14 +8,13 @@ and a robot's rays never see another world's geometry. Worlds are packed into fl
 Why numba and not numpy: every robot's rays share one origin, so the geometry that can matter
 to a robot (within ``max_range`` of it) is found once per robot and only those primitives are
 tested against its rays. The cost per robot then stays flat as the team grows (numpy's
-all-rays-against-all-discs matmul grows with N^2: its slope was 2.5 from 32 to 64 followers),
-and there are no large temporaries. Measured with ``python benchmarks/lidar_bench.py``.
+all-rays-against-all-discs matmul grows with N^2), and there are no large temporaries
+(measurements: docs/performance.md, "Cost per follower").
 
-Issue 11 (1,024 worlds per call) made :func:`scan` ~2x faster again with the same bits
-(``benchmarks/lidar_fast.py``; :func:`scan_reference` keeps the previous kernel, which
-tests/test_lidar_fast.py compares bit for bit): a polygon's edges are skipped when its
-bounding disc is certainly out of range, each robot's candidates go to small contiguous
-arrays with their per-robot terms computed once, and the ray-circle test has no branches.
+:func:`scan` skips a polygon's edges when its bounding disc is certainly out of range, puts each
+robot's candidates in small contiguous arrays with their per-robot terms computed once, and
+tests rays against circles without branches; :func:`scan_reference` keeps the previous kernel,
+which tests/test_lidar_fast.py compares bit for bit.
 The batched engine gathers its worlds with :func:`pack_rows` (one compiled loop over its stacked
 per-world arrays, :data:`LidarRows`) instead of one ``moving_discs`` array per world.
 
@@ -34,10 +33,10 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import numba
 import numpy as np
 
 from swarm_env.geometry.static_map import StaticMap
+from swarm_env.kernel_cache import njit
 
 #: What the lidar needs of a world besides its static map (:func:`swarm_env.sensing.observations.lidar_input`):
 #: follower poses ``(N, 3)`` and radii ``(N,)``, human positions ``(H, 2)`` and radii ``(H,)``, and the leader's
@@ -241,7 +240,7 @@ def pack_rows(rows: LidarRows) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.n
     return poses, world, own, disc_start, discs
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(nogil=True)
 def _pack(poses, radii, humans, human_radii, n_fol, n_hum, leaders, world, own, disc_start,
           discs):  # pragma: no cover - compiled
     q = 0
@@ -351,7 +350,7 @@ def cast_rays(
                 disc_start, packed)[:, 0]
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@njit(nogil=True, inline="always")
 def _inside_polygon(ox, oy, w, poly_start, poly_normals, poly_offsets, poly_bound):  # pragma: no cover - compiled
     """Whether ``(ox, oy)`` lies strictly inside one of world ``w``'s polygons (both kernels: a lidar
     there reports 0 on every ray)."""
@@ -370,7 +369,7 @@ def _inside_polygon(ox, oy, w, poly_start, poly_normals, poly_offsets, poly_boun
     return False
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(nogil=True)
 def _scan(poses, world, own_disc, ray_angles, max_range, seg_start, segments, circ_start, circles, poly_start,
           poly_normals, poly_offsets, poly_bound, poly_edges, wall_start, disc_start, discs,
           out):  # pragma: no cover - compiled
@@ -501,7 +500,7 @@ def _scan(poses, world, own_disc, ray_angles, max_range, seg_start, segments, ci
             out[k, r] = best
 
 
-@numba.njit(cache=True, nogil=True)
+@njit(nogil=True)
 def _scan_reference(poses, world, own_disc, ray_angles, max_range, seg_start, segments, circ_start, circles, poly_start,
           poly_normals, poly_offsets, poly_bound, disc_start, discs, out):  # pragma: no cover - compiled
     # The kernel before the faster one (issue 11), kept (sharing only _inside_polygon) as the reference its results are

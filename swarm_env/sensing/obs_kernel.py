@@ -19,11 +19,23 @@ from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
-_ENTITY = 5  # dx, dy, dvx, dvy, mask: observations._ENTITY
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+from swarm_env.kernel_cache import njit
+from swarm_env.sensing.layout import (
+    COL_LEADER_HEADING,
+    COL_LEADER_POS,
+    COL_LEADER_VEL,
+    COL_SLOT,
+    COL_SWITCH,
+    COL_TWIST,
+    ENTITY,
+    ENTITY_MASK,
+    ENTITY_POS,
+    ENTITY_VEL,
+)
+
+_jit = njit(nogil=True, error_model="numpy")
 
 
 @_jit
@@ -33,14 +45,14 @@ def _entities(out, row, base, count, dist, other_pos, other_vel, px, py, vx, vy,
     m = len(dist)
     taken = np.zeros(m, dtype=np.bool_)
     for j in range(count):
-        col = base + _ENTITY * j
+        col = base + ENTITY * j
         best = -1
         if j < m:
             for q in range(m):
                 if not taken[q] and (best < 0 or dist[q] < dist[best]):
                     best = q
         if best < 0 or not math.isfinite(dist[best]):
-            for e in range(_ENTITY):
+            for e in range(ENTITY):
                 out[row, col + e] = 0.0
             if best >= 0:
                 taken[best] = True
@@ -50,11 +62,11 @@ def _entities(out, row, base, count, dist, other_pos, other_vel, px, py, vx, vy,
         dy = other_pos[best, 1] - py
         dvx = other_vel[best, 0] - vx
         dvy = other_vel[best, 1] - vy
-        out[row, col] = c * dx + s * dy
-        out[row, col + 1] = -s * dx + c * dy
-        out[row, col + 2] = c * dvx + s * dvy
-        out[row, col + 3] = -s * dvx + c * dvy
-        out[row, col + 4] = 1.0
+        out[row, col + ENTITY_POS] = c * dx + s * dy
+        out[row, col + ENTITY_POS + 1] = -s * dx + c * dy
+        out[row, col + ENTITY_VEL] = c * dvx + s * dvy
+        out[row, col + ENTITY_VEL + 1] = -s * dvx + c * dvy
+        out[row, col + ENTITY_MASK] = 1.0
 
 
 @_jit
@@ -95,21 +107,21 @@ def fill_rows(
     for i in range(n):
         px, py = pose[i, 0], pose[i, 1]
         c, s = cos_th[i], sin_th[i]
-        out[i, 0] = twist[i, 0] / speed_scale[0]
-        out[i, 1] = twist[i, 1] / speed_scale[1]
+        out[i, COL_TWIST] = twist[i, 0] / speed_scale[0]
+        out[i, COL_TWIST + 1] = twist[i, 1] / speed_scale[1]
         dx = slots[i, 0] - px
         dy = slots[i, 1] - py
-        out[i, 2] = c * dx + s * dy
-        out[i, 3] = -s * dx + c * dy
+        out[i, COL_SLOT] = c * dx + s * dy
+        out[i, COL_SLOT + 1] = -s * dx + c * dy
         dx = leader_pose[0] - px
         dy = leader_pose[1] - py
-        out[i, 4] = c * dx + s * dy
-        out[i, 5] = -s * dx + c * dy
-        out[i, 6] = cos_rel[i]
-        out[i, 7] = sin_rel[i]
-        out[i, 8] = c * leader_vel[0] + s * leader_vel[1]
-        out[i, 9] = -s * leader_vel[0] + c * leader_vel[1]
-        out[i, 10] = switch
+        out[i, COL_LEADER_POS] = c * dx + s * dy
+        out[i, COL_LEADER_POS + 1] = -s * dx + c * dy
+        out[i, COL_LEADER_HEADING] = cos_rel[i]
+        out[i, COL_LEADER_HEADING + 1] = sin_rel[i]
+        out[i, COL_LEADER_VEL] = c * leader_vel[0] + s * leader_vel[1]
+        out[i, COL_LEADER_VEL + 1] = -s * leader_vel[0] + c * leader_vel[1]
+        out[i, COL_SWITCH] = switch
         vx, vy = vel[i, 0], vel[i, 1]
         if k:
             for q in range(n):

@@ -5,28 +5,7 @@ y left) and clipped into the observation ``Box`` so that observations are
 always inside their space. Observations never read pixels and never depend on
 the render mode.
 
-Layout of one follower's observation (``float32``, length
-``11 + 5 * neighbors + 5 * humans + lidar_rays``):
-
-======================  =====  ================================================
-slice                   size   content
-======================  =====  ================================================
-``OBS_OWN_TWIST``       2      own (v / max_speed, omega / max_turn_rate)
-``OBS_SLOT``            2      vector to the own slot target (m)
-``OBS_LEADER``          6      leader position (m), (cos, sin) of its relative
-                               heading, leader velocity (m/s)
-``OBS_SWITCH``          1      seconds to the next formation switch (capped at
-                               ``max_time``; the cap when none is scheduled)
-neighbours              5 k    k nearest other followers: dx, dy (m), dvx, dvy
-                               (m/s), present-mask (1/0); absent rows are 0
-humans                  5 h    h nearest humans, same 5 columns
-lidar                   R      ray distance / lidar_range in [0, 1], rays
-                               evenly spaced from straight ahead,
-                               counter-clockwise; hits obstacles, walls,
-                               robots (the leader included) and humans
-======================  =====  ================================================
-
-:func:`observation_layout` returns the named slices for a given sensor spec.
+The layout of one follower's observation and of the global state: :mod:`swarm_env.sensing.layout`.
 """
 
 from __future__ import annotations
@@ -40,38 +19,32 @@ import numpy as np
 from swarm_env.compiled import compiled_kernels
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import SensorSpec
+from swarm_env.sensing.layout import (
+    CLEARANCE_COLUMNS,
+    COL_LEADER_HEADING,
+    COL_LEADER_POS,
+    COL_LEADER_VEL,
+    COL_SLOT,
+    COL_SWITCH,
+    ENTITY,
+    ENTITY_MASK,
+    ENTITY_POS,
+    ENTITY_VEL,
+    FOLLOWER_COLUMNS,
+    HUMAN_COLUMNS,
+    LEADER_COLUMNS,
+    OBS_OWN_TWIST,
+    OBS_SLOT,
+    OBS_SWITCH,
+    STATE_GRID,
+    TIME_COLUMNS,
+    observation_layout,
+)
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:  # the lidar kernel (numba) is imported on first use: batched-engine workers never load it
     from swarm_env.sensing.lidar import LidarInput, LidarRows, PackedMaps
 
-OBS_OWN_TWIST = slice(0, 2)
-OBS_SLOT = slice(2, 4)
-OBS_LEADER = slice(4, 10)
-OBS_SWITCH = slice(10, 11)
-_FIXED = 11
-_ENTITY = 5  # dx, dy, dvx, dvy, mask
-
-
-def observation_layout(sensors: SensorSpec) -> dict[str, slice]:
-    """Named slices of the observation vector for ``sensors``."""
-    k, h, r = sensors.neighbors, sensors.humans, sensors.lidar_rays
-    nb = slice(_FIXED, _FIXED + _ENTITY * k)
-    hu = slice(nb.stop, nb.stop + _ENTITY * h)
-    li = slice(hu.stop, hu.stop + r)
-    return {
-        "own_twist": OBS_OWN_TWIST,
-        "slot": OBS_SLOT,
-        "leader": OBS_LEADER,
-        "switch": OBS_SWITCH,
-        "neighbors": nb,
-        "humans": hu,
-        "lidar": li,
-    }
-
-
-#: Cells per side of the global state's occupancy grid of the static map.
-STATE_GRID = 16
 _GRID_SAMPLES = 4  # samples per cell side when measuring a cell's occupied fraction
 
 
@@ -97,8 +70,8 @@ def state_layout(capacity: Capacity) -> dict[str, slice]:
     ======================  =======  ==========================================================
     """
     n, h = capacity.max_followers, capacity.max_humans
-    sizes = [("followers", 9 * n), ("leader", 6), ("humans", 5 * h), ("time", 2),
-             ("follower_clearance", 3 * n), ("occupancy", STATE_GRID * STATE_GRID)]
+    sizes = [("followers", FOLLOWER_COLUMNS * n), ("leader", LEADER_COLUMNS), ("humans", HUMAN_COLUMNS * h),
+             ("time", TIME_COLUMNS), ("follower_clearance", CLEARANCE_COLUMNS * n), ("occupancy", STATE_GRID * STATE_GRID)]
     out: dict[str, slice] = {}
     start = 0
     for name, size in sizes:
@@ -159,22 +132,22 @@ class ObservationBuilder:
         high = np.empty(self.size, dtype=np.float32)
         high[OBS_OWN_TWIST] = 2.0  # measured twist can exceed the command limit briefly when pushed
         high[OBS_SLOT] = self.pos_limit
-        high[4:6] = self.pos_limit
-        high[6:8] = 1.0
-        high[8:10] = self.vel_limit
+        high[COL_LEADER_POS:COL_LEADER_POS + 2] = self.pos_limit
+        high[COL_LEADER_HEADING:COL_LEADER_HEADING + 2] = 1.0
+        high[COL_LEADER_VEL:COL_LEADER_VEL + 2] = self.vel_limit
         high[OBS_SWITCH] = self.capacity.max_time
         for name in ("neighbors", "humans"):
-            block = high[self.layout[name]].reshape(-1, _ENTITY)
-            block[:, 0:2] = self.pos_limit
-            block[:, 2:4] = self.vel_limit
-            block[:, 4] = 1.0
+            block = high[self.layout[name]].reshape(-1, ENTITY)
+            block[:, ENTITY_POS:ENTITY_POS + 2] = self.pos_limit
+            block[:, ENTITY_VEL:ENTITY_VEL + 2] = self.vel_limit
+            block[:, ENTITY_MASK] = 1.0
             high[self.layout[name]] = block.ravel()
         high[self.layout["lidar"]] = 1.0
         low = -high
         low[OBS_SWITCH] = 0.0
         for name in ("neighbors", "humans"):
-            block = low[self.layout[name]].reshape(-1, _ENTITY)
-            block[:, 4] = 0.0
+            block = low[self.layout[name]].reshape(-1, ENTITY)
+            block[:, ENTITY_MASK] = 0.0
             low[self.layout[name]] = block.ravel()
         low[self.layout["lidar"]] = 0.0
         return low, high
@@ -238,9 +211,9 @@ class ObservationBuilder:
         out = np.zeros((n, self.size), dtype=np.float64)
         np.divide(state.follower_twist, (scn.robots.max_speed, scn.robots.max_turn_rate), out=out[:, OBS_OWN_TWIST])
         rel_heading = state.leader_pose[2] - th
-        np.cos(rel_heading, out=out[:, 6])
-        np.sin(rel_heading, out=out[:, 7])
-        out[:, 10] = min(state.next_switch_time - state.time, self.capacity.max_time)
+        np.cos(rel_heading, out=out[:, COL_LEADER_HEADING])
+        np.sin(rel_heading, out=out[:, COL_LEADER_HEADING + 1])
+        out[:, COL_SWITCH] = min(state.next_switch_time - state.time, self.capacity.max_time)
 
         # Every world-frame vector of the observation goes through one rotation into the body
         # frames: slot, leader position, leader velocity, then per neighbour / human the
@@ -267,9 +240,9 @@ class ObservationBuilder:
         out[:, colx] = cc * vx + ss * vy
         out[:, coly] = -ss * vx + cc * vy
         for name, count, valid in present:
-            block = out[:, self.layout[name]].reshape(n, count, _ENTITY)  # a view into out
+            block = out[:, self.layout[name]].reshape(n, count, ENTITY)  # a view into out
             block[~valid] = 0.0  # absent rows are all zero
-            block[:, :, 4] = valid
+            block[:, :, ENTITY_MASK] = valid
 
         return out
 
@@ -278,11 +251,11 @@ class ObservationBuilder:
         key = (k, hk)
         hit = self._columns.get(key)
         if hit is None:
-            xs = [OBS_SLOT.start, OBS_LEADER.start, OBS_LEADER.start + 4]
+            xs = [COL_SLOT, COL_LEADER_POS, COL_LEADER_VEL]
             for name, count in (("neighbors", k), ("humans", hk)):
                 base = self.layout[name].start
-                xs += [base + _ENTITY * j for j in range(count)]  # relative positions
-                xs += [base + _ENTITY * j + 2 for j in range(count)]  # relative velocities
+                xs += [base + ENTITY * j + ENTITY_POS for j in range(count)]  # relative positions
+                xs += [base + ENTITY * j + ENTITY_VEL for j in range(count)]  # relative velocities
             colx = np.array(xs, dtype=np.intp)
             hit = self._columns[key] = (colx, colx + 1)
         return hit
@@ -358,7 +331,7 @@ class ObservationBuilder:
         cap = self.capacity
         w, h = cap.world_size
         n = state.n_followers
-        fol = np.zeros((cap.max_followers, 9))
+        fol = np.zeros((cap.max_followers, FOLLOWER_COLUMNS))
         th = state.follower_pose[:, 2]
         fol[:n, 0] = state.follower_pose[:, 0] / w
         fol[:n, 1] = state.follower_pose[:, 1] / h
@@ -370,7 +343,7 @@ class ObservationBuilder:
         fol[:n, 8] = 1.0
         lp = state.leader_pose
         leader = np.array([lp[0] / w, lp[1] / h, np.cos(lp[2]), np.sin(lp[2]), *(state.leader_vel / self.vel_limit)])
-        hum = np.zeros((cap.max_humans, 5))
+        hum = np.zeros((cap.max_humans, HUMAN_COLUMNS))
         m = len(state.human_pos)
         if m:
             hum[:m, 0] = state.human_pos[:, 0] / w
@@ -378,7 +351,7 @@ class ObservationBuilder:
             hum[:m, 2:4] = state.human_vel / self.vel_limit
             hum[:m, 4] = 1.0
         times = np.array([state.time / cap.max_time, min(state.next_switch_time - state.time, cap.max_time) / cap.max_time])
-        near = np.zeros((cap.max_followers, 3))
+        near = np.zeros((cap.max_followers, CLEARANCE_COLUMNS))
         near[:n] = _clearance_features(state.static, state.follower_pose[:, :2])
         vec = np.concatenate([fol.ravel(), leader, hum.ravel(), times, near.ravel(), self._occupancy(state.static)])
         return np.clip(vec, -STATE_LIMIT, STATE_LIMIT).astype(np.float32)

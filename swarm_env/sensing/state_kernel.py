@@ -24,32 +24,22 @@ row per world. The one freedom is ``StaticMap.distance``'s: a probe exactly on a
 ``-0.0`` where the reference has ``0.0`` (equal under ``==``).
 
 The layout is :func:`swarm_env.sensing.observations.state_layout`'s: the caller passes each block's first
-column; the columns of one follower, leader or human within its block are the ``*_COLUMNS`` below,
-in the order ``state_vector`` writes them (the caller checks the layout's block sizes against them).
+column; the columns of one follower, leader or human within its block are :mod:`swarm_env.sensing.layout`'s
+``*_COLUMNS``, in the order ``state_vector`` writes them (the caller checks the layout's block sizes against them).
 """
 
 from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
 from swarm_env.geometry.clearance_kernel import point_distance
+from swarm_env.kernel_cache import njit
+from swarm_env.sensing.layout import CLEARANCE_COLUMNS, FOLLOWER_COLUMNS, HUMAN_COLUMNS
 
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+_jit = njit(nogil=True, error_model="numpy")
 
-#: Columns per follower in the state's ``followers`` block: x / W, y / H, cos, sin, v / vlim,
-#: omega / vlim, slot x / W, slot y / H, present.
-FOLLOWER_COLUMNS = 9
-#: Columns of the ``leader`` block: x / W, y / H, cos, sin, vx / vlim, vy / vlim.
-LEADER_COLUMNS = 6
-#: Columns per human slot in the ``humans`` block: x / W, y / H, vx / vlim, vy / vlim, present.
-HUMAN_COLUMNS = 5
-#: Columns of the ``time`` block: t / max_time, time to the next switch / max_time.
-TIME_COLUMNS = 2
-#: Columns per follower in the ``follower_clearance`` block: clearance / range, nx, ny.
-CLEARANCE_COLUMNS = 3
 
 
 @_jit
@@ -148,4 +138,4 @@ def state_batch(pose, twist, slots, lpose, lvel, cos_th, sin_th, cos_lead, sin_l
             _put(row, occ_start + j, occupancy[m, j], limit)
 
 
-__all__ = ["CLEARANCE_COLUMNS", "FOLLOWER_COLUMNS", "HUMAN_COLUMNS", "LEADER_COLUMNS", "TIME_COLUMNS", "state_batch"]
+__all__ = ["state_batch"]

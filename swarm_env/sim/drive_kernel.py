@@ -36,6 +36,7 @@ import numba
 from numba import types
 from numba.extending import intrinsic
 
+from swarm_env.kernel_cache import cfunc
 from swarm_env.sim.bodies import robot_body, velocity_callback
 
 _STATE: dict[str, Any] = {}  # "ok": whether the compiled callback passed its checks here
@@ -81,8 +82,8 @@ def _as_pointer(typingctx: Any, address: Any) -> Any:  # pragma: no cover - comp
     return types.voidptr(types.int64), codegen
 
 
-@numba.cfunc(types.void(types.voidptr, types.float64, types.float64, types.float64, types.float64),
-             error_model="numpy", cache=True)
+@cfunc(types.void(types.voidptr, types.float64, types.float64, types.float64, types.float64),
+             error_model="numpy")
 def _drive(body, gx, gy, damping, dt):  # pragma: no cover - compiled
     """:func:`swarm_env.sim.bodies.velocity_callback` on the raw ``cpBody``."""
     doubles = numba.carray(body, (_SIZE,), numba.float64)

@@ -17,14 +17,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 
-import numba
 import numpy as np
 
 from swarm_env.geometry.paths import PolylinePath
+from swarm_env.kernel_cache import njit
 from swarm_env.scenario import HumanSpec
 
 _MODES = {"once": 0, "loop": 1, "pingpong": 2}
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+_jit = njit(nogil=True, error_model="numpy")
 
 
 class PackedHumans:

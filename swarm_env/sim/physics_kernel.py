@@ -23,12 +23,12 @@ from __future__ import annotations
 
 from typing import Any
 
-import numba
 import numpy as np
 from llvmlite import ir
 from numba import types
 from numba.extending import intrinsic
 
+from swarm_env.kernel_cache import njit
 from swarm_env.sim.human_kernel import fill_states
 
 _STATE: dict[str, Any] = {}
@@ -62,7 +62,7 @@ def _call_set_vect(typingctx: Any, fn: Any, body: Any, x: Any, y: Any) -> Any:  
     return types.void(types.int64, types.int64, types.float64, types.float64), codegen
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@njit(nogil=True, error_model="numpy")
 def _clip(x, limit):  # pragma: no cover - compiled
     """``min(max(x, -limit), limit)`` with Python's ``min``/``max`` semantics (see :func:`clip_commands`)."""
     lo = -limit
@@ -73,7 +73,7 @@ def _clip(x, limit):  # pragma: no cover - compiled
     return x
 
 
-@numba.njit(cache=True, nogil=True, error_model="numpy")
+@njit(nogil=True, error_model="numpy")
 def clip_commands(command, v_max, w_max, drives):  # pragma: no cover - compiled
     """``drives[i, 0:2] = min(max(v, -v_max), v_max), min(max(w, -w_max), w_max)`` for each row
     ``(v, w)`` of ``command``: Python's ``min``/``max`` (the later argument wins only when strictly
@@ -83,10 +83,7 @@ def clip_commands(command, v_max, w_max, drives):  # pragma: no cover - compiled
         drives[i, 1] = _clip(command[i, 1], w_max)
 
 
-# numba checks its on-disk cache of this function against this file only: after editing
-# human_kernel.fill_states (compiled into it), delete swarm_env/__pycache__/physics_kernel*.nb* or the
-# old code keeps running. (An installed upgrade replaces every file, so users are not affected.)
-@numba.njit(cache=True, error_model="numpy")  # not nogil: chipmunk calls back into Python
+@njit(error_model="numpy")  # not nogil: chipmunk calls back into Python
 def _scripted_step(ptrs, consts, t0, step_count, count, table, vertices, segments, command, drives
                    ):  # pragma: no cover - compiled
     n = table.shape[0]
@@ -100,7 +97,7 @@ def _scripted_step(ptrs, consts, t0, step_count, count, table, vertices, segment
     return pos, vel
 
 
-@numba.njit(cache=True, error_model="numpy")  # not nogil: chipmunk calls back into Python
+@njit(error_model="numpy")  # not nogil: chipmunk calls back into Python
 def _substeps(fns, space, dt, count, bodies, pos, vel, command, v_max, w_max, drives):  # pragma: no cover - compiled
     clip_commands(command, v_max, w_max, drives)
     step_fn, set_pos, set_vel = fns[0], fns[1], fns[2]

@@ -5,21 +5,18 @@ The numpy reference is :meth:`World._follower_arrays <swarm_env.sim.world.World.
 operations (``vx * cos(a) + vy * sin(a)``, the angle wrapped as ``(a + pi) % (2 pi) - pi``; the C
 library's ``cos``/``sin`` and Python's float ``%``, which numpy also uses for float64 here), so the
 same bits (``tests/test_snapshot_kernel.py``).
-
-numba checks its on-disk cache of a kernel against the kernel's own file only: after editing
-:func:`fill_follower`, delete ``swarm_env/__pycache__/world_batch*.nb*`` (it is compiled into
-:mod:`swarm_env.vector.world_batch`'s kernel too).
 """
 
 from __future__ import annotations
 
 import math
 
-import numba
 import numpy as np
 
+from swarm_env.kernel_cache import njit
+
 _TWO_PI = 2.0 * math.pi
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+_jit = njit(nogil=True, error_model="numpy")
 
 
 @_jit

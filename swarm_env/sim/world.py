@@ -37,7 +37,7 @@ import numpy as np
 import pymunk
 
 from swarm_env.compiled import compiled_kernels
-from swarm_env.control import guidance
+from swarm_env.control import pursuit, vo
 from swarm_env.geometry import formation as formation_lib
 from swarm_env.geometry.paths import PolylinePath, human_paths, human_states, virtual_leader
 from swarm_env.geometry.static_map import StaticMap
@@ -62,7 +62,7 @@ COLLISION_SLOP = 0.005
 LEADER_GOAL_TOLERANCE = 0.2
 SLOT_MARGIN = formation_lib.SLOT_MARGIN  # re-exported: the slot projection's clearance beyond the radius
 #: The robot leader's velocity-obstacle search (paper 003 Fig. 1): the search's defaults.
-LEADER_VO = guidance.VOParams()
+LEADER_VO = vo.VOParams()
 
 
 #: In a pile-up (several robots pushing into one another or into an obstacle) the contact solver's
@@ -711,12 +711,12 @@ class World:
         if self._leader_done or self.time < spec.start_delay:
             return np.zeros(2)
         pose = np.array([body.position.x, body.position.y, body.angle])
-        target, self._leader_s = guidance.lookahead_target(self._leader_path, pose[:2], self._leader_s, spec.lookahead)
-        preferred = guidance.pure_pursuit(pose, target, spec.speed, spec.max_turn_rate, 1.0)
+        target, self._leader_s = pursuit.lookahead_target(self._leader_path, pose[:2], self._leader_s, spec.lookahead)
+        preferred = pursuit.pure_pursuit(pose, target, spec.speed, spec.max_turn_rate, 1.0)
         discs = [self._human_pos, self.follower_positions()]
         vels = [self._human_vel, self.follower_velocities()]
         radii = np.concatenate([self._human_radius, np.full(self.n, self.scenario.robots.radius)])
-        result = guidance.vo_select(
+        result = vo.vo_select(
             pose,
             spec.radius,
             preferred,
@@ -794,7 +794,7 @@ class World:
         if self._leader_body is None:
             return np.array(self._virtual_pose, dtype=float)
         b = self._leader_body
-        return np.array([b.position.x, b.position.y, float(guidance.wrap_angle(b.angle))])
+        return np.array([b.position.x, b.position.y, float(pursuit.wrap_angle(b.angle))])
 
     def _follower_arrays(self, raw: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(pose, vel, twist)`` of the followers from the reader's ``(n, 6)`` rows (the numpy
@@ -804,7 +804,7 @@ class World:
         np.add(raw[:, 3] * np.cos(angle), raw[:, 4] * np.sin(angle), out=twist[:, 0])  # forward speed
         twist[:, 1] = raw[:, 5]
         pose = raw[:, :3].copy()
-        pose[:, 2] = guidance.wrap_angle(angle)
+        pose[:, 2] = pursuit.wrap_angle(angle)
         vel = raw[:, 3:5].copy()
         return pose, vel, twist
 

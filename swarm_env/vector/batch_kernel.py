@@ -16,21 +16,18 @@ Inputs that vary in size between worlds are padded with counts: humans ``(M, Hma
 world's static map as :class:`swarm_env.vector.batch_step.PaddedMaps` (the arrays of
 :meth:`StaticMap.kernel_arrays <swarm_env.geometry.static_map.StaticMap.kernel_arrays>`, row ``m`` world
 ``m``'s, ``nbound``/``ncirc`` counting the used rows and ``n_poly * n_edge`` the used edges).
-
-Numba's cache of these kernels is checked against this file only: after editing a kernel they call
-(``step_kernel``, ``obs_kernel``, ``clearance_kernel``), delete ``swarm_env/__pycache__/batch_kernel*.nb*``.
 """
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 
 from swarm_env.geometry.clearance_kernel import clearance
+from swarm_env.kernel_cache import njit
 from swarm_env.scoring.step_kernel import N_TERMS, metrics_step, reward_into
 from swarm_env.sensing.obs_kernel import clip_cast, fill_rows
 
-_jit = numba.njit(cache=True, nogil=True, error_model="numpy")
+_jit = njit(nogil=True, error_model="numpy")
 
 #: Columns of :func:`rewards_batch`'s ``weights``: the step's effective weights of
 #: :class:`~swarm_env.scenario.RewardSpec` in :func:`swarm_env.scoring.step_kernel.reward_table`'s order.

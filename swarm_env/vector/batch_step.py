@@ -45,7 +45,8 @@ from swarm_env.scoring.rewards import (
     new_contacts_per_follower,
     touching_per_follower,
 )
-from swarm_env.sensing.observations import _GRADIENT_STEP, STATE_CLEARANCE_RANGE, STATE_GRID, STATE_LIMIT
+from swarm_env.sensing.layout import STATE_GRID
+from swarm_env.sensing.observations import _GRADIENT_STEP, STATE_CLEARANCE_RANGE, STATE_LIMIT
 from swarm_env.state import WorldState
 
 if TYPE_CHECKING:
@@ -418,7 +419,7 @@ class BatchState:
         leader[:, 0, 2] = self.lradius
         floats = np.empty((len(REWARD_TERMS) + 1, m, n))
         rewards = np.empty((m, n))
-        rewards_batch(  # type: ignore[call-arg]  # (numba's stub types a dispatcher's call loosely)
+        rewards_batch(
             a.pose, a.slots, self.prev_dist, actions, self.prev_action, touching, onsets, gap, weights, self.radius,
             leader, self.lrobot.astype(np.int64), a.hpos, self.hrad, self.hcount, *self.maps.kernel_arrays(), floats,
             rewards)
@@ -435,7 +436,7 @@ class BatchState:
         event = np.zeros(m, bool)
         status = np.zeros(m, np.int64)
         hum = np.zeros(m)
-        metrics_batch(  # type: ignore[call-arg]
+        metrics_batch(
             dist, self.tol, self.err_sum, self.twist_sum, self.travelled, a.twist, a.ltwist, self.prev_pos, a.pose,
             self.radius, a.lpose, self.lradius, self.lrobot, a.hpos, self.hrad, self.hcount, self.lb, self.lb_valid,
             self.min_clear, self.min_sep, self.err_max, self.steps, self.sim_time, self.wall_time, a.time, float(wall),
@@ -503,12 +504,6 @@ class BatchState:
         ob = self.obs
         cap = ob.capacity
         lay = ob.state_layout
-        widths = {"followers": sk.FOLLOWER_COLUMNS * cap.max_followers, "leader": sk.LEADER_COLUMNS,
-                  "humans": sk.HUMAN_COLUMNS * cap.max_humans, "time": sk.TIME_COLUMNS,
-                  "follower_clearance": sk.CLEARANCE_COLUMNS * cap.max_followers,
-                  "occupancy": STATE_GRID * STATE_GRID}
-        if {k: lay[k].stop - lay[k].start for k in widths} != widths:  # the kernel's columns are state_vector's
-            raise RuntimeError(f"state_layout {lay} does not match swarm_env.sensing.state_kernel's columns")
         if self.n > cap.max_followers or int(self.hcount.max(initial=0)) > cap.max_humans:
             raise ValueError(f"the worlds have up to {self.n} followers and {int(self.hcount.max(initial=0))} "
                              f"humans, the state has room for {cap.max_followers} and {cap.max_humans}")
@@ -532,7 +527,7 @@ class BatchState:
         W, H, _, _, circles, ncirc, n_poly, n_edge, *edges = self.maps.kernel_arrays()
         w, h = cap.world_size
         out = np.empty((self.m, ob.state_size), dtype=np.float32)
-        sk.state_batch(  # type: ignore[call-arg]
+        sk.state_batch(
             a.pose, a.twist, a.slots, a.lpose, a.lvel, np.cos(th), np.sin(th), np.cos(lth), np.sin(lth), a.time,
             a.next_switch, a.hpos, a.hvel, self.hcount, self.occupancy, W, H, circles, ncirc, n_poly, n_edge, *edges,
             float(w), float(h), float(ob.vel_limit), float(cap.max_time), STATE_CLEARANCE_RANGE, _GRADIENT_STEP,

@@ -50,11 +50,6 @@ auto-reset's new ``World`` is then taken in by identity)::
 
 This module imports numba (the kernel compiles at first use, ~8 s, then loads from numba's cache):
 import it lazily where the compiled kernels are off (:func:`swarm_env.compiled.compiled_kernels`).
-
-numba checks its on-disk cache of :func:`_batch_step` against this file only: after editing a
-kernel it calls in another module (``physics_kernel._substeps``, ``human_kernel.fill_states``,
-``slot_kernel._virtual_pose``/``_place_slots``/``_screen``, ``snapshot_kernel.fill_follower``),
-delete ``swarm_env/__pycache__/world_batch*.nb*``.
 """
 
 from __future__ import annotations
@@ -69,6 +64,7 @@ import numpy as np
 
 from swarm_env.compiled import compiled_kernels
 from swarm_env.geometry.slot_kernel import _place_slots, _screen, _virtual_pose
+from swarm_env.kernel_cache import njit
 from swarm_env.sim.drive_kernel import _as_pointer
 from swarm_env.sim.human_kernel import fill_states
 from swarm_env.sim.physics_kernel import _substeps
@@ -135,7 +131,7 @@ def available() -> bool:
     return bool(_STATE["ok"])
 
 
-@numba.njit(cache=True, error_model="numpy")  # not nogil: chipmunk calls back into Python
+@njit(error_model="numpy")  # not nogil: chipmunk calls back into Python
 def _batch_step(fns, rows, ints, flts, commands, n_max, h_max):  # pragma: no cover - compiled
     """Step worlds ``rows`` (indices into the tables ``ints`` ``(M, _INT_COLS)`` and ``flts``
     ``(M, _FLOAT_COLS)``, see :class:`_Record`) with ``commands[m]`` ``(n_max, 2)``, as

@@ -1,9 +1,10 @@
-"""Pure pursuit and velocity-obstacle geometry for differential-drive robots.
+"""The velocity-obstacle search for differential-drive robots (paper 003 Sec. II-D): the numpy reference.
 
-One implementation used by the env's robot leader (paper 003 Fig. 1: pure
-pursuit along its path, then a velocity-obstacle check against obstacles,
-humans and robots) and by the scripted VO expert for the followers (paper 003
-Fig. 2). Everything is a pure, vectorised numpy function.
+One implementation used by the env's robot leader (paper 003 Fig. 1: pure pursuit along its path,
+:mod:`swarm_env.control.pursuit`, then this check against obstacles, humans and robots), by the scripted VO
+expert for the followers (paper 003 Fig. 2) and by the safety layer (:mod:`swarm_env.control.safety`). Its
+compiled twin is :mod:`swarm_env.control.vo_kernel` (the same bits): a change to the search is made in these two
+files. Everything here is a pure, vectorised numpy function.
 
 Conventions: world frame x right, y up; a pose is ``(x, y, theta)`` with theta
 counter-clockwise from +x (radians); a *twist* is the body-frame command
@@ -32,8 +33,8 @@ for the whole horizon). Why the default is the arc: with the chord the only
 escape from a head-on course that the test can see is slowing down (a turn of
 ``omega tau / 2`` rad barely changes the chord), and slowing is only "safe"
 because the cone is truncated — the robot ends up standing in the path of an
-oncoming human (measured: 0.02 m separation in tests/test_guidance.py's
-head-on case with ``tau = 0.5``; none below the radii with the arc model).
+oncoming human (``tests/test_guidance.py``'s head-on case: the chord model lets the
+robot stand in the human's path, the arc model turns it away).
 
 Batches: :func:`vo_select_batch` runs the selection for ``N`` robots in one
 vectorised pass over one shared list of discs (``disc_mask`` says which discs
@@ -45,13 +46,9 @@ Robots that all run this rule should mark each other ``reciprocal`` (RVO: each
 takes half of the avoidance), otherwise two plain-VO robots dodge fully at the
 same time, oscillate and can stall face to face. Standing still is never
 chosen as the end of the story (``escape``): a blocked robot turns in place
-towards the most open direction. Measured on random crowds (4 robots, 2
-humans walking straight at <= 0.7 m/s and bouncing off walls, 4 obstacles,
-50 s, 120 episodes): no robot-robot or robot-obstacle contact; 2 robot-human
-contacts — one right after a human reversed within 1 m of the robot (a
-constant-velocity predictor cannot see that coming), one where a robot
-standing between an obstacle and a passing human dithered between turn
-directions for 1.5 s before leaving.
+towards the most open direction. What the rule cannot see: a human who
+reverses within a metre of a robot (the discs are predicted at constant
+velocity).
 """
 
 from __future__ import annotations
@@ -64,13 +61,10 @@ from typing import Any
 import numpy as np
 
 from swarm_env.compiled import compiled_search
-from swarm_env.geometry.paths import PolylinePath
+from swarm_env.control.pursuit import wrap_angle
 from swarm_env.geometry.static_map import StaticMap
 
 __all__ = [
-    "wrap_angle",
-    "pure_pursuit",
-    "lookahead_target",
     "sample_twists",
     "twist_velocities",
     "twist_trajectories",
@@ -86,126 +80,14 @@ __all__ = [
     "vo_select_batch",
 ]
 
-_TWO_PI = 2.0 * math.pi
-# Below this distance (m) the target counts as reached: the pursuit angle is undefined.
-_EPS_DIST = 1e-9
 # vo_select_batch tests this many least-penalty candidates first (see there).
 _FIRST_STAGE = 24
+
 
 def _turning_in_place(v: float, omega: float, v_max: float, omega_max: float) -> bool:
     """Whether a robot driving the twist ``(v, omega)`` is turning in place (``escape_commit``): speed
     under 10 % of ``v_max``, turn rate over 10 % of ``omega_max``. (The kernel has the same test.)"""
     return abs(v) < 0.1 * v_max and abs(omega) > 0.1 * omega_max
-
-
-def wrap_angle(a):
-    """Wrap angle(s) to ``[-pi, pi)``. A Python/numpy scalar gives a float, an array an array."""
-    if isinstance(a, (float, int)):
-        return (a + math.pi) % _TWO_PI - math.pi
-    out = np.mod(np.asarray(a, dtype=np.float64) + math.pi, _TWO_PI) - math.pi
-    return float(out) if out.ndim == 0 else out
-
-
-# ---------------------------------------------------------------------------- pure pursuit
-def pure_pursuit(
-    pose: np.ndarray,
-    target: np.ndarray,
-    v_max: float,
-    omega_max: float,
-    time_gap: float,
-    *,
-    keep_curvature: bool = True,
-) -> np.ndarray:
-    """Pure-pursuit twist towards a target point (paper 003 Eqs. 3-4, 9, 11).
-
-    Vectorised: ``pose`` ``(N, 3)`` or ``(3,)``, ``target`` ``(N, 2)`` or ``(2,)``
-    (broadcast against each other) -> twist ``(N, 2)`` or ``(2,)`` ``(v, omega)``.
-
-    With ``l`` the distance to the target and ``alpha = wrap(atan2(yT - y, xT - x) - theta)``:
-
-    * ``|alpha| <= pi/2`` (target ahead): ``v = min(l / time_gap, v_max)`` (Eq. 9's
-      distance over a time gap, saturated) and ``omega = v * 2 sin(alpha) / l``
-      (Eq. 4: the arc through the target tangent to the heading has curvature
-      ``2 sin(alpha) / l``). If ``|omega|`` exceeds ``omega_max`` it is saturated;
-      with ``keep_curvature`` (default) ``v`` is reduced as well so that
-      ``omega / v`` stays ``2 sin(alpha) / l`` — the robot keeps to the arc through
-      the target instead of orbiting it (slows down in sharp turns).
-      ``keep_curvature=False`` clips ``omega`` only.
-    * ``|alpha| > pi/2`` (target behind): driving forward would take the robot
-      away, so ``v = 0`` (``v`` scaled by ``max(cos alpha, 0)``) and it turns in
-      place towards the target with ``omega = sign(alpha) * min(omega_max,
-      2 v_nom / l)`` — the turn rate Eq. 4 gives at ``|alpha| = pi/2``, so omega
-      is continuous there.
-    * ``l < 1e-9``: zero twist.
-
-    Raises:
-        ValueError: ``time_gap <= 0`` or negative limits.
-    """
-    if not time_gap > 0.0:
-        raise ValueError(f"time_gap must be > 0, got {time_gap!r}")
-    if v_max < 0.0 or omega_max < 0.0:
-        raise ValueError("v_max and omega_max must be >= 0")
-    pose = np.asarray(pose, dtype=np.float64)
-    target = np.asarray(target, dtype=np.float64)
-    single = pose.ndim == 1 and target.ndim == 1
-    P = pose.reshape(-1, 3)
-    T = target.reshape(-1, 2)
-    dx = T[:, 0] - P[:, 0]
-    dy = T[:, 1] - P[:, 1]
-    dist = np.hypot(dx, dy)
-    alpha = wrap_angle(np.arctan2(dy, dx) - P[:, 2])
-    reached = dist < _EPS_DIST
-    safe_l = np.where(reached, 1.0, dist)
-    v_nom = np.where(reached, 0.0, np.minimum(dist / time_gap, v_max))
-    kappa = 2.0 * np.sin(alpha) / safe_l
-    ahead = np.abs(alpha) <= 0.5 * math.pi
-    v = np.where(ahead, v_nom, 0.0)
-    omega = v * kappa
-    sat = np.abs(omega) > omega_max
-    if keep_curvature:
-        v = np.where(sat, omega_max / np.where(sat, np.abs(kappa), 1.0), v)
-    omega = np.clip(omega, -omega_max, omega_max)
-    turn = np.where(alpha >= 0.0, 1.0, -1.0) * np.minimum(omega_max, 2.0 * v_nom / safe_l)
-    omega = np.where(ahead, omega, turn)
-    out = np.column_stack([v, omega])
-    out[reached] = 0.0
-    return out[0] if single else out
-
-
-def slot_velocities(leader_pose: np.ndarray, leader_vel: np.ndarray, leader_omega: float, slots: np.ndarray) -> np.ndarray:
-    """``(N, 2)`` world velocity of each slot ``slots`` ``(N, 2)`` carried by the leader's frame:
-    ``v_L + omega_L x (slot - p_L)`` (the feed-forward of a follower tracking a moving slot)."""
-    v_slot = np.empty_like(slots)
-    v_slot[:, 0] = leader_vel[0] - leader_omega * (slots[:, 1] - leader_pose[1])
-    v_slot[:, 1] = leader_vel[1] + leader_omega * (slots[:, 0] - leader_pose[0])
-    return v_slot
-
-
-def lookahead_target(
-    path: PolylinePath,
-    position: np.ndarray,
-    s_progress: float,
-    lookahead: float,
-    window: float | None = None,
-) -> tuple[np.ndarray, float]:
-    """Pure pursuit's carrot on a path, with monotone progress.
-
-    Projects ``position`` onto the part of ``path`` between ``s_progress`` and
-    ``s_progress + window`` (default ``window = 2 * lookahead + 1`` m: far more
-    than a robot advances in one step, short enough that a path passing near
-    itself is not short-cut), then returns the point ``lookahead`` metres further
-    along (the path's end point once beyond it) and the new progress
-    ``s >= s_progress``. Feed ``s`` back as ``s_progress`` next step.
-
-    Returns:
-        carrot ``(2,)`` world point, new progress ``s`` (m of arc length).
-    """
-    if window is None:
-        window = 2.0 * lookahead + 1.0
-    s_progress = float(s_progress)
-    s = max(path.project(position, s_min=s_progress, s_max=s_progress + window), s_progress)
-    s = min(s, path.length)
-    return path.point_at(s + lookahead), s
 
 
 # ---------------------------------------------------------------------------- sampling
@@ -957,15 +839,15 @@ def vo_select(
             that is already within the combined radius (margin included) is
             avoided plainly: the other robot evidently did not take its half,
             and the reciprocal displacement can pass a move towards it as
-            separating (measured: two followers squeezed into contact in a jam).
+            separating (two followers squeezed into contact in a jam).
         **overrides: :class:`VOParams` fields replaced for this call.
 
     The parameters (:class:`VOParams` fields):
 
     * ``horizon``: VO truncation time (s) for moving discs. ``horizon_static``: the
       same for static obstacles and walls (``None``: ``horizon``; RVO2 keeps a
-      separate, usually shorter, obstacle horizon — measured here, 1.5 s gave
-      more contacts than 3 s in random crowds, so the default is equal).
+      separate, usually shorter, obstacle horizon; here a shorter one gave more
+      contacts in random crowds, so the default is equal).
       ``margin``: added to every combined radius.
     * ``tau``: how long a candidate twist is assumed held (s). ``model="arc"``: the
       candidate is tested on its predicted trajectory — the arc for ``tau``
@@ -982,16 +864,14 @@ def vo_select(
       (margin included) plus ``recip_gap`` is avoided plainly (see ``reciprocal``). Reciprocity
       assumes the other robot keeps its current velocity and takes half the avoidance; two
       robots that change course together at close range can both count on the other's half
-      (measured: two followers of paper_cbs_switch, dt = 0.5 s, both switching from an escape
-      turn to full speed towards each other, met 7 mm deep).
+      (two followers both switching from an escape turn to full speed towards each other).
     * ``move_first`` (default ``False``): when the least-penalty safe candidate stands still
       although the preferred twist moves (blocked), the least-penalty safe candidate that
       *moves* is taken instead, if there is one (every candidate of that robot is then
       tested); only if none is safe does the escape rule below turn it in place. Any
       standing twist is cheaper than a detour under both costs (it is nearer the preferred
       twist than driving off at an angle), so without this rule a blocked robot turns in
-      place, the pursuit turns it back, and it stands for seconds (measured: two followers of
-      random world 1015 standing for ~6 s while their slots moved on). ORCA (its linear
+      place, the pursuit turns it back, and it stands for seconds while its slot moves on. ORCA (its linear
       program finds the nearest safe velocity, usually a slide along the obstacle) never
       stands while it can move.
     * ``static_reach`` (default 0: off; else a number ``s >= 1``): static obstacles (circles, polygons,
@@ -1001,10 +881,7 @@ def vo_select(
       ``h_s`` if the candidate is faster (never less than without the rule), but not later than
       ``s h_s``. Opt-in, off for the ``vo`` expert: the preferred path runs on past the robot's goal,
       so a follower whose final slot lies just short of an obstacle or wall may find no path there
-      (measured, seed 0: paper_vo_90's formation error 0.119 -> 0.065 m with ``s = 3``, crowd_reactive
-      0.116 -> 0.102, corridor unchanged, but a follower of paper_cbs_switch stood for good 1.3 m from
-      its final slot next to a static disc, and with ``s >= 2`` two followers touched each other; judging by the
-      lesser of the preferred and the current speed instead did not help). Without it a slow-down "avoids" a static
+      (docs/vo_defaults.md, "``static_reach``"). Without it a slow-down "avoids" a static
       obstacle by pushing the contact past the horizon, so a follower whose slot track crosses a
       static disc crawls towards it and lags; with it only a path round the obstacle is safe (ORCA,
       whose static horizon is short, bends round at speed). Standing candidates, moving discs and the
@@ -1020,11 +897,8 @@ def vo_select(
       (speed under 10 % of ``v_max``, turn rate over 10 % of ``omega_max``) and escapes again keeps
       turning the same way, unless a turn the other way opens a straight run longer by more than
       ``escape_commit`` s. Without it a boxed-in robot whose probes rate the two sides alike turns left
-      one step and right the next and never gets out (measured: with the ``vo`` expert's defaults but
-      ``horizon=2, lookahead=0.75, recip_gap=0.3``, a follower of paper_cbs_switch alternated between
-      the two turns in front of an obstacle for the last 90 s of the episode and never settled:
-      ``swarm-env run --scenario paper_cbs_switch --seed 0 --policy
-      vo:horizon=2,lookahead=0.75,recip_gap=0.3,escape_commit=0``). Needs ``current`` (:func:`vo_select_batch`). The ``vo`` expert uses 1.
+      one step and right the next and never gets out (docs/vo_defaults.md, "``escape_commit``"). Needs
+      ``current`` (:func:`vo_select_batch`). The ``vo`` expert uses 1.
     * ``fast``: test the preferred twist alone first and return it if it is safe
       (with ``goal_heading=None`` it has the least penalty, so the answer
       is the same; ``n_safe`` is then reported as 1). ``False`` always
@@ -1042,9 +916,7 @@ def vo_select(
     moves ``2 v sin(phi / 2)`` off its preferred velocity, so turning past an obstacle
     is cheaper than crawling towards it (a slow-down postpones the contact beyond the
     horizon and counts as safe, the way a follower lagged behind its slot). Opt-in, off for
-    the ``vo`` expert: measured with it (seed 0 each), paper_vo_90's error fell from 0.152
-    to 0.078 m, but corridor's did not (0.642 m), random worlds 1000-1049 were no better
-    (+0.011 m paired) and two followers of paper_cbs_switch touched.
+    the ``vo`` expert (docs/vo_defaults.md, "``cost=velocity``").
 
     Static circles are tested with the moving discs; polygons and walls with
     :func:`trajectory_static_ttc` (exact Minkowski sums). Safe candidates are
