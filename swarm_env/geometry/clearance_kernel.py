@@ -23,6 +23,7 @@ import math
 
 import numpy as np
 
+from swarm_env.geometry.map_arrays import MapArrays
 from swarm_env.kernel_cache import njit
 
 _jit = njit(nogil=True, error_model="numpy")
@@ -40,9 +41,12 @@ def _wall(x, y, W, H):  # pragma: no cover - compiled
 
 
 @_jit
-def point_distance(x, y, W, H, circles, n_poly, n_edge, ax, ay, ex, ey, inv_ee, nx, ny):  # pragma: no cover
-    """``StaticMap.distance`` of one point (walls included)."""
-    d = _wall(x, y, W, H)
+def point_distance(x, y, mp):  # pragma: no cover - compiled
+    """``StaticMap.distance`` of one point (walls included); ``mp`` the map's
+    :class:`~swarm_env.geometry.map_arrays.MapArrays`."""
+    circles, n_poly, n_edge = mp.circles, mp.n_poly, mp.n_edge
+    ax, ay, ex, ey, inv_ee, nx, ny = mp.ax, mp.ay, mp.ex, mp.ey, mp.inv_ee, mp.nx, mp.ny
+    d = _wall(x, y, mp.width, mp.height)
     for c in range(len(circles)):
         dx = x - circles[c, 0]
         dy = y - circles[c, 1]
@@ -66,11 +70,11 @@ def point_distance(x, y, W, H, circles, n_poly, n_edge, ax, ay, ex, ey, inv_ee, 
 
 
 @_jit
-def distances(pos, W, H, circles, n_poly, n_edge, ax, ay, ex, ey, inv_ee, nx, ny):  # pragma: no cover - compiled
+def distances(pos, mp):  # pragma: no cover - compiled
     """``(N,)`` :func:`point_distance` of each row of ``pos``."""
     out = np.empty(len(pos))
     for i in range(len(pos)):
-        out[i] = point_distance(pos[i, 0], pos[i, 1], W, H, circles, n_poly, n_edge, ax, ay, ex, ey, inv_ee, nx, ny)
+        out[i] = point_distance(pos[i, 0], pos[i, 1], mp)
     return out
 
 
@@ -97,21 +101,19 @@ def lower_bounds(pos, W, H, bound):  # pragma: no cover - compiled
 
 
 @_jit
-def static_min_distance(pos, minus, upper, lower, screen, W, H, circles, n_poly, n_edge, ax, ay, ex, ey, inv_ee,
-                        nx, ny):  # pragma: no cover - compiled
+def static_min_distance(pos, minus, upper, lower, screen, mp):  # pragma: no cover - compiled
     """``StaticMap.min_distance(pos, minus, upper, lower)`` for finite ``upper`` (``screen``: its
     screening margin): the exact distance only where ``lower - minus < upper + screen``."""
     best = upper
     for i in range(len(pos)):
         if lower[i] - minus[i] < upper + screen:
-            d = point_distance(pos[i, 0], pos[i, 1], W, H, circles, n_poly, n_edge, ax, ay, ex, ey, inv_ee, nx, ny)
+            d = point_distance(pos[i, 0], pos[i, 1], mp)
             best = min(best, d - minus[i])
     return best
 
 
 @_jit
-def clearance(pos, r, below, fdist, leader, human_pos, human_r, W, H, bound, circles, n_poly, n_edge, ax, ay, ex,
-              ey, inv_ee, nx, ny):  # pragma: no cover - compiled
+def clearance(pos, r, below, fdist, leader, human_pos, human_r, mp):  # pragma: no cover - compiled
     """``swarm_env.scoring.rewards.clearance``: ``(N,)`` free distance of each follower's disc.
 
     ``fdist`` the followers' centre distances ``(N, N)`` (or ``(0, 0)``: computed here); ``leader`` ``(1, 3)`` ``(x, y, radius)``
@@ -121,9 +123,9 @@ def clearance(pos, r, below, fdist, leader, human_pos, human_r, W, H, bound, cir
     finite = math.isfinite(below)
     for i in range(n):
         x, y, ri = pos[i, 0], pos[i, 1], r[i]
-        best = point_lower_bound(x, y, W, H, bound) - ri if finite else below
+        best = point_lower_bound(x, y, mp.width, mp.height, mp.bound) - ri if finite else below
         if not finite or best < below:
-            best = point_distance(x, y, W, H, circles, n_poly, n_edge, ax, ay, ex, ey, inv_ee, nx, ny) - ri
+            best = point_distance(x, y, mp) - ri
         if n > 1:
             gap = math.inf
             for j in range(n):
@@ -151,4 +153,15 @@ def clearance(pos, r, below, fdist, leader, human_pos, human_r, W, H, bound, cir
     return out
 
 
-__all__ = ["clearance", "distances", "lower_bounds", "point_distance", "point_lower_bound", "static_min_distance"]
+
+@_jit
+def world_map(maps, m):  # pragma: no cover - compiled
+    """World ``m``'s :class:`~swarm_env.geometry.map_arrays.MapArrays` from a
+    :class:`~swarm_env.geometry.map_arrays.MapBatch` (views, no copies)."""
+    return MapArrays(maps.width[m], maps.height[m], maps.bound[m, :maps.nbound[m]], maps.circles[m, :maps.ncirc[m]],
+                     maps.n_poly[m], maps.n_edge[m], maps.ax[m], maps.ay[m], maps.ex[m], maps.ey[m], maps.inv_ee[m],
+                     maps.nx[m], maps.ny[m])
+
+
+__all__ = ["clearance", "distances", "lower_bounds", "point_distance", "point_lower_bound", "static_min_distance",
+           "world_map"]

@@ -30,6 +30,7 @@ from typing import Any
 import numpy as np
 
 from swarm_env.compiled import compiled_kernels
+from swarm_env.geometry.map_arrays import MapArrays
 from swarm_env.scenario import CircleObstacle, Obstacle, PolygonObstacle, RectangleObstacle
 
 WALL_NAMES = ("bottom", "right", "top", "left")  # wall index order 0..3
@@ -301,16 +302,14 @@ class StaticMap:
             poly_edges.append(tuple(rows))
         put(self, "_owner_sd_data", (tuple(tuple(float(v) for v in row) for row in circles), tuple(poly_edges)))
 
-    def kernel_arrays(self) -> tuple:
-        """The map as :mod:`swarm_env.geometry.clearance_kernel` takes it, after the point:
-        ``(W, H, bound, circles, P, Mmax, ax, ay, ex, ey, inv_ee, nx, ny)`` (the bounding discs of
-        :meth:`distance_lower_bound`, then the padded polygon edges edge-major, index ``m * P + p``)."""
+    def kernel_arrays(self) -> MapArrays:
+        """The map as the compiled kernels take it (:class:`MapArrays`), built once."""
         hit = self.__dict__.get("_kernel")
         if hit is None:  # built once (a cache beside the frozen fields)
             f = self._flat
             W, H = self.size
-            hit = (W, H, self._bound, self.circles, f["P"], f["M"],
-                   *(np.ascontiguousarray(f[k].ravel()) for k in ("ax", "ay", "ex", "ey", "inv_ee", "nx", "ny")))
+            hit = MapArrays(W, H, self._bound, self.circles, f["P"], f["M"],
+                            *(np.ascontiguousarray(f[k].ravel()) for k in ("ax", "ay", "ex", "ey", "inv_ee", "nx", "ny")))
             self.__dict__["_kernel"] = hit
         return hit
 
@@ -387,8 +386,7 @@ class StaticMap:
         if walls and len(pts) <= _FAST_MAX_POINTS and compiled_kernels():  # the same bits, fewer numpy calls
             from swarm_env.geometry.clearance_kernel import distances
 
-            k = self.kernel_arrays()
-            return distances(np.ascontiguousarray(pts), *k[:2], *k[3:]).reshape(shape)
+            return distances(np.ascontiguousarray(pts), self.kernel_arrays()).reshape(shape)
         step = self._chunk
         if len(pts) <= step:
             return self._distance(pts, walls).reshape(shape)
@@ -431,9 +429,8 @@ class StaticMap:
             if compiled_kernels():  # the same number, see swarm_env.geometry.clearance_kernel
                 from swarm_env.geometry.clearance_kernel import static_min_distance
 
-                k = self.kernel_arrays()
                 return float(static_min_distance(np.ascontiguousarray(pts), np.ascontiguousarray(sub), float(upper),
-                                                 np.asarray(lb, dtype=np.float64), _SCREEN_MARGIN, *k[:2], *k[3:]))
+                                                 np.asarray(lb, dtype=np.float64), _SCREEN_MARGIN, self.kernel_arrays()))
             cand = np.flatnonzero(lb - sub < upper + _SCREEN_MARGIN)
             if len(cand) < len(pts):
                 pts, sub = pts[cand], sub[cand]

@@ -152,7 +152,7 @@ class EpisodeMetrics:
             err, float(self.tolerance), self.err_sum, self.twist_sum, self.dist, state.follower_twist,
             state.leader_twist, self.prev_pos, pos, r, state.leader_pose, float(state.leader_radius) if robot else 0.0,
             robot, state.human_pos, state.human_radius, _NO_VALUES if lb is None else lb, float(self.min_clear),
-            _LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS, *static.kernel_arrays())
+            _LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS, static.kernel_arrays())
         self.err_max = max(self.err_max, err_max)
         if state.leader_done and self.leader_arrival is None:
             self.leader_arrival = state.time

@@ -113,7 +113,7 @@ def clearance(state: WorldState, below: float = np.inf) -> np.ndarray:
             leader = _NO_LEADER
         return compiled(state.follower_pose, state.follower_radius, float(below),
                         _NO_DISTANCES, leader, state.human_pos,  # the kernel computes the distances
-                        state.human_radius, *state.static.kernel_arrays())
+                        state.human_radius, state.static.kernel_arrays())
     pos = state.follower_pose[:, :2]
     r = state.follower_radius
     static = state.static

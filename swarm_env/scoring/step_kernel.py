@@ -122,8 +122,7 @@ def reward_into(dist, table, total, pose, slots, dist_in, prev_dist, action, pre
 
 @_jit
 def metrics_step(err, tolerance, err_sum, twist_sum, dist_sum, f_twist, l_twist, prev_pos, pose, radius, l_pose, l_radius, leader_robot,
-                 h_pos, h_radius, lb, min_clear, slack, screen, fast_max, W, H, bound, circles, n_poly, n_edge, ax, ay,
-                 ex, ey, inv_ee, nx, ny):  # pragma: no cover - compiled
+                 h_pos, h_radius, lb, min_clear, slack, screen, fast_max, mp):  # pragma: no cover - compiled
     """One :meth:`EpisodeMetrics.update` of the arrays, in place, and what its proximity needs.
 
     Adds ``err`` (N,) to ``err_sum``, the twists to ``twist_sum`` ``(N + 1, 2)`` (leader last),
@@ -141,9 +140,8 @@ def metrics_step(err, tolerance, err_sum, twist_sum, dist_sum, f_twist, l_twist,
       than ``fast_max`` followers: ``min_distance``'s numpy path);
     * ``status 3``: no followers.
 
-    ``lb`` empty means no bounds to carry; the map is :meth:`StaticMap.kernel_arrays` (without
-    ``bound`` before ``circles``'s place: ``W, H, bound, circles, ...``), ``screen`` its screening
-    margin.
+    ``lb`` empty means no bounds to carry; ``mp`` the map's :class:`~swarm_env.geometry.map_arrays.MapArrays`,
+    ``screen`` its screening margin.
     """
     n = len(err)
     nan = False
@@ -226,11 +224,10 @@ def metrics_step(err, tolerance, err_sum, twist_sum, dist_sum, f_twist, l_twist,
                 carried = False
         if carried:
             return err_max, within, sep, hum, lb_out, 0, min_clear
-    lb_out = lower_bounds(pose, W, H, bound)
+    lb_out = lower_bounds(pose, mp.width, mp.height, mp.bound)
     if not math.isfinite(min_clear) or n > fast_max:
         return err_max, within, sep, hum, lb_out, 2, min_clear
-    static = static_min_distance(pose, radius, min_clear, lb_out, screen, W, H, circles, n_poly, n_edge, ax, ay, ex,
-                                 ey, inv_ee, nx, ny)
+    static = static_min_distance(pose, radius, min_clear, lb_out, screen, mp)
     return err_max, within, sep, hum, lb_out, 1, static
 
 

@@ -34,7 +34,7 @@ import math
 
 import numpy as np
 
-from swarm_env.geometry.clearance_kernel import point_distance
+from swarm_env.geometry.clearance_kernel import point_distance, world_map
 from swarm_env.kernel_cache import njit
 from swarm_env.sensing.layout import CLEARANCE_COLUMNS, FOLLOWER_COLUMNS, HUMAN_COLUMNS
 
@@ -54,7 +54,7 @@ def _put(out, j, v, limit):  # pragma: no cover - compiled
 
 @_jit
 def state_batch(pose, twist, slots, lpose, lvel, cos_th, sin_th, cos_lead, sin_lead, time, next_switch, hpos, hvel,
-                hcount, occupancy, W, H, circles, ncirc, n_poly, n_edge, ax, ay, ex, ey, inv_ee, nx, ny, width, height,
+                hcount, occupancy, maps, width, height,
                 vel_limit, max_time, clear_range, step, limit, fol_start, lead_start, hum_start, time_start, clear_start,
                 occ_start, out):  # pragma: no cover - compiled
     """``out[m]`` = world ``m``'s ``ObservationBuilder.state_vector`` (float32 ``(M, state_size)``).
@@ -63,9 +63,8 @@ def state_batch(pose, twist, slots, lpose, lvel, cos_th, sin_th, cos_lead, sin_l
     ``(M, N, 2)``, ``lpose`` ``(M, 3)``, ``lvel`` ``(M, 2)``, the numpy cosines/sines of the
     followers' headings ``(M, N)`` and of the leader's ``(M,)``, ``time`` and ``next_switch``
     ``(M,)``, humans padded ``(M, Hmax, 2)`` with ``hcount`` ``(M,)``,
-    ``occupancy`` ``(M, STATE_GRID ** 2)`` each world's grid, and its map as the rows of
-    :meth:`PaddedMaps.kernel_arrays <swarm_env.vector.batch_step.PaddedMaps.kernel_arrays>` (the bounding
-    discs are not needed). The builder's constants: ``width``/``height`` its capacity's world
+    ``occupancy`` ``(M, STATE_GRID ** 2)`` each world's grid, and the worlds' maps ``maps`` (a
+    :class:`~swarm_env.geometry.map_arrays.MapBatch`). The builder's constants: ``width``/``height`` its capacity's world
     size, ``vel_limit`` twice its speed limit, ``max_time``, ``clear_range``
     (``STATE_CLEARANCE_RANGE``), ``step`` (the clearance gradient's ``_GRADIENT_STEP``), ``limit``
     (``STATE_LIMIT``), and each block's first column in ``state_layout`` (the caller checks that the
@@ -108,19 +107,17 @@ def state_batch(pose, twist, slots, lpose, lvel, cos_th, sin_th, cos_lead, sin_l
         if max_time < to_switch:  # Python's min(to_switch, max_time): the first unless the second is smaller
             to_switch = max_time
         _put(row, time_start + 1, to_switch / max_time, limit)
-        circ = circles[m, :ncirc[m]]
-        P, Me, Wm, Hm = n_poly[m], n_edge[m], W[m], H[m]
-        axm, aym, exm, eym, iem, nxm, nym = ax[m], ay[m], ex[m], ey[m], inv_ee[m], nx[m], ny[m]
+        mp = world_map(maps, m)
         for i in range(n):
             x = pose[m, i, 0]
             y = pose[m, i, 1]
             # The reference's probes: pos, pos + (h, 0), pos - (h, 0), pos + (0, h), pos - (0, h), with
             # the 0.0 added too (it only changes the sign of a zero, kept for the same bits).
-            d0 = point_distance(x, y, Wm, Hm, circ, P, Me, axm, aym, exm, eym, iem, nxm, nym)
-            d1 = point_distance(x + step, y + 0.0, Wm, Hm, circ, P, Me, axm, aym, exm, eym, iem, nxm, nym)
-            d2 = point_distance(x - step, y - 0.0, Wm, Hm, circ, P, Me, axm, aym, exm, eym, iem, nxm, nym)
-            d3 = point_distance(x + 0.0, y + step, Wm, Hm, circ, P, Me, axm, aym, exm, eym, iem, nxm, nym)
-            d4 = point_distance(x - 0.0, y - step, Wm, Hm, circ, P, Me, axm, aym, exm, eym, iem, nxm, nym)
+            d0 = point_distance(x, y, mp)
+            d1 = point_distance(x + step, y + 0.0, mp)
+            d2 = point_distance(x - step, y - 0.0, mp)
+            d3 = point_distance(x + 0.0, y + step, mp)
+            d4 = point_distance(x - 0.0, y - step, mp)
             gx = d1 - d2
             gy = d3 - d4
             norm = math.sqrt(gx * gx + gy * gy)

@@ -13,16 +13,15 @@ the per-world references in ``tests/test_batch_kernel.py`` and on whole episodes
 
 Inputs that vary in size between worlds are padded with counts: humans ``(M, Hmax, ...)`` with
 ``hcount`` ``(M,)``, a robot leader ``(M, 1, 3)`` with ``n_leader`` ``(M,)`` 0 or 1, and each
-world's static map as :class:`swarm_env.vector.batch_step.PaddedMaps` (the arrays of
-:meth:`StaticMap.kernel_arrays <swarm_env.geometry.static_map.StaticMap.kernel_arrays>`, row ``m`` world
-``m``'s, ``nbound``/``ncirc`` counting the used rows and ``n_poly * n_edge`` the used edges).
+world's static map in ``maps``, a :class:`~swarm_env.geometry.map_arrays.MapBatch` (from
+:class:`swarm_env.vector.batch_step.PaddedMaps`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from swarm_env.geometry.clearance_kernel import clearance
+from swarm_env.geometry.clearance_kernel import clearance, world_map
 from swarm_env.kernel_cache import njit
 from swarm_env.scoring.step_kernel import N_TERMS, metrics_step, reward_into
 from swarm_env.sensing.obs_kernel import clip_cast, fill_rows
@@ -37,8 +36,7 @@ WEIGHT_COLUMNS = ("formation", "collision", "contact", "clearance", "clearance_m
 
 @_jit
 def rewards_batch(pose, slots, prev_dist, action, prev_action, touching, onsets, gap, weights, radius, leader, n_leader,
-                  hpos, hrad, hcount, W, H, bound, nbound, circles, ncirc, n_poly, n_edge, ax, ay, ex, ey, inv_ee, nx,
-                  ny, floats, total):  # pragma: no cover - compiled
+                  hpos, hrad, hcount, maps, floats, total):  # pragma: no cover - compiled
     """The rewards of ``M`` worlds: for world ``m``, what
     :func:`swarm_env.scoring.rewards.reward_table` returns for its state with ``prev_dist[m]`` and
     ``prev_action[m]``, written to ``floats[:N_TERMS, m]`` (the weighted terms), ``floats[N_TERMS, m]``
@@ -63,8 +61,7 @@ def rewards_batch(pose, slots, prev_dist, action, prev_action, touching, onsets,
         clear = no_clear
         if weights[m, 3] != 0.0:
             clear = clearance(pose[m], radius[m], weights[m, 4], no_fdist, leader[m, :n_leader[m]], hpos[m, :hc],
-                              hrad[m, :hc], W[m], H[m], bound[m, :nbound[m]], circles[m, :ncirc[m]], n_poly[m],
-                              n_edge[m], ax[m], ay[m], ex[m], ey[m], inv_ee[m], nx[m], ny[m])
+                              hrad[m, :hc], world_map(maps, m))
         reward_into(floats[N_TERMS, m], floats[:N_TERMS, m], total[m], pose[m], slots[m], no_dist, prev_dist[m],
                     action[m], prev_action[m], touching[m], onsets[m], clear, gap[m], weights[m, 0], weights[m, 1],
                     weights[m, 2], weights[m, 3], weights[m, 4], weights[m, 5], weights[m, 6], weights[m, 7],
@@ -78,9 +75,8 @@ def rewards_batch(pose, slots, prev_dist, action, prev_action, touching, onsets,
 @_jit
 def metrics_batch(err, tol, err_sum, twist_sum, travelled, f_twist, l_twist, prev_pos, pose, radius, l_pose, l_radius,
                   leader_robot, hpos, hrad, hcount, lb, lb_valid, min_clear, min_sep, err_max, steps, sim_time,
-                  wall_time, time, wall, slack, screen, fast_max, W, H, bound, nbound, circles, ncirc, n_poly, n_edge,
-                  ax, ay, ex, ey, inv_ee, nx, ny, k_now, last_k, pending_k, hold_key, hold_n, hold_in, within_out,
-                  event_out, status_out, hum_out):  # pragma: no cover - compiled
+                  wall_time, time, wall, slack, screen, fast_max, maps, k_now, last_k, pending_k, hold_key, hold_n,
+                  hold_in, within_out, event_out, status_out, hum_out):  # pragma: no cover - compiled
     """One :meth:`EpisodeMetrics.update <swarm_env.scoring.metrics.EpisodeMetrics.update>` of ``M`` worlds'
     accumulators held as rows of arrays (:class:`swarm_env.vector.batch_step.BatchState`), in place.
 
@@ -112,8 +108,7 @@ def metrics_batch(err, tol, err_sum, twist_sum, travelled, f_twist, l_twist, pre
         e_max, within, sep, hum, lb_out, status, clear = metrics_step(
             err[m], tol[m], err_sum[m], twist_sum[m], travelled[m], f_twist[m], l_twist[m], prev_pos[m], pose[m],
             radius[m], l_pose[m], lr, robot, hpos[m, :hc], hrad[m, :hc], lbm,
-            min_clear[m], slack, screen, fast_max, W[m], H[m], bound[m, :nbound[m]], circles[m, :ncirc[m]],
-            n_poly[m], n_edge[m], ax[m], ay[m], ex[m], ey[m], inv_ee[m], nx[m], ny[m])
+            min_clear[m], slack, screen, fast_max, world_map(maps, m))
         steps[m] += 1
         sim_time[m] = time[m]
         wall_time[m] += wall

@@ -36,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarm_env.env import _INFO_KEYS
+from swarm_env.geometry.map_arrays import MapBatch
 from swarm_env.geometry.static_map import _FAST_MAX_POINTS, _SCREEN_MARGIN, StaticMap
 from swarm_env.scoring.metrics import _LIPSCHITZ_SLACK
 from swarm_env.scoring.rewards import (
@@ -84,7 +85,7 @@ class PaddedMaps:
         """Make row ``b`` the map ``static`` (nothing to do if it already is)."""
         if self.rows[b] is static:
             return
-        W, H, bound, circles, P, Me, *edges = static.kernel_arrays()
+        W, H, bound, circles, P, Me, *edges = static.kernel_arrays()  # a MapArrays
         self._room(len(bound), len(circles), len(edges[0]))
         self.W[b], self.H[b] = W, H
         self.nbound[b], self.ncirc[b], self.n_poly[b], self.n_edge[b] = len(bound), len(circles), P, Me
@@ -106,11 +107,10 @@ class PaddedMaps:
         self.circles = grown(self.circles, nc)
         self.edges = {k: grown(a, ne) for k, a in self.edges.items()}
 
-    def kernel_arrays(self) -> tuple:
-        """``(W, H, bound, nbound, circles, ncirc, n_poly, n_edge, ax, ay, ex, ey, inv_ee, nx, ny)``,
-        the order of :mod:`swarm_env.vector.batch_kernel`'s map arguments."""
-        return (self.W, self.H, self.bound, self.nbound, self.circles, self.ncirc, self.n_poly, self.n_edge,
-                *(self.edges[k] for k in self._EDGE_KEYS))
+    def kernel_arrays(self) -> MapBatch:
+        """The worlds' maps as the batch kernels take them."""
+        return MapBatch(self.W, self.H, self.bound, self.nbound, self.circles, self.ncirc, self.n_poly, self.n_edge,
+                        *(self.edges[k] for k in self._EDGE_KEYS))
 
 
 class StepArrays:
@@ -421,7 +421,7 @@ class BatchState:
         rewards = np.empty((m, n))
         rewards_batch(
             a.pose, a.slots, self.prev_dist, actions, self.prev_action, touching, onsets, gap, weights, self.radius,
-            leader, self.lrobot.astype(np.int64), a.hpos, self.hrad, self.hcount, *self.maps.kernel_arrays(), floats,
+            leader, self.lrobot.astype(np.int64), a.hpos, self.hrad, self.hcount, self.maps.kernel_arrays(), floats,
             rewards)
         return floats, rewards, touching
 
@@ -440,7 +440,7 @@ class BatchState:
             dist, self.tol, self.err_sum, self.twist_sum, self.travelled, a.twist, a.ltwist, self.prev_pos, a.pose,
             self.radius, a.lpose, self.lradius, self.lrobot, a.hpos, self.hrad, self.hcount, self.lb, self.lb_valid,
             self.min_clear, self.min_sep, self.err_max, self.steps, self.sim_time, self.wall_time, a.time, float(wall),
-            _LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS, *self.maps.kernel_arrays(), a.k, self.last_k,
+            _LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS, self.maps.kernel_arrays(), a.k, self.last_k,
             self.pending_k, self.hold_key, self.hold_n, self.hold_in, within, event, status, hum)
         for b in a.contacts:  # collision counts stay in the objects
             envs[b]._metrics.count_contacts(states[b])
@@ -524,13 +524,12 @@ class BatchState:
         # strided column of the pose and the leader's heading): numba's libm could round differently.
         th = a.pose[:, :, 2]
         lth = a.lpose[:, 2]
-        W, H, _, _, circles, ncirc, n_poly, n_edge, *edges = self.maps.kernel_arrays()
         w, h = cap.world_size
         out = np.empty((self.m, ob.state_size), dtype=np.float32)
         sk.state_batch(
             a.pose, a.twist, a.slots, a.lpose, a.lvel, np.cos(th), np.sin(th), np.cos(lth), np.sin(lth), a.time,
-            a.next_switch, a.hpos, a.hvel, self.hcount, self.occupancy, W, H, circles, ncirc, n_poly, n_edge, *edges,
-            float(w), float(h), float(ob.vel_limit), float(cap.max_time), STATE_CLEARANCE_RANGE, _GRADIENT_STEP,
+            a.next_switch, a.hpos, a.hvel, self.hcount, self.occupancy, self.maps.kernel_arrays(), float(w), float(h),
+            float(ob.vel_limit), float(cap.max_time), STATE_CLEARANCE_RANGE, _GRADIENT_STEP,
             STATE_LIMIT, lay["followers"].start, lay["leader"].start, lay["humans"].start, lay["time"].start,
             lay["follower_clearance"].start, lay["occupancy"].start, out)
         return out
