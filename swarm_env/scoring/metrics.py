@@ -141,18 +141,19 @@ class EpisodeMetrics:
     def _update_compiled(self, state: WorldState, err: np.ndarray) -> None:
         """The rest of :meth:`update` with :func:`swarm_env.scoring.step_kernel.metrics_step`: the same
         operations as the numpy code below, in one call."""
-        from swarm_env.scoring.step_kernel import metrics_step
+        from swarm_env.scoring.step_kernel import Accumulators, Bodies, Screening, metrics_step
 
         pos = state.follower_pose
         r = state.follower_radius
         lb = self._static_lb
         robot = state.leader_is_robot
         static = state.static
+        bodies = Bodies(pos, state.follower_twist, r, state.leader_pose, state.leader_twist,
+                        float(state.leader_radius) if robot else 0.0, robot, state.human_pos, state.human_radius)
         err_max, within, sep, hum, lb_out, status, clear = metrics_step(
-            err, float(self.tolerance), self.err_sum, self.twist_sum, self.dist, state.follower_twist,
-            state.leader_twist, self.prev_pos, pos, r, state.leader_pose, float(state.leader_radius) if robot else 0.0,
-            robot, state.human_pos, state.human_radius, _NO_VALUES if lb is None else lb, float(self.min_clear),
-            _LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS, static.kernel_arrays())
+            err, float(self.tolerance), Accumulators(self.err_sum, self.twist_sum, self.dist, self.prev_pos), bodies,
+            _NO_VALUES if lb is None else lb, float(self.min_clear),
+            Screening(_LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS), static.kernel_arrays())
         self.err_max = max(self.err_max, err_max)
         if state.leader_done and self.leader_arrival is None:
             self.leader_arrival = state.time

@@ -20,6 +20,7 @@ the same way.
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -30,6 +31,42 @@ _jit = njit(nogil=True, error_model="numpy")
 
 #: Rows of :func:`reward_table`'s table (= ``len(swarm_env.scoring.rewards.REWARD_TERMS)``).
 N_TERMS = 10
+
+
+class Accumulators(NamedTuple):
+    """One world's running sums, updated in place by :func:`metrics_step`: the slot errors ``err_sum`` ``(N,)``,
+    the twists ``twist_sum`` ``(N + 1, 2)`` and the distances travelled ``dist_sum`` ``(N + 1,)`` (the leader
+    last), and the last positions ``prev_pos`` ``(N + 1, 2)``."""
+
+    err_sum: np.ndarray
+    twist_sum: np.ndarray
+    dist_sum: np.ndarray
+    prev_pos: np.ndarray
+
+
+class Bodies(NamedTuple):
+    """One world's robots and humans at a step: the followers' ``pose`` ``(N, 3)``, ``twist`` ``(N, 2)`` and
+    ``radius`` ``(N,)``; the leader's ``l_pose``, ``l_twist``, ``l_radius`` (0 unless a robot) and
+    ``leader_robot``; the humans' ``h_pos`` ``(H, 2)`` and ``h_radius`` ``(H,)``."""
+
+    pose: np.ndarray
+    twist: np.ndarray
+    radius: np.ndarray
+    l_pose: np.ndarray
+    l_twist: np.ndarray
+    l_radius: float
+    leader_robot: bool
+    h_pos: np.ndarray
+    h_radius: np.ndarray
+
+
+class Screening(NamedTuple):
+    """How :func:`metrics_step` screens the static clearance: the carried lower bounds' ``slack`` (m), the
+    exact distance's ``screen`` margin (m), and the most followers (``fast_max``) the kernel measures itself."""
+
+    slack: float
+    screen: float
+    fast_max: int
 
 
 @_jit
@@ -121,12 +158,11 @@ def reward_into(dist, table, total, pose, slots, dist_in, prev_dist, action, pre
 
 
 @_jit
-def metrics_step(err, tolerance, err_sum, twist_sum, dist_sum, f_twist, l_twist, prev_pos, pose, radius, l_pose, l_radius, leader_robot,
-                 h_pos, h_radius, lb, min_clear, slack, screen, fast_max, mp):  # pragma: no cover - compiled
+def metrics_step(err, tolerance, acc, bodies, lb, min_clear, screening, mp):  # pragma: no cover - compiled
     """One :meth:`EpisodeMetrics.update` of the arrays, in place, and what its proximity needs.
 
-    Adds ``err`` (N,) to ``err_sum``, the twists to ``twist_sum`` ``(N + 1, 2)`` (leader last),
-    each robot's displacement to ``dist_sum`` ``(N + 1,)``, and moves ``prev_pos`` ``(N + 1, 2)``
+    Adds ``err`` (N,) to ``acc.err_sum`` (:class:`Accumulators`), the twists of ``bodies`` (:class:`Bodies`) to
+    ``acc.twist_sum`` (leader last), each robot's displacement to ``acc.dist_sum``, and moves ``acc.prev_pos``
     to the new positions. Returns ``(err_max, within, sep, hum, lb_out, status, static)``: the
     step's largest error (``max(0, err)``), whether every ``err <= tolerance``, the smallest robot-robot surface gap (followers, then the
     robot leader when ``leader_robot``; ``inf`` with one robot), the smallest follower-human gap
@@ -141,8 +177,11 @@ def metrics_step(err, tolerance, err_sum, twist_sum, dist_sum, f_twist, l_twist,
     * ``status 3``: no followers.
 
     ``lb`` empty means no bounds to carry; ``mp`` the map's :class:`~swarm_env.geometry.map_arrays.MapArrays`,
-    ``screen`` its screening margin.
+    ``screening`` a :class:`Screening`.
     """
+    err_sum, twist_sum, dist_sum, prev_pos = acc
+    pose, f_twist, radius, l_pose, l_twist, l_radius, leader_robot, h_pos, h_radius = bodies
+    slack, screen, fast_max = screening
     n = len(err)
     nan = False
     err_max = 0.0
@@ -231,4 +270,4 @@ def metrics_step(err, tolerance, err_sum, twist_sum, dist_sum, f_twist, l_twist,
     return err_max, within, sep, hum, lb_out, 1, static
 
 
-__all__ = ["N_TERMS", "metrics_step", "reward_into", "reward_table"]
+__all__ = ["N_TERMS", "Accumulators", "Bodies", "Screening", "metrics_step", "reward_into", "reward_table"]

@@ -31,6 +31,7 @@ column; the columns of one follower, leader or human within its block are :mod:`
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -40,6 +41,40 @@ from swarm_env.sensing.layout import CLEARANCE_COLUMNS, FOLLOWER_COLUMNS, HUMAN_
 
 _jit = njit(nogil=True, error_model="numpy")
 
+
+class Headings(NamedTuple):
+    """The cosines and sines of the followers' headings ``(M, N)`` and of the leader's ``(M,)``, computed by numpy
+    as the reference does (numba's libm could round differently)."""
+
+    cos_th: np.ndarray
+    sin_th: np.ndarray
+    cos_lead: np.ndarray
+    sin_lead: np.ndarray
+
+
+class StateScales(NamedTuple):
+    """The observation builder's constants of the state: ``width``/``height`` its capacity's world size,
+    ``vel_limit`` twice its speed limit, ``max_time``, ``clear_range`` (``STATE_CLEARANCE_RANGE``), ``step`` (the
+    clearance gradient's ``_GRADIENT_STEP``), ``limit`` (``STATE_LIMIT``)."""
+
+    width: float
+    height: float
+    vel_limit: float
+    max_time: float
+    clear_range: float
+    step: float
+    limit: float
+
+
+class StateColumns(NamedTuple):
+    """Each block's first column in :func:`swarm_env.sensing.observations.state_layout`."""
+
+    followers: int
+    leader: int
+    humans: int
+    time: int
+    clearance: int
+    occupancy: int
 
 
 @_jit
@@ -53,24 +88,23 @@ def _put(out, j, v, limit):  # pragma: no cover - compiled
 
 
 @_jit
-def state_batch(pose, twist, slots, lpose, lvel, cos_th, sin_th, cos_lead, sin_lead, time, next_switch, hpos, hvel,
-                hcount, occupancy, maps, width, height,
-                vel_limit, max_time, clear_range, step, limit, fol_start, lead_start, hum_start, time_start, clear_start,
-                occ_start, out):  # pragma: no cover - compiled
+def state_batch(rows, heads, hcount, occupancy, maps, scales, cols, out):  # pragma: no cover - compiled
     """``out[m]`` = world ``m``'s ``ObservationBuilder.state_vector`` (float32 ``(M, state_size)``).
 
-    World arrays, stacked on a leading world axis: ``pose`` ``(M, N, 3)``, ``twist`` and ``slots``
-    ``(M, N, 2)``, ``lpose`` ``(M, 3)``, ``lvel`` ``(M, 2)``, the numpy cosines/sines of the
-    followers' headings ``(M, N)`` and of the leader's ``(M,)``, ``time`` and ``next_switch``
-    ``(M,)``, humans padded ``(M, Hmax, 2)`` with ``hcount`` ``(M,)``,
-    ``occupancy`` ``(M, STATE_GRID ** 2)`` each world's grid, and the worlds' maps ``maps`` (a
-    :class:`~swarm_env.geometry.map_arrays.MapBatch`). The builder's constants: ``width``/``height`` its capacity's world
-    size, ``vel_limit`` twice its speed limit, ``max_time``, ``clear_range``
-    (``STATE_CLEARANCE_RANGE``), ``step`` (the clearance gradient's ``_GRADIENT_STEP``), ``limit``
-    (``STATE_LIMIT``), and each block's first column in ``state_layout`` (the caller checks that the
-    blocks have room for ``N`` followers and ``hcount`` humans). Rows and slots beyond a world's followers and
-    humans are 0.
+    ``rows`` the worlds' arrays, stacked on a leading world axis (read by name: ``pose`` ``(M, N, 3)``,
+    ``twist`` and ``slots`` ``(M, N, 2)``, ``lpose`` ``(M, 3)``, ``lvel`` ``(M, 2)``, ``time`` and ``next_switch``
+    ``(M,)``, humans padded ``hpos``/``hvel`` ``(M, Hmax, 2)``; :class:`swarm_env.vector.batch_step.WorldRows`),
+    ``heads`` their :class:`Headings`, ``hcount`` ``(M,)`` the humans of each world, ``occupancy``
+    ``(M, STATE_GRID ** 2)`` each world's grid, ``maps`` the worlds' maps (a
+    :class:`~swarm_env.geometry.map_arrays.MapBatch`), ``scales`` a :class:`StateScales`, ``cols`` a
+    :class:`StateColumns` (the caller checks that the blocks have room for ``N`` followers and ``hcount``
+    humans). Rows and slots beyond a world's followers and humans are 0.
     """
+    pose, twist, slots, lpose, lvel = rows.pose, rows.twist, rows.slots, rows.lpose, rows.lvel
+    time, next_switch, hpos, hvel = rows.time, rows.next_switch, rows.hpos, rows.hvel
+    cos_th, sin_th, cos_lead, sin_lead = heads
+    width, height, vel_limit, max_time, clear_range, step, limit = scales
+    fol_start, lead_start, hum_start, time_start, clear_start, occ_start = cols
     n_worlds = pose.shape[0]
     n = pose.shape[1]
     size = out.shape[1]
@@ -135,4 +169,4 @@ def state_batch(pose, twist, slots, lpose, lvel, cos_th, sin_th, cos_lead, sin_l
             _put(row, occ_start + j, occupancy[m, j], limit)
 
 
-__all__ = ["state_batch"]
+__all__ = ["Headings", "StateColumns", "StateScales", "state_batch"]

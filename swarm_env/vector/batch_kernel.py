@@ -23,7 +23,7 @@ import numpy as np
 
 from swarm_env.geometry.clearance_kernel import clearance, world_map
 from swarm_env.kernel_cache import njit
-from swarm_env.scoring.step_kernel import N_TERMS, metrics_step, reward_into
+from swarm_env.scoring.step_kernel import N_TERMS, Accumulators, Bodies, metrics_step, reward_into
 from swarm_env.sensing.obs_kernel import clip_cast, fill_rows
 
 _jit = njit(nogil=True, error_model="numpy")
@@ -35,22 +35,28 @@ WEIGHT_COLUMNS = ("formation", "collision", "contact", "clearance", "clearance_m
 
 
 @_jit
-def rewards_batch(pose, slots, prev_dist, action, prev_action, touching, onsets, gap, weights, radius, leader, n_leader,
-                  hpos, hrad, hcount, maps, floats, total):  # pragma: no cover - compiled
+def rewards_batch(rows, bodies, leader, prev, action, contact, weights, maps, out):  # pragma: no cover - compiled
     """The rewards of ``M`` worlds: for world ``m``, what
     :func:`swarm_env.scoring.rewards.reward_table` returns for its state with ``prev_dist[m]`` and
     ``prev_action[m]``, written to ``floats[:N_TERMS, m]`` (the weighted terms), ``floats[N_TERMS, m]``
-    (the slot distances) and ``total[m]``; then ``prev_dist[m]`` and ``prev_action[m]`` become this
-    step's distances and ``action[m]`` (what ``SwarmEnv._advance`` keeps for the next step).
+    (the slot distances) and ``total[m]`` (``out = (floats, total)``); then ``prev_dist[m]`` and
+    ``prev_action[m]`` (``prev = (prev_dist, prev_action)``) become this step's distances and ``action[m]``
+    (what ``SwarmEnv._advance`` keeps for the next step).
 
-    ``pose`` ``(M, N, 3)``, ``slots`` ``(M, N, 2)``, ``action`` ``(M, N, 2)``, ``touching``
-    ``(M, N, 4)``, ``onsets`` and ``gap`` ``(M, N)`` (read where their weight is not 0),
-    ``weights`` ``(M, 9)`` in :data:`WEIGHT_COLUMNS` order with ``collision`` already 0 in a world
-    without contact onsets and ``contact`` 0 without bodies in touch (as ``reward_table`` does);
-    ``radius`` ``(M, N)``; ``leader`` ``(M, 1, 3)`` a robot leader's ``(x, y, r)`` where
-    ``n_leader[m]`` is 1; humans and maps padded (module docstring). The clearance term is
-    :func:`swarm_env.geometry.clearance_kernel.clearance` below the margin, as in ``reward_table``.
+    ``rows`` the worlds' arrays (:class:`swarm_env.vector.batch_step.WorldRows`: ``pose``, ``slots``, ``hpos``
+    read), ``bodies`` their radii and counts (:class:`swarm_env.vector.batch_step.BatchBodies`), ``leader``
+    ``(M, 1, 3)`` a robot leader's ``(x, y, r)`` (read where ``bodies.lrobot``), ``action`` ``(M, N, 2)``,
+    ``contact = (touching, onsets, gap)``: ``(M, N, 4)``, ``(M, N)`` and ``(M, N)`` (read where their weight is
+    not 0), ``weights`` ``(M, 9)`` in :data:`WEIGHT_COLUMNS` order with ``collision`` already 0 in a world
+    without contact onsets and ``contact`` 0 without bodies in touch (as ``reward_table`` does); humans and
+    maps padded (module docstring). The clearance term is :func:`swarm_env.geometry.clearance_kernel.clearance`
+    below the margin, as in ``reward_table``.
     """
+    pose, slots, hpos = rows.pose, rows.slots, rows.hpos
+    radius, lrobot, hrad, hcount = bodies.radius, bodies.lrobot, bodies.hrad, bodies.hcount
+    prev_dist, prev_action = prev
+    touching, onsets, gap = contact
+    floats, total = out
     n_worlds = pose.shape[0]
     n = pose.shape[1]
     no_dist = np.zeros(0)
@@ -60,7 +66,7 @@ def rewards_batch(pose, slots, prev_dist, action, prev_action, touching, onsets,
         hc = hcount[m]
         clear = no_clear
         if weights[m, 3] != 0.0:
-            clear = clearance(pose[m], radius[m], weights[m, 4], no_fdist, leader[m, :n_leader[m]], hpos[m, :hc],
+            clear = clearance(pose[m], radius[m], weights[m, 4], no_fdist, leader[m, :1 if lrobot[m] else 0], hpos[m, :hc],
                               hrad[m, :hc], world_map(maps, m))
         reward_into(floats[N_TERMS, m], floats[:N_TERMS, m], total[m], pose[m], slots[m], no_dist, prev_dist[m],
                     action[m], prev_action[m], touching[m], onsets[m], clear, gap[m], weights[m, 0], weights[m, 1],
@@ -73,12 +79,14 @@ def rewards_batch(pose, slots, prev_dist, action, prev_action, touching, onsets,
 
 
 @_jit
-def metrics_batch(err, tol, err_sum, twist_sum, travelled, f_twist, l_twist, prev_pos, pose, radius, l_pose, l_radius,
-                  leader_robot, hpos, hrad, hcount, lb, lb_valid, min_clear, min_sep, err_max, steps, sim_time,
-                  wall_time, time, wall, slack, screen, fast_max, maps, k_now, last_k, pending_k, hold_key, hold_n,
-                  hold_in, within_out, event_out, status_out, hum_out):  # pragma: no cover - compiled
+def metrics_batch(err, tol, acc, bodies, rows, wall, screening, maps, out):  # pragma: no cover - compiled
     """One :meth:`EpisodeMetrics.update <swarm_env.scoring.metrics.EpisodeMetrics.update>` of ``M`` worlds'
-    accumulators held as rows of arrays (:class:`swarm_env.vector.batch_step.BatchState`), in place.
+    accumulators held as rows of arrays (``acc``, :class:`swarm_env.vector.batch_step.MetricRows`), in place.
+
+    ``bodies`` the worlds' radii and counts (:class:`swarm_env.vector.batch_step.BatchBodies`), ``rows`` their
+    arrays this step (:class:`swarm_env.vector.batch_step.WorldRows`), ``wall`` the step's wall time, ``screening``
+    a :class:`swarm_env.scoring.step_kernel.Screening`, ``maps`` a :class:`~swarm_env.geometry.map_arrays.MapBatch`,
+    ``out = (within_out, event_out, status_out, hum_out)`` ``(M,)`` each.
 
     Per world ``m``: :func:`swarm_env.scoring.step_kernel.metrics_step` on its rows (``err`` the slot
     distances ``(M, N)``, ``tol`` the settle tolerances ``(M,)``), then what
@@ -97,6 +105,12 @@ def metrics_batch(err, tol, err_sum, twist_sum, travelled, f_twist, l_twist, pre
     counted here in the held-formation counters ``hold_n``/``hold_in`` when ``hold_key[m] ==
     k_now[m]`` (what ``_observe_settling`` would count).
     """
+    (err_sum, twist_sum, travelled, prev_pos, lb, lb_valid, min_clear, min_sep, err_max, steps, sim_time, wall_time,
+     last_k, pending_k, hold_key, hold_n, hold_in) = acc
+    radius, l_radius, leader_robot, hrad, hcount = bodies
+    pose, f_twist, l_twist, l_pose = rows.pose, rows.twist, rows.ltwist, rows.lpose
+    hpos, time, k_now = rows.hpos, rows.time, rows.k
+    within_out, event_out, status_out, hum_out = out
     n_worlds = pose.shape[0]
     n = pose.shape[1]
     no_lb = np.zeros(0)
@@ -106,9 +120,9 @@ def metrics_batch(err, tol, err_sum, twist_sum, travelled, f_twist, l_twist, pre
         lbm = lb[m] if lb_valid[m] else no_lb
         lr = l_radius[m] if robot else 0.0
         e_max, within, sep, hum, lb_out, status, clear = metrics_step(
-            err[m], tol[m], err_sum[m], twist_sum[m], travelled[m], f_twist[m], l_twist[m], prev_pos[m], pose[m],
-            radius[m], l_pose[m], lr, robot, hpos[m, :hc], hrad[m, :hc], lbm,
-            min_clear[m], slack, screen, fast_max, world_map(maps, m))
+            err[m], tol[m], Accumulators(err_sum[m], twist_sum[m], travelled[m], prev_pos[m]),
+            Bodies(pose[m], f_twist[m], radius[m], l_pose[m], l_twist[m], lr, robot, hpos[m, :hc], hrad[m, :hc]), lbm,
+            min_clear[m], screening, world_map(maps, m))
         steps[m] += 1
         sim_time[m] = time[m]
         wall_time[m] += wall

@@ -31,7 +31,7 @@ calls only with :func:`swarm_env.compiled.compiled_kernels` on (worker processes
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
@@ -113,6 +113,58 @@ class PaddedMaps:
                         *(self.edges[k] for k in self._EDGE_KEYS))
 
 
+class WorldRows(NamedTuple):
+    """The arrays of :class:`StepArrays` as the batch kernels read them (by name), stacked on a world axis."""
+
+    pose: np.ndarray
+    vel: np.ndarray
+    twist: np.ndarray
+    slots: np.ndarray
+    lpose: np.ndarray
+    lvel: np.ndarray
+    ltwist: np.ndarray
+    time: np.ndarray
+    k: np.ndarray
+    next_switch: np.ndarray
+    hpos: np.ndarray
+    hvel: np.ndarray
+
+
+class BatchBodies(NamedTuple):
+    """The worlds' bodies that stay for an episode (rows of :class:`BatchState`): the followers' ``radius``
+    ``(M, N)``, the leader's ``lradius`` and whether it is a robot ``lrobot`` ``(M,)``, the humans' radii
+    ``hrad`` ``(M, Hmax)`` and counts ``hcount`` ``(M,)``."""
+
+    radius: np.ndarray
+    lradius: np.ndarray
+    lrobot: np.ndarray
+    hrad: np.ndarray
+    hcount: np.ndarray
+
+
+class MetricRows(NamedTuple):
+    """``EpisodeMetrics``' accumulators of the worlds as rows of :class:`BatchState` (updated in place by
+    :func:`swarm_env.vector.batch_kernel.metrics_batch`)."""
+
+    err_sum: np.ndarray
+    twist_sum: np.ndarray
+    travelled: np.ndarray
+    prev_pos: np.ndarray
+    lb: np.ndarray
+    lb_valid: np.ndarray
+    min_clear: np.ndarray
+    min_sep: np.ndarray
+    err_max: np.ndarray
+    steps: np.ndarray
+    sim_time: np.ndarray
+    wall_time: np.ndarray
+    last_k: np.ndarray
+    pending_k: np.ndarray
+    hold_key: np.ndarray
+    hold_n: np.ndarray
+    hold_in: np.ndarray
+
+
 class StepArrays:
     """The per-step arrays of ``M`` snapshots (what the stages read), stacked on a world axis, and the
     worlds whose snapshot has pairs in touch (``touching``) or contact onsets (``contacts``)."""
@@ -166,6 +218,11 @@ class StepArrays:
                 slot = np.arange(len(world)) - np.repeat(np.cumsum(hcount) - hcount, hcount)
                 self.hpos[world, slot] = np.concatenate([s.human_pos for s in states])
                 self.hvel[world, slot] = np.concatenate([s.human_vel for s in states])
+
+    def rows(self) -> WorldRows:
+        """The arrays as one bundle for the kernels."""
+        return WorldRows(self.pose, self.vel, self.twist, self.slots, self.lpose, self.lvel, self.ltwist, self.time,
+                         self.k, self.next_switch, self.hpos, self.hvel)
 
     @classmethod
     def of_blocks(cls, blocks: dict[str, Any], hmax: int, hcount: np.ndarray) -> StepArrays:
@@ -246,6 +303,10 @@ class BatchState:
         self.hold_in = np.zeros(m, np.int64)
 
     # ------------------------------------------------------------------ sync with the worlds
+    def bodies(self) -> BatchBodies:
+        """The worlds' radii and counts as one bundle for the kernels."""
+        return BatchBodies(self.radius, self.lradius, self.lrobot, self.hrad, self.hcount)
+
     def load(self, b: int, e: SwarmEnv) -> None:
         """Row ``b`` := world ``e``'s state (after its reset, or anything else that changed it)."""
         st = e._state
@@ -419,16 +480,15 @@ class BatchState:
         leader[:, 0, 2] = self.lradius
         floats = np.empty((len(REWARD_TERMS) + 1, m, n))
         rewards = np.empty((m, n))
-        rewards_batch(
-            a.pose, a.slots, self.prev_dist, actions, self.prev_action, touching, onsets, gap, weights, self.radius,
-            leader, self.lrobot.astype(np.int64), a.hpos, self.hrad, self.hcount, self.maps.kernel_arrays(), floats,
-            rewards)
+        rewards_batch(a.rows(), self.bodies(), leader, (self.prev_dist, self.prev_action), actions,
+                      (touching, onsets, gap), weights, self.maps.kernel_arrays(), (floats, rewards))
         return floats, rewards, touching
 
     def metrics(self, envs: Sequence[SwarmEnv], states: Sequence[WorldState], a: StepArrays, dist: np.ndarray,
                 wall: float) -> np.ndarray:
         """``EpisodeMetrics.update`` of every world (the rows, and the objects where an event needs
         the reference's Python); returns ``within`` ``(M,)``: every slot distance within tolerance."""
+        from swarm_env.scoring.step_kernel import Screening
         from swarm_env.vector.batch_kernel import metrics_batch
 
         m = self.m
@@ -436,12 +496,12 @@ class BatchState:
         event = np.zeros(m, bool)
         status = np.zeros(m, np.int64)
         hum = np.zeros(m)
-        metrics_batch(
-            dist, self.tol, self.err_sum, self.twist_sum, self.travelled, a.twist, a.ltwist, self.prev_pos, a.pose,
-            self.radius, a.lpose, self.lradius, self.lrobot, a.hpos, self.hrad, self.hcount, self.lb, self.lb_valid,
-            self.min_clear, self.min_sep, self.err_max, self.steps, self.sim_time, self.wall_time, a.time, float(wall),
-            _LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS, self.maps.kernel_arrays(), a.k, self.last_k,
-            self.pending_k, self.hold_key, self.hold_n, self.hold_in, within, event, status, hum)
+        acc = MetricRows(self.err_sum, self.twist_sum, self.travelled, self.prev_pos, self.lb, self.lb_valid,
+                         self.min_clear, self.min_sep, self.err_max, self.steps, self.sim_time, self.wall_time,
+                         self.last_k, self.pending_k, self.hold_key, self.hold_n, self.hold_in)
+        metrics_batch(dist, self.tol, acc, self.bodies(), a.rows(), float(wall),
+                      Screening(_LIPSCHITZ_SLACK, _SCREEN_MARGIN, _FAST_MAX_POINTS), self.maps.kernel_arrays(),
+                      (within, event, status, hum))
         for b in a.contacts:  # collision counts stay in the objects
             envs[b]._metrics.count_contacts(states[b])
         for b in np.flatnonzero(status == 2).tolist():  # EpisodeMetrics._update_compiled's numpy static clearance
@@ -526,12 +586,12 @@ class BatchState:
         lth = a.lpose[:, 2]
         w, h = cap.world_size
         out = np.empty((self.m, ob.state_size), dtype=np.float32)
-        sk.state_batch(
-            a.pose, a.twist, a.slots, a.lpose, a.lvel, np.cos(th), np.sin(th), np.cos(lth), np.sin(lth), a.time,
-            a.next_switch, a.hpos, a.hvel, self.hcount, self.occupancy, self.maps.kernel_arrays(), float(w), float(h),
-            float(ob.vel_limit), float(cap.max_time), STATE_CLEARANCE_RANGE, _GRADIENT_STEP,
-            STATE_LIMIT, lay["followers"].start, lay["leader"].start, lay["humans"].start, lay["time"].start,
-            lay["follower_clearance"].start, lay["occupancy"].start, out)
+        scales = sk.StateScales(float(w), float(h), float(ob.vel_limit), float(cap.max_time), STATE_CLEARANCE_RANGE,
+                                _GRADIENT_STEP, STATE_LIMIT)
+        cols = sk.StateColumns(lay["followers"].start, lay["leader"].start, lay["humans"].start, lay["time"].start,
+                               lay["follower_clearance"].start, lay["occupancy"].start)
+        heads = sk.Headings(np.cos(th), np.sin(th), np.cos(lth), np.sin(lth))
+        sk.state_batch(a.rows(), heads, self.hcount, self.occupancy, self.maps.kernel_arrays(), scales, cols, out)
         return out
 
     def observations(self, envs: Sequence[SwarmEnv], states: Sequence[WorldState], a: StepArrays) -> np.ndarray:
