@@ -34,6 +34,7 @@ import numpy as np
 
 from swarm_env.compiled import compiled_kernels
 from swarm_env.scenario import RewardSpec
+from swarm_env.scoring.weights import W_COLLISION, W_CONTACT, reward_weights
 from swarm_env.state import LEADER_ID, WorldState
 
 #: What a follower can touch, in the order of the ``contact_*`` terms and of the ``contacts_*`` infos.
@@ -215,10 +216,10 @@ def reward_table(
     if compiled_kernels():
         from swarm_env.scoring.step_kernel import reward_table as compiled
 
-        return compiled(state.follower_pose, state.slot_targets, _NO_VALUES if dist is None else dist, prev_dist,
-                        action, prev_action, touching, onsets, clear, gap, float(spec.formation), float(w_collision),
-                        float(w_contact), float(spec.clearance), float(spec.clearance_margin), float(spec.smoothness),
-                        float(spec.progress), float(spec.approach), float(spec.approach_margin))
+        weights = reward_weights(spec)
+        weights[W_COLLISION], weights[W_CONTACT] = w_collision, w_contact
+        return compiled(state.follower_pose, state.slot_targets, _NO_VALUES if dist is None else dist,
+                        (prev_dist, prev_action), action, (touching, onsets, gap), clear, weights)
     if dist is None:
         dist = slot_distance(state)
     table = np.zeros((len(REWARD_TERMS), len(dist)))

@@ -26,6 +26,17 @@ import numpy as np
 
 from swarm_env.geometry.clearance_kernel import lower_bounds, static_min_distance
 from swarm_env.kernel_cache import njit
+from swarm_env.scoring.weights import (
+    W_APPROACH,
+    W_APPROACH_MARGIN,
+    W_CLEARANCE,
+    W_CLEARANCE_MARGIN,
+    W_COLLISION,
+    W_CONTACT,
+    W_FORMATION,
+    W_PROGRESS,
+    W_SMOOTHNESS,
+)
 
 _jit = njit(nogil=True, error_model="numpy")
 
@@ -70,34 +81,37 @@ class Screening(NamedTuple):
 
 
 @_jit
-def reward_table(pose, slots, dist_in, prev_dist, action, prev_action, touching, onsets, clear, gap,
-                 w_formation, w_collision, w_contact, w_clearance, clearance_margin, w_smoothness, w_progress,
-                 w_approach, approach_margin):  # pragma: no cover - compiled
+def reward_table(pose, slots, dist_in, prev, action, contact, clear, weights):  # pragma: no cover - compiled
     """``(dist (N,), table (N_TERMS, N), total (N,))`` of one step.
 
     ``dist_in``: the slot distances if known, else an empty array (then they are computed from
-    ``pose`` ``(N, 3)`` and ``slots`` ``(N, 2)``). A term whose weight is 0 is a row of ``+0.0``
-    and is not added; the callers pass ``w_collision = 0`` without contact onsets and
-    ``w_contact = 0`` without bodies in touch. ``onsets`` ``(N,)``, ``clear`` ``(N,)`` and ``gap``
-    ``(N,)`` are read only when their weight is not 0.
+    ``pose`` ``(N, 3)`` and ``slots`` ``(N, 2)``). ``prev = (prev_dist, prev_action)`` the previous
+    step's, ``action`` ``(N, 2)``, ``contact = (touching, onsets, gap)`` ``(N, 4)``, ``(N,)``, ``(N,)``,
+    ``clear`` ``(N,)``, ``weights`` ``(9,)`` in :data:`swarm_env.scoring.weights.WEIGHT_COLUMNS` order. A term
+    whose weight is 0 is a row of ``+0.0`` and is not added; the callers pass a collision weight of 0 without
+    contact onsets and a contact weight of 0 without bodies in touch. ``onsets``, ``clear`` and ``gap`` are read
+    only when their weight is not 0.
     """
     n = len(pose)
     dist = np.empty(n)
     table = np.empty((N_TERMS, n))
     total = np.empty(n)
-    reward_into(dist, table, total, pose, slots, dist_in, prev_dist, action, prev_action, touching, onsets, clear, gap,
-                w_formation, w_collision, w_contact, w_clearance, clearance_margin, w_smoothness, w_progress,
-                w_approach, approach_margin)
+    reward_into((dist, table, total), pose, slots, dist_in, prev, action, contact, clear, weights)
     return dist, table, total
 
 
 @_jit
-def reward_into(dist, table, total, pose, slots, dist_in, prev_dist, action, prev_action, touching, onsets, clear, gap,
-                w_formation, w_collision, w_contact, w_clearance, clearance_margin, w_smoothness, w_progress,
-                w_approach, approach_margin):  # pragma: no cover - compiled
-    """:func:`reward_table` written into ``dist`` ``(N,)``, ``table`` ``(N_TERMS, N)`` and ``total``
-    ``(N,)`` (any contents before; views into larger arrays are fine): one world's row of the
-    batched engine's kernel (:func:`swarm_env.vector.batch_kernel.rewards_batch`) and ``reward_table``'s body."""
+def reward_into(out, pose, slots, dist_in, prev, action, contact, clear, weights):  # pragma: no cover - compiled
+    """:func:`reward_table` written into ``out = (dist, table, total)``: ``(N,)``, ``(N_TERMS, N)``, ``(N,)`` (any
+    contents before; views into larger arrays are fine): one world's row of the batched engine's kernel
+    (:func:`swarm_env.vector.batch_kernel.rewards_batch`) and ``reward_table``'s body."""
+    dist, table, total = out
+    prev_dist, prev_action = prev
+    touching, onsets, gap = contact
+    w_formation, w_collision, w_contact = weights[W_FORMATION], weights[W_COLLISION], weights[W_CONTACT]
+    w_clearance, clearance_margin = weights[W_CLEARANCE], weights[W_CLEARANCE_MARGIN]
+    w_smoothness, w_progress = weights[W_SMOOTHNESS], weights[W_PROGRESS]
+    w_approach, approach_margin = weights[W_APPROACH], weights[W_APPROACH_MARGIN]
     n = len(pose)
     if len(dist_in) == n:
         for i in range(n):

@@ -18,6 +18,7 @@ cast work entry by entry. Only ``sqrt`` is computed here (correctly rounded ever
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
@@ -36,6 +37,39 @@ from swarm_env.sensing.layout import (
 )
 
 _jit = njit(nogil=True, error_model="numpy")
+
+
+class ObsWorld(NamedTuple):
+    """One world's inputs of the observation: the followers' ``pose`` ``(N, 3)``, world-frame ``vel`` ``(N, 2)``,
+    ``twist`` ``(N, 2)`` and ``slots`` ``(N, 2)``; the leader's ``leader_pose`` and ``leader_vel``; the humans'
+    ``human_pos``/``human_vel`` ``(H, 2)``; ``speed_scale`` ``(max_speed, max_turn_rate)``; ``switch`` the capped
+    time to the next switch; ``cos_th``/``sin_th`` the followers' heading cosines/sines and ``cos_rel``/``sin_rel``
+    those of the leader's heading relative to theirs (numpy's, as in the reference)."""
+
+    pose: np.ndarray
+    vel: np.ndarray
+    twist: np.ndarray
+    slots: np.ndarray
+    leader_pose: np.ndarray
+    leader_vel: np.ndarray
+    human_pos: np.ndarray
+    human_vel: np.ndarray
+    speed_scale: np.ndarray
+    switch: float
+    cos_th: np.ndarray
+    sin_th: np.ndarray
+    cos_rel: np.ndarray
+    sin_rel: np.ndarray
+
+
+class EntityRows(NamedTuple):
+    """How many neighbour (``k``) and human (``hk``) rows the observation has (0: none) and their first columns
+    (``nb_start``, ``hu_start``; :func:`swarm_env.sensing.layout.observation_layout`)."""
+
+    k: int
+    nb_start: int
+    hk: int
+    hu_start: int
 
 
 @_jit
@@ -70,36 +104,31 @@ def _entities(out, row, base, count, dist, other_pos, other_vel, px, py, vx, vy,
 
 
 @_jit
-def assemble(
-    pose, vel, twist, speed_scale, cos_th, sin_th, cos_rel, sin_rel, switch, leader_pose, leader_vel, slots, fdist,
-    k, nb_start, human_pos, human_vel, hk, hu_start, size, low, high,
-):  # pragma: no cover - compiled
+def assemble(world, fdist, rows, size, low, high):  # pragma: no cover - compiled
     """``(N, size)`` float32 observations, lidar columns 0, clipped to ``low``/``high``: what
     :meth:`~swarm_env.sensing.observations.ObservationBuilder.build_without_lidar` returns.
 
-    ``pose`` ``(N, 3)``, ``vel`` ``(N, 2)`` world-frame velocities, ``twist`` ``(N, 2)``;
-    ``cos_th``/``sin_th`` the followers' heading cosines/sines and ``cos_rel``/``sin_rel`` those of
-    the leader's heading relative to theirs (numpy's, as in the reference); ``speed_scale``
-    ``(max_speed, max_turn_rate)``; ``switch`` the capped time to the next switch; ``fdist`` the
-    followers' centre distances ``(N, N)`` (or ``(0, 0)``: computed here); ``k``/``hk`` neighbour/human entity rows (0: none)
-    starting at columns ``nb_start``/``hu_start``.
+    ``world`` an :class:`ObsWorld`; ``fdist`` the followers' centre distances ``(N, N)`` (or ``(0, 0)``: computed
+    here); ``rows`` the :class:`EntityRows`.
     """
-    n = len(pose)
+    n = len(world.pose)
     out = np.zeros((n, size))
-    fill_rows(out, pose, vel, twist, speed_scale, cos_th, sin_th, cos_rel, sin_rel, switch, leader_pose, leader_vel,
-              slots, fdist, k, nb_start, human_pos, human_vel, hk, hu_start)
+    fill_rows(out, world, fdist, rows)
     res = np.empty((n, size), dtype=np.float32)
     clip_cast(res, out, low, high)
     return res
 
 
 @_jit
-def fill_rows(
-    out, pose, vel, twist, speed_scale, cos_th, sin_th, cos_rel, sin_rel, switch, leader_pose, leader_vel, slots, fdist,
-    k, nb_start, human_pos, human_vel, hk, hu_start,
-):  # pragma: no cover - compiled
+def fill_rows(out, world, fdist, rows):  # pragma: no cover - compiled
     """:func:`assemble`'s float64 rows, unclipped, written into ``out`` ``(N, size)``, which must
     hold zeros (the columns not written stay 0: the lidar and absent entities' padding)."""
+    pose, vel, twist, slots, leader_pose, leader_vel, human_pos, human_vel = (
+        world.pose, world.vel, world.twist, world.slots, world.leader_pose, world.leader_vel, world.human_pos,
+        world.human_vel)
+    speed_scale, switch, cos_th, sin_th, cos_rel, sin_rel = (
+        world.speed_scale, world.switch, world.cos_th, world.sin_th, world.cos_rel, world.sin_rel)
+    k, nb_start, hk, hu_start = rows
     n = len(pose)
     nh = len(human_pos)
     hd = np.empty(nh)
@@ -159,4 +188,4 @@ def clip_cast(res, out, low, high):  # pragma: no cover - compiled
             res[i, j] = np.float32(x)
 
 
-__all__ = ["assemble", "clip_cast", "fill_rows"]
+__all__ = ["EntityRows", "ObsWorld", "assemble", "clip_cast", "fill_rows"]

@@ -175,7 +175,7 @@ class ObservationBuilder:
 
     def _assemble_compiled(self, state: WorldState) -> np.ndarray:
         """:meth:`build_without_lidar` by :func:`swarm_env.sensing.obs_kernel.assemble`."""
-        from swarm_env.sensing.obs_kernel import assemble
+        from swarm_env.sensing.obs_kernel import EntityRows, ObsWorld, assemble
 
         scn = state.scenario
         n = state.n_followers
@@ -183,15 +183,14 @@ class ObservationBuilder:
         k = self.sensors.neighbors if n > 1 else 0
         hk = self.sensors.humans if len(state.human_pos) else 0
         rel = state.leader_pose[2] - th
-        return assemble(
-            state.follower_pose, state.follower_vel, state.follower_twist,
+        world = ObsWorld(
+            state.follower_pose, state.follower_vel, state.follower_twist, state.slot_targets, state.leader_pose,
+            np.asarray(state.leader_vel, dtype=np.float64), state.human_pos, state.human_vel,
             np.array([scn.robots.max_speed, scn.robots.max_turn_rate], dtype=np.float64),
-            np.cos(th), np.sin(th), np.cos(rel), np.sin(rel),
             float(min(state.next_switch_time - state.time, self.capacity.max_time)),
-            state.leader_pose, np.asarray(state.leader_vel, dtype=np.float64), state.slot_targets,
-            _NO_DISTANCES, k, self.layout["neighbors"].start,  # the kernel computes the distances
-            state.human_pos, state.human_vel, hk, self.layout["humans"].start, self.size, self.low, self.high,
-        )
+            np.cos(th), np.sin(th), np.cos(rel), np.sin(rel))
+        rows = EntityRows(k, self.layout["neighbors"].start, hk, self.layout["humans"].start)
+        return assemble(world, _NO_DISTANCES, rows, self.size, self.low, self.high)  # the kernel computes distances
 
     def fill_lidar(self, obs: np.ndarray, lidar: np.ndarray) -> None:
         """Write the lidar columns of ``obs`` (``(..., size)`` float32, from

@@ -24,14 +24,10 @@ import numpy as np
 from swarm_env.geometry.clearance_kernel import clearance, world_map
 from swarm_env.kernel_cache import njit
 from swarm_env.scoring.step_kernel import N_TERMS, Accumulators, Bodies, metrics_step, reward_into
-from swarm_env.sensing.obs_kernel import clip_cast, fill_rows
+from swarm_env.scoring.weights import W_CLEARANCE, W_CLEARANCE_MARGIN
+from swarm_env.sensing.obs_kernel import EntityRows, ObsWorld, clip_cast, fill_rows
 
 _jit = njit(nogil=True, error_model="numpy")
-
-#: Columns of :func:`rewards_batch`'s ``weights``: the step's effective weights of
-#: :class:`~swarm_env.scenario.RewardSpec` in :func:`swarm_env.scoring.step_kernel.reward_table`'s order.
-WEIGHT_COLUMNS = ("formation", "collision", "contact", "clearance", "clearance_margin", "smoothness", "progress",
-                  "approach", "approach_margin")
 
 
 @_jit
@@ -47,9 +43,9 @@ def rewards_batch(rows, bodies, leader, prev, action, contact, weights, maps, ou
     read), ``bodies`` their radii and counts (:class:`swarm_env.vector.batch_step.BatchBodies`), ``leader``
     ``(M, 1, 3)`` a robot leader's ``(x, y, r)`` (read where ``bodies.lrobot``), ``action`` ``(M, N, 2)``,
     ``contact = (touching, onsets, gap)``: ``(M, N, 4)``, ``(M, N)`` and ``(M, N)`` (read where their weight is
-    not 0), ``weights`` ``(M, 9)`` in :data:`WEIGHT_COLUMNS` order with ``collision`` already 0 in a world
-    without contact onsets and ``contact`` 0 without bodies in touch (as ``reward_table`` does); humans and
-    maps padded (module docstring). The clearance term is :func:`swarm_env.geometry.clearance_kernel.clearance`
+    not 0), ``weights`` ``(M, 9)`` in :data:`swarm_env.scoring.weights.WEIGHT_COLUMNS` order with ``collision``
+    already 0 in a world without contact onsets and ``contact`` 0 without bodies in touch (as ``reward_table``
+    does); humans and maps padded (module docstring). The clearance term is :func:`swarm_env.geometry.clearance_kernel.clearance`
     below the margin, as in ``reward_table``.
     """
     pose, slots, hpos = rows.pose, rows.slots, rows.hpos
@@ -65,13 +61,11 @@ def rewards_batch(rows, bodies, leader, prev, action, contact, weights, maps, ou
     for m in range(n_worlds):
         hc = hcount[m]
         clear = no_clear
-        if weights[m, 3] != 0.0:
-            clear = clearance(pose[m], radius[m], weights[m, 4], no_fdist, leader[m, :1 if lrobot[m] else 0], hpos[m, :hc],
+        if weights[m, W_CLEARANCE] != 0.0:
+            clear = clearance(pose[m], radius[m], weights[m, W_CLEARANCE_MARGIN], no_fdist, leader[m, :1 if lrobot[m] else 0], hpos[m, :hc],
                               hrad[m, :hc], world_map(maps, m))
-        reward_into(floats[N_TERMS, m], floats[:N_TERMS, m], total[m], pose[m], slots[m], no_dist, prev_dist[m],
-                    action[m], prev_action[m], touching[m], onsets[m], clear, gap[m], weights[m, 0], weights[m, 1],
-                    weights[m, 2], weights[m, 3], weights[m, 4], weights[m, 5], weights[m, 6], weights[m, 7],
-                    weights[m, 8])
+        reward_into((floats[N_TERMS, m], floats[:N_TERMS, m], total[m]), pose[m], slots[m], no_dist,
+                    (prev_dist[m], prev_action[m]), action[m], (touching[m], onsets[m], gap[m]), clear, weights[m])
         for i in range(n):
             prev_dist[m, i] = floats[N_TERMS, m, i]
             prev_action[m, i, 0] = action[m, i, 0]
@@ -151,14 +145,19 @@ def metrics_batch(err, tol, acc, bodies, rows, wall, screening, maps, out):  # p
 
 
 @_jit
-def observations_batch(pose, vel, twist, speed_scale, cos_th, sin_th, cos_rel, sin_rel, switch, leader_pose, leader_vel,
-                       slots, k, nb_start, hpos, hvel, hcount, hk, hu_start, low, high, res):  # pragma: no cover
+def observations_batch(rows, heads, speed_scale, switch, hcount, entities, low, high, res):  # pragma: no cover
     """``res[m]`` = world ``m``'s :meth:`ObservationBuilder.build_without_lidar
     <swarm_env.sensing.observations.ObservationBuilder.build_without_lidar>` (float32 ``(M, N, size)``):
     :func:`swarm_env.sensing.obs_kernel.fill_rows` then :func:`~swarm_env.sensing.obs_kernel.clip_cast` per world,
-    with the inputs of ``ObservationBuilder._assemble_compiled`` stacked on a leading world axis
-    (``speed_scale`` ``(M, 2)``, ``switch`` ``(M,)``, the headings' numpy cosines/sines ``(M, N)``).
-    ``k`` neighbour rows for every world; ``hk`` human rows in a world with humans (``hcount[m] > 0``)."""
+    with the inputs of ``ObservationBuilder._assemble_compiled`` stacked on a leading world axis: the worlds'
+    arrays ``rows`` (:class:`swarm_env.vector.batch_step.WorldRows`), ``heads = (cos_th, sin_th, cos_rel,
+    sin_rel)`` the headings' numpy cosines/sines ``(M, N)``, ``speed_scale`` ``(M, 2)``, ``switch`` ``(M,)``,
+    ``hcount`` ``(M,)``. ``entities`` (:class:`~swarm_env.sensing.obs_kernel.EntityRows`): ``k`` neighbour rows
+    for every world, ``hk`` human rows in a world with humans (``hcount[m] > 0``)."""
+    pose, vel, twist, slots, leader_pose, leader_vel, hpos, hvel = (
+        rows.pose, rows.vel, rows.twist, rows.slots, rows.lpose, rows.lvel, rows.hpos, rows.hvel)
+    cos_th, sin_th, cos_rel, sin_rel = heads
+    k, nb_start, hk, hu_start = entities
     n_worlds = pose.shape[0]
     n = pose.shape[1]
     size = res.shape[2]
@@ -170,10 +169,10 @@ def observations_batch(pose, vel, twist, speed_scale, cos_th, sin_th, cos_rel, s
                 out[i, j] = 0.0
         hc = hcount[m]
         hkm = hk if hc else 0
-        fill_rows(out, pose[m], vel[m], twist[m], speed_scale[m], cos_th[m], sin_th[m], cos_rel[m], sin_rel[m],
-                  switch[m], leader_pose[m], leader_vel[m], slots[m], no_fdist, k, nb_start, hpos[m, :hc],
-                  hvel[m, :hc], hkm, hu_start)
+        world = ObsWorld(pose[m], vel[m], twist[m], slots[m], leader_pose[m], leader_vel[m], hpos[m, :hc], hvel[m, :hc],
+                         speed_scale[m], switch[m], cos_th[m], sin_th[m], cos_rel[m], sin_rel[m])
+        fill_rows(out, world, no_fdist, EntityRows(k, nb_start, hkm, hu_start))
         clip_cast(res[m], out, low, high)
 
 
-__all__ = ["WEIGHT_COLUMNS", "metrics_batch", "observations_batch", "rewards_batch"]
+__all__ = ["metrics_batch", "observations_batch", "rewards_batch"]

@@ -46,6 +46,7 @@ from swarm_env.scoring.rewards import (
     new_contacts_per_follower,
     touching_per_follower,
 )
+from swarm_env.scoring.weights import W_APPROACH, W_COLLISION, W_CONTACT, WEIGHT_COLUMNS, reward_weights
 from swarm_env.sensing.layout import STATE_GRID
 from swarm_env.sensing.observations import _GRADIENT_STEP, STATE_CLEARANCE_RANGE, STATE_LIMIT
 from swarm_env.state import WorldState
@@ -269,7 +270,7 @@ class BatchState:
         # Reward and episode-end rows.
         self.prev_dist = np.zeros((m, n))
         self.prev_action = np.zeros((m, n, 2))
-        self.weights = np.zeros((m, 9))  # batch_kernel.WEIGHT_COLUMNS of each world's RewardSpec
+        self.weights = np.zeros((m, len(WEIGHT_COLUMNS)))  # each world's RewardSpec (swarm_env.scoring.weights)
         self.horizon = np.zeros(m)  # approach_horizon
         self.tol = np.zeros(m)
         self.radius = np.zeros((m, n))
@@ -317,8 +318,7 @@ class BatchState:
             raise ValueError(f"world {b} has {len(st.follower_pose)} followers, the batch {self.n}")
         self.maps.set(b, st.static)
         self.same_capacity[b] = e._obs.capacity == self.obs.capacity
-        self.weights[b] = (spec.formation, spec.collision, spec.contact, spec.clearance, spec.clearance_margin,
-                           spec.smoothness, spec.progress, spec.approach, spec.approach_margin)
+        self.weights[b] = reward_weights(spec)
         self.horizon[b] = spec.approach_horizon
         self.tol[b] = scn.world.settle_tolerance
         self.radius[b] = st.follower_radius
@@ -463,17 +463,17 @@ class BatchState:
         if len(hit) < m:
             calm = np.ones(m, bool)
             calm[hit] = False
-            weights[calm, 1] = 0.0  # reward_table: no onsets, no touching -> those weights are 0
-            weights[calm, 2] = 0.0
+            weights[calm, W_COLLISION] = 0.0  # reward_table: no onsets, no touching -> those weights are 0
+            weights[calm, W_CONTACT] = 0.0
         for b in hit:
             s = states[b]
             touching[b] = touching_per_follower(s)
             if not s.contacts:
-                weights[b, 1] = 0.0
-            elif weights[b, 1]:
+                weights[b, W_COLLISION] = 0.0
+            elif weights[b, W_COLLISION]:
                 onsets[b] = new_contacts_per_follower(s)
         gap = np.zeros((m, n))
-        for b in np.flatnonzero(weights[:, 7]).tolist():
+        for b in np.flatnonzero(weights[:, W_APPROACH]).tolist():
             gap[b] = approach_gap(states[b], float(self.horizon[b]))
         leader = np.empty((m, 1, 3))
         leader[:, 0, :2] = a.lpose[:, :2]
@@ -602,6 +602,8 @@ class BatchState:
 
     def _observations(self, envs: Sequence[SwarmEnv], states: Sequence[WorldState], a: StepArrays,
                       kernel: Any) -> np.ndarray:
+        from swarm_env.sensing.obs_kernel import EntityRows
+
         ob = self.obs
         if not self.obs_uniform:
             return np.stack([e._obs.build_without_lidar(s) for e, s in zip(envs, states)])
@@ -610,7 +612,7 @@ class BatchState:
         switch = np.minimum(a.next_switch - a.time, ob.capacity.max_time)
         k = ob.sensors.neighbors if self.n > 1 else 0
         out = np.empty((self.m, self.n, ob.size), dtype=np.float32)
-        kernel(a.pose, a.vel, a.twist, self.speed, np.cos(th), np.sin(th), np.cos(rel), np.sin(rel), switch, a.lpose,
-               a.lvel, a.slots, k, ob.layout["neighbors"].start, a.hpos, a.hvel, self.hcount, ob.sensors.humans,
-               ob.layout["humans"].start, ob.low, ob.high, out)
+        entities = EntityRows(k, ob.layout["neighbors"].start, ob.sensors.humans, ob.layout["humans"].start)
+        kernel(a.rows(), (np.cos(th), np.sin(th), np.cos(rel), np.sin(rel)), self.speed, switch, self.hcount, entities,
+               ob.low, ob.high, out)
         return out
