@@ -15,6 +15,7 @@ from swarm_env.env import SwarmEnv
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.harness.bench import BATCH_WORLD
 from swarm_env.scenarios.loader import list_scenarios
+from swarm_env.sim import drive_kernel
 from swarm_env.sim.world import World
 from swarm_env.state import WorldState
 from swarm_env.vector import world_batch
@@ -325,7 +326,7 @@ def test_a_broken_batch_fails_the_comparison(monkeypatch: pytest.MonkeyPatch) ->
 
 def test_body_layout_probe_and_arguments() -> None:
     assert world_batch.available()
-    assert world_batch._probe_layout() == world_batch._EXPECTED
+    assert drive_kernel.probe_offsets() == drive_kernel.BODY_OFFSETS
     with pytest.raises(ValueError, match="chunk"):
         WorldBatch([], chunk=0)
     batch = WorldBatch([])

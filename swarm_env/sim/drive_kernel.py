@@ -12,7 +12,7 @@ found through the body's torque field, which holds the array's address: chipmunk
 force and torque only in its default velocity callback, which a driven robot never runs, and
 nothing here applies forces. The angle and velocities are read and written at their offsets in
 ``struct cpBody`` (chipmunk 7's layout on 64-bit builds, checked once per process by probing a
-body: :func:`_probe_offsets`).
+body: :func:`probe_offsets`).
 
 Same bits as the Python callback, by construction (the same operations on the same doubles:
 ``min``/``max`` as Python evaluates them, the C library's ``cos``/``sin``) and by a self-test that
@@ -42,15 +42,17 @@ from swarm_env.sim.bodies import robot_body, velocity_callback
 _STATE: dict[str, Any] = {}  # "ok": whether the compiled callback passed its checks here
 
 
-def _probe_offsets() -> dict[str, int] | None:
-    """Byte offsets of a body's angle, velocity, angular velocity and torque in ``struct cpBody``
-    (found by setting distinctive values through pymunk and finding them in the struct's memory)."""
+def probe_offsets() -> dict[str, int] | None:
+    """Byte offsets of a body's position, velocity, angle, angular velocity and torque in ``struct cpBody`` (found
+    by setting distinctive values through pymunk and finding them in the struct's memory; the position's first
+    copy: chipmunk keeps it again in the body's transform). ``None`` if a value is missing or ambiguous."""
     import pymunk
     from pymunk._chipmunk import ffi
 
     body = pymunk.Body(1.0, 2.0)
-    marks = {"a": 1.2345678901234, "vx": -3.141592653589, "vy": 2.718281828459, "w": 0.57721566490153,
-             "t": 1.6180339887499}
+    marks = {"px": 7.389056098930, "py": -1.414213562373, "a": 1.2345678901234, "vx": -3.141592653589,
+             "vy": 2.718281828459, "w": 0.57721566490153, "t": 1.6180339887499}
+    body.position = (marks["px"], marks["py"])
     body.angle = marks["a"]
     body.velocity = (marks["vx"], marks["vy"])
     body.angular_velocity = marks["w"]
@@ -59,7 +61,7 @@ def _probe_offsets() -> dict[str, int] | None:
     found: dict[str, int] = {}
     for name, value in marks.items():
         hits = [off for off in range(0, len(raw) - 7, 8) if struct.unpack_from("d", raw, off)[0] == value]
-        if len(hits) != 1:
+        if not hits or (len(hits) > 1 and name not in ("px", "py")):
             return None
         found[name] = hits[0]
     if found["vy"] != found["vx"] + 8:
@@ -67,10 +69,11 @@ def _probe_offsets() -> dict[str, int] | None:
     return found
 
 
-# Where chipmunk 7's ``struct cpBody`` keeps what the callback reads and writes, in doubles from the
-# start (64-bit builds); _probe_offsets() checks them in this process before anything is installed.
-_EXPECTED = {"vx": 80, "vy": 88, "a": 112, "w": 120, "t": 128}
-_I_VX, _I_VY, _I_A, _I_W, _I_T = (_EXPECTED[k] // 8 for k in ("vx", "vy", "a", "w", "t"))
+#: Where chipmunk 7's ``struct cpBody`` keeps a body's position, velocity, angle, angular velocity and torque, in
+#: bytes from the start (64-bit builds); :func:`probe_offsets` checks them in this process before any kernel that
+#: reads or writes a body directly (this callback, :mod:`swarm_env.vector.world_batch`) is used.
+BODY_OFFSETS = {"px": 64, "py": 72, "vx": 80, "vy": 88, "a": 112, "w": 120, "t": 128}
+_I_VX, _I_VY, _I_A, _I_W, _I_T = (BODY_OFFSETS[k] // 8 for k in ("vx", "vy", "a", "w", "t"))
 _SIZE = _I_T + 1
 
 
@@ -133,7 +136,7 @@ def available() -> bool:
         _STATE["ok"] = False
         try:
             if _supported_platform():
-                if _probe_offsets() == _EXPECTED:
+                if probe_offsets() == BODY_OFFSETS:
                     _STATE["ok"] = _self_test()
         except Exception:  # noqa: BLE001 - any surprise keeps the Python callback
             _STATE["ok"] = False

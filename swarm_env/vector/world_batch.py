@@ -55,7 +55,6 @@ import it lazily where the compiled kernels are off (:func:`swarm_env.compiled.c
 from __future__ import annotations
 
 import math
-import struct
 from collections.abc import Callable, Sequence
 from typing import Any, Literal
 
@@ -65,7 +64,7 @@ import numpy as np
 from swarm_env.compiled import compiled_kernels
 from swarm_env.geometry.slot_kernel import _place_slots, _screen, _virtual_pose
 from swarm_env.kernel_cache import njit
-from swarm_env.sim.drive_kernel import _as_pointer
+from swarm_env.sim.drive_kernel import BODY_OFFSETS, _as_pointer, probe_offsets
 from swarm_env.sim.human_kernel import fill_states
 from swarm_env.sim.physics_kernel import _substeps
 from swarm_env.sim.snapshot_kernel import fill_follower
@@ -74,10 +73,8 @@ from swarm_env.state import WorldState
 
 __all__ = ["WorldBatch", "available", "step_and_snapshot"]
 
-# Where chipmunk 7's ``struct cpBody`` keeps a body's position, velocity, angle and angular velocity,
-# in doubles from the start (64-bit builds); _probe_layout() checks them in this process.
-_EXPECTED = {"px": 64, "py": 72, "vx": 80, "vy": 88, "a": 112, "w": 120}
-_I_PX, _I_PY, _I_VX, _I_VY, _I_A, _I_W = (_EXPECTED[k] // 8 for k in ("px", "py", "vx", "vy", "a", "w"))
+# A body's doubles that _batch_step reads, at chipmunk's offsets (checked in this process by available()).
+_I_PX, _I_PY, _I_VX, _I_VY, _I_A, _I_W = (BODY_OFFSETS[k] // 8 for k in ("px", "py", "vx", "vy", "a", "w"))
 _BODY_DOUBLES = _I_W + 1
 
 # Columns of the per-world integer table (addresses and sizes) and float table.
@@ -90,29 +87,6 @@ _FLOAT_COLS = 8
 _STATE: dict[str, Any] = {}
 
 
-def _probe_layout() -> dict[str, int] | None:
-    """Byte offsets of a body's position, velocity, angle and angular velocity in ``struct cpBody``
-    (found by setting distinctive values through pymunk and finding them in the struct's memory)."""
-    import pymunk
-    from pymunk._chipmunk import ffi
-
-    body = pymunk.Body(1.0, 2.0)
-    marks = {"px": 7.389056098930, "py": -1.414213562373, "a": 1.2345678901234, "vx": -3.141592653589,
-             "vy": 2.718281828459, "w": 0.57721566490153}
-    body.position = (marks["px"], marks["py"])
-    body.angle = marks["a"]
-    body.velocity = (marks["vx"], marks["vy"])
-    body.angular_velocity = marks["w"]
-    raw = bytes(ffi.buffer(ffi.cast("char *", body._body), 512))
-    found: dict[str, int] = {}
-    for name, value in marks.items():
-        hits = [off for off in range(0, len(raw) - 7, 8) if struct.unpack_from("d", raw, off)[0] == value]
-        if not hits:
-            return None
-        found[name] = hits[0]  # the position is also in the body's transform, after it
-    return found
-
-
 def available() -> bool:
     """Whether the batched path can run in this process (decided once): the compiled physics kernel
     passed its self-test (:func:`swarm_env.sim.physics_kernel.available`) and chipmunk's body layout is
@@ -123,7 +97,7 @@ def available() -> bool:
         try:
             from swarm_env.sim import physics_kernel
 
-            if physics_kernel.available() and _probe_layout() == _EXPECTED:
+            if physics_kernel.available() and probe_offsets() == BODY_OFFSETS:
                 _STATE["fns"] = physics_kernel.functions()
                 _STATE["ok"] = True
         except Exception:  # noqa: BLE001 - any surprise keeps the per-world path
