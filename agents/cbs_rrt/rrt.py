@@ -181,6 +181,45 @@ class RRTResult:
     tree_parent: np.ndarray | None = None
 
 
+class _Tree:
+    """The RRT's nodes, grown by :meth:`add`: poses ``X`` ``(cap, 3)``, times ``T``, each node's ``parent`` and the
+    primitive that reached it (``prim``; ``-1`` at the root, ``_WAIT_PRIM`` for a wait), and the goal-directed
+    extensions that failed from it (``fails``). ``n`` nodes are in use."""
+
+    def __init__(self, cap: int, root: tuple[float, float, float], t0: float) -> None:
+        self.cap = cap
+        self.X = np.empty((cap, 3))
+        self.T = np.empty(cap)
+        self.parent = np.empty(cap, dtype=np.int64)
+        self.prim = np.empty(cap, dtype=np.int64)
+        self.fails = np.zeros(cap, dtype=np.int64)
+        self.X[0] = root
+        self.T[0] = t0
+        self.parent[0] = -1
+        self.prim[0] = -1
+        self.n = 1
+
+    def add(self, i: int, pose: np.ndarray, t: float, k: int) -> int:
+        """A node at ``pose`` and time ``t``, reached from node ``i`` by primitive ``k``; returns its index."""
+        n = self.n
+        self.X[n] = pose
+        self.T[n] = t
+        self.parent[n] = i
+        self.prim[n] = k
+        self.n = n + 1
+        return n
+
+    def chain(self, node: int) -> list[int]:
+        """The nodes from the root to ``node``."""
+        out = []
+        k = node
+        while k >= 0:
+            out.append(k)
+            k = int(self.parent[k])
+        out.reverse()
+        return out
+
+
 class PrimitiveRRT:
     """The low-level planner of one robot (see the module docstring).
 
@@ -355,255 +394,237 @@ class PrimitiveRRT:
         budget = cfg.max_iterations if max_iterations is None else int(max_iterations)
         self._bind(goal, constraints)
         sx, sy, sth = (float(v) for v in start)
-        self._sx, self._sy = sx, sy
-        c0 = float(self.field.clearance_xy(np.array([sx]), np.array([sy]))[0])
-        self._relax = c0 < self.buffer
-        self._c0 = c0 - self.config.relax_drop
-        # Below the floor already (pushed there): it may not get any worse.
-        self._floor = min(self.floor, c0 - 0.005)
-        t_end = float(goal.t[-1])
-        # The compiled _candidates' arguments after the pose and time: primitives, field, buffer rule, constraints.
-        fld = self.field
-        self._cand_args = (
-            self.prims._lx, self.prims._ly, self._lt, self._P, self._S, fld._inv, fld._xmax, fld._ymax, fld.nx,
-            fld.values, self.buffer, self._relax, sx, sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor,
-            *constraints.kernel_args(),
-        )
-
-        cap = 64 + budget * (cfg.connect_steps + 2)
-        X = np.empty((cap, 3))
-        T = np.empty(cap)
-        parent = np.empty(cap, dtype=np.int64)
-        prim = np.empty(cap, dtype=np.int64)
-        fails = np.zeros(cap, dtype=np.int64)  # goal-directed extensions that failed from each node
-        X[0] = (sx, sy, sth)
-        T[0] = t0
-        parent[0] = -1
-        prim[0] = -1
-        n = 1
-
-        def result(node: int, join: tuple[int, float] | None, it: int) -> RRTResult:
-            chain = []
-            k = node
-            while k >= 0:
-                chain.append(k)
-                k = int(parent[k])
-            chain.reverse()
-            nodes = [(X[k].copy(), float(T[k]), int(prim[k])) for k in chain]
-            smoothed = False
-            if join is not None and cfg.smoothing and len(nodes) > 2:
-                better = self._smooth(nodes, join)
-                if better is not None:
-                    nodes, join = better
-                    smoothed = True
-            path = self._build(nodes, join)
-            tree = (X[:n].copy(), parent[:n].copy()) if keep_tree else (None, None)
-            return RRTResult(path, join is not None, it, n, smoothed, tree[0], tree[1])
-
+        self._prepare(sx, sy, goal)
+        tree = _Tree(64 + budget * (cfg.connect_steps + 2), (sx, sy, sth), t0)
         join = self._join(sx, sy, t0, sth)
         if join is not None:
-            return result(0, join, 0)
+            return self._result(tree, 0, join, 0, keep_tree)
         if constraints.count and not self._tail_ok.any() and not allow_partial:
             # The constraints cover the goal course until the horizon: no node can ever join it,
             # and a tree that cannot join only yields a partial path. Let the caller relax them.
             return RRTResult(None, False, 0, 1)
-
         # Sampling box: start and goal course, with a margin, inside the world.
         course = goal.xy_eff
-        lo = np.minimum(course.min(axis=0), (sx, sy)) - cfg.sample_margin
-        hi = np.maximum(course.max(axis=0), (sx, sy)) + cfg.sample_margin
         W, H = self.field.size
-        lo = np.maximum(lo, (0.0, 0.0))
-        hi = np.minimum(hi, (W, H))
+        lo = np.maximum(np.minimum(course.min(axis=0), (sx, sy)) - cfg.sample_margin, (0.0, 0.0))
+        hi = np.minimum(np.maximum(course.max(axis=0), (sx, sy)) + cfg.sample_margin, (W, H))
         span = hi - lo
-        prims = self.prims
-        durations = prims.durations
-
-        def add(i: int, pose: np.ndarray, t: float, k: int) -> int:
-            nonlocal n
-            X[n] = pose
-            T[n] = t
-            parent[n] = i
-            prim[n] = k
-            n += 1
-            return n - 1
-
-        def extend(i: int, qx: float, qy: float) -> int:
-            """Add the valid primitive from node ``i`` that ends nearest ``q``; when constraints
-            block every primitive that the obstacles allow, wait ``wait_step`` in place instead."""
-            x, y, th = X[i]
-            ends, sok, cok, _, _ = self._candidates(x, y, th, T[i])
-            valid = sok & cok
-            if not valid.any():
-                if (sok & ~cok).any() and T[i] + cfg.wait_step <= t_end and self._still_free(
-                    x, y, T[i], T[i] + cfg.wait_step
-                ):
-                    return add(i, X[i].copy(), T[i] + cfg.wait_step, _WAIT_PRIM)
-                return -1
-            d = (ends[:, 0] - qx) ** 2 + (ends[:, 1] - qy) ** 2
-            d[~valid] = np.inf
-            k = int(np.argmin(d))
-            return add(i, ends[k], T[i] + durations[k], k)
-
-        S, P = self._S, self._P
-        last = S - 1
-        lt = self._lt
-        lx, ly = prims._lx, prims._ly
-        angles = prims.angles
-        gt, gxy = goal.t, goal.xy_eff
-        tol2 = cfg.goal_tolerance ** 2
-
-        compiled = compiled_kernels()
-        if compiled:
-            fld = self.field
-            field_args = (fld._inv, fld._xmax, fld._ymax, fld.nx, fld.values)
-            relax_args = (self.buffer, self._relax, sx, sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor)
-            cons_args = self._cons.kernel_args()
-            still_args = cons_args[:-1]  # what the wait test needs (no any_active)
-
-        def expand_batch(
-            qx: np.ndarray, qy: np.ndarray
-        ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-            """Nearest nodes of the samples and all primitives from them: ``uniq`` (distinct nodes),
-            ``inv`` (each sample's index into ``uniq``), ``sok``/``cok`` ``(U, P)`` (static /
-            constraint validity), ``ex``/``ey`` ``(U, P)`` end points, ``best`` (each sample's
-            nearest valid primitive end) and ``found`` (it has one)."""
-            qx2, qy2 = qx[:, None], qy[:, None]
-            atan = np.arctan2(qy2 - X[:n, 1], qx2 - X[:n, 0])  # numpy's (not the C library's) bits, see .kernels
-            if compiled:  # the same answers, see .kernels.explore_batch
-                out = kernels.explore_batch(X, n, qx, qy, atan, cfg.heading_weight, lx, ly, lt, P, S, T, *field_args,
-                                            *relax_args, *cons_args)
-                if out[0]:
-                    return out[1:]
-            ang = np.abs((atan - X[:n, 2] + np.pi) % (2.0 * np.pi) - np.pi)
-            d = (X[:n, 0] - qx2) ** 2 + (X[:n, 1] - qy2) ** 2
-            parents = np.argmin(d + (cfg.heading_weight * ang) ** 2, axis=1)
-            uniq, inv = np.unique(parents, return_inverse=True)
-            px, py, pth, pt = X[uniq, 0:1], X[uniq, 1:2], X[uniq, 2:3], T[uniq, None]
-            c, s_ = np.cos(pth), np.sin(pth)
-            xs = px + c * lx - s_ * ly  # (U, P*S)
-            ys = py + s_ * lx + c * ly
-            sok = self._static_ok(xs.ravel(), ys.ravel()).reshape(len(uniq), P, S).all(axis=2)
-            if self._cons.count:
-                cok = self._cons.free(xs.ravel(), ys.ravel(), (pt + lt).ravel()).reshape(len(uniq), P, S).all(axis=2)
-            else:
-                cok = np.ones_like(sok)
-            valid = sok & cok
-            ex, ey = xs[:, last::S], ys[:, last::S]  # (U, P) end points
-            dd = (ex[inv] - qx2) ** 2 + (ey[inv] - qy2) ** 2  # (b, P)
-            dd[~valid[inv]] = np.inf
-            best = np.argmin(dd, axis=1)
-            found = np.isfinite(dd[np.arange(len(best)), best])
-            return uniq, inv, sok, cok, ex, ey, best, found
-
-        def explore(b: int) -> tuple[int, tuple[int, float] | None]:
-            """``b`` random expansions in one vectorised pass (the same rule as ``extend`` for
-            each sample): returns the number of nodes added and the first join found."""
-            nonlocal n
-            Q = lo + rng.random((b, 2)) * span
-            uniq, inv, sok, cok, ex, ey, best, found = expand_batch(Q[:, 0].copy(), Q[:, 1].copy())
-            if compiled:  # the same nodes in the same order, see .kernels.explore_add
-                n, new = kernels.explore_add(X, T, parent, prim, n, uniq, inv, sok, cok, ex, ey, best, found, angles,
-                                             durations, _WAIT_PRIM, cfg.wait_step, t_end, *still_args)
-                return joins(new)
-            uniq_l, inv_l, best_l, found_l = uniq.tolist(), inv.tolist(), best.tolist(), found.tolist()
-            added = []
-            seen: set[tuple[int, int]] = set()
-            for j in range(b):
-                u = inv_l[j]
-                k = best_l[j]
-                if not found_l[j]:
-                    k = _WAIT_PRIM
-                    i = uniq_l[u]
-                    if (u, k) in seen or not (sok[u] & ~cok[u]).any() or T[i] + cfg.wait_step > t_end:
-                        continue
-                    if not self._still_free(X[i, 0], X[i, 1], T[i], T[i] + cfg.wait_step):
-                        continue
-                    seen.add((u, k))
-                    added.append(add(i, X[i].copy(), T[i] + cfg.wait_step, k))
-                    continue
-                if (u, k) in seen:
-                    continue
-                seen.add((u, k))
-                i = uniq_l[u]
-                added.append(add(i, np.array([ex[u, k], ey[u, k], X[i, 2] + angles[k]]), T[i] + durations[k], k))
-            return joins(np.array(added, dtype=np.int64))
-
-        def joins(new: np.ndarray) -> tuple[int, tuple[int, float] | None]:
-            """``explore``'s answer for the nodes it added (``new``): their number and the first
-            join found. Only nodes within tolerance of some course point in their waiting window
-            are tried."""
-            if not len(new):
-                return 0, None
-            if compiled:
-                near = np.flatnonzero(kernels.near_goal(X, T, new, gt, gxy, cfg.max_wait, tol2))
-            else:
-                gx = (gxy[:, 0][None, :] - X[new, 0:1]) ** 2 + (gxy[:, 1][None, :] - X[new, 1:2]) ** 2
-                window = (gt[None, :] > T[new, None]) & (gt[None, :] <= T[new, None] + cfg.max_wait)
-                near = np.flatnonzero(np.where(window, gx, np.inf).min(axis=1) <= tol2)
-            for m in near.tolist():
-                k_new = int(new[m])
-                if T[k_new] <= t_end:
-                    join = self._join(X[k_new, 0], X[k_new, 1], T[k_new], X[k_new, 2])
-                    if join is not None:
-                        return len(new), (k_new, join)
-            return len(new), None
 
         it = 0
         stalled = 0  # consecutive iterations that added nothing
         while it < budget:
-            if n + cfg.connect_steps + cfg.batch + 2 >= cap or stalled >= cfg.stall_limit:
+            if tree.n + cfg.connect_steps + cfg.batch + 2 >= tree.cap or stalled >= cfg.stall_limit:
                 break  # a tree that stopped growing will not reach the goal: give up early
-            to_goal = rng.random() < cfg.goal_bias
-            if not to_goal:
+            if not rng.random() < cfg.goal_bias:
                 b = min(cfg.batch, budget - it)
                 it += b
-                count, found = explore(b)
+                count, found = self._explore(tree, lo + rng.random((b, 2)) * span)
                 stalled = stalled + b if count == 0 else 0
                 if found is not None:
-                    return result(found[0], found[1], it)
+                    return self._result(tree, found[0], found[1], it, keep_tree)
                 continue
             it += 1
-            n_before = n
-            # The node nearest its goal (skipping nodes that keep failing to get closer),
-            # heading for its intercept point.
-            i = self._nearest_to_goal(X, T, n, fails)
-            q = self._intercept(X[i, 0], X[i, 1], T[i])
-            new = extend(i, float(q[0]), float(q[1]))
-            stalled = stalled + 1 if n == n_before else 0
-            if new < 0 or T[new] > t_end:
-                fails[i] += 1
-                continue
-            join = self._join(X[new, 0], X[new, 1], T[new], X[new, 2])
-            if join is not None:
-                return result(new, join, it)
-            if to_goal:
-                prev = math.hypot(X[new, 0] - q[0], X[new, 1] - q[1])
-                for _ in range(cfg.connect_steps):
-                    q = self._intercept(X[new, 0], X[new, 1], T[new])
-                    nxt = extend(new, float(q[0]), float(q[1]))
-                    if nxt < 0 or T[nxt] > t_end:
-                        break
-                    dist = math.hypot(X[nxt, 0] - q[0], X[nxt, 1] - q[1])
-                    new = nxt
-                    join = self._join(X[new, 0], X[new, 1], T[new], X[new, 2])
-                    if join is not None:
-                        return result(new, join, it)
-                    if dist >= prev and prim[nxt] != _WAIT_PRIM:
-                        fails[i] += 1
-                        break
-                    prev = dist
+            n_before = tree.n
+            found = self._grow_to_goal(tree)
+            stalled = stalled + 1 if tree.n == n_before else 0
+            if found is not None:
+                return self._result(tree, found[0], found[1], it, keep_tree)
 
         # Budget spent: the best node where the robot may stay until the horizon.
         if not allow_partial:
-            return RRTResult(None, False, it, n)
+            return RRTResult(None, False, it, tree.n)
+        n, X, T = tree.n, tree.X, tree.T
         g_at = goal.at(T[:n])
         err = np.hypot(X[:n, 0] - g_at[:, 0], X[:n, 1] - g_at[:, 1])
-        park = t_end if park_until is None else min(t_end, float(park_until))
+        park = self._t_end if park_until is None else min(self._t_end, float(park_until))
         for k in np.argsort(err, kind="stable").tolist():
             if self._still_free(X[k, 0], X[k, 1], T[k], max(park, T[k])):
-                return result(int(k), None, it)
+                return self._result(tree, int(k), None, it, keep_tree)
         return RRTResult(None, False, it, n)
+
+    def _prepare(self, sx: float, sy: float, goal: GoalSpec) -> None:
+        """What one :meth:`plan` from ``(sx, sy)`` to ``goal`` reads on every expansion: the start's clearance rule
+        (a start below the buffer may not get worse), the goal course, and the compiled kernels' arguments."""
+        cfg = self.config
+        self._sx, self._sy = sx, sy
+        c0 = float(self.field.clearance_xy(np.array([sx]), np.array([sy]))[0])
+        self._relax = c0 < self.buffer
+        self._c0 = c0 - cfg.relax_drop
+        # Below the floor already (pushed there): it may not get any worse.
+        self._floor = min(self.floor, c0 - 0.005)
+        self._t_end = float(goal.t[-1])
+        fld = self.field
+        field_args = (fld._inv, fld._xmax, fld._ymax, fld.nx, fld.values)
+        relax_args = (self.buffer, self._relax, sx, sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor)
+        cons_args = self._cons.kernel_args()
+        # The compiled _candidates' arguments after the pose and time: primitives, field, buffer rule, constraints.
+        self._cand_args = (self.prims._lx, self.prims._ly, self._lt, self._P, self._S, *field_args, *relax_args,
+                           *cons_args)
+        self._compiled = compiled_kernels()
+        self._explore_args = (*field_args, *relax_args, *cons_args)
+        self._still_args = cons_args[:-1]  # what the wait test needs (no any_active)
+
+    def _result(self, tree: _Tree, node: int, join: tuple[int, float] | None, it: int, keep_tree: bool) -> RRTResult:
+        """The path from the root to ``node`` (then along the goal course from ``join``), smoothed when it joins."""
+        nodes = [(tree.X[k].copy(), float(tree.T[k]), int(tree.prim[k])) for k in tree.chain(node)]
+        smoothed = False
+        if join is not None and self.config.smoothing and len(nodes) > 2:
+            better = self._smooth(nodes, join)
+            if better is not None:
+                nodes, join = better
+                smoothed = True
+        path = self._build(nodes, join)
+        n = tree.n
+        kept = (tree.X[:n].copy(), tree.parent[:n].copy()) if keep_tree else (None, None)
+        return RRTResult(path, join is not None, it, n, smoothed, kept[0], kept[1])
+
+    def _extend(self, tree: _Tree, i: int, qx: float, qy: float) -> int:
+        """Add the valid primitive from node ``i`` that ends nearest ``q``; when constraints
+        block every primitive that the obstacles allow, wait ``wait_step`` in place instead."""
+        cfg = self.config
+        X, T = tree.X, tree.T
+        x, y, th = X[i]
+        ends, sok, cok, _, _ = self._candidates(x, y, th, T[i])
+        valid = sok & cok
+        if not valid.any():
+            if (sok & ~cok).any() and T[i] + cfg.wait_step <= self._t_end and self._still_free(
+                x, y, T[i], T[i] + cfg.wait_step
+            ):
+                return tree.add(i, X[i].copy(), T[i] + cfg.wait_step, _WAIT_PRIM)
+            return -1
+        d = (ends[:, 0] - qx) ** 2 + (ends[:, 1] - qy) ** 2
+        d[~valid] = np.inf
+        k = int(np.argmin(d))
+        return tree.add(i, ends[k], T[i] + self.prims.durations[k], k)
+
+    def _grow_to_goal(self, tree: _Tree) -> tuple[int, tuple[int, float]] | None:
+        """One goal-biased iteration: from the node nearest its goal (skipping nodes that keep failing to get
+        closer), extend towards its intercept point, then keep connecting while the tree gets closer. Returns
+        ``(node, join)`` when a node joins the goal course."""
+        X, T, fails = tree.X, tree.T, tree.fails
+        t_end = self._t_end
+        i = self._nearest_to_goal(X, T, tree.n, fails)
+        q = self._intercept(X[i, 0], X[i, 1], T[i])
+        new = self._extend(tree, i, float(q[0]), float(q[1]))
+        if new < 0 or T[new] > t_end:
+            fails[i] += 1
+            return None
+        join = self._join(X[new, 0], X[new, 1], T[new], X[new, 2])
+        if join is not None:
+            return new, join
+        prev = math.hypot(X[new, 0] - q[0], X[new, 1] - q[1])
+        for _ in range(self.config.connect_steps):
+            q = self._intercept(X[new, 0], X[new, 1], T[new])
+            nxt = self._extend(tree, new, float(q[0]), float(q[1]))
+            if nxt < 0 or T[nxt] > t_end:
+                break
+            dist = math.hypot(X[nxt, 0] - q[0], X[nxt, 1] - q[1])
+            new = nxt
+            join = self._join(X[new, 0], X[new, 1], T[new], X[new, 2])
+            if join is not None:
+                return new, join
+            if dist >= prev and tree.prim[nxt] != _WAIT_PRIM:
+                fails[i] += 1
+                break
+            prev = dist
+        return None
+
+    def _expand_batch(
+        self, tree: _Tree, qx: np.ndarray, qy: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Nearest nodes of the samples and all primitives from them: ``uniq`` (distinct nodes),
+        ``inv`` (each sample's index into ``uniq``), ``sok``/``cok`` ``(U, P)`` (static /
+        constraint validity), ``ex``/``ey`` ``(U, P)`` end points, ``best`` (each sample's
+        nearest valid primitive end) and ``found`` (it has one)."""
+        cfg, prims = self.config, self.prims
+        X, T, n = tree.X, tree.T, tree.n
+        lx, ly, lt, P, S = prims._lx, prims._ly, self._lt, self._P, self._S
+        qx2, qy2 = qx[:, None], qy[:, None]
+        atan = np.arctan2(qy2 - X[:n, 1], qx2 - X[:n, 0])  # numpy's (not the C library's) bits, see .kernels
+        if self._compiled:  # the same answers, see .kernels.explore_batch
+            out = kernels.explore_batch(X, n, qx, qy, atan, cfg.heading_weight, lx, ly, lt, P, S, T, *self._explore_args)
+            if out[0]:
+                return out[1:]
+        ang = np.abs((atan - X[:n, 2] + np.pi) % (2.0 * np.pi) - np.pi)
+        d = (X[:n, 0] - qx2) ** 2 + (X[:n, 1] - qy2) ** 2
+        parents = np.argmin(d + (cfg.heading_weight * ang) ** 2, axis=1)
+        uniq, inv = np.unique(parents, return_inverse=True)
+        px, py, pth, pt = X[uniq, 0:1], X[uniq, 1:2], X[uniq, 2:3], T[uniq, None]
+        c, s_ = np.cos(pth), np.sin(pth)
+        xs = px + c * lx - s_ * ly  # (U, P*S)
+        ys = py + s_ * lx + c * ly
+        sok = self._static_ok(xs.ravel(), ys.ravel()).reshape(len(uniq), P, S).all(axis=2)
+        if self._cons.count:
+            cok = self._cons.free(xs.ravel(), ys.ravel(), (pt + lt).ravel()).reshape(len(uniq), P, S).all(axis=2)
+        else:
+            cok = np.ones_like(sok)
+        valid = sok & cok
+        last = S - 1
+        ex, ey = xs[:, last::S], ys[:, last::S]  # (U, P) end points
+        dd = (ex[inv] - qx2) ** 2 + (ey[inv] - qy2) ** 2  # (b, P)
+        dd[~valid[inv]] = np.inf
+        best = np.argmin(dd, axis=1)
+        found = np.isfinite(dd[np.arange(len(best)), best])
+        return uniq, inv, sok, cok, ex, ey, best, found
+
+    def _explore(self, tree: _Tree, samples: np.ndarray) -> tuple[int, tuple[int, tuple[int, float]] | None]:
+        """One random expansion per row of ``samples`` ``(b, 2)`` in one vectorised pass (the same rule as
+        :meth:`_extend` for each sample): returns the number of nodes added and the first join found."""
+        cfg, prims = self.config, self.prims
+        X, T = tree.X, tree.T
+        uniq, inv, sok, cok, ex, ey, best, found = self._expand_batch(tree, samples[:, 0].copy(), samples[:, 1].copy())
+        if self._compiled:  # the same nodes in the same order, see .kernels.explore_add
+            tree.n, new = kernels.explore_add(X, T, tree.parent, tree.prim, tree.n, uniq, inv, sok, cok, ex, ey, best,
+                                              found, prims.angles, prims.durations, _WAIT_PRIM, cfg.wait_step,
+                                              self._t_end, *self._still_args)
+            return self._joins(tree, new)
+        uniq_l, inv_l, best_l, found_l = uniq.tolist(), inv.tolist(), best.tolist(), found.tolist()
+        added = []
+        seen: set[tuple[int, int]] = set()
+        for j in range(len(samples)):
+            u = inv_l[j]
+            k = best_l[j]
+            if not found_l[j]:
+                k = _WAIT_PRIM
+                i = uniq_l[u]
+                if (u, k) in seen or not (sok[u] & ~cok[u]).any() or T[i] + cfg.wait_step > self._t_end:
+                    continue
+                if not self._still_free(X[i, 0], X[i, 1], T[i], T[i] + cfg.wait_step):
+                    continue
+                seen.add((u, k))
+                added.append(tree.add(i, X[i].copy(), T[i] + cfg.wait_step, k))
+                continue
+            if (u, k) in seen:
+                continue
+            seen.add((u, k))
+            i = uniq_l[u]
+            pose = np.array([ex[u, k], ey[u, k], X[i, 2] + prims.angles[k]])
+            added.append(tree.add(i, pose, T[i] + prims.durations[k], k))
+        return self._joins(tree, np.array(added, dtype=np.int64))
+
+    def _joins(self, tree: _Tree, new: np.ndarray) -> tuple[int, tuple[int, tuple[int, float]] | None]:
+        """:meth:`_explore`'s answer for the nodes it added (``new``): their number and the first
+        join found. Only nodes within tolerance of some course point in their waiting window
+        are tried."""
+        if not len(new):
+            return 0, None
+        cfg = self.config
+        X, T = tree.X, tree.T
+        gt, gxy = self._goal.t, self._goal.xy_eff
+        tol2 = cfg.goal_tolerance ** 2
+        if self._compiled:
+            near = np.flatnonzero(kernels.near_goal(X, T, new, gt, gxy, cfg.max_wait, tol2))
+        else:
+            gx = (gxy[:, 0][None, :] - X[new, 0:1]) ** 2 + (gxy[:, 1][None, :] - X[new, 1:2]) ** 2
+            window = (gt[None, :] > T[new, None]) & (gt[None, :] <= T[new, None] + cfg.max_wait)
+            near = np.flatnonzero(np.where(window, gx, np.inf).min(axis=1) <= tol2)
+        for m in near.tolist():
+            k_new = int(new[m])
+            if T[k_new] <= self._t_end:
+                join = self._join(X[k_new, 0], X[k_new, 1], T[k_new], X[k_new, 2])
+                if join is not None:
+                    return len(new), (k_new, join)
+        return len(new), None
 
     def _heading_cost(self, X: np.ndarray, n: int, qx: np.ndarray, qy: np.ndarray) -> np.ndarray:
         """``(heading_weight * |angle between each node's heading and the direction to q|)^2``:
