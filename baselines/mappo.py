@@ -731,158 +731,192 @@ def _run(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict
 
 def _train_loop(cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None,
                 stop: Any) -> Path:
+    """Collect a rollout of every world, update, log; evaluate and checkpoint on schedule (:class:`_Run` holds the
+    run's state: the trainer, the learner, the validation, the log and the counters)."""
     from tqdm import tqdm
 
-
-    # --- the trainer, its optimiser, and the budget in PPO updates
-    eval_seeds = parse_seeds(cfg.eval_seeds)
-    trainer = Trainer(cfg, run_dir)
-    optim = make_optimizer(cfg, trainer.networks())
-    batch_size = cfg.n_steps * trainer.m * trainer.n
-    n_updates = max(1, cfg.total_steps // batch_size)
-    steps_done = updates_done = 0
-    pending: Batch | None = None  # a rollout collected but not yet learned from (with a learner process)
-    pending_s = 0.0  # the seconds its collection took
-    next_eval = cfg.eval_every or None
-    log: RunLog | None = None
-    validation = Validation(run_dir, lambda: evaluate(trainer.policy(), cfg, eval_seeds),
-                            functools.partial(evaluate_saved, cfg_json=cfg.to_json(), seeds=eval_seeds),
-                            lambda row: log.eval(row) if log is not None else None, cfg.eval_workers)
-
-    # --- a new run starts with the warm start; a resumed one rebuilds its worlds and counters
-    try:
-        if checkpoint is None:
-            t0 = time.perf_counter()
-            if cfg.pretrain != "none":
-                # DAgger cannot stop half-way and save: a signal ends the run at once.
-                with stop.immediate(f"interrupted during the warm start: nothing to resume yet; start again with "
-                                    f"another --run-name (or delete {run_dir})"):
-                    trainer.pretrain()
-                with open(run_dir / "pretrain.csv", "w", newline="") as fh:
-                    w = csv.DictWriter(fh, fieldnames=list(trainer.pretrain_log[0]))
-                    w.writeheader()
-                    w.writerows(trainer.pretrain_log)
-            pretrain_s = time.perf_counter() - t0
-            trainer.start()
-            log = RunLog(run_dir, TRAIN_COLUMNS, EVAL_COLUMNS, cfg.tensorboard)
-        else:
-            tensors, meta = checkpoint
-            source = run_dir / CHECKPOINT_DIR
-            try:
-                steps_done, updates_done = int(meta["agent_steps"]), int(meta["updates"])
-                next_eval = meta["next_eval"]
-                pretrain_s, t0 = float(meta["pretrain_s"]), time.perf_counter() - float(meta["wall_s"])
-                rows = {name: int(meta["csv_rows"][name]) for name in ("train.csv", "eval.csv")}
-                if updates_done >= n_updates and not meta["pending_evals"]:
-                    raise ValueError(f"--resume {run_dir}: the run is complete ({steps_done} agent-steps, total_steps "
-                                     f"{cfg.total_steps}); pass a larger --total-steps to train it further")
-                for name, count in rows.items():  # drop what was logged after the checkpoint
-                    truncate_csv(run_dir / name, count)
-                log = RunLog(run_dir, TRAIN_COLUMNS, EVAL_COLUMNS, cfg.tensorboard, purge_step=steps_done + 1)
-                validation.resume(meta)
-            except (KeyError, TypeError) as exc:
-                raise ValueError(f"{source / 'state.json'}: {exc}") from None
-            print(f"resuming {run_dir} at update {updates_done} of {n_updates} ({steps_done} agent-steps)",
-                  file=sys.stderr)
-            trainer.restore(tensors, meta, optim, source)
-            pending = Batch.from_checkpoint(tensors, meta, source)
-        # The update's side: here after each rollout, or a learner process one rollout behind.
-        learner = (ProcessLearner(cfg, trainer.networks(), optim, learner_generator(cfg, checkpoint))
-                   if cfg.learner_process else InlineLearner(trainer, optim))
-    except BaseException:
-        trainer.close()
-        validation.close(finished=False)
-        if log is not None:
-            log.close()
-        raise
-
-    def save_checkpoint() -> None:
-        learner_rng = learner.state()  # (first: it brings the learner process's optimiser state into `optim`)
-        tensors, meta = trainer.checkpoint_state(optim)
-        if learner_rng is not None:
-            tensors["rng.learner"] = learner_rng
-        pending_tensors, pending_meta = Batch.to_checkpoint(pending)
-        tensors.update(pending_tensors)
-        meta = {"format": CHECKPOINT_FORMAT, "updates": updates_done, "agent_steps": steps_done,
-                "next_eval": next_eval, "pretrain_s": pretrain_s, "wall_s": time.perf_counter() - t0,
-                "csv_rows": {name: csv_rows(run_dir / name) for name in ("train.csv", "eval.csv")},
-                "learner": "process" if cfg.learner_process else "inline", **pending_meta,
-                **validation.state(), **meta}
-        write_checkpoint(run_dir / CHECKPOINT_DIR, tensors, meta)
-
-    def evaluate_now() -> None:
-        validation.evaluate(steps_done, round(time.perf_counter() - t0, 1), trainer.save)
-
-    # --- the loop: collect a rollout of every world, update, log; evaluate and checkpoint on schedule
+    run = _Run(cfg, run_dir, checkpoint, stop)
     finished = False
-    bar = tqdm(total=n_updates * batch_size, initial=steps_done, unit="step", unit_scale=True,
+    bar = tqdm(total=run.n_updates * run.batch_size, initial=run.steps_done, unit="step", unit_scale=True,
                disable=not cfg.progress, desc=cfg.kind, dynamic_ncols=True)
     try:
         if checkpoint is None:
             if cfg.eval_every:
-                evaluate_now()  # the starting point (after the warm start)
-            save_checkpoint()
-        for u in range(updates_done, n_updates):
-            t_roll = time.perf_counter()
-            if pending is None:
-                batch = trainer.collect(values=not cfg.learner_process)
-                rollout_s = collecting_s = time.perf_counter() - t_roll
-            else:  # collected during the previous update
-                batch, rollout_s, collecting_s = pending, pending_s, 0.0
-            learner.submit(batch, trainer.normalised(), u, n_updates)
-            pending = None
-            if cfg.learner_process and u + 1 < n_updates:  # the next rollout while the learner updates on this one
-                t_next = time.perf_counter()
-                pending = trainer.collect(values=False)
-                pending_s = time.perf_counter() - t_next
-                collecting_s += pending_s
-            stats = learner.result(batch)
-            t_end = time.perf_counter()
-            steps_done += batch_size
-            updates_done = u + 1
-            # update_s: the time spent on the update, or waiting for the learner process beyond the collection.
-            row = {"agent_steps": steps_done, "wall_s": round(t_end - t0, 1), "rollout_s": round(rollout_s, 3),
-                   "update_s": round(t_end - t_roll - collecting_s, 3), "agent_steps_per_s": batch_size / (t_end - t_roll),
-                   "mean_reward": float(batch.rewards.mean()), "contacts_per_agent_step": batch.contacts / batch_size,
-                   "intervention_rate": float(batch.intervened.mean()),
-                   **episode_stats(batch.episode_returns, batch.episode_metrics), **stats}
-            log.train(row)
-            bar.update(batch_size)
+                run.evaluate_now()  # the starting point (after the warm start)
+            run.save_checkpoint()
+        for u in range(run.updates_done, run.n_updates):
+            row = run.update(u)
+            bar.update(run.batch_size)
             bar.set_postfix(ret=f"{row['episode_return']:.3g}", coll=f"{row['collisions_per_episode']:.2g}",
                             refresh=False)
-            if next_eval is not None and steps_done >= next_eval:
-                next_eval += cfg.eval_every
-                evaluate_now()
-            validation.collect(wait=False)
+            if run.next_eval is not None and run.steps_done >= run.next_eval:
+                run.next_eval += cfg.eval_every
+                run.evaluate_now()
+            run.validation.collect(wait=False)
             if stop.requested:
-                validation.collect(wait=True)
-                save_checkpoint()
-                trainer.save(run_dir)
+                run.validation.collect(wait=True)
+                run.save_checkpoint()
+                run.trainer.save(run_dir)
                 finished = True  # a clean stop: nothing pending, evals/ may go
                 raise TrainingInterrupted(stop.signum, (
-                    f"interrupted at {steps_done} of {n_updates * batch_size} agent-steps; saved {run_dir}/policy.* "
-                    f"and {run_dir / CHECKPOINT_DIR}/. Resume with: swarm-env train mappo --resume {run_dir}"))
-            if cfg.checkpoint_every and updates_done % cfg.checkpoint_every == 0 and updates_done < n_updates:
-                save_checkpoint()
-        if validation.last_eval != steps_done:  # the final policy is always scored
-            evaluate_now()
-        validation.collect(wait=True)
-        save_checkpoint()  # a finished run can be trained further (--resume with a larger --total-steps)
+                    f"interrupted at {run.steps_done} of {run.n_updates * run.batch_size} agent-steps; saved "
+                    f"{run_dir}/policy.* and {run_dir / CHECKPOINT_DIR}/. Resume with: swarm-env train mappo "
+                    f"--resume {run_dir}"))
+            done = run.updates_done
+            if cfg.checkpoint_every and done % cfg.checkpoint_every == 0 and done < run.n_updates:
+                run.save_checkpoint()
+        if run.validation.last_eval != run.steps_done:  # the final policy is always scored
+            run.evaluate_now()
+        run.validation.collect(wait=True)
+        run.save_checkpoint()  # a finished run can be trained further (--resume with a larger --total-steps)
         finished = True
     finally:
         bar.close()
-        learner.close()
-        trainer.close()
-        validation.close(finished)
-        log.close()
+        run.close(finished)
 
     # --- the run's files: the final policy, a summary and the learning curve
-    wall = time.perf_counter() - t0
-    trainer.save(run_dir)
-    finish_run(run_dir, {"agent_steps": steps_done, "wall_s": round(wall, 1), "pretrain_s": round(pretrain_s, 1),
-                         "steps_per_s": round(steps_done / (wall - pretrain_s), 1), "best_score": validation.best},
-               validation.history)
+    wall = time.perf_counter() - run.t0
+    run.trainer.save(run_dir)
+    summary = {"agent_steps": run.steps_done, "wall_s": round(wall, 1), "pretrain_s": round(run.pretrain_s, 1),
+               "steps_per_s": round(run.steps_done / (wall - run.pretrain_s), 1), "best_score": run.validation.best}
+    finish_run(run_dir, summary, run.validation.history)
     return run_dir
+
+
+class _Run:
+    """One training run's state between updates: the trainer and its optimiser, the learner (in this process or
+    its own), the validation, the log, the budget in PPO updates and the counters. Built for a new run (the warm
+    start, then the first worlds) or from a checkpoint (the worlds, the counters and a pending rollout)."""
+
+    def __init__(self, cfg: MAPPOConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None,
+                 stop: Any) -> None:
+        self.cfg, self.run_dir, self.stop = cfg, run_dir, stop
+        eval_seeds = parse_seeds(cfg.eval_seeds)
+        self.trainer = trainer = Trainer(cfg, run_dir)
+        self.optim = make_optimizer(cfg, trainer.networks())
+        self.batch_size = cfg.n_steps * trainer.m * trainer.n
+        self.n_updates = max(1, cfg.total_steps // self.batch_size)
+        self.steps_done = self.updates_done = 0
+        self.pending: Batch | None = None  # a rollout collected but not yet learned from (with a learner process)
+        self.pending_s = 0.0  # the seconds its collection took
+        self.next_eval = cfg.eval_every or None
+        self.log: RunLog | None = None
+        self.validation = Validation(run_dir, lambda: evaluate(trainer.policy(), cfg, eval_seeds),
+                                     functools.partial(evaluate_saved, cfg_json=cfg.to_json(), seeds=eval_seeds),
+                                     lambda row: self.log.eval(row) if self.log is not None else None,
+                                     cfg.eval_workers)
+        try:
+            if checkpoint is None:
+                self._start()
+            else:
+                self._resume(checkpoint)
+            # The update's side: here after each rollout, or a learner process one rollout behind.
+            self.learner = (ProcessLearner(cfg, trainer.networks(), self.optim, learner_generator(cfg, checkpoint))
+                            if cfg.learner_process else InlineLearner(trainer, self.optim))
+        except BaseException:
+            trainer.close()
+            self.validation.close(finished=False)
+            if self.log is not None:
+                self.log.close()
+            raise
+
+    def _start(self) -> None:
+        """A new run: the warm start (if any), then the worlds and the log."""
+        cfg, run_dir, trainer = self.cfg, self.run_dir, self.trainer
+        self.t0 = time.perf_counter()
+        if cfg.pretrain != "none":
+            # DAgger cannot stop half-way and save: a signal ends the run at once.
+            with self.stop.immediate(f"interrupted during the warm start: nothing to resume yet; start again with "
+                                     f"another --run-name (or delete {run_dir})"):
+                trainer.pretrain()
+            with open(run_dir / "pretrain.csv", "w", newline="") as fh:
+                w = csv.DictWriter(fh, fieldnames=list(trainer.pretrain_log[0]))
+                w.writeheader()
+                w.writerows(trainer.pretrain_log)
+        self.pretrain_s = time.perf_counter() - self.t0
+        trainer.start()
+        self.log = RunLog(run_dir, TRAIN_COLUMNS, EVAL_COLUMNS, cfg.tensorboard)
+
+    def _resume(self, checkpoint: tuple[dict[str, Any], dict[str, Any]]) -> None:
+        """A resumed run: its counters, its logs cut back to the checkpoint, its worlds and its pending rollout."""
+        cfg, run_dir = self.cfg, self.run_dir
+        tensors, meta = checkpoint
+        source = run_dir / CHECKPOINT_DIR
+        try:
+            self.steps_done, self.updates_done = int(meta["agent_steps"]), int(meta["updates"])
+            self.next_eval = meta["next_eval"]
+            self.pretrain_s, self.t0 = float(meta["pretrain_s"]), time.perf_counter() - float(meta["wall_s"])
+            rows = {name: int(meta["csv_rows"][name]) for name in ("train.csv", "eval.csv")}
+            if self.updates_done >= self.n_updates and not meta["pending_evals"]:
+                raise ValueError(f"--resume {run_dir}: the run is complete ({self.steps_done} agent-steps, "
+                                 f"total_steps {cfg.total_steps}); pass a larger --total-steps to train it further")
+            for name, count in rows.items():  # drop what was logged after the checkpoint
+                truncate_csv(run_dir / name, count)
+            self.log = RunLog(run_dir, TRAIN_COLUMNS, EVAL_COLUMNS, cfg.tensorboard, purge_step=self.steps_done + 1)
+            self.validation.resume(meta)
+        except (KeyError, TypeError) as exc:
+            raise ValueError(f"{source / 'state.json'}: {exc}") from None
+        print(f"resuming {run_dir} at update {self.updates_done} of {self.n_updates} ({self.steps_done} agent-steps)",
+              file=sys.stderr)
+        self.trainer.restore(tensors, meta, self.optim, source)
+        self.pending = Batch.from_checkpoint(tensors, meta, source)
+
+    def update(self, u: int) -> dict[str, Any]:
+        """PPO update ``u``: its rollout (collected now, or during the previous update with a learner process,
+        which then gets the next one collected while it learns), the update, and the row logged to ``train.csv``."""
+        cfg, trainer, batch_size = self.cfg, self.trainer, self.batch_size
+        t_roll = time.perf_counter()
+        if self.pending is None:
+            batch = trainer.collect(values=not cfg.learner_process)
+            rollout_s = collecting_s = time.perf_counter() - t_roll
+        else:  # collected during the previous update
+            batch, rollout_s, collecting_s = self.pending, self.pending_s, 0.0
+        self.learner.submit(batch, trainer.normalised(), u, self.n_updates)
+        self.pending = None
+        if cfg.learner_process and u + 1 < self.n_updates:  # the next rollout while the learner updates on this one
+            t_next = time.perf_counter()
+            self.pending = trainer.collect(values=False)
+            self.pending_s = time.perf_counter() - t_next
+            collecting_s += self.pending_s
+        stats = self.learner.result(batch)
+        t_end = time.perf_counter()
+        self.steps_done += batch_size
+        self.updates_done = u + 1
+        # update_s: the time spent on the update, or waiting for the learner process beyond the collection.
+        row = {"agent_steps": self.steps_done, "wall_s": round(t_end - self.t0, 1), "rollout_s": round(rollout_s, 3),
+               "update_s": round(t_end - t_roll - collecting_s, 3), "agent_steps_per_s": batch_size / (t_end - t_roll),
+               "mean_reward": float(batch.rewards.mean()), "contacts_per_agent_step": batch.contacts / batch_size,
+               "intervention_rate": float(batch.intervened.mean()),
+               **episode_stats(batch.episode_returns, batch.episode_metrics), **stats}
+        assert self.log is not None
+        self.log.train(row)
+        return row
+
+    def evaluate_now(self) -> None:
+        self.validation.evaluate(self.steps_done, round(time.perf_counter() - self.t0, 1), self.trainer.save)
+
+    def save_checkpoint(self) -> None:
+        """The run as it stands, with the pending rollout and the learner's generator, in ``checkpoint/``."""
+        cfg, run_dir = self.cfg, self.run_dir
+        learner_rng = self.learner.state()  # (first: it brings the learner process's optimiser state into `optim`)
+        tensors, meta = self.trainer.checkpoint_state(self.optim)
+        if learner_rng is not None:
+            tensors["rng.learner"] = learner_rng
+        pending_tensors, pending_meta = Batch.to_checkpoint(self.pending)
+        tensors.update(pending_tensors)
+        meta = {"format": CHECKPOINT_FORMAT, "updates": self.updates_done, "agent_steps": self.steps_done,
+                "next_eval": self.next_eval, "pretrain_s": self.pretrain_s, "wall_s": time.perf_counter() - self.t0,
+                "csv_rows": {name: csv_rows(run_dir / name) for name in ("train.csv", "eval.csv")},
+                "learner": "process" if cfg.learner_process else "inline", **pending_meta,
+                **self.validation.state(), **meta}
+        write_checkpoint(run_dir / CHECKPOINT_DIR, tensors, meta)
+
+    def close(self, finished: bool) -> None:
+        self.learner.close()
+        self.trainer.close()
+        self.validation.close(finished)
+        if self.log is not None:
+            self.log.close()
 
 
 def build_parser() -> argparse.ArgumentParser:

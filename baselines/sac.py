@@ -495,7 +495,6 @@ def resume(run_dir: str | Path, **overrides: Any) -> Path:
 def _run(cfg: SACConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[str, Any]] | None) -> Path:
     from tqdm import tqdm
 
-
     # --- the learner, the validation and the records
     eval_seeds = parse_seeds(cfg.eval_seeds)
     sac = SAC(cfg)
@@ -558,31 +557,11 @@ def _run(cfg: SACConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[s
             if checkpoint is None and cfg.eval_every:
                 evaluate_now()
             while step < n_steps:
-                window: dict[str, Any] = {"contacts": 0, "rewards": [], "returns": [], "metrics": []}
-                learned: list[dict[str, float]] = []
-                t_act = t_learn = 0.0
-                t_start = time.perf_counter()
-                for _ in range(min(log_every, n_steps - step)):
-                    t = time.perf_counter()
-                    sac.act_and_store(window)
-                    t_act += time.perf_counter() - t
-                    step += 1
-                    if sac.agent_steps >= cfg.learning_starts and step % cfg.train_every == 0:
-                        t = time.perf_counter()
-                        learned.append(sac.learn())
-                        t_learn += time.perf_counter() - t
-                done_steps = len(window["rewards"]) * per_step
-                episodes = episode_stats(window["returns"], window["metrics"])
-                nan = float("nan")
-                losses = ({k: float(np.mean([x[k] for x in learned])) for k in learned[0]} if learned else
-                          dict.fromkeys(("q_loss", "policy_loss", "alpha", "entropy", "q_mean"), nan))
-                row = {"agent_steps": sac.agent_steps, "wall_s": round(time.perf_counter() - t0, 1),
-                       "rollout_s": round(t_act, 3), "update_s": round(t_learn, 3),
-                       "agent_steps_per_s": done_steps / (time.perf_counter() - t_start),
-                       "mean_reward": float(np.mean(window["rewards"])),
-                       "contacts_per_agent_step": window["contacts"] / done_steps, **episodes, **losses}
+                count = min(log_every, n_steps - step)
+                row = _train_window(sac, cfg, step, count, t0)
+                step += count
                 log.train(row)
-                bar.update(done_steps)
+                bar.update(count * per_step)
                 if next_eval is not None and sac.agent_steps >= next_eval:
                     next_eval += cfg.eval_every
                     evaluate_now()
@@ -616,6 +595,34 @@ def _run(cfg: SACConfig, run_dir: Path, checkpoint: tuple[dict[str, Any], dict[s
                          "steps_per_s": round(sac.agent_steps / wall, 1), "best_score": validation.best},
                validation.history)
     return run_dir
+
+
+def _train_window(sac: SAC, cfg: SACConfig, step: int, count: int, t0: float) -> dict[str, Any]:
+    """``count`` engine steps from engine step ``step``: act in every world and store, learn every
+    ``train_every`` steps once ``learning_starts`` agent-steps are stored; returns their ``train.csv`` row."""
+    window: dict[str, Any] = {"contacts": 0, "rewards": [], "returns": [], "metrics": []}
+    learned: list[dict[str, float]] = []
+    t_act = t_learn = 0.0
+    t_start = time.perf_counter()
+    for _ in range(count):
+        t = time.perf_counter()
+        sac.act_and_store(window)
+        t_act += time.perf_counter() - t
+        step += 1
+        if sac.agent_steps >= cfg.learning_starts and step % cfg.train_every == 0:
+            t = time.perf_counter()
+            learned.append(sac.learn())
+            t_learn += time.perf_counter() - t
+    done_steps = len(window["rewards"]) * sac.m * sac.n
+    episodes = episode_stats(window["returns"], window["metrics"])
+    nan = float("nan")
+    losses = ({k: float(np.mean([x[k] for x in learned])) for k in learned[0]} if learned else
+              dict.fromkeys(("q_loss", "policy_loss", "alpha", "entropy", "q_mean"), nan))
+    return {"agent_steps": sac.agent_steps, "wall_s": round(time.perf_counter() - t0, 1),
+            "rollout_s": round(t_act, 3), "update_s": round(t_learn, 3),
+            "agent_steps_per_s": done_steps / (time.perf_counter() - t_start),
+            "mean_reward": float(np.mean(window["rewards"])),
+            "contacts_per_agent_step": window["contacts"] / done_steps, **episodes, **losses}
 
 
 def build_parser() -> argparse.ArgumentParser:
