@@ -63,6 +63,7 @@ Registered as ``cbs_rrt`` in the ``swarm_env.policies`` entry-point group;
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from collections.abc import Sequence
@@ -79,6 +80,7 @@ from swarm_env.geometry.paths import human_states
 from swarm_env.harness.policies import expert_factory
 from swarm_env.state import WorldState
 from swarm_env_agents.cbs_rrt.cbs import CBS, CBSResult
+from swarm_env_agents.cbs_rrt.config import CBSRRTConfig
 from swarm_env_agents.cbs_rrt.constraints import Constraint
 from swarm_env_agents.cbs_rrt.distance_field import distance_field
 from swarm_env_agents.cbs_rrt.goals import FormationGoals, GoalWindow
@@ -90,7 +92,7 @@ from swarm_env_agents.cbs_rrt.hold_plan import (
     joint_paths,
     virtual_leader_done_step,
 )
-from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
+from swarm_env_agents.cbs_rrt.primitives import MotionPrimitives
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
 from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
 from swarm_env_agents.cbs_rrt.timed_path import START, TAIL, TimedPath
@@ -142,280 +144,28 @@ class CBSRRTExpert:
     -> {agent: action}`` (continuous actions ``(v / max_speed, omega / max_turn_rate)``,
     float32), ``stats()``. Needs the env's continuous action space.
 
-    Keyword-only parameters (units m, s, degrees for angles):
-
-    Planning window and replanning:
-        horizon: length of the planning window (s).
-        check_margin: conflicts are checked this long past the next planned replan (s);
-            also the lead with which plans are renewed before the horizon runs out.
-        conflict_window: CBS resolves conflicts over at most this long from now (s); when
-            conflicts remain later in the plans, the swarm is replanned (``rolling``) after
-            ``conflict_window - check_margin`` — a rolling-horizon CBS: a replan never has to
-            untangle a whole formation change at once.
-        deviation_tolerance: replan when a robot is this far from its plan (m).
-        goal_move_tolerance: replan when a slot target moved this far from its planned goal (m).
-        min_replan_interval: least time between two replans for ``goal_moved``/``retry`` (s).
-
-    Safety margins:
-        robot_margin: two robots conflict below ``2 * radius + robot_margin`` (m).
-        obstacle_margin: buffer zone: the RRT keeps ``radius + obstacle_margin`` from
-            obstacles and walls; goals are projected to that clearance (m).
-
-    Formation layer:
-        goal_dt: time step of the goal courses (s).
-        goal_tolerance: an RRT node joins its goal course within this distance (m).
-
-    Motion primitives (paper 000 Sec. III-B):
-        primitive_angles: heading changes (degrees).
-        primitive_step: arc length (m); ``None``: the env's discrete primitive,
-            ``max_speed * max|angle| / max_turn_rate``.
-        speed_fraction: primitives are driven at this fraction of ``max_speed`` (the rest is
-            the tracker's room to catch up); ``None``: ``0.7``, or more against a fast leader
-            (``leader speed / max_speed + 0.25``, at most ``0.9``).
-        primitive_samples: points per primitive for collision checks.
-        turn_in_place: spins (degrees) added to the paper's forward primitives: without
-            them a robot facing an obstacle closer than its turning radius is stuck.
-
-    RRT:
-        rrt_iterations: expansions per root call (no constraints); rrt_child_iterations: per
-            call under CBS constraints; rrt_strong_iterations: per call with a strong
-            constraint (it has a weaker fallback, see :mod:`swarm_env_agents.cbs_rrt.swarm`);
-        goal_bias; max_wait (s);
-        smoothing: run the smoothing pass.
-
-    CBS:
-        use_cbs: ``False`` plans every robot independently (no conflict resolution; the
-            "without CBS" panel of paper 000 Fig. 3).
-        cbs_nodes: node expansions per search; cbs_low_level_calls: low-level calls per replan;
-        constraint_window: the weak constraint (a disc at the other robot's position) covers
-            this long after the conflict (s).
-        strong_constraints: first ask a child to keep clear of the other robot's whole path
-            (see :mod:`swarm_env_agents.cbs_rrt.swarm`); ``False``: the weak constraint only.
-        reuse_approach: keep a still-valid plan of a robot that is on its way to its slot as
-            its CBS root path (otherwise only robots already in formation keep theirs); a
-            rolling horizon that replans the approach every few seconds can otherwise keep
-            postponing it.
-
-    Formation keeping (experimental, off by default; issue 12 item 1 is still open). On
-    ``paper_cbs_switch`` seeds 0-7, ``formation_keeping=True, jump_window=1.0`` (both: either alone
-    is worse than neither) gives success 7/8 (default 4/8), the grid reached by t = 167 in 7/8
-    (6/8), the hold fraction 0.24 on average (0.20), 0 collisions — far from holding it >= 90 %;
-    and one robot-contact on ``crowd_reactive`` seed 0 (default: none):
-        jump_window, jump_lag: ``jump_window > 0`` counts a fast step of a goal course as a jump
-            only where the course moves farther than ``max_speed * jump_window + jump_lag``
-            within ``jump_window`` or its chord cuts within ``radius + shield_margin`` of an
-            obstacle (:class:`~swarm_env_agents.cbs_rrt.goals.FormationGoals`): a slot sweeping
-            briefly round an obstacle is then tracked, not replanned. ``0``: every step faster
-            than ``0.8 * max_speed`` is a jump.
-        formation_keeping: robots in formation follow their goal course and are fixed in the
-            CBS search (see :meth:`CBSRRTExpert._keepers`); keep_tolerance: how close to its
-            course a robot must be to count as in formation, and how far it may then fall behind
-            before a ``deviation`` replan (m; the others use ``deviation_tolerance``).
-
-    Holding a reached formation (issue 12 item 1):
-        hold_slots: (off by default; where ``hold_plan`` does not apply) once every follower is
-            near its slot (``hold_capture``), a
-            :class:`~swarm_env_agents.cbs_rrt.hold.SlotHolder` (a short-horizon search over the
-            robots' kinematics towards their moving slots, round obstacles by geodesic distance)
-            drives the swarm instead of the plans, until the next formation switch (or a stuck
-            follower, ``hold_capture``), when CBS plans again. On ``paper_cbs_switch`` seeds 0-7
-            (``swarm-env evaluate --policies cbs_rrt:hold_slots=true --scenarios paper_cbs_switch
-            --seeds 0-7``, 2026-12-03, the same episodes on 2026-12-05):
-            success 8/8 (CBS alone, ``hold_plan=false``: 4/8), the grid reached 10-29 s after the
-            switch (CBS alone: 2 seeds late or never), held 0.70-0.79 of the time after it (CBS
-            alone 0.02-0.17; ``hold_plan`` 0.91-0.92), 0 collisions. Why it is off elsewhere: on random worlds 1000-1099 (``swarm-env evaluate
-            --policies cbs_rrt:hold_slots=true cbs_rrt --scenarios random --scenario-seeds
-            random=1000-1099 --seeds 0``, 2026-12-05) the formation error is lower (paired
-            -0.24 +- 0.08 m) but 95/100 episodes are collision-free against 97/100 (paired
-            +0.02 +- 0.06 contacts per episode: not resolved) and 93 succeed against 97; the
-            contacts are robot-human (1016, 1022, 1027, 1049, 1059). The holder costs 40-100 ms
-            of CPU per step with 8 followers (paper_cbs_switch), 5.5 s of policy time per random
-            episode against 0.3 s. Looking ahead a fixed 4 steps (0.4 s at dt = 0.1 s) and
-            holding until the next switch whatever happened, it had 9/100 episodes with a contact
-            and 88 successes there: a follower herded along by a human, or stuck behind an
-            obstacle for the rest of the episode.
-        hold_horizon: how far the holder looks ahead (s): four points, the next step and three
-            more spread over the horizon in whole steps (``paper_cbs_switch``, dt = 0.5 s: the next
-            four steps; the random worlds, dt = 0.1 s: steps 1, 7, 13 and 19).
-        hold_capture: the holder takes over once every follower is within ``settle_tolerance +
-            hold_capture`` of its slot (m), and hands back to CBS when one has been farther than
-            that for 5 s (``stats()["hold_releases"]``): CBS brings the swarm close, the holder settles it
-            (with ``0`` the last few decimetres are left to replans, which settled 2 of the 8
-            seeds late or never).
-        hold_plan: hold a reached formation by planning it (on by default): with a virtual
-            leader, whose slots are known for the rest of the episode, once every follower is
-            near its slot (``hold_capture``) the expert plans where each should be at every step
-            up to the next switch or the leader's stop (joint space-time point paths on a 0.05 m
-            lattice that keep contact-free margins, centres ``r + 0.04`` m from obstacles and ``2 r +
-            0.08`` m apart, and maximise the steps with the whole formation within tolerance:
-            :mod:`~swarm_env_agents.cbs_rrt.hold_plan`) and tracks that plan with a look-ahead
-            search over the robots' exact substep kinematics; the plan's margins replace the shield
-            while it holds. It plans again when a robot is
-            0.5 m off its path or the formation changes (``stats()["hold_plans"]``,
-            ``["hold_plan_s"]``, ``["hold_plan_cpu_s"]``: wall and CPU time); CBS takes over again
-            like with ``hold_slots``. Other leaders, worlds with humans (the plan has no humans in
-            it: on 60 random worlds at dt = 0.5 s it left 26 with a contact, CBS none), and steps too
-            short for the lattice (less than 0.2 m of travel: the random worlds and the paper-003
-            scenarios, dt = 0.1 s) keep CBS (or ``hold_slots``' holder). Without humans, random
-            worlds 0-259 at dt = 0.5 s (``swarm-env evaluate --policies cbs_rrt
-            cbs_rrt:hold_plan=false --scenarios random --scenario-seeds random=0-259 --seeds 0 --env
-            dt=0.5 --env substeps=4 --env n_humans=0``): 0 contacts with it or without (260 worlds),
-            259 against 260 successes (world 80 does not settle), formation error -0.049 +- 0.015 m
-            (paired), 0.48 s of policy time per episode against 0.11 s (medians). On
-            ``paper_cbs_switch`` seeds 0-7 (``swarm-env evaluate --policies cbs_rrt
-            cbs_rrt:hold_plan=false --scenarios paper_cbs_switch --seeds 0-7``, 2026-12-05):
-            success 8/8 (without: 4/8), 0 collisions, the grid reached 14-22 s after the switch
-            and held **0.910-0.918** of the time after it (without: 0.02-0.17 on the 6 seeds that
-            reached it before the leader stopped; issue 12's target 0.9; ``benchmarks/hold_bound.py
-            --settle 14`` gives 0.918 for contact-free plans from S = 14 s), formation error 0.135 m
-            (without: 0.364 m); 1.4-1.5 s of CPU for the plans (two per episode,
-            about 0.7 s each) and 4.0 s of policy time per episode. The plans keep contact-free
-            margins (centres 0.29 m from obstacles, 0.58 m apart), not ``shield_margin``, which
-            would cost 3-5 % of the hold: the smallest gaps were 2-4 cm between robots and 1.2 cm
-            to obstacles (the tracker keeps 1 cm, by the distance field).
-
-    Tracking:
-        lookahead_time: pure pursuit aims at the plan's position this far ahead (s).
-        shield_margin: the tracker's safety check (``0`` disables it): a robot does not drive
-            closer than this to an obstacle, another robot, a human or a robot leader over the
-            next step (m).
-        evade_horizon: a robot that a human, walking on at its current velocity, would come
-            within ``shield_margin`` of within this time (s) even if the robot stood still takes
-            the twist of the ``vo`` expert's search for that step instead of the plan's (its
-            avoidance, :data:`swarm_env_agents.vo_expert.EXPERT_AVOIDANCE`, with the other
-            followers as plain discs: they follow their plans); ``0`` disables it. The shield
-            alone stops such a robot and the human walks into it. Random worlds 0-1199
-            (``swarm-env evaluate --policies cbs_rrt cbs_rrt:evade_horizon=0 --scenarios random
-            --scenario-seeds random=0-1199 --seeds 0``): episodes with a contact 27 -> 1,
-            successes 1,156 -> 1,179 (``stats()["evade_steps"]`` counts the robot-steps).
-
-    Other:
-        field_resolution: distance-field grid step (m).
-        record: keep a :class:`ReplanRecord` of every replan in ``history`` (figures).
+    Options: every field of :class:`~swarm_env_agents.cbs_rrt.config.CBSRRTConfig` (documented there), as a keyword
+    (``CBSRRTExpert(hold_plan=False)``), a whole ``config``, or both (the keywords replace the config's fields);
+    ``cbs_rrt:KEY=VALUE`` on the command line. Each is also an attribute (``expert.horizon``); ``expert.config``
+    holds them all.
     """
 
-    def __init__(
-        self,
-        *,
-        horizon: float = 30.0,
-        check_margin: float = 1.5,
-        conflict_window: float = 8.0,
-        deviation_tolerance: float = 0.2,
-        goal_move_tolerance: float = 0.5,
-        min_replan_interval: float = 1.0,
-        robot_margin: float = 0.2,
-        obstacle_margin: float = 0.1,
-        goal_dt: float = 0.25,
-        goal_tolerance: float = 0.3,
-        primitive_angles: Sequence[float] = PAPER_ANGLES_DEG,
-        primitive_step: float | None = None,
-        speed_fraction: float | None = None,
-        primitive_samples: int = 6,
-        turn_in_place: Sequence[float] = (45.0, -45.0, 90.0, -90.0),
-        rrt_iterations: int = 300,
-        rrt_child_iterations: int = 120,
-        rrt_strong_iterations: int = 40,
-        goal_bias: float = 0.3,
-        max_wait: float = 8.0,
-        smoothing: bool = True,
-        use_cbs: bool = True,
-        cbs_nodes: int = 24,
-        cbs_low_level_calls: int = 64,
-        cbs_suboptimality: float = 1.0,
-        constraint_window: float = 2.0,
-        strong_constraints: bool = True,
-        reuse_approach: bool = True,
-        lookahead_time: float = 1.0,
-        jump_window: float = 0.0,
-        jump_lag: float = 0.6,
-        formation_keeping: bool = False,
-        keep_tolerance: float = 0.3,
-        hold_slots: bool = False,
-        hold_horizon: float = 2.0,
-        hold_capture: float = 1.5,
-        hold_plan: bool = True,
-        shield_margin: float = 0.05,
-        evade_horizon: float = 3.0,
-        field_resolution: float = 0.05,
-        record: bool = False,
-    ) -> None:
-        positive = dict(
-            horizon=horizon, check_margin=check_margin, conflict_window=conflict_window,
-            deviation_tolerance=deviation_tolerance,
-            goal_move_tolerance=goal_move_tolerance, goal_dt=goal_dt, goal_tolerance=goal_tolerance,
-            lookahead_time=lookahead_time, field_resolution=field_resolution, keep_tolerance=keep_tolerance,
-            constraint_window=constraint_window,
-        )
-        for name, value in positive.items():
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name, value in dict(robot_margin=robot_margin, obstacle_margin=obstacle_margin, shield_margin=shield_margin,
-                                evade_horizon=evade_horizon, min_replan_interval=min_replan_interval, max_wait=max_wait,
-                                jump_window=jump_window, jump_lag=jump_lag, hold_capture=hold_capture).items():
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        if check_margin >= horizon:
-            raise ValueError("check_margin must be smaller than horizon")
-        if speed_fraction is not None and not (isinstance(speed_fraction, (int, float)) and 0 < speed_fraction <= 1):
-            raise ValueError(f"speed_fraction must be None or in (0, 1], got {speed_fraction!r}")
-        if not 0 <= goal_bias <= 1:
-            raise ValueError(f"goal_bias must be in [0, 1], got {goal_bias!r}")
-        for name, value in dict(rrt_iterations=rrt_iterations, rrt_child_iterations=rrt_child_iterations,
-                                rrt_strong_iterations=rrt_strong_iterations, cbs_nodes=cbs_nodes,
-                                cbs_low_level_calls=cbs_low_level_calls, primitive_samples=primitive_samples).items():
-            if not isinstance(value, int) or value < (1 if name == "primitive_samples" else 0):
-                raise ValueError(f"{name} must be a non-negative int, got {value!r}")
-        self.horizon = float(horizon)
-        self.check_margin = float(check_margin)
-        self.conflict_window = float(conflict_window)
-        self.deviation_tolerance = float(deviation_tolerance)
-        self.goal_move_tolerance = float(goal_move_tolerance)
-        self.min_replan_interval = float(min_replan_interval)
-        self.robot_margin = float(robot_margin)
-        self.obstacle_margin = float(obstacle_margin)
-        self.goal_dt = float(goal_dt)
-        self.goal_tolerance = float(goal_tolerance)
-        self.primitive_angles = tuple(float(a) for a in primitive_angles)
-        self.primitive_step = primitive_step
-        self.speed_fraction = None if speed_fraction is None else float(speed_fraction)
-        self.primitive_samples = int(primitive_samples)
-        self.turn_in_place = tuple(float(a) for a in turn_in_place)
-        self.rrt_iterations = int(rrt_iterations)
-        self.rrt_child_iterations = int(rrt_child_iterations)
-        self.rrt_strong_iterations = int(rrt_strong_iterations)
-        self.goal_bias = float(goal_bias)
-        self.max_wait = float(max_wait)
-        self.smoothing = bool(smoothing)
-        self.use_cbs = bool(use_cbs)
-        self.cbs_nodes = int(cbs_nodes)
-        self.cbs_low_level_calls = int(cbs_low_level_calls)
-        if not (isinstance(cbs_suboptimality, (int, float)) and cbs_suboptimality >= 1.0):
-            raise ValueError(f"cbs_suboptimality must be >= 1, got {cbs_suboptimality!r}")
-        self.cbs_suboptimality = float(cbs_suboptimality)
-        self.constraint_window = float(constraint_window)
-        self.strong_constraints = bool(strong_constraints)
-        self.reuse_approach = bool(reuse_approach)
-        self.lookahead_time = float(lookahead_time)
-        self.jump_window = float(jump_window)
-        self.jump_lag = float(jump_lag)
-        self.formation_keeping = bool(formation_keeping)
-        if not (isinstance(hold_horizon, (int, float)) and math.isfinite(hold_horizon) and hold_horizon > 0):
-            raise ValueError(f"hold_horizon must be a finite number > 0 (s), got {hold_horizon!r}")
-        self.hold_plan = bool(hold_plan)
-        self.hold_slots = bool(hold_slots)
-        self.hold_horizon = float(hold_horizon)
-        self.hold_capture = float(hold_capture)
-        self.keep_tolerance = float(keep_tolerance)
-        self.shield_margin = float(shield_margin)
-        self.evade_horizon = float(evade_horizon)
+    def __init__(self, config: CBSRRTConfig | None = None, **options: Any) -> None:
+        cfg = CBSRRTConfig(**options) if config is None else dataclasses.replace(config, **options)
+        self.config = cfg
+        for f in dataclasses.fields(cfg):
+            setattr(self, f.name, getattr(cfg, f.name))
         # The vo expert's avoidance for a robot stepping aside; the other followers drive their plans and do not
         # take half of it (not reciprocal).
         self._evade_params = AvoidanceParams(**{**EXPERT_AVOIDANCE, "reciprocal": False})
-        self.field_resolution = float(field_resolution)
-        self.record = bool(record)
         self._scenario: Any = None
         self._rng = np.random.default_rng(0)
         self._reset_episode()
+
+    @classmethod
+    def policy_parameters(cls) -> dict[str, Any]:
+        """Every option ``cbs_rrt:KEY=VALUE`` accepts, with its default (:class:`CBSRRTConfig`)."""
+        return {f.name: f.default for f in dataclasses.fields(CBSRRTConfig)}
 
     # ------------------------------------------------------------------ setup
     def _reset_episode(self) -> None:
