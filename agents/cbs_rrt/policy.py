@@ -413,48 +413,9 @@ class CBSRRTExpert:
         reused = self._reusable(state, specs, t1, reasons)
         keep = self._keepers(state, gw, t1, reasons)
         if self.use_cbs:
-            cbs = CBS(
-                low, model, max_nodes=self.cbs_nodes, max_low_level_calls=self.cbs_low_level_calls,
-                suboptimality=self.cbs_suboptimality,
-            )
-            while True:
-                initial = list(reused) if reused is not None else [None] * n
-                for i, path in keep.items():
-                    initial[i] = path
-                result = cbs.solve(n, initial, fixed=sorted(keep))
-                if not keep:
-                    break
-                # A robot in formation that still conflicts with another robot's final plan (one
-                # CBS could not route round it and left standing) is planned with the rest after all.
-                clash = {a for c in model.all_conflicts(result.paths) for a in c.agents if a in keep}
-                if clash:
-                    keep = {i: p for i, p in keep.items() if i not in clash}
-                else:
-                    failed = set(result.stationary) | set(result.dropped) | {
-                        i for i, p in enumerate(result.paths) if not p.reached and i not in keep}
-                    if not failed:
-                        break
-                    # Some robot found no way round the fixed ones (it would stand and wait for
-                    # them, maybe for ever): release the robots in formation that its own plan
-                    # (planned as if alone) runs into — all of them if it has none.
-                    roots = result.root_paths
-                    hit = {a for c in model.all_conflicts(roots) for a in c.agents
-                           if a in keep and (set(c.agents) & failed)}
-                    if not hit:
-                        break
-                    keep = {i: p for i, p in keep.items() if i not in hit}
+            result, keep = self._solve_cbs(low, model, reused, keep, n)
         else:
-            paths = []
-            stationary = []
-            for i in range(n):
-                p = keep.get(i) or low.plan(i, ())
-                if p is None:
-                    p = low.stationary(i)
-                    stationary.append(i)
-                paths.append(p)
-            remaining = len(model.all_conflicts(paths))
-            result = CBSResult(paths, remaining == 0, sum(low.cost(i, p) for i, p in enumerate(paths)), list(paths),
-                               low_level_calls=n, stationary=tuple(stationary), remaining_conflicts=remaining)
+            result = self._solve_alone(low, model, keep, n)
         self._keeping = frozenset(keep)
         self.plans = list(result.paths)
         self._plan_formation = state.formation_index
@@ -481,7 +442,64 @@ class CBSRRTExpert:
         self._retry_delay = self.min_replan_interval * 2.0 ** min(max(self._retry_streak - 1, 0), 3)
         wall = time.perf_counter() - wall0
         self._cpu_times.append(time.process_time() - cpu0)
-        # Telemetry.
+        self._count(reasons, result, low, wall)
+        record = ReplanRecord(t0, tuple(reasons), t1, poses, gw, result, wall, low.iterations)
+        self.last = record
+        if self.record:
+            self.history.append(record)
+
+    def _solve_cbs(self, low: RRTLowLevel, model: TimedConflicts, reused: list[TimedPath] | None,
+                   keep: dict[int, TimedPath], n: int) -> tuple[CBSResult, dict[int, TimedPath]]:
+        """CBS over the ``n`` robots with the robots in formation (``keep``) fixed on their paths, releasing those
+        that another robot cannot get round; returns the result and the robots still kept."""
+        cbs = CBS(
+            low, model, max_nodes=self.cbs_nodes, max_low_level_calls=self.cbs_low_level_calls,
+            suboptimality=self.cbs_suboptimality,
+        )
+        while True:
+            initial = list(reused) if reused is not None else [None] * n
+            for i, path in keep.items():
+                initial[i] = path
+            result = cbs.solve(n, initial, fixed=sorted(keep))
+            if not keep:
+                break
+            # A robot in formation that still conflicts with another robot's final plan (one
+            # CBS could not route round it and left standing) is planned with the rest after all.
+            clash = {a for c in model.all_conflicts(result.paths) for a in c.agents if a in keep}
+            if clash:
+                keep = {i: p for i, p in keep.items() if i not in clash}
+            else:
+                failed = set(result.stationary) | set(result.dropped) | {
+                    i for i, p in enumerate(result.paths) if not p.reached and i not in keep}
+                if not failed:
+                    break
+                # Some robot found no way round the fixed ones (it would stand and wait for
+                # them, maybe for ever): release the robots in formation that its own plan
+                # (planned as if alone) runs into — all of them if it has none.
+                roots = result.root_paths
+                hit = {a for c in model.all_conflicts(roots) for a in c.agents
+                       if a in keep and (set(c.agents) & failed)}
+                if not hit:
+                    break
+                keep = {i: p for i, p in keep.items() if i not in hit}
+        return result, keep
+
+    def _solve_alone(self, low: RRTLowLevel, model: TimedConflicts, keep: dict[int, TimedPath], n: int) -> CBSResult:
+        """Every robot planned as if alone (``use_cbs=False``), the robots in formation on their paths."""
+        paths = []
+        stationary = []
+        for i in range(n):
+            p = keep.get(i) or low.plan(i, ())
+            if p is None:
+                p = low.stationary(i)
+                stationary.append(i)
+            paths.append(p)
+        remaining = len(model.all_conflicts(paths))
+        return CBSResult(paths, remaining == 0, sum(low.cost(i, p) for i, p in enumerate(paths)), list(paths),
+                         low_level_calls=n, stationary=tuple(stationary), remaining_conflicts=remaining)
+
+    def _count(self, reasons: list[str], result: CBSResult, low: RRTLowLevel, wall: float) -> None:
+        """The replan's telemetry (:meth:`stats`)."""
         self._times.append(wall)
         for r in reasons:
             self._reasons[r] += 1
@@ -496,10 +514,6 @@ class CBSRRTExpert:
         self._stationary += len(result.stationary)
         self._dropped += len(result.dropped)
         self._unsolved += int(not result.solved)
-        record = ReplanRecord(t0, tuple(reasons), t1, poses, gw, result, wall, low.iterations)
-        self.last = record
-        if self.record:
-            self.history.append(record)
 
     def _movers(self, state: WorldState, gw: GoalWindow) -> list[Constraint]:
         """Moving discs every robot keeps clear of over the whole planning window: the humans

@@ -188,4 +188,36 @@ def clip_cast(res, out, low, high):  # pragma: no cover - compiled
             res[i, j] = np.float32(x)
 
 
-__all__ = ["EntityRows", "ObsWorld", "assemble", "clip_cast", "fill_rows"]
+
+@_jit
+def observations_batch(rows, heads, speed_scale, switch, hcount, entities, low, high, res):  # pragma: no cover
+    """``res[m]`` = world ``m``'s :meth:`ObservationBuilder.build_without_lidar
+    <swarm_env.sensing.observations.ObservationBuilder.build_without_lidar>` (float32 ``(M, N, size)``):
+    :func:`fill_rows` then :func:`clip_cast` per world,
+    with the inputs of ``ObservationBuilder._assemble_compiled`` stacked on a leading world axis: the worlds'
+    arrays ``rows`` (:class:`swarm_env.vector.batch_step.WorldRows`), ``heads = (cos_th, sin_th, cos_rel,
+    sin_rel)`` the headings' numpy cosines/sines ``(M, N)``, ``speed_scale`` ``(M, 2)``, ``switch`` ``(M,)``,
+    ``hcount`` ``(M,)``. ``entities`` (:class:`EntityRows`): ``k`` neighbour rows
+    for every world, ``hk`` human rows in a world with humans (``hcount[m] > 0``)."""
+    pose, vel, twist, slots, leader_pose, leader_vel, hpos, hvel = (
+        rows.pose, rows.vel, rows.twist, rows.slots, rows.lpose, rows.lvel, rows.hpos, rows.hvel)
+    cos_th, sin_th, cos_rel, sin_rel = heads
+    k, nb_start, hk, hu_start = entities
+    n_worlds = pose.shape[0]
+    n = pose.shape[1]
+    size = res.shape[2]
+    no_fdist = np.zeros((0, 0))
+    out = np.empty((n, size))
+    for m in range(n_worlds):
+        for i in range(n):
+            for j in range(size):
+                out[i, j] = 0.0
+        hc = hcount[m]
+        hkm = hk if hc else 0
+        world = ObsWorld(pose[m], vel[m], twist[m], slots[m], leader_pose[m], leader_vel[m], hpos[m, :hc], hvel[m, :hc],
+                         speed_scale[m], switch[m], cos_th[m], sin_th[m], cos_rel[m], sin_rel[m])
+        fill_rows(out, world, no_fdist, EntityRows(k, nb_start, hkm, hu_start))
+        clip_cast(res[m], out, low, high)
+
+
+__all__ = ["EntityRows", "ObsWorld", "assemble", "clip_cast", "fill_rows", "observations_batch"]

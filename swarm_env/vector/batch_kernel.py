@@ -5,14 +5,14 @@ at a time, the rewards, the metrics and the observations cost a kernel call each
 around it (``python benchmarks/engine_breakdown.py --worlds 1024``: ~95 us a world-step, a third of
 the step). These kernels walk the worlds inside one call and run, per world, **the per-world
 kernels themselves** (:func:`swarm_env.scoring.step_kernel.reward_into`,
-:func:`swarm_env.geometry.clearance_kernel.clearance`, :func:`swarm_env.scoring.step_kernel.metrics_step`,
-:func:`swarm_env.sensing.obs_kernel.fill_rows` / :func:`~swarm_env.sensing.obs_kernel.clip_cast`) on views of
-stacked ``(M, N, ...)`` arrays, so each world gets exactly a ``SwarmEnv``'s bits (tested against
+:func:`swarm_env.geometry.clearance_kernel.clearance`, :func:`swarm_env.scoring.step_kernel.metrics_step`) on views
+of stacked ``(M, N, ...)`` arrays (the observations' batch kernel is the sensing room's:
+:func:`swarm_env.sensing.obs_kernel.observations_batch`), so each world gets exactly a ``SwarmEnv``'s bits (tested against
 the per-world references in ``tests/test_batch_kernel.py`` and on whole episodes in
 ``tests/test_vector.py``).
 
 Inputs that vary in size between worlds are padded with counts: humans ``(M, Hmax, ...)`` with
-``hcount`` ``(M,)``, a robot leader ``(M, 1, 3)`` with ``n_leader`` ``(M,)`` 0 or 1, and each
+``hcount`` ``(M,)``, a robot leader ``(M, 1, 3)`` read where ``lrobot``, and each
 world's static map in ``maps``, a :class:`~swarm_env.geometry.map_arrays.MapBatch` (from
 :class:`swarm_env.vector.batch_step.PaddedMaps`).
 """
@@ -25,7 +25,6 @@ from swarm_env.geometry.clearance_kernel import clearance, world_map
 from swarm_env.kernel_cache import njit
 from swarm_env.scoring.step_kernel import N_TERMS, Accumulators, Bodies, metrics_step, reward_into
 from swarm_env.scoring.weights import W_CLEARANCE, W_CLEARANCE_MARGIN
-from swarm_env.sensing.obs_kernel import EntityRows, ObsWorld, clip_cast, fill_rows
 
 _jit = njit(nogil=True, error_model="numpy")
 
@@ -144,35 +143,4 @@ def metrics_batch(err, tol, acc, bodies, rows, wall, screening, maps, out):  # p
         within_out[m] = within
 
 
-@_jit
-def observations_batch(rows, heads, speed_scale, switch, hcount, entities, low, high, res):  # pragma: no cover
-    """``res[m]`` = world ``m``'s :meth:`ObservationBuilder.build_without_lidar
-    <swarm_env.sensing.observations.ObservationBuilder.build_without_lidar>` (float32 ``(M, N, size)``):
-    :func:`swarm_env.sensing.obs_kernel.fill_rows` then :func:`~swarm_env.sensing.obs_kernel.clip_cast` per world,
-    with the inputs of ``ObservationBuilder._assemble_compiled`` stacked on a leading world axis: the worlds'
-    arrays ``rows`` (:class:`swarm_env.vector.batch_step.WorldRows`), ``heads = (cos_th, sin_th, cos_rel,
-    sin_rel)`` the headings' numpy cosines/sines ``(M, N)``, ``speed_scale`` ``(M, 2)``, ``switch`` ``(M,)``,
-    ``hcount`` ``(M,)``. ``entities`` (:class:`~swarm_env.sensing.obs_kernel.EntityRows`): ``k`` neighbour rows
-    for every world, ``hk`` human rows in a world with humans (``hcount[m] > 0``)."""
-    pose, vel, twist, slots, leader_pose, leader_vel, hpos, hvel = (
-        rows.pose, rows.vel, rows.twist, rows.slots, rows.lpose, rows.lvel, rows.hpos, rows.hvel)
-    cos_th, sin_th, cos_rel, sin_rel = heads
-    k, nb_start, hk, hu_start = entities
-    n_worlds = pose.shape[0]
-    n = pose.shape[1]
-    size = res.shape[2]
-    no_fdist = np.zeros((0, 0))
-    out = np.empty((n, size))
-    for m in range(n_worlds):
-        for i in range(n):
-            for j in range(size):
-                out[i, j] = 0.0
-        hc = hcount[m]
-        hkm = hk if hc else 0
-        world = ObsWorld(pose[m], vel[m], twist[m], slots[m], leader_pose[m], leader_vel[m], hpos[m, :hc], hvel[m, :hc],
-                         speed_scale[m], switch[m], cos_th[m], sin_th[m], cos_rel[m], sin_rel[m])
-        fill_rows(out, world, no_fdist, EntityRows(k, nb_start, hkm, hu_start))
-        clip_cast(res[m], out, low, high)
-
-
-__all__ = ["metrics_batch", "observations_batch", "rewards_batch"]
+__all__ = ["metrics_batch", "rewards_batch"]

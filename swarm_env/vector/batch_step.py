@@ -8,7 +8,7 @@ travelled, last positions, the running minima and the carried static clearance b
 step count of the formation being held), and each episode's constants (team radii, humans' radii,
 reward weights, settle tolerance, limits, the static map as :class:`PaddedMaps`). :meth:`step`
 then runs, for all worlds at once, :func:`swarm_env.vector.batch_kernel.rewards_batch`,
-:func:`~swarm_env.vector.batch_kernel.observations_batch` and
+:func:`~swarm_env.sensing.obs_kernel.observations_batch` and
 :func:`~swarm_env.vector.batch_kernel.metrics_batch`, and the episode end, with Python only where
 something happens in a world (contacts, a formation switch or settling, the leader arriving, the
 episode's end): the same bits as each world's ``SwarmEnv._advance`` + ``_account`` + observations.
@@ -596,7 +596,7 @@ class BatchState:
 
     def observations(self, envs: Sequence[SwarmEnv], states: Sequence[WorldState], a: StepArrays) -> np.ndarray:
         """``(M, N, D)`` float32: each world's ``build_without_lidar`` of its snapshot."""
-        from swarm_env.vector.batch_kernel import observations_batch
+        from swarm_env.sensing.obs_kernel import observations_batch
 
         return self._observations(envs, states, a, observations_batch)
 
