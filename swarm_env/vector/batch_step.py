@@ -167,23 +167,12 @@ class MetricRows(NamedTuple):
 
 
 class StepArrays:
-    """The per-step arrays of ``M`` snapshots (what the stages read), stacked on a world axis, and the
-    worlds whose snapshot has pairs in touch (``touching``) or contact onsets (``contacts``)."""
+    """The per-step arrays of ``M`` snapshots (what the stages read), stacked on a world axis: those of
+    :class:`WorldRows` (:meth:`rows`), each world's ``step`` and ``leader_done``, and the worlds whose snapshot has
+    pairs in touch (``touching``) or contact onsets (``contacts``)."""
 
-    pose: np.ndarray
-    vel: np.ndarray
-    twist: np.ndarray
-    slots: np.ndarray
-    lpose: np.ndarray
-    lvel: np.ndarray
-    ltwist: np.ndarray
-    time: np.ndarray
     step: np.ndarray
     leader_done: np.ndarray
-    k: np.ndarray
-    next_switch: np.ndarray
-    hpos: np.ndarray
-    hvel: np.ndarray
     touching: list[int]
     contacts: list[int]
 
@@ -222,8 +211,7 @@ class StepArrays:
 
     def rows(self) -> WorldRows:
         """The arrays as one bundle for the kernels."""
-        return WorldRows(self.pose, self.vel, self.twist, self.slots, self.lpose, self.lvel, self.ltwist, self.time,
-                         self.k, self.next_switch, self.hpos, self.hvel)
+        return WorldRows(*(getattr(self, name) for name in WorldRows._fields))
 
     @classmethod
     def of_blocks(cls, blocks: dict[str, Any], hmax: int, hcount: np.ndarray) -> StepArrays:
