@@ -9,7 +9,9 @@ import pytest
 
 from swarm_env.control.pursuit import lookahead_target, pure_pursuit, wrap_angle
 from swarm_env.control.vo import (
+    VODiscs,
     VOParams,
+    VORobots,
     disc_time_to_collision,
     sample_twists,
     static_time_to_collision,
@@ -528,8 +530,8 @@ def test_vo_select_batch_escape_commit_keeps_the_turn_in_place(static_map):
     pref = np.array([[0.65, 0.0]])
 
     def turn(current, commit):
-        res = vo_select_batch(pose, 0.25, pref, EMPTY_D, EMPTY_V, static_map, 0.65, 1.0,
-                              VOParams(escape_commit=commit), current=np.array([current], dtype=float))
+        res = vo_select_batch(VORobots(pose, 0.25, pref, 0.65, 1.0, current=np.array([current], dtype=float)),
+                              VODiscs(EMPTY_D, EMPTY_V), static_map, VOParams(escape_commit=commit))
         assert res.escaped[0] and res.twist[0, 0] == 0.0
         return res.twist[0, 1]
 
@@ -618,8 +620,8 @@ def test_vo_select_batch_disc_horizon_looks_further_for_one_disc():
     params = VOParams(horizon=2.5)
 
     def select(discs, vel, disc_horizon=None):
-        return vo_select_batch(pose, 0.25, np.zeros((1, 2)), discs, vel, None, 0.65, 1.0, params,
-                               disc_horizon=disc_horizon)
+        return vo_select_batch(VORobots(pose, 0.25, np.zeros((1, 2)), 0.65, 1.0),
+                               VODiscs(discs, vel, horizon=disc_horizon), None, params)
 
     plain = select(human, human_vel)
     assert plain.preferred_safe[0] and np.array_equal(plain.twist[0], [0.0, 0.0])

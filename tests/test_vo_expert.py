@@ -17,7 +17,15 @@ import numpy as np
 import pytest
 
 from swarm_env.control.pursuit import pure_pursuit
-from swarm_env.control.vo import twist_trajectories, vo_discs_inside, vo_polygons_inside, vo_select, vo_select_batch
+from swarm_env.control.vo import (
+    VODiscs,
+    VORobots,
+    twist_trajectories,
+    vo_discs_inside,
+    vo_polygons_inside,
+    vo_select,
+    vo_select_batch,
+)
 from swarm_env.env import SwarmEnv
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.harness.episode import run_episode
@@ -113,8 +121,8 @@ def test_batch_matches_single_robot_calls(gap_map, fast, grid):
     for _ in range(12):
         n = int(rng.integers(2, 9))
         poses, discs, vel, pref, mask, recip = _random_world(rng, n, int(rng.integers(0, 4)))
-        batch = vo_select_batch(poses, 0.25, pref, discs, vel, gap_map, 0.65, 1.0, disc_mask=mask,
-                                reciprocal=recip, velocity=vel[:n], **kw)
+        batch = vo_select_batch(VORobots(poses, 0.25, pref, 0.65, 1.0, velocity=vel[:n]),
+                                VODiscs(discs, vel, mask, recip), gap_map, **kw)
         for i in range(n):
             single = vo_select(poses[i], 0.25, pref[i], discs[mask[i]], vel[mask[i]], gap_map, 0.65, 1.0,
                                reciprocal=recip[mask[i]], velocity=vel[i], **kw)

@@ -23,7 +23,7 @@ import pytest
 from swarm_env.compiled import compiled_kernels, compiled_mode, compiled_search
 from swarm_env.control import vo, vo_kernel
 from swarm_env.control.safety import AvoidanceParams, safe_follower_twists, shield_actions
-from swarm_env.control.vo import VOBatchResult, VOParams, vo_select, vo_select_batch
+from swarm_env.control.vo import VOBatchResult, VODiscs, VOParams, VORobots, vo_select, vo_select_batch
 from swarm_env.env import SwarmEnv
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
@@ -307,7 +307,10 @@ def test_synthetic_calls_give_the_same_bits(clutter: StaticMap) -> None:
         static = None if rng.random() < 0.2 else clutter
 
         def call():
-            return vo_select_batch(poses, 0.25, preferred, discs, vel, static, 0.65, 1.0, params, **kwargs)
+            robots = VORobots(poses, 0.25, preferred, 0.65, 1.0, velocity=kwargs["velocity"], current=kwargs["current"],
+                              goal_heading=kwargs["goal_heading"])
+            disc_set = VODiscs(discs, vel, kwargs["disc_mask"], kwargs["reciprocal"], kwargs["disc_horizon"])
+            return vo_select_batch(robots, disc_set, static, params)
 
         ref, fast = _both(call)
         _assert_same(ref, fast, f"trial {trial}")

@@ -19,7 +19,7 @@ import numpy as np
 
 from swarm_env.compiled import compiled_search
 from swarm_env.control import vo
-from swarm_env.control.vo import VOBatchResult, VOParams, vo_select_batch
+from swarm_env.control.vo import VOBatchResult, VODiscs, VOParams, VORobots, vo_select_batch
 from swarm_env.state import WorldState
 
 __all__ = ["AvoidanceParams", "ShieldResult", "safe_follower_twists", "shield_actions"]
@@ -34,7 +34,7 @@ class AvoidanceParams(VOParams):
     :func:`swarm_env.control.vo.vo_select` for each field) plus what is about their world:
     ``human_margin`` (m) added to the humans' radii on top of ``margin``, ``human_horizon`` (s: the
     horizon for the humans, who do not give way, in place of ``horizon``; ``0``, the default, keeps
-    ``horizon``; see :func:`swarm_env.control.vo.vo_select_batch`'s ``disc_horizon``), and ``reciprocal``
+    ``horizon``; see :class:`swarm_env.control.vo.VODiscs`' ``horizon``), and ``reciprocal``
     (followers avoid each other reciprocally; the robot leader and the humans are always avoided
     fully). Defaults differ from the search's in two places: no keep-right bias
     (``side_bias = 0``), and ``allow_still_overlap`` on (two followers that stopped inside each
@@ -57,7 +57,7 @@ class AvoidanceParams(VOParams):
 
     def disc_horizons(self, n_robots: int, n_humans: int) -> np.ndarray | None:
         """The horizon of each moving disc, ``n_robots`` robots then ``n_humans`` humans
-        (``vo_select_batch``'s ``disc_horizon``); ``None`` when all share ``horizon``."""
+        (:class:`~swarm_env.control.vo.VODiscs`' ``horizon``); ``None`` when all share ``horizon``."""
         if not (self.human_horizon and n_humans) or self.human_horizon == self.horizon:
             return None
         h = np.full(n_robots + n_humans, float(self.horizon))
@@ -107,22 +107,16 @@ def safe_follower_twists(state: WorldState, preferred: np.ndarray, params: Avoid
     recip = np.zeros(n_d, dtype=bool)
     recip[:n] = params.reciprocal  # the robot leader and the humans are avoided fully
     disc_horizon = params.disc_horizons(n + int(has_leader), n_h)
-    return vo_select_batch(
+    followers = VORobots(
         pose,
         state.follower_radius,
         np.asarray(preferred, dtype=np.float64),
-        discs,
-        vel,
-        state.static,
         float(robots.max_speed),
         float(robots.max_turn_rate),
-        params,
-        disc_mask=mask,
-        reciprocal=recip,
         velocity=state.follower_vel,
         current=state.follower_twist,
-        disc_horizon=disc_horizon,
     )
+    return vo_select_batch(followers, VODiscs(discs, vel, mask, recip, disc_horizon), state.static, params)
 
 
 def _follower_twists_compiled(state: WorldState, preferred: np.ndarray, params: AvoidanceParams) -> VOBatchResult:

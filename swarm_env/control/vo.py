@@ -56,7 +56,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, fields, replace
 from functools import lru_cache
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -78,6 +78,8 @@ __all__ = [
     "vo_select",
     "VOBatchResult",
     "vo_select_batch",
+    "VORobots",
+    "VODiscs",
 ]
 
 # vo_select_batch tests this many least-penalty candidates first (see there).
@@ -715,18 +717,72 @@ class VOParams:
     """The velocity-obstacle search's parameters, one object shared by :func:`vo_select`,
     :func:`vo_select_batch`, the env's robot leader (the defaults), the ``vo`` expert and the
     safety layer (:class:`swarm_env.control.safety.AvoidanceParams`, which adds what is about the
-    followers' world). Units m, s, rad. See :func:`vo_select` for what each does:
+    followers' world). Units m, s, rad. The fields:
 
-    ``horizon`` / ``horizon_static`` (``None``: ``horizon``), ``margin``, the candidate grid
-    ``n_v`` x ``n_w`` from ``v_min``, ``tau``, ``model`` (``"arc"`` or ``"chord"``) with
-    ``n_arc`` chords, the penalty weights ``w_pref``, ``w_heading``, ``side_bias`` and
-    ``w_current`` (commitment to the twist being driven, when a ``current`` twist is given),
-    ``cost`` (``"twist"`` or ``"velocity"``: how the distance to the preferred twist is measured),
-    ``recip_gap`` (m: how near a reciprocal robot is avoided plainly), ``move_first`` (a blocked
-    robot takes a safe candidate that moves before turning in place), ``static_reach`` (static obstacles
-    are judged by the path length a candidate covers, not by time), ``w_speed`` (weight of a change of
-    speed against one of turn rate in the penalty), ``escape_commit`` (s: a robot turning in place to escape
-    keeps its direction), ``escape``, ``allow_still_overlap`` (:func:`vo_select_batch`) and ``fast``.
+    * ``horizon``: VO truncation time (s) for moving discs. ``horizon_static``: the
+      same for static obstacles and walls (``None``: ``horizon``; RVO2 keeps a
+      separate, usually shorter, obstacle horizon; here a shorter one gave more
+      contacts in random crowds, so the default is equal).
+      ``margin``: added to every combined radius.
+    * ``n_v`` x ``n_w``: the candidate grid, :func:`sample_twists` ``(v_max, omega_max, n_v, n_w, v_min)``
+      (``v_min < 0`` adds reverse speeds), plus the preferred twist.
+    * ``tau``: how long a candidate twist is assumed held (s). ``model="arc"``: the
+      candidate is tested on its predicted trajectory — the arc for ``tau``
+      (``n_arc`` chords), then straight on at ``v`` (:func:`twist_trajectories`).
+      ``model="chord"``: on the straight line of its mean velocity over ``tau``
+      (:func:`twist_velocities`), the textbook reduction; see the module
+      docstring for why ``arc`` and ``tau = 1`` are the defaults.
+    * ``w_pref``, ``w_heading``: penalty weights (:func:`vo_select`'s penalty). ``w_current``: commitment to
+      the twist being driven, the weight of its distance from a candidate (needs a ``current`` twist). ``side_bias``: extra penalty
+      per unit of normalised turn to the left of the preferred twist — a
+      keep-right convention, so two robots meeting mirror-symmetrically do
+      not pick mirror-image (colliding) detours.
+    * ``escape``: turn towards open space instead of standing still (:func:`vo_select`'s selection rule).
+    * ``allow_still_overlap``: see :func:`vo_select_batch`.
+    * ``recip_gap`` (m, default 0): a reciprocal disc nearer than the combined radius
+      (margin included) plus ``recip_gap`` is avoided plainly (see ``reciprocal``). Reciprocity
+      assumes the other robot keeps its current velocity and takes half the avoidance; two
+      robots that change course together at close range can both count on the other's half
+      (two followers both switching from an escape turn to full speed towards each other).
+    * ``move_first`` (default ``False``): when the least-penalty safe candidate stands still
+      although the preferred twist moves (blocked), the least-penalty safe candidate that
+      *moves* is taken instead, if there is one (every candidate of that robot is then
+      tested); only if none is safe does the escape rule below turn it in place. Any
+      standing twist is cheaper than a detour under both costs (it is nearer the preferred
+      twist than driving off at an angle), so without this rule a blocked robot turns in
+      place, the pursuit turns it back, and it stands for seconds while its slot moves on. ORCA (its linear
+      program finds the nearest safe velocity, usually a slide along the obstacle) never
+      stands while it can move.
+    * ``static_reach`` (default 0: off; else a number ``s >= 1``): static obstacles (circles, polygons,
+      walls) are judged by path length rather than time. A candidate of speed ``|v| > 0`` hits one if it
+      reaches it within ``min(max(h_s, v_p h_s / |v|), s h_s)`` s, ``h_s`` the static horizon and ``v_p``
+      the (clipped) preferred speed: within the distance the preferred twist covers in ``h_s``, or
+      ``h_s`` if the candidate is faster (never less than without the rule), but not later than
+      ``s h_s``. Opt-in, off for the ``vo`` expert: the preferred path runs on past the robot's goal,
+      so a follower whose final slot lies just short of an obstacle or wall may find no path there
+      (docs/vo_defaults.md, "``static_reach``"). Without it a slow-down "avoids" a static
+      obstacle by pushing the contact past the horizon, so a follower whose slot track crosses a
+      static disc crawls towards it and lags; with it only a path round the obstacle is safe (ORCA,
+      whose static horizon is short, bends round at speed). Standing candidates, moving discs and the
+      escape probes are unchanged. The trajectories run on straight after the horizon until ``s h_s``
+      (if that is later). Needs ``model="arc"``.
+    * ``w_speed`` (default 1): weight of a change of speed against a change of turn rate in the
+      penalty (both normalised by their limits). With ``w_speed > 1`` a robot whose preferred twist is
+      unsafe bends round at speed rather than slowing down: a slow-down "avoids" an obstacle ahead by
+      pushing the contact past the horizon, so with equal weights a follower whose slot skirts a static
+      disc crawls towards it and falls behind (ORCA, which takes the nearest safe *velocity*, keeps its
+      speed and slides round). The ``vo`` expert uses 3.
+    * ``escape_commit`` (s, default 0: off; needs ``current``): a robot that is already turning in place
+      (speed under 10 % of ``v_max``, turn rate over 10 % of ``omega_max``) and escapes again keeps
+      turning the same way, unless a turn the other way opens a straight run longer by more than
+      ``escape_commit`` s. Without it a boxed-in robot whose probes rate the two sides alike turns left
+      one step and right the next and never gets out (docs/vo_defaults.md, "``escape_commit``"). Needs
+      ``current`` (:func:`vo_select_batch`). The ``vo`` expert uses 1.
+    * ``fast``: test the preferred twist alone first and return it if it is safe
+      (with ``goal_heading=None`` it has the least penalty, so the answer
+      is the same; ``n_safe`` is then reported as 1). ``False`` always
+      evaluates the whole grid (exact ``n_safe``).
+
     Raises ``ValueError`` for values out of range.
     """
 
@@ -793,6 +849,45 @@ class VOParams:
         return replace(self, **overrides)
 
 
+class VORobots(NamedTuple):
+    """The robots of one :func:`vo_select_batch` call (``N`` of them).
+
+    ``poses`` ``(N, 3)``; ``radius`` a scalar or ``(N,)`` (m); ``preferred`` ``(N, 2)`` the desired
+    twists (e.g. from :func:`~swarm_env.control.pursuit.pure_pursuit`); ``v_max`` (m/s) and
+    ``omega_max`` (rad/s) the twist limits. Optional: ``velocity`` ``(N, 2)`` the current world
+    velocities (for reciprocal discs), ``current`` ``(N, 2)`` the twists driven now (for
+    ``VOParams.w_current`` and ``escape_commit``), ``goal_heading`` ``(N,)`` the world direction each
+    robot should head to (see :func:`vo_select`)."""
+
+    poses: np.ndarray
+    radius: float | np.ndarray
+    preferred: np.ndarray
+    v_max: float
+    omega_max: float
+    velocity: np.ndarray | None = None
+    current: np.ndarray | None = None
+    goal_heading: np.ndarray | None = None
+
+
+class VODiscs(NamedTuple):
+    """The moving discs (other robots, humans) of one :func:`vo_select_batch` call, shared by all robots.
+
+    ``xyr`` ``(D, 3)`` ``x, y, radius`` (``(0, 3)`` for none); ``vel`` ``(D, 2)`` their world velocities.
+    ``mask`` ``(N, D)`` bool, ``True`` where disc ``d`` is an obstacle for robot ``i`` (``False`` for the
+    robot's own disc); ``None``: all. ``reciprocal`` ``(D,)`` or ``(N, D)`` bool, or one bool: the discs
+    avoided reciprocally (see :func:`vo_select`). ``horizon`` ``(D,)`` the horizon (s, > 0) of each disc
+    in place of ``VOParams.horizon``: a contact with disc ``d`` later than ``horizon[d]`` does not count,
+    and the candidates' trajectories are traced to the longest of them (the escape probes keep
+    ``VOParams.horizon``); ``None``: ``VOParams.horizon`` for all. Used to look further ahead for discs
+    that will not give way (humans)."""
+
+    xyr: np.ndarray
+    vel: np.ndarray
+    mask: np.ndarray | None = None
+    reciprocal: np.ndarray | bool = False
+    horizon: np.ndarray | None = None
+
+
 def vo_select(
     pose: np.ndarray,
     radius: float,
@@ -842,67 +937,7 @@ def vo_select(
             separating (two followers squeezed into contact in a jam).
         **overrides: :class:`VOParams` fields replaced for this call.
 
-    The parameters (:class:`VOParams` fields):
-
-    * ``horizon``: VO truncation time (s) for moving discs. ``horizon_static``: the
-      same for static obstacles and walls (``None``: ``horizon``; RVO2 keeps a
-      separate, usually shorter, obstacle horizon; here a shorter one gave more
-      contacts in random crowds, so the default is equal).
-      ``margin``: added to every combined radius.
-    * ``tau``: how long a candidate twist is assumed held (s). ``model="arc"``: the
-      candidate is tested on its predicted trajectory — the arc for ``tau``
-      (``n_arc`` chords), then straight on at ``v`` (:func:`twist_trajectories`).
-      ``model="chord"``: on the straight line of its mean velocity over ``tau``
-      (:func:`twist_velocities`), the textbook reduction; see the module
-      docstring for why ``arc`` and ``tau = 1`` are the defaults.
-    * ``w_pref``, ``w_heading``: penalty weights (below). ``side_bias``: extra penalty
-      per unit of normalised turn to the left of the preferred twist — a
-      keep-right convention, so two robots meeting mirror-symmetrically do
-      not pick mirror-image (colliding) detours.
-    * ``escape``: turn towards open space instead of standing still (see below).
-    * ``recip_gap`` (m, default 0): a reciprocal disc nearer than the combined radius
-      (margin included) plus ``recip_gap`` is avoided plainly (see ``reciprocal``). Reciprocity
-      assumes the other robot keeps its current velocity and takes half the avoidance; two
-      robots that change course together at close range can both count on the other's half
-      (two followers both switching from an escape turn to full speed towards each other).
-    * ``move_first`` (default ``False``): when the least-penalty safe candidate stands still
-      although the preferred twist moves (blocked), the least-penalty safe candidate that
-      *moves* is taken instead, if there is one (every candidate of that robot is then
-      tested); only if none is safe does the escape rule below turn it in place. Any
-      standing twist is cheaper than a detour under both costs (it is nearer the preferred
-      twist than driving off at an angle), so without this rule a blocked robot turns in
-      place, the pursuit turns it back, and it stands for seconds while its slot moves on. ORCA (its linear
-      program finds the nearest safe velocity, usually a slide along the obstacle) never
-      stands while it can move.
-    * ``static_reach`` (default 0: off; else a number ``s >= 1``): static obstacles (circles, polygons,
-      walls) are judged by path length rather than time. A candidate of speed ``|v| > 0`` hits one if it
-      reaches it within ``min(max(h_s, v_p h_s / |v|), s h_s)`` s, ``h_s`` the static horizon and ``v_p``
-      the (clipped) preferred speed: within the distance the preferred twist covers in ``h_s``, or
-      ``h_s`` if the candidate is faster (never less than without the rule), but not later than
-      ``s h_s``. Opt-in, off for the ``vo`` expert: the preferred path runs on past the robot's goal,
-      so a follower whose final slot lies just short of an obstacle or wall may find no path there
-      (docs/vo_defaults.md, "``static_reach``"). Without it a slow-down "avoids" a static
-      obstacle by pushing the contact past the horizon, so a follower whose slot track crosses a
-      static disc crawls towards it and lags; with it only a path round the obstacle is safe (ORCA,
-      whose static horizon is short, bends round at speed). Standing candidates, moving discs and the
-      escape probes are unchanged. The trajectories run on straight after the horizon until ``s h_s``
-      (if that is later). Needs ``model="arc"``.
-    * ``w_speed`` (default 1): weight of a change of speed against a change of turn rate in the
-      penalty (both normalised by their limits). With ``w_speed > 1`` a robot whose preferred twist is
-      unsafe bends round at speed rather than slowing down: a slow-down "avoids" an obstacle ahead by
-      pushing the contact past the horizon, so with equal weights a follower whose slot skirts a static
-      disc crawls towards it and falls behind (ORCA, which takes the nearest safe *velocity*, keeps its
-      speed and slides round). The ``vo`` expert uses 3.
-    * ``escape_commit`` (s, default 0: off; needs ``current``): a robot that is already turning in place
-      (speed under 10 % of ``v_max``, turn rate over 10 % of ``omega_max``) and escapes again keeps
-      turning the same way, unless a turn the other way opens a straight run longer by more than
-      ``escape_commit`` s. Without it a boxed-in robot whose probes rate the two sides alike turns left
-      one step and right the next and never gets out (docs/vo_defaults.md, "``escape_commit``"). Needs
-      ``current`` (:func:`vo_select_batch`). The ``vo`` expert uses 1.
-    * ``fast``: test the preferred twist alone first and return it if it is safe
-      (with ``goal_heading=None`` it has the least penalty, so the answer
-      is the same; ``n_safe`` is then reported as 1). ``False`` always
-      evaluates the whole grid (exact ``n_safe``).
+    What each parameter does is :class:`VOParams`'s docstring.
 
     Penalty of a candidate ``(v, w)``: ``w_pref * hypot(w_speed * (v - v_p) / v_max,
     (w - w_p) / omega_max)`` + ``w_heading * |wrap(theta + w tau - goal_heading)| / pi``
@@ -939,21 +974,16 @@ def vo_select(
     can end up circling in front of it (pure pursuit pulls it back in); give it
     a path around the obstacle (e.g. the leader's path) rather than a bare goal.
     """
-    res = vo_select_batch(
+    robot = VORobots(
         np.asarray(pose, dtype=np.float64).reshape(1, 3),
         radius,
         np.asarray(preferred, dtype=np.float64).reshape(1, 2),
-        discs,
-        disc_vel,
-        static,
         v_max,
         omega_max,
-        params,
-        goal_heading=None if goal_heading is None else np.array([float(goal_heading)]),
         velocity=None if velocity is None else np.asarray(velocity, dtype=np.float64).reshape(1, 2),
-        reciprocal=reciprocal,
-        **overrides,
+        goal_heading=None if goal_heading is None else np.array([float(goal_heading)]),
     )
+    res = vo_select_batch(robot, VODiscs(discs, disc_vel, reciprocal=reciprocal), static, params, **overrides)
     return VOResult(res.twist[0], bool(res.feasible[0]), int(res.n_safe[0]), float(res.min_time_to_collision[0]))
 
 
@@ -972,22 +1002,10 @@ def _rotate_each(pts: np.ndarray, theta: np.ndarray, shared: bool) -> np.ndarray
 
 
 def vo_select_batch(
-    poses: np.ndarray,
-    radius: float | np.ndarray,
-    preferred: np.ndarray,
-    discs: np.ndarray,
-    disc_vel: np.ndarray,
+    robots: VORobots,
+    discs: VODiscs,
     static: StaticMap | None,
-    v_max: float,
-    omega_max: float,
     params: VOParams | None = None,
-    *,
-    disc_mask: np.ndarray | None = None,
-    goal_heading: np.ndarray | None = None,
-    velocity: np.ndarray | None = None,
-    reciprocal: np.ndarray | bool = False,
-    current: np.ndarray | None = None,
-    disc_horizon: np.ndarray | None = None,
     **overrides: Any,
 ) -> VOBatchResult:
     """:func:`vo_select` for ``N`` robots in one vectorised pass (same rules, same answers).
@@ -997,26 +1015,14 @@ def vo_select_batch(
     all robots are evaluated together.
 
     Args:
-        poses: ``(N, 3)`` robot poses. ``radius``: robot radius, scalar or ``(N,)``.
-        preferred: ``(N, 2)`` desired twists.
-        discs: ``(D, 3)`` ``x, y, radius`` of the moving discs (robots, humans) that
-            any robot may have to avoid; ``disc_vel`` ``(D, 2)`` their velocities.
-        disc_mask: ``(N, D)`` bool, ``True`` where disc ``d`` is an obstacle for
-            robot ``i`` (``False`` for the robot's own disc). ``None``: all.
-        reciprocal: ``(D,)`` or ``(N, D)`` bool, or one bool: discs avoided
-            reciprocally by each robot (see :func:`vo_select`).
-        velocity: ``(N, 2)`` the robots' current world velocities, or ``None``.
-        goal_heading: ``(N,)`` or ``None`` (per robot, as in :func:`vo_select`).
-        current: ``(N, 2)`` the twists the robots drive now (for ``params.w_current``).
-        disc_horizon: ``(D,)`` the horizon (s, > 0) of each moving disc in place of
-            ``params.horizon``: a contact with disc ``d`` later than ``disc_horizon[d]`` does
-            not count, and the candidates' trajectories are traced to the longest of them
-            (the escape probes keep ``params.horizon``). ``None``: ``params.horizon`` for all.
-            Used to look further ahead for discs that will not give way (humans).
+        robots: the ``N`` robots (:class:`VORobots`: poses, radii, preferred twists, limits, and
+            optionally their velocities, current twists and goal headings).
+        discs: the moving discs (robots, humans) any robot may have to avoid, with which robot keeps
+            which and how (:class:`VODiscs`).
+        static: static obstacles and walls, or ``None``.
         params: as for :func:`vo_select`; see ``allow_still_overlap`` below.
         **overrides: as for :func:`vo_select`.
 
-    The other arguments are :func:`vo_select`'s, shared by all robots.
     ``params.allow_still_overlap``: a disc the robot already overlaps (margin included)
     and that does not move relative to it (both standing) is not a
     contact for a candidate that stands still (turning in place
@@ -1039,22 +1045,20 @@ def vo_select_batch(
     candidate of every robot in one pass.
     """
     p = (VOParams() if params is None else params).with_overrides(overrides)
-    return _VOBatch(poses, radius, preferred, discs, disc_vel, static, v_max, omega_max, p, disc_mask=disc_mask,
-                    goal_heading=goal_heading, velocity=velocity, reciprocal=reciprocal, current=current,
-                    disc_horizon=disc_horizon).select(p.fast)
+    return _VOBatch(robots, discs, static, p).select(p.fast)
 
 
 class _VOBatch:
     """One :func:`vo_select_batch` call: the robots, their candidates and the discs each of them
     keeps (set up once, in ``__init__``), and the tests run on them, each a named method
     (:meth:`contact_times`, :meth:`escape_turns`, :meth:`evaluate`, ...). :meth:`select` is the
-    selection rule; the arguments are :func:`vo_select_batch`'s."""
+    selection rule; the arguments are :func:`vo_select_batch`'s (``params`` with its overrides applied)."""
 
-    def __init__(self, poses: np.ndarray, radius: float | np.ndarray, preferred: np.ndarray, discs: np.ndarray,
-                 disc_vel: np.ndarray, static: StaticMap | None, v_max: float, omega_max: float, params: VOParams, *,
-                 disc_mask: np.ndarray | None, goal_heading: np.ndarray | None, velocity: np.ndarray | None,
-                 reciprocal: np.ndarray | bool, current: np.ndarray | None,
-                 disc_horizon: np.ndarray | None = None) -> None:
+    def __init__(self, robots: VORobots, discs: VODiscs, static: StaticMap | None, params: VOParams) -> None:
+        poses, radius, preferred, v_max, omega_max = robots.poses, robots.radius, robots.preferred, robots.v_max, robots.omega_max
+        velocity, current, goal_heading = robots.velocity, robots.current, robots.goal_heading
+        disc_vel, disc_mask, reciprocal, disc_horizon = discs.vel, discs.mask, discs.reciprocal, discs.horizon
+        discs = discs.xyr
         tau, n_arc, model, margin, v_min = params.tau, params.n_arc, params.model, params.margin, params.v_min
         self.d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
         self.dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
@@ -1577,9 +1581,9 @@ def _disc_horizons(disc_horizon: np.ndarray | None, n_discs: int, horizon: float
         return np.full(n_discs, float(horizon))
     h = np.array(disc_horizon, dtype=np.float64).reshape(-1)
     if h.shape[0] != n_discs:
-        raise ValueError(f"disc_horizon must hold one horizon per disc ({n_discs}), got {h.shape[0]}")
+        raise ValueError(f"VODiscs.horizon must hold one horizon per disc ({n_discs}), got {h.shape[0]}")
     if not np.all(np.isfinite(h) & (h > 0)):
-        raise ValueError(f"disc_horizon must be finite numbers > 0 (s), got {h.tolist()}")
+        raise ValueError(f"VODiscs.horizon must be finite numbers > 0 (s), got {h.tolist()}")
     return h
 
 

@@ -750,7 +750,7 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     and trajectories, then :func:`_search`.
 
     ``moving`` ``(D, 6)`` ``x, y, radius, vx, vy, horizon`` of the moving discs (``horizon``: the
-    disc's own, ``vo.vo_select_batch``'s ``disc_horizon``), the ``n`` followers first (each
+    disc's own, ``vo.VODiscs.horizon``), the ``n`` followers first (each
     left out of its own list; reciprocal among themselves when ``reciprocal``), then the robot leader
     and the humans; ``own`` ``(n, 5)`` each follower's heading, current twist ``(v, omega)`` and
     preferred twist; ``static_map`` as ``vo._kernel_map`` gives it; ``plan`` ``(grid, times,
