@@ -1057,11 +1057,10 @@ class _VOBatch:
     def __init__(self, robots: VORobots, discs: VODiscs, static: StaticMap | None, params: VOParams) -> None:
         poses, radius, preferred, v_max, omega_max = robots.poses, robots.radius, robots.preferred, robots.v_max, robots.omega_max
         velocity, current, goal_heading = robots.velocity, robots.current, robots.goal_heading
-        disc_vel, disc_mask, reciprocal, disc_horizon = discs.vel, discs.mask, discs.reciprocal, discs.horizon
-        discs = discs.xyr
+        disc_mask, reciprocal, disc_horizon = discs.mask, discs.reciprocal, discs.horizon
         tau, n_arc, model, margin, v_min = params.tau, params.n_arc, params.model, params.margin, params.v_min
-        self.d = np.asarray(discs, dtype=np.float64).reshape(-1, 3)
-        self.dv = np.asarray(disc_vel, dtype=np.float64).reshape(-1, 2)
+        self.d = np.asarray(discs.xyr, dtype=np.float64).reshape(-1, 3)
+        self.dv = np.asarray(discs.vel, dtype=np.float64).reshape(-1, 2)
         h_search = float(params.horizon)
         h_static = h_search if params.horizon_static is None else float(min(params.horizon_static, h_search))
         # Each moving disc's horizon; the trajectories are traced to the longest (`horizon` below), the escape
