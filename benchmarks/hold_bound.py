@@ -228,7 +228,8 @@ def point_dp(rec: SlotRecord, i: int, k0: int, k_end: int, h: float, relax: bool
     floor, sep = (robots.radius + CHORD_ALLOWANCE, 2.0 * robots.radius + 2.0 * CHORD_ALLOWANCE) if margins is None else margins
     if relax:
         tol, step, floor = tol + e, step + 2.0 * e, robots.radius - e
-    return hold_plan.point_dp(rec.static, rec.slots[:, i], k0, k_end, h, tol, step, floor, sep, others, gain)
+    return hold_plan.point_dp(rec.static, rec.slots[:, i], k0, k_end, hold_plan.PointModel(h, tol, step, floor, sep),
+                              others, gain)
 
 
 def prioritised_paths(rec: SlotRecord, k_s: int, k_end: int, h: float, order: list[int],
@@ -254,8 +255,8 @@ def joint_paths(rec: SlotRecord, k_s: int, k_end: int, h: float, margins: tuple[
     what ``cbs_rrt:hold_plan=true`` plans). Achieved by real points (a lower bound of what
     followers keeping those margins can hold)."""
     robots = rec.scenario.robots
-    return hold_plan.joint_paths(rec.static, rec.slots, k_s, k_end, h, rec.scenario.world.settle_tolerance,
-                                 robots.max_speed * rec.dt, margins[0], margins[1], rounds=rounds, bonus=bonus)
+    model = hold_plan.PointModel(h, rec.scenario.world.settle_tolerance, robots.max_speed * rec.dt, margins[0], margins[1])
+    return hold_plan.joint_paths(rec.static, rec.slots, k_s, k_end, model, rounds=rounds, bonus=bonus)
 
 
 # --------------------------------------------------------------------------- greedy point, unicycle

@@ -10,7 +10,7 @@ import pytest
 from swarm_env.env import SwarmEnv
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.harness.episode import run_episode
-from swarm_env.scenario import CircleObstacle
+from swarm_env.scenario import CircleObstacle, RobotSpec, WorldSpec
 from swarm_env.scenarios.loader import load_scenario
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
 from swarm_env_agents.cbs_rrt.hold import GeodesicMap, SlotHolder, unicycle_rollout
@@ -62,9 +62,16 @@ def _drive(holder: SlotHolder, pose: np.ndarray, targets_at, steps: int, dt: flo
     return out
 
 
+_ROBOTS = RobotSpec(count=2, radius=0.25, max_speed=0.5, max_turn_rate=1.0)  # the holders' robots
+
+
+def _world(dt: float) -> WorldSpec:
+    """The holders' world: steps of ``dt`` in 4 physics substeps, a 0.3 m settle tolerance."""
+    return WorldSpec((10.0, 8.0), dt=dt, substeps=4, settle_tolerance=0.3)
+
+
 def _holder(field: DistanceField) -> SlotHolder:
-    return SlotHolder(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.5, sub_dt=0.125,
-                      shield_margin=0.05, tolerance=0.3)
+    return SlotHolder(field, _ROBOTS, _world(0.5), shield_margin=0.05)
 
 
 def test_holder_follows_a_slot_that_flips_to_the_far_side_of_an_obstacle() -> None:
@@ -117,17 +124,13 @@ def test_holder_steps_out_of_the_way_of_a_human_walking_through_its_slot() -> No
 def test_holder_rejects_bad_settings() -> None:
     field = _field([])
     with pytest.raises(ValueError, match="horizon"):
-        SlotHolder(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.5, sub_dt=0.125,
-                   shield_margin=0.05, tolerance=0.3, horizon=1)
+        SlotHolder(field, _ROBOTS, _world(0.5), shield_margin=0.05, horizon=1)
     with pytest.raises(ValueError, match="every"):
-        SlotHolder(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.1, sub_dt=0.025,
-                   shield_margin=0.05, tolerance=0.3, horizon=4, every=0)
-    spread = SlotHolder(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.1, sub_dt=0.025,
-                        shield_margin=0.05, tolerance=0.3, horizon=4, every=6)
+        SlotHolder(field, _ROBOTS, _world(0.1), shield_margin=0.05, horizon=4, every=0)
+    spread = SlotHolder(field, _ROBOTS, _world(0.1), shield_margin=0.05, horizon=4, every=6)
     assert spread.steps_ahead().tolist() == [1, 7, 13, 19]
     with pytest.raises(ValueError, match="odd"):
-        SlotHolder(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.5, sub_dt=0.125,
-                   shield_margin=0.05, tolerance=0.3, samples=4)
+        SlotHolder(field, _ROBOTS, _world(0.5), shield_margin=0.05, samples=4)
     with pytest.raises(ValueError, match="hold_horizon"):
         CBSRRTExpert(hold_slots=True, hold_horizon=0)
     with pytest.raises(ValueError, match="hold_capture"):

@@ -11,17 +11,26 @@ import swarm_env
 from swarm_env.geometry.formation import virtual_slot_trajectory
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.harness.episode import run_episode
+from swarm_env.scenario import RobotSpec, WorldSpec
 from swarm_env.scenarios.loader import load_scenario
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
 from swarm_env_agents.cbs_rrt.hold_plan import (
     CHORD_ALLOWANCE,
     PlanTracker,
+    PointModel,
     joint_paths,
     point_dp,
     substep_rollout,
     virtual_leader_done_step,
 )
 from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert
+
+
+def _tracker(field: DistanceField) -> PlanTracker:
+    """A tracker of robots of radius 0.25 m at up to 0.5 m/s and 1 rad/s, steps of 0.5 s in 4 substeps."""
+    robots = RobotSpec(count=2, radius=0.25, max_speed=0.5, max_turn_rate=1.0)
+    world = WorldSpec(field.size, dt=0.5, substeps=4, settle_tolerance=0.3)
+    return PlanTracker(field, robots, world, separation=0.52, horizon=5)
 
 
 def test_point_dp_finds_the_most_steps_a_point_can_hold() -> None:
@@ -31,7 +40,8 @@ def test_point_dp_finds_the_most_steps_a_point_can_hold() -> None:
     10.0 m at step 4, within 0.32 m of the second at steps 11-12: 4."""
     static = StaticMap.from_obstacles((20.0, 20.0), [])
     slots = np.array([[10.0, 10.0]] * 5 + [[12.0, 10.0]] * 8)
-    dp = point_dp(static, slots, 0, 12, 0.05, tol=0.32, step=0.25, floor=0.28, separation=0.56)
+    model = PointModel(h=0.05, tol=0.32, step=0.25, floor=0.28, separation=0.56)
+    dp = point_dp(static, slots, 0, 12, model)
     assert dp.value(0) == 8
     path = dp.path(0)
     assert path.shape == (13, 2)
@@ -42,7 +52,7 @@ def test_point_dp_finds_the_most_steps_a_point_can_hold() -> None:
     assert np.allclose(late[0], [9.0, 10.0])
     assert int((np.hypot(*(late - slots).T) <= 0.32).sum()) == 4
     with pytest.raises(ValueError, match="gain"):
-        point_dp(static, slots, 0, 12, 0.05, 0.32, 0.25, 0.28, 0.56, gain=np.zeros(13, dtype=int))
+        point_dp(static, slots, 0, 12, model, gain=np.zeros(13, dtype=int))
 
 
 def test_joint_paths_keep_their_margins_and_hold_the_grid() -> None:
@@ -56,7 +66,8 @@ def test_joint_paths_keep_their_margins_and_hold_the_grid() -> None:
     slots, _ = virtual_slot_trajectory(scn, static, k_end + 1)
     starts = slots[k0] + np.array([0.2, 0.0])
     floor, sep = r + CHORD_ALLOWANCE, 2 * r + 2 * CHORD_ALLOWANCE
-    paths = joint_paths(static, slots, k0, k_end, 0.05, tol, scn.robots.max_speed * dt, floor, sep, starts=starts)
+    paths = joint_paths(static, slots, k0, k_end, PointModel(0.05, tol, scn.robots.max_speed * dt, floor, sep),
+                        starts=starts)
     assert paths.shape == (41, scn.robots.count, 2)
     assert np.all(np.abs(paths[0] - starts) <= 0.05 / 2 + 1e-9)  # the nearest lattice point
     assert np.all(np.hypot(*np.diff(paths, axis=0).transpose(2, 0, 1)) <= scn.robots.max_speed * dt + 1e-9)
@@ -72,8 +83,7 @@ def test_plan_tracker_follows_a_path_and_keeps_off_obstacles() -> None:
     """A robot at rest, facing east, on a plan going east at 0.2 m per step is on the plan within a
     few steps and stays there; a plan through a wall's clearance is not followed into it."""
     field = DistanceField.build(StaticMap.from_obstacles((10.0, 6.0), []), 0.05)
-    tracker = PlanTracker(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.5, substeps=4,
-                          tolerance=0.3, separation=0.52, horizon=5)
+    tracker = _tracker(field)
     plan = np.array([[1.0 + 0.2 * k, 3.0] for k in range(40)])[:, None, :]
     state = np.array([[1.0, 3.0, 0.0, 0.0, 0.0, 0.0]])
     off = []
@@ -118,8 +128,7 @@ def test_plan_tracker_never_drives_two_robots_into_each_other() -> None:
     neither the step's substeps nor the next step's first one (which still moves with this step's
     velocity, whatever is commanded) ever brings them into contact."""
     field = DistanceField.build(StaticMap.from_obstacles((12.0, 6.0), []), 0.05)
-    tracker = PlanTracker(field, radius=0.25, max_speed=0.5, max_turn_rate=1.0, dt=0.5, substeps=4,
-                          tolerance=0.3, separation=0.52, horizon=5)
+    tracker = _tracker(field)
     east = np.array([[3.0 + 0.25 * k, 3.0] for k in range(30)])
     west = np.array([[4.2 - 0.25 * k, 3.0] for k in range(30)])
     plan = np.stack([east, west], axis=1)  # (K, 2, 2)

@@ -20,7 +20,7 @@ from swarm_env_agents.cbs_rrt.cbs import CBS
 from swarm_env_agents.cbs_rrt.conflicts import find_conflicts, pair_first_conflict, pair_min_distance
 from swarm_env_agents.cbs_rrt.constraints import Constraint, ConstraintTable
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField, distance_field
-from swarm_env_agents.cbs_rrt.goals import FormationGoals
+from swarm_env_agents.cbs_rrt.goals import FormationGoals, JumpRule
 from swarm_env_agents.cbs_rrt.grid import GridAStar, GridConflicts, VertexConstraint, parse_grid
 from swarm_env_agents.cbs_rrt.policy import CBSRRTExpert, make_policy
 from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG, MotionPrimitives
@@ -354,17 +354,18 @@ def test_goal_course_jumps_with_a_window_keep_only_what_cannot_be_driven() -> No
     # t = 179.25 (1.4 m in one sample, through the obstacle).
     scn = load_scenario("paper_cbs_switch")
     static = StaticMap.from_obstacles(scn.world.size, scn.obstacles)
-    common = dict(clearance=0.37, separation=0.8, dt=0.25, jump_speed=0.4)
-    plain = FormationGoals(scn, static, **common)
-    windowed = FormationGoals(scn, static, **common, jump_window=1.0, jump_lag=0.6, window_speed=0.5,
-                              chord_clearance=0.3)
+    common = dict(clearance=0.37, separation=0.8, dt=0.25)
+    plain = FormationGoals(scn, static, **common, jumps=JumpRule(speed=0.4))
+    windowed = FormationGoals(scn, static, **common,
+                              jumps=JumpRule(speed=0.4, window=1.0, lag=0.6, window_speed=0.5, chord_clearance=0.3))
     w_plain, w_win = plain.window(140.0, 150.0), windowed.window(140.0, 150.0)
     assert w_plain.piece_end[0] < len(w_plain.t) - 1  # the sweep is a jump without the window
     assert w_win.piece_end[0] == len(w_win.t) - 1  # and followable with it
     flip_plain, flip_win = plain.window(175.0, 185.0), windowed.window(175.0, 185.0)
     assert 178.5 <= flip_plain.t[flip_plain.piece_end[0]] <= flip_win.t[flip_win.piece_end[0]] <= 179.0
     np.testing.assert_array_equal(plain.window(100.0, 130.0).piece_end,
-                                  FormationGoals(scn, static, **common, jump_window=0.0).window(100.0, 130.0).piece_end)
+                                  FormationGoals(scn, static, **common, jumps=JumpRule(speed=0.4, window=0.0))
+                                  .window(100.0, 130.0).piece_end)
 
 
 def test_formation_keeping_fixes_the_robots_in_formation() -> None:

@@ -114,7 +114,9 @@ class ConstraintTable:
     compared with the disc centre at the nearest grid time, so the disc is inflated by
     ``slack`` (m) to cover the centre's motion within ``dt / 2`` (0.05 m covers 1 m/s
     at the default ``dt = 0.1``) and the spacing of the planner's samples; a constraint
-    counts as active from ``dt`` before its window to ``dt`` after it.
+    counts as active from ``dt`` before its window to ``dt`` after it. :attr:`kernel` is the
+    table as the compiled kernels take it (a :class:`.kernels.Cons`, as the plain tuple of
+    :func:`.kernels.plain`).
     """
 
     def __init__(
@@ -130,6 +132,9 @@ class ConstraintTable:
         c = len(self.constraints)
         self.count = c
         if c == 0:
+            # The kernels' argument types are fixed: placeholders of the real arrays' types, never read.
+            self.kernel = kernels.plain(kernels.Cons(False, self.t0, self._inv_dt, float(k - 1), _NO_XY, _NO_XY, _NO_R2,
+                                                     _NO_ACTIVE, _NO_ANY))
             return
         self.px = np.empty((c, k))
         self.py = np.empty((c, k))
@@ -144,15 +149,8 @@ class ConstraintTable:
         self._r2_flat = np.ascontiguousarray(self.r2[:, 0])
         # Grid columns where some constraint is active: points at other times skip the test.
         self.any_active = self.active.any(axis=0)
-
-    def kernel_args(self) -> tuple[bool, float, float, float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """The table as the compiled kernels take it (:mod:`.kernels`): ``(any constraints, t0, 1 / dt,
-        last grid index, px, py, r2, active, any_active)``; without constraints, placeholders of the
-        same types (never read)."""
-        if self.count == 0:
-            return (False, self.t0, self._inv_dt, float(self.k - 1), _NO_XY, _NO_XY, _NO_R2, _NO_ACTIVE, _NO_ANY)
-        return (True, self.t0, self._inv_dt, float(self.k - 1), self.px, self.py, self._r2_flat, self.active,
-                self.any_active)
+        self.kernel = kernels.plain(kernels.Cons(True, self.t0, self._inv_dt, float(k - 1), self.px, self.py,
+                                                 self._r2_flat, self.active, self.any_active))
 
     def free(self, x: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
         """``(M,)`` booleans: point ``m`` at ``(x[m], y[m])`` and time ``t[m]`` is outside every
@@ -165,8 +163,7 @@ class ConstraintTable:
             ta = np.asarray(t, dtype=np.float64)
             if ya.shape != x.shape or ta.shape != x.shape:  # scalars or broadcasting: the rare case
                 ya, ta = np.broadcast_to(ya, x.shape), np.broadcast_to(ta, x.shape)
-            out = kernels.constraint_free(x.ravel(), ya.ravel(), ta.ravel(), self.t0, self._inv_dt, float(self.k - 1),
-                                          self.px, self.py, self._r2_flat, self.active, self.any_active)
+            out = kernels.constraint_free(x.ravel(), ya.ravel(), ta.ravel(), self.kernel)
             if out is not None:
                 return out.reshape(x.shape)
         g = (np.asarray(t, dtype=np.float64) - self.t0) * self._inv_dt + 0.5
@@ -189,8 +186,7 @@ class ConstraintTable:
         k0 = min(max(int((t_from - self.t0) * self._inv_dt + 0.5), 0), self.k - 1)
         k1 = min(max(int((t_to - self.t0) * self._inv_dt + 0.5), 0), self.k - 1) + 1
         if compiled_kernels():  # the same answer, see .kernels
-            return bool(kernels.constraint_still_free(float(x), float(y), k0, k1, self.px, self.py, self._r2_flat,
-                                                      self.active))
+            return bool(kernels.constraint_still_free(float(x), float(y), k0, k1, self.kernel))
         act = self.active[:, k0:k1]
         if not act.any():
             return True

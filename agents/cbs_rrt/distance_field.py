@@ -42,6 +42,8 @@ class DistanceField:
             the last row/column may lie slightly beyond the world).
         values: ``(ny * nx,)`` flat row-major clearances (m), read-only.
         size: the world ``(W, H)``.
+        kernel: the field as the compiled kernels take it (a :class:`.kernels.Field`, as the plain tuple
+            of :func:`.kernels.plain`), built once.
     """
 
     resolution: float
@@ -52,12 +54,15 @@ class DistanceField:
     _inv: float = field(init=False, repr=False)
     _xmax: float = field(init=False, repr=False)
     _ymax: float = field(init=False, repr=False)
+    kernel: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "_inv", 1.0 / self.resolution)
         # Largest grid coordinate whose cell (floor) still has a right/top neighbour.
         object.__setattr__(self, "_xmax", (self.nx - 1) * (1.0 - 1e-12))
         object.__setattr__(self, "_ymax", (self.ny - 1) * (1.0 - 1e-12))
+        bundle = kernels.Field(self._inv, self._xmax, self._ymax, int(self.nx), self.values)
+        object.__setattr__(self, "kernel", kernels.plain(bundle))
 
     @classmethod
     def build(cls, static: StaticMap, resolution: float = 0.05) -> DistanceField:
@@ -88,8 +93,7 @@ class DistanceField:
         if compiled_kernels():
             xa = np.asarray(x, dtype=np.float64)
             out = kernels.clearance_xy(np.ascontiguousarray(xa).ravel(),
-                                       np.ascontiguousarray(y, dtype=np.float64).ravel(),
-                                       self._inv, self._xmax, self._ymax, self.nx, self.values)
+                                       np.ascontiguousarray(y, dtype=np.float64).ravel(), self.kernel)
             if out is not None:
                 return out.reshape(xa.shape)
         return self._clearance_xy(x, y)

@@ -18,13 +18,13 @@ window. Then, as the paper does for the current slot targets:
    goals never ask two robots to overlap; CBS only has to order the way there.
 
 A course *jumps* where its goal moves faster than a robot can follow
-(``jump_speed``): at a formation switch, where the leader's polyline turns (the
+(:class:`JumpRule`'s ``speed``): at a formation switch, where the leader's polyline turns (the
 whole formation rotates at once) and where a projected slot flips to the other
-side of an obstacle. With ``jump_window > 0`` a fast step is only a jump if the
-course also moves farther than ``window_speed * jump_window + jump_lag`` within
-some stretch of at most ``jump_window``: a slot that briefly sweeps round an
+side of an obstacle. With a ``window > 0`` a fast step is only a jump if the
+course also moves farther than ``window_speed * window + lag`` within
+some stretch of at most ``window`` seconds: a slot that briefly sweeps round an
 obstacle a little faster than a robot drives is followed by a tracker that
-aims ahead (it lags by less than ``jump_lag``), not replanned as a jump. The part before the first jump is what a robot can track;
+aims ahead (it lags by less than ``lag``), not replanned as a jump. The part before the first jump is what a robot can track;
 :attr:`GoalWindow.piece_end` marks it and the planner replans when it ends.
 """
 
@@ -40,7 +40,7 @@ from swarm_env.geometry.paths import PolylinePath
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.scenario import Scenario
 
-__all__ = ["GoalWindow", "FormationGoals"]
+__all__ = ["GoalWindow", "FormationGoals", "JumpRule"]
 
 _CHUNK = 256  # samples per cached chunk of a virtual leader's goal table
 
@@ -73,6 +73,28 @@ class GoalWindow:
         return np.array([np.interp(time, self.t, self.xy[i, :, 0]), np.interp(time, self.t, self.xy[i, :, 1])])
 
 
+@dataclass(frozen=True)
+class JumpRule:
+    """When a goal course jumps (see the module docstring).
+
+    Attributes:
+        speed: a goal moving faster than this between two samples jumps (m/s).
+        window: ``0``: every such fast step is a jump; ``> 0``: only one inside a stretch of at
+            most this long (s) over which the goal moves farther than ``window_speed * window + lag``.
+        lag: the lag (m) a tracker may take on a short fast stretch of a course.
+        window_speed: the robot's top speed for that test (m/s; ``None``: ``speed``).
+        chord_clearance: with ``window > 0``, a fast step whose straight chord comes closer than
+            this to an obstacle is a jump whatever its length (m; ``None``: the goals'
+            ``clearance - 0.05``).
+    """
+
+    speed: float = 0.4
+    window: float = 0.0
+    lag: float = 0.3
+    window_speed: float | None = None
+    chord_clearance: float | None = None
+
+
 class FormationGoals:
     """Slot courses for one scenario (see the module docstring).
 
@@ -82,14 +104,8 @@ class FormationGoals:
         clearance: minimum clearance of a goal from obstacles and walls (m).
         separation: minimum distance between two goals at one time (m).
         dt: grid step (s).
-        jump_speed: a goal moving faster than this between two samples jumps (m/s).
-        jump_window: ``0``: every such fast step is a jump; ``> 0``: only one inside a
-            stretch of at most this long (s) over which the goal moves farther than
-            ``window_speed * jump_window + jump_lag`` (see the module docstring).
-        jump_lag: the lag (m) a tracker may take on a short fast stretch of a course.
-        window_speed: the robot's top speed for that test (m/s; ``None``: ``jump_speed``).
-        chord_clearance: with ``jump_window > 0``, a fast step whose straight chord comes closer
-            than this to an obstacle is a jump whatever its length (m; ``None``: ``clearance - 0.05``).
+        jumps: when a course jumps (:class:`JumpRule`; kept as ``jump_speed``, ``jump_window``,
+            ``jump_lag``, ``window_speed`` and ``chord_clearance``, the defaults filled in).
         separation_rounds: push-apart rounds.
     """
 
@@ -101,11 +117,7 @@ class FormationGoals:
         clearance: float,
         separation: float,
         dt: float = 0.25,
-        jump_speed: float = 0.4,
-        jump_window: float = 0.0,
-        jump_lag: float = 0.3,
-        window_speed: float | None = None,
-        chord_clearance: float | None = None,
+        jumps: JumpRule = JumpRule(),
         separation_rounds: int = 8,
     ) -> None:
         self.scenario = scenario
@@ -113,11 +125,11 @@ class FormationGoals:
         self.clearance = float(clearance)
         self.separation = float(separation)
         self.dt = float(dt)
-        self.jump_speed = float(jump_speed)
-        self.jump_window = float(jump_window)
-        self.jump_lag = float(jump_lag)
-        self.chord_clearance = self.clearance - 0.05 if chord_clearance is None else float(chord_clearance)
-        self.window_speed = self.jump_speed if window_speed is None else float(window_speed)
+        self.jump_speed = float(jumps.speed)
+        self.jump_window = float(jumps.window)
+        self.jump_lag = float(jumps.lag)
+        self.chord_clearance = self.clearance - 0.05 if jumps.chord_clearance is None else float(jumps.chord_clearance)
+        self.window_speed = self.jump_speed if jumps.window_speed is None else float(jumps.window_speed)
         self.rounds = int(separation_rounds)
         self.n = scenario.robots.count
         self.path = PolylinePath(scenario.leader.path)

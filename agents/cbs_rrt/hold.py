@@ -51,6 +51,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from swarm_env.kernel_cache import njit
+from swarm_env.scenario import RobotSpec, WorldSpec
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
 
 __all__ = ["GeodesicMap", "SlotHolder", "geodesic_grid", "unicycle_rollout"]
@@ -156,11 +157,11 @@ class SlotHolder:
 
     Args:
         field: the static map's distance field.
-        radius: robot radius (m); max_speed (m/s), max_turn_rate (rad/s): the robots' limits.
-        dt: the env's step (s); sub_dt: its physics substep (s): a new command takes effect one
-            substep late, so that much travel at top speed is added to every margin.
+        robots: the followers: their radius (m), max_speed (m/s) and max_turn_rate (rad/s).
+        world: the env's step ``dt`` (s), its physics substeps (a new command takes effect one
+            substep, ``dt / substeps``, late, so that much travel at top speed is added to every
+            margin) and the formation's settle tolerance (m).
         shield_margin: the gap (m) kept to obstacles, robots and moving discs, as the shield does.
-        tolerance: the formation's settle tolerance (m).
         horizon: points looked ahead (>= 2): one step, then ``horizon - 1`` more, ``every`` steps
             apart.
         every: env steps between the later points (a short ``dt`` still looks ahead far enough
@@ -173,14 +174,10 @@ class SlotHolder:
     def __init__(
         self,
         field: DistanceField,
+        robots: RobotSpec,
+        world: WorldSpec,
         *,
-        radius: float,
-        max_speed: float,
-        max_turn_rate: float,
-        dt: float,
-        sub_dt: float,
         shield_margin: float,
-        tolerance: float,
         horizon: int = 5,
         every: int = 1,
         samples: int = 9,
@@ -193,12 +190,13 @@ class SlotHolder:
         if samples < 3 or samples % 2 == 0:
             raise ValueError(f"samples must be an odd number >= 3, got {samples!r}")
         self.field = field
-        self.radius = float(radius)
-        self.dt = float(dt)
+        self.radius = float(robots.radius)
+        self.dt = float(world.dt)
         self.horizon = int(horizon)
         self.every = every
-        self.tolerance = float(tolerance)
-        lag = max_speed * sub_dt
+        self.tolerance = float(world.settle_tolerance)
+        max_speed, max_turn_rate = robots.max_speed, robots.max_turn_rate
+        lag = max_speed * (world.dt / world.substeps)
         # The shield's own thresholds (a substep's travel at top speed included) plus a centimetre:
         # twists chosen here do not trip it.
         self.obstacle_gap = self.radius + shield_margin + lag + 0.01

@@ -45,21 +45,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from swarm_env.geometry.paths import PolylinePath, virtual_leader
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.kernel_cache import njit
-from swarm_env.scenario import Scenario
+from swarm_env.scenario import RobotSpec, Scenario, WorldSpec
 from swarm_env_agents.cbs_rrt.distance_field import DistanceField
-from swarm_env_agents.cbs_rrt.kernels import _clear1
+from swarm_env_agents.cbs_rrt.kernels import _as_field, _clear1
 
 __all__ = [
     "CHORD_ALLOWANCE",
     "Lattice",
     "PlanTracker",
     "PointDP",
+    "PointModel",
     "half_widths",
     "joint_paths",
     "point_dp",
@@ -74,16 +76,48 @@ _OFF_PLAN = 0.15  # m: the tracker expects a robot farther than this from its pl
 _CONTACT_GAP = 0.005  # m: robot surfaces closer than this over the next step exclude a twist sequence
 
 
+class PointModel(NamedTuple):
+    """A point follower on a lattice (:func:`point_dp`, :func:`joint_paths`): the lattice pitch ``h``
+    (m), the settle tolerance ``tol`` (m), how far it moves per step ``step`` (m), the smallest
+    clearance ``floor`` of its centre to obstacles and walls (m) and the ``separation`` it keeps
+    from the centres of robots already planned (m)."""
+
+    h: float
+    tol: float
+    step: float
+    floor: float
+    separation: float
+
+
+class _DPGrid(NamedTuple):
+    """What every :func:`_dp_step` of one :func:`point_dp` reads: the lattice's ``free`` cells ``(H, W)``,
+    the disc footprint's row ``half_widths``, the lattice origin ``(x0, y0)`` and pitch ``h``, the
+    squared separation from other robots ``sep2`` and squared tolerance ``tol2``, and the ``reach``
+    (cells) round the slot that is swept."""
+
+    free: np.ndarray
+    half_widths: np.ndarray
+    x0: float
+    y0: float
+    h: float
+    sep2: float
+    tol2: float
+    reach: int
+
+
 @njit()
-def _dp_step(vnext, free, others, sep2, half_widths, gx0, gy0, h, sx, sy, tol2, gain, reach, out, rowmax):  # pragma: no cover - compiled
+def _dp_step(vnext, grid, others, sx, sy, gain, out, rowmax):  # pragma: no cover - compiled
     """``out[y, x] = gain held(y, x) + max over the disc footprint of vnext`` on free cells within
-    ``reach`` cells of the slot ``(sx, sy)`` (a square), else NEG; a cell closer than ``sqrt(sep2)``
-    to one of ``others (M, 2)`` (robots at this step) is not free.
+    ``grid.reach`` cells of the slot ``(sx, sy)`` (a square), else NEG; a cell closer than
+    ``sqrt(grid.sep2)`` to one of ``others (M, 2)`` (robots at this step) is not free (``grid``: a
+    :class:`_DPGrid`).
 
     The disc footprint is row ``dy`` (``-R..R``) spanning ``|dx| <= half_widths[dy + R]``; the max
     over a row span is built up width by width (``max over [x-w-1, x+w+1] = max(rowmax_w[x-1],
     rowmax_w[x+1])``), so the cost is O(R) per cell, not O(R^2). Only the square and the footprint's
     reach round it are swept: the max of width ``w`` is exact ``w`` cells inside the swept box."""
+    free, half_widths, gx0, gy0, h = grid.free, grid.half_widths, grid.x0, grid.y0, grid.h
+    sep2, tol2, reach = grid.sep2, grid.tol2, grid.reach
     H, W = vnext.shape
     R = (half_widths.shape[0] - 1) // 2
     wmax = 0
@@ -260,19 +294,20 @@ class PointDP:
         return np.column_stack([lat.x0 + cells[:, 1] * lat.h, lat.y0 + cells[:, 0] * lat.h])
 
 
-def point_dp(static: StaticMap, slots: np.ndarray, k0: int, k_end: int, h: float, tol: float, step: float,
-             floor: float, separation: float, others: np.ndarray | None = None,
-             gain: np.ndarray | None = None, lattice: Lattice | None = None, reach: float | None = None) -> PointDP:
+def point_dp(static: StaticMap, slots: np.ndarray, k0: int, k_end: int, model: PointModel,
+             others: np.ndarray | None = None, gain: np.ndarray | None = None, lattice: Lattice | None = None,
+             reach: float | None = None) -> PointDP:
     """Solve one point follower's DP from step ``k0`` to ``k_end`` (see the module docstring).
 
-    ``slots (K+1, 2)``: its slot at every step; ``tol``: the settle tolerance; ``step``: how far it
-    moves per step (m); ``floor``: the smallest clearance of its centre to obstacles and walls;
+    ``slots (K+1, 2)``: its slot at every step; ``model``: the lattice pitch, the settle tolerance,
+    how far it moves per step and the margins it keeps (:class:`PointModel`);
     ``others (k_end - k0 + 1, M, 2)``: robots already planned, whose centres it keeps
-    ``separation`` from at every step; ``gain (k_end - k0 + 1,)``: what a step within tolerance is
+    ``model.separation`` from at every step; ``gain (k_end - k0 + 1,)``: what a step within tolerance is
     worth (ints >= 1 summing to <= 30000, default 1: the values count steps); ``lattice``: reuse
     one (it depends on ``slots[k0 : k_end + 1]`` and ``h`` only); ``reach``: only points within
     this of the slot in each coordinate are considered (m; default: the whole lattice). The values
     are then those of a follower that never strays farther: much less work on a long course."""
+    h, tol, step, floor, separation = model
     n = k_end - k0 + 1
     lat = Lattice.around(static, slots[k0 : k_end + 1], h) if lattice is None else lattice
     free = lat.clearance >= floor
@@ -285,23 +320,27 @@ def point_dp(static: StaticMap, slots: np.ndarray, k0: int, k_end: int, h: float
     rowmax = np.empty((int(hw.max()) + 1, H, W), dtype=np.int16)
     mates = np.zeros((n, 0, 2)) if others is None else np.ascontiguousarray(others, dtype=np.float64)
     cells = max(H, W) if reach is None else int(math.ceil(reach / h))
+    grid = _DPGrid(free, hw, float(lat.x0), float(lat.y0), float(h), float(separation * separation), float(tol**2),
+                   int(cells))
     after_end = np.zeros((H, W), dtype=np.int16)  # the last step: only its own hold counts
     for k in range(k_end, k0 - 1, -1):
         vnext = after_end if k == k_end else values[k + 1 - k0]
-        _dp_step(vnext, free, mates[k - k0], separation * separation, hw, lat.x0, lat.y0, h,
-                 float(slots[k, 0]), float(slots[k, 1]), tol**2, int(g[k - k0]), cells, values[k - k0], rowmax)
+        _dp_step(vnext, grid, mates[k - k0], float(slots[k, 0]), float(slots[k, 1]), int(g[k - k0]), values[k - k0],
+                 rowmax)
     return PointDP(lat, free, hw, k0, values, tol, step, slots)
 
 
-def joint_paths(static: StaticMap, slots: np.ndarray, k_s: int, k_end: int, h: float, tol: float, step: float,
-                floor: float, separation: float, starts: np.ndarray | None = None, rounds: int = 3,
-                bonus: int = 16, reach: float | None = None) -> np.ndarray:
+def joint_paths(static: StaticMap, slots: np.ndarray, k_s: int, k_end: int, model: PointModel,
+                starts: np.ndarray | None = None, rounds: int = 3, bonus: int = 16,
+                reach: float | None = None) -> np.ndarray:
     """Point paths ``(k_end - k_s + 1, N, 2)`` from ``starts (N, 2)`` (default: the slots) at step
-    ``k_s`` that keep ``floor`` from obstacles and ``separation`` from each other and hold the
-    *whole* formation (``slots (K+1, N, 2)``) in as many steps as this finds: prioritised in index
-    order, then up to ``rounds`` rounds of best responses (module docstring). Achieved by real
-    points (a lower bound of what followers keeping those margins can hold). ``reach``: as in
-    :func:`point_dp`, widened to take in the starts (with 1 m to spare)."""
+    ``k_s`` of followers ``model`` (:class:`PointModel`: they keep ``model.floor`` from obstacles and
+    ``model.separation`` from each other) that hold the *whole* formation (``slots (K+1, N, 2)``) in
+    as many steps as this finds: prioritised in index order, then up to ``rounds`` rounds of best
+    responses (module docstring). Achieved by real points (a lower bound of what followers keeping
+    those margins can hold). ``reach``: as in :func:`point_dp`, widened to take in the starts (with
+    1 m to spare)."""
+    h, tol = model.h, model.tol
     n = slots.shape[1]
     window = slots[k_s : k_end + 1]
     ends = window[:1] if starts is None else np.asarray(starts, dtype=np.float64)[None]
@@ -310,8 +349,7 @@ def joint_paths(static: StaticMap, slots: np.ndarray, k_s: int, k_end: int, h: f
         reach = max(reach, float(np.abs(ends[0] - window[0]).max()) + 1.0)
 
     def plan(i: int, others: np.ndarray, gain: np.ndarray | None = None) -> np.ndarray:
-        dp = point_dp(static, slots[:, i], k_s, k_end, h, tol, step, floor, separation, others, gain, lattices[i],
-                      reach)
+        dp = point_dp(static, slots[:, i], k_s, k_end, model, others, gain, lattices[i], reach)
         return dp.path(k_s, None if starts is None else starts[i])
 
     paths = np.full((k_end - k_s + 1, n, 2), np.nan)
@@ -386,21 +424,33 @@ def _off_course(x, y, ref, slot, slot_counts, tol, ref_weight):  # pragma: no co
     return c
 
 
-@njit(nogil=True, error_model="numpy")
-def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, others, mates, separation, contact, floor,
-                    tol, ref_weight, inv, xmax, ymax, nx, values):  # pragma: no cover - compiled
-    """The cheapest twist sequence ``(first[a], later[b], later[b], ...)`` for one robot at ``s0 =
-    (x, y, angle, vx, vy, w)`` (:meth:`PlanTracker.twists` gives the cost), as its index ``a * B +
-    b`` (the first of equals), and the positions over the first step's substeps for each first
-    twist and where the next step's first substep takes it whatever is commanded then (``(substeps +
-    1, A, 2)``).
+class _Tracking(NamedTuple):
+    """What :func:`_best_sequence` reads for every robot of every step (built once by :class:`PlanTracker`):
+    the twists of the first step ``first (A, 2)`` and of the rest ``later (B, 2)``, the env's physics
+    ``substeps`` of ``sub_dt`` seconds, the ``separation`` the plans keep (robot centres closer are
+    penalised), ``contact`` (centres closer over the next step exclude a sequence), ``floor`` (the
+    smallest clearance of a centre by the field), the settle tolerance ``tol`` and the cost per metre
+    off the plan ``ref_weight``."""
 
-    Branch and bound: the costs after the first step are >= 0, so first twists are tried in the
-    order of their first step's cost, and none is tried further once that alone exceeds the best
-    total (nor a sequence once its partial sum does). Same index as scoring every sequence."""
+    first: np.ndarray
+    later: np.ndarray
+    substeps: int
+    sub_dt: float
+    separation: float
+    contact: float
+    floor: float
+    tol: float
+    ref_weight: float
+
+
+@njit(nogil=True, error_model="numpy")
+def _first_steps(s0, plan, slots, in_tol, others, trk, field):  # pragma: no cover - compiled
+    """The first step of every first twist of ``trk`` (:class:`_Tracking`) from ``s0`` (``field``: a
+    :class:`.kernels.Field`): its cost
+    (:func:`_best_sequence`), the state after it ``(A, 6)`` and the positions over its substeps and
+    the next step's first one ``(substeps + 1, A, 2)``."""
+    first, substeps, sub_dt = trk.first, trk.substeps, trk.sub_dt
     A = first.shape[0]
-    B = later.shape[0]
-    H = plan.shape[0] - 1
     subs = np.empty((substeps + 1, A, 2))
     head = np.zeros(A)
     after = np.empty((A, 6))
@@ -418,18 +468,39 @@ def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, othe
                 px, py = x + vx * sub_dt, y + vy * sub_dt
             subs[m, a, 0] = px
             subs[m, a, 1] = py
-            if _clear1(px, py, inv, xmax, ymax, nx, values) < floor:
+            if _clear1(px, py, field) < trk.floor:
                 hit = True
             gap = min(gap, _nearest(px, py, others[m]))
-        c = _off_course(x, y, plan[1], slots[1], in_tol[1], tol, ref_weight)
+        c = _off_course(x, y, plan[1], slots[1], in_tol[1], trk.tol, trk.ref_weight)
         if hit:
             c += 1e6
-        if gap < separation:
-            c += 1e4 * (separation - gap)
-        if gap < contact:  # touching another robot over the next step: as bad as an obstacle
+        if gap < trk.separation:
+            c += 1e4 * (trk.separation - gap)
+        if gap < trk.contact:  # touching another robot over the next step: as bad as an obstacle
             c += 1e6
         head[a] = c
         after[a, 0], after[a, 1], after[a, 2], after[a, 3], after[a, 4], after[a, 5] = x, y, ang, vx, vy, w
+    return head, after, subs
+
+
+@njit(nogil=True, error_model="numpy")
+def _best_sequence(s0, plan, slots, in_tol, others, mates, trk, field):  # pragma: no cover - compiled
+    """The cheapest twist sequence ``(first[a], later[b], later[b], ...)`` of ``trk`` (:class:`_Tracking`)
+    for one robot at ``s0 = (x, y, angle, vx, vy, w)`` tracking ``plan`` towards ``slots`` (``in_tol``:
+    the plan holds the slot there) among ``others`` (over the first step's substeps) and ``mates``
+    (their plans), with obstacles from ``field`` (``DistanceField.kernel``). :meth:`PlanTracker.twists`
+    gives the cost. Returns its index ``a * B + b`` (the first of equals), and the positions over the
+    first step's substeps for each first twist and where the next step's first substep takes it
+    whatever is commanded then (``(substeps + 1, A, 2)``).
+
+    Branch and bound: the costs after the first step are >= 0, so first twists are tried in the
+    order of their first step's cost, and none is tried further once that alone exceeds the best
+    total (nor a sequence once its partial sum does). Same index as scoring every sequence."""
+    field = _as_field(field)  # (DistanceField.kernel: a plain tuple)
+    later, substeps, sub_dt, floor = trk.later, trk.substeps, trk.sub_dt, trk.floor
+    B = later.shape[0]
+    H = plan.shape[0] - 1
+    head, after, subs = _first_steps(s0, plan, slots, in_tol, others, trk, field)
     order = np.argsort(head, kind="mergesort")
     best = np.inf
     best_index = -1
@@ -443,12 +514,12 @@ def _best_sequence(s0, first, later, substeps, sub_dt, plan, slots, in_tol, othe
                 hit = False
                 for _m in range(substeps):
                     x, y, ang, vx, vy, w = _substep(x, y, ang, vx, vy, w, later[b, 0], later[b, 1], sub_dt)
-                    if _clear1(x, y, inv, xmax, ymax, nx, values) < floor:
+                    if _clear1(x, y, field) < floor:
                         hit = True
-                step_cost = _off_course(x, y, plan[look], slots[look], in_tol[look], tol, ref_weight)
+                step_cost = _off_course(x, y, plan[look], slots[look], in_tol[look], trk.tol, trk.ref_weight)
                 gap = _nearest(x, y, mates[look])
-                if gap < separation:
-                    step_cost += 1e4 * (separation - gap)
+                if gap < trk.separation:
+                    step_cost += 1e4 * (trk.separation - gap)
                 c += step_cost / look
                 if hit:
                     c += 1e6
@@ -465,39 +536,43 @@ class PlanTracker:
     """Twists that make followers track planned point paths (see the module docstring).
 
     Args:
-        field: the static map's distance field; radius (m), max_speed (m/s), max_turn_rate
-            (rad/s): the robots; dt (s), substeps: the env's step and physics substeps.
-        tolerance: the settle tolerance (m); separation: robot centres closer than this are
-            penalised (m); clearance: robot surfaces closer than this to an obstacle (by the
-            field's bilinear clearance) are excluded (m).
+        field: the static map's distance field.
+        robots: the followers (their radius, max_speed and max_turn_rate).
+        world: the env's step ``dt``, physics ``substeps`` and settle tolerance.
+        separation: robot centres closer than this are penalised (m).
+        clearance: robot surfaces closer than this to an obstacle (by the field's bilinear
+            clearance) are excluded (m).
         horizon: steps looked ahead; grid: twists per axis of the first step (``grid**2``
             twists), later_grid: of the twist held after it (``grid**2 later_grid**2`` sequences
             in all); ref_weight: cost per metre off the plan (the slot miss costs 100 per
             metre beyond ``tolerance - 0.02``, where the plan is within tolerance).
     """
 
-    def __init__(self, field: DistanceField, radius: float, max_speed: float, max_turn_rate: float, dt: float,
-                 substeps: int, tolerance: float, separation: float, clearance: float = 0.01, horizon: int = 5,
-                 grid: int = 11, later_grid: int = 11, ref_weight: float = 40.0) -> None:
+    def __init__(self, field: DistanceField, robots: RobotSpec, world: WorldSpec, separation: float,
+                 clearance: float = 0.01, horizon: int = 5, grid: int = 11, later_grid: int = 11,
+                 ref_weight: float = 40.0) -> None:
         if horizon < 1 or grid < 2 or later_grid < 2:
             raise ValueError(f"PlanTracker: horizon >= 1 and grids >= 2 expected, got {horizon}, {grid}, {later_grid}")
         self.field = field
-        self.radius = float(radius)
-        self.substeps = int(substeps)
-        self.sub_dt = float(dt) / self.substeps
-        self.tolerance = float(tolerance)
+        self.radius = float(robots.radius)
+        self.substeps = int(world.substeps)
+        self.sub_dt = float(world.dt) / self.substeps
+        self.tolerance = float(world.settle_tolerance)
         self.separation = float(separation)
         self.clearance = float(clearance)
         self.horizon = int(horizon)
         self.ref_weight = float(ref_weight)
 
         def twist_grid(k: int) -> np.ndarray:
-            vs = np.linspace(-max_speed, max_speed, k)
-            ws = np.linspace(-max_turn_rate, max_turn_rate, k)
+            vs = np.linspace(-robots.max_speed, robots.max_speed, k)
+            ws = np.linspace(-robots.max_turn_rate, robots.max_turn_rate, k)
             return np.ascontiguousarray(np.stack(np.meshgrid(vs, ws, indexing="ij"), axis=-1).reshape(-1, 2))
 
         self._twists = twist_grid(grid)
         self._later = twist_grid(later_grid)
+        self._tracking = _Tracking(self._twists, self._later, self.substeps, self.sub_dt, self.separation,
+                                   2.0 * self.radius + _CONTACT_GAP, self.radius + self.clearance, self.tolerance,
+                                   self.ref_weight)
 
     def twists(self, state: np.ndarray, plan: np.ndarray, slots: np.ndarray) -> np.ndarray:
         """``(N, 2)`` twists for robots at ``state (N, 6) = (x, y, a, vx, vy, w)`` tracking ``plan
@@ -515,17 +590,13 @@ class PlanTracker:
         ahead = np.where((np.hypot(*(state[:, :2] - plan[0]).T) > _OFF_PLAN)[:, None], state[:, :2], plan[1])
         others = np.repeat(ahead[None], self.substeps + 1, axis=0)  # (S + 1, N, 2): the substeps and the lagged one
         in_tol = np.hypot(*(plan - slots).transpose(2, 0, 1)) <= self.tolerance  # (H+1, N)
-        f = self.field
-        floor = self.radius + self.clearance
         state = np.ascontiguousarray(state, dtype=np.float64)
         for i in range(n):
             rest = [j for j in range(n) if j != i]
             best, subs = _best_sequence(
-                state[i], self._twists, self._later, self.substeps, self.sub_dt,
-                np.ascontiguousarray(plan[:, i]), np.ascontiguousarray(slots[:, i]), in_tol[:, i],
-                np.ascontiguousarray(others[:, rest]), np.ascontiguousarray(plan[:, rest]),
-                self.separation, 2.0 * self.radius + _CONTACT_GAP, floor, self.tolerance, self.ref_weight,
-                f._inv, f._xmax, f._ymax, f.nx, f.values,
+                state[i], np.ascontiguousarray(plan[:, i]), np.ascontiguousarray(slots[:, i]), in_tol[:, i],
+                np.ascontiguousarray(others[:, rest]), np.ascontiguousarray(plan[:, rest]), self._tracking,
+                self.field.kernel,
             )
             a = int(best) // len(self._later)
             out[i] = self._twists[a]

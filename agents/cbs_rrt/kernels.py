@@ -21,28 +21,248 @@ sign fix-up, as numpy's ``remainder``). The test module checks them against nump
 inputs. ``np.arctan2`` is not one of them: numpy's own vectorised version differs from the C
 library's in the last bit for a few per cent of inputs on this machine, so it stays in numpy and
 its results are passed in.
+
+The kernels take their inputs as typed bundles (``NamedTuple`` classes, one numba argument each), each
+built once by the object that owns the data: :class:`Field` (``DistanceField.kernel``),
+:class:`Cons` (``ConstraintTable.kernel``), :class:`Prims` (``MotionPrimitives.kernel``),
+:class:`Tree` (the RRT's tree), and, per planning call, the RRT's :class:`Buffer`,
+:class:`Search` and :class:`Goal`; :class:`Batch` (a batch of expansions, passed from
+:func:`explore_batch` to :func:`explore_add`), :class:`Branch` and :class:`Tail` (a path to build)
+carry one call's data. A bundle's fields keep one type whatever the data (floats stay floats, a
+table without constraints has placeholder arrays of the real ones' types, a goal without
+constraints a placeholder mask for ``tail_ok``), so one compilation serves every call. Reading a
+field is reading the argument it replaces: the arithmetic, and so the bits, are the same.
+
+The owners keep the long-lived bundles as plain tuples of the same items (:func:`plain`): numba
+types a plain tuple argument several times faster than a ``NamedTuple`` one, which counts on the
+RRT's frequent calls. A kernel takes either form and names the items again first thing
+(:func:`_as_search`, ...), at no cost in compiled code.
 """
 
 from __future__ import annotations
 
 import math
+from typing import NamedTuple
 
 import numpy as np
 
 from swarm_env.kernel_cache import njit
 
 _jit = njit(nogil=True, error_model="numpy")
+# The rebuilders of a bundle from its plain tuple (_as_field, ...), inlined by numba: a kernel then reads the
+# items of its argument in place. (The per-sample helpers, _clear1 and _free1, are not: inlined, their field
+# reads inside the callers' loops measured slower.)
+_jit_inline = njit(nogil=True, error_model="numpy", inline="always")
+
+
+class Field(NamedTuple):
+    """A :class:`~.distance_field.DistanceField` as the kernels read it (its ``kernel``, kept :func:`plain`)."""
+
+    inv: float  #: 1 / resolution: world metres to grid coordinates
+    xmax: float  #: the largest grid x whose cell (floor) still has a right neighbour
+    ymax: float  #: the largest grid y whose cell still has a top neighbour
+    nx: int  #: grid nodes per row
+    values: np.ndarray  #: (ny * nx,) flat row-major clearances (m)
+
+
+class Cons(NamedTuple):
+    """A :class:`~.constraints.ConstraintTable` as the kernels read it (its ``kernel``, kept :func:`plain`): ``C``
+    constraints sampled at the ``K`` grid times ``t0 + k dt``. Without constraints (``has`` False)
+    the arrays are placeholders of the same types, never read."""
+
+    has: bool  #: any constraints
+    t0: float  #: the grid's first time (s)
+    inv_dt: float  #: 1 / dt
+    k_max: float  #: the last grid index, K - 1 (a float: the nearest index is clamped in floats)
+    px: np.ndarray  #: (C, K) the discs' centres, x
+    py: np.ndarray  #: (C, K) and y
+    r2: np.ndarray  #: (C,) squared inflated radii
+    active: np.ndarray  #: (C, K) bool: the constraint counts at that grid time
+    any_active: np.ndarray  #: (K,) bool: some constraint counts at that grid time
+
+
+class Prims(NamedTuple):
+    """A :class:`~.primitives.MotionPrimitives` library as the kernels read it (its ``kernel``, kept :func:`plain`):
+    ``P`` primitives of ``S`` samples each, primitive-major where flattened (the samples of
+    primitive ``k`` are ``[k S, (k + 1) S)``)."""
+
+    lx: np.ndarray  #: (P * S,) local x of every sample
+    ly: np.ndarray  #: (P * S,) local y
+    lt: np.ndarray  #: (P * S,) time of every sample after the primitive's start (s)
+    local: np.ndarray  #: (P, S, 3) local poses of the samples
+    sample_t: np.ndarray  #: (P, S) the sample times again, by primitive
+    angles: np.ndarray  #: (P,) heading change of each primitive (rad)
+    durations: np.ndarray  #: (P,) seconds
+    n_prims: int  #: P
+    n_samples: int  #: S
+
+
+class Buffer(NamedTuple):
+    """``PrimitiveRRT._static_ok``'s rule for one planning call: a sample keeps ``buffer`` from
+    obstacles, or, where the robot started inside the buffer zone (``relax``), at least
+    ``max(min(buffer, c0 + slope * max(d - rdist, 0)), floor)`` at distance ``d`` from the start
+    ``(sx, sy)``."""
+
+    buffer: float
+    relax: bool
+    sx: float
+    sy: float
+    c0: float
+    slope: float
+    rdist: float
+    floor: float
+
+
+class Search(NamedTuple):
+    """What every expansion of one :meth:`~.rrt.PrimitiveRRT.plan` reads: the primitives, the
+    obstacles (field and buffer rule), the constraints, the nearest-node metric's metres per radian
+    of heading error, the wait node (its primitive id, its duration) and the planning horizon."""
+
+    prims: Prims
+    field: Field
+    rule: Buffer
+    cons: Cons
+    heading_weight: float
+    wait_prim: int
+    wait_step: float
+    t_end: float
+
+
+class Goal(NamedTuple):
+    """One robot's moving goal (:class:`~.rrt.GoalSpec`, ``K`` samples) with the RRT's join settings,
+    bound once per planning call."""
+
+    t: np.ndarray  #: (K,) sample times
+    xy: np.ndarray  #: (K, 2) the effective goal positions
+    fast: np.ndarray  #: (K,) bool: the goal moves faster than a robot may join it sideways
+    dir: np.ndarray  #: (K, 2) unit direction of the goal's motion
+    tail_ok: np.ndarray  #: (K,) bool: following the course from there respects the constraints
+    use_tail: bool  #: read ``tail_ok`` (there are constraints; otherwise it is a placeholder)
+    max_wait: float  #: the longest a robot may wait for a sample (s)
+    tol: float  #: join tolerance (m)
+    tol2: float  #: its square
+    follow: float  #: speed of the junction move (m/s)
+    cos_join: float  #: cosine of the largest heading error to join a fast goal
+    speed: float  #: the primitives' speed, for the intercept (m/s)
+    junction: np.ndarray  #: fractions of the junction move checked against the constraints
+    n_try: int  #: joinable samples tried at most
+
+
+class Tree(NamedTuple):
+    """The RRT's node arrays (capacity ``cap``): poses ``X (cap, 3)``, times ``T``, each node's
+    ``parent`` and the primitive that reached it (``prim``)."""
+
+    X: np.ndarray
+    T: np.ndarray
+    parent: np.ndarray
+    prim: np.ndarray
+
+
+class Batch(NamedTuple):
+    """A batch of random expansions (:func:`explore_batch`'s answer, ``b`` samples): the distinct
+    nearest nodes ``uniq`` (``U`` of them) and each sample's index into them (``inv``); per distinct
+    node and primitive, whether every sample point keeps the buffer (``sok``) and the constraints
+    (``cok``) and the end point (``ex``, ``ey``); per sample its best primitive (``best``) and
+    whether there is one (``found``)."""
+
+    uniq: np.ndarray
+    inv: np.ndarray
+    sok: np.ndarray
+    cok: np.ndarray
+    ex: np.ndarray
+    ey: np.ndarray
+    best: np.ndarray
+    found: np.ndarray
+
+
+class Branch(NamedTuple):
+    """The nodes of a branch, for :func:`build_path`: poses ``(x, y, th)``, times ``t``, the
+    primitive that reached each (``prim``) and the cosine and sine of each heading."""
+
+    x: np.ndarray
+    y: np.ndarray
+    th: np.ndarray
+    t: np.ndarray
+    prim: np.ndarray
+    cos: np.ndarray
+    sin: np.ndarray
+
+
+class Tail(NamedTuple):
+    """What follows a branch that joins its goal, for :func:`build_path`: a wait until ``depart``
+    (if ``add_wait``) and the goal course from the joined sample (times ``t``, positions ``xy``,
+    ``heading``); empty arrays for a branch that does not join."""
+
+    add_wait: bool
+    depart: float
+    t: np.ndarray
+    xy: np.ndarray
+    heading: np.ndarray
+
+
+def plain(bundle: tuple) -> tuple:
+    """``bundle`` with every ``NamedTuple`` in it (itself included) made a plain tuple of the same items: the form
+    the bundles are kept and passed in. numba types a ``NamedTuple`` argument on every call by spelling out its
+    class and field names (about 1 us each, nested ones included: 5 us for a :class:`Search`, most of a
+    :func:`candidates` call's own cost), a plain tuple by its items only (0.6 us for a :class:`Search`); the
+    kernels take either and name the items again first thing (:func:`_as_search`, ...), which costs nothing
+    compiled."""
+    return tuple(plain(v) if isinstance(v, tuple) else v for v in bundle)
+
+
+@_jit_inline
+def _as_field(f):  # pragma: no cover - compiled
+    """``f`` (a :class:`Field` or its :func:`plain` tuple) as a :class:`Field`."""
+    return Field(*f)
+
+
+@_jit_inline
+def _as_cons(c):  # pragma: no cover - compiled
+    """``c`` (a :class:`Cons` or its :func:`plain` tuple) as a :class:`Cons`."""
+    return Cons(*c)
+
+
+@_jit_inline
+def _as_prims(p):  # pragma: no cover - compiled
+    """``p`` (a :class:`Prims` or its :func:`plain` tuple) as a :class:`Prims`."""
+    return Prims(*p)
+
+
+@_jit_inline
+def _as_search(s):  # pragma: no cover - compiled
+    """``s`` (a :class:`Search` or its :func:`plain` tuple) as a :class:`Search` of named bundles."""
+    return Search(_as_prims(s[0]), _as_field(s[1]), Buffer(*s[2]), _as_cons(s[3]), s[4], s[5], s[6], s[7])
+
+
+@_jit_inline
+def _as_goal(g):  # pragma: no cover - compiled
+    """``g`` (a :class:`Goal` or its :func:`plain` tuple) as a :class:`Goal`."""
+    return Goal(*g)
+
+
+@_jit_inline
+def _as_tree(t):  # pragma: no cover - compiled
+    """``t`` (a :class:`Tree` or its :func:`plain` tuple) as a :class:`Tree`."""
+    return Tree(*t)
+
+
+@_jit_inline
+def _as_batch(b):  # pragma: no cover - compiled
+    """``b`` (a :class:`Batch` or the same items in a plain tuple) as a :class:`Batch`."""
+    return Batch(*b)
 
 
 @_jit
-def _clear1(x, y, inv, xmax, ymax, nx, values):  # pragma: no cover - compiled
+def _clear1(x, y, field):  # pragma: no cover - compiled
     """Bilinear clearance at one point (not NaN): ``DistanceField._clearance_xy``'s arithmetic."""
-    gx = min(max(x * inv, 0.0), xmax)
-    gy = min(max(y * inv, 0.0), ymax)
+    gx = min(max(x * field.inv, 0.0), field.xmax)
+    gy = min(max(y * field.inv, 0.0), field.ymax)
     ix = np.int64(gx)
     iy = np.int64(gy)
     fx = gx - ix
     fy = gy - iy
+    nx = field.nx
+    values = field.values
     k = iy * nx + ix
     a = values[k]
     b = values[k + 1]
@@ -53,128 +273,83 @@ def _clear1(x, y, inv, xmax, ymax, nx, values):  # pragma: no cover - compiled
 
 
 @_jit
-def clearance_xy(x, y, inv, xmax, ymax, nx, values):  # pragma: no cover - compiled
-    """``DistanceField.clearance_xy`` of flat ``x``/``y`` (float64, same length); ``None`` if a
-    coordinate is NaN (the caller then runs the reference, which raises)."""
+def clearance_xy(x, y, field):  # pragma: no cover - compiled
+    """``DistanceField.clearance_xy`` of flat ``x``/``y`` (float64, same length) in ``field``
+    (:class:`Field`); ``None`` if a coordinate is NaN (the caller then runs the reference, which
+    raises)."""
+    field = _as_field(field)
     out = np.empty(len(x))
     for m in range(len(x)):
         if x[m] != x[m] or y[m] != y[m]:
             return None
-        out[m] = _clear1(x[m], y[m], inv, xmax, ymax, nx, values)
+        out[m] = _clear1(x[m], y[m], field)
     return out
 
 
 @_jit
-def _free1(x, y, t, t0, inv_dt, k_max, px, py, r2, active, any_active):  # pragma: no cover - compiled
-    """``ConstraintTable.free`` of one point (time not NaN)."""
-    g = (t - t0) * inv_dt + 0.5
-    k = np.int64(min(max(g, 0.0), k_max))
-    if not any_active[k]:
+def _free1(x, y, t, cons):  # pragma: no cover - compiled
+    """``ConstraintTable.free`` of one point (time not NaN) in the table ``cons`` (:class:`Cons`)."""
+    g = (t - cons.t0) * cons.inv_dt + 0.5
+    k = np.int64(min(max(g, 0.0), cons.k_max))
+    if not cons.any_active[k]:
         return True
+    px = cons.px
+    py = cons.py
     for c in range(px.shape[0]):
-        if active[c, k]:
+        if cons.active[c, k]:
             dx = px[c, k] - x
             dy = py[c, k] - y
-            if dx * dx + dy * dy < r2[c]:
+            if dx * dx + dy * dy < cons.r2[c]:
                 return False
     return True
 
 
 @_jit
-def constraint_free(x, y, t, t0, inv_dt, k_max, px, py, r2, active, any_active):  # pragma: no cover - compiled
-    """``ConstraintTable.free`` of flat ``x``/``y``/``t``: outside every active inflated disc at the
-    nearest grid time; ``None`` if a time is NaN (the caller then runs the reference)."""
+def constraint_free(x, y, t, cons):  # pragma: no cover - compiled
+    """``ConstraintTable.free`` of flat ``x``/``y``/``t`` (``cons``: the table, with constraints):
+    outside every active inflated disc at the nearest grid time; ``None`` if a time is NaN (the
+    caller then runs the reference)."""
+    cons = _as_cons(cons)
     out = np.ones(len(x), dtype=np.bool_)
     for m in range(len(x)):
         if t[m] != t[m]:
             return None
-        out[m] = _free1(x[m], y[m], t[m], t0, inv_dt, k_max, px, py, r2, active, any_active)
+        out[m] = _free1(x[m], y[m], t[m], cons)
     return out
 
 
 @_jit
-def constraint_still_free(x, y, k0, k1, px, py, r2, active):  # pragma: no cover - compiled
-    """``ConstraintTable.still_free`` over grid columns ``k0:k1``."""
+def constraint_still_free(x, y, k0, k1, cons):  # pragma: no cover - compiled
+    """``ConstraintTable.still_free`` over grid columns ``k0:k1`` of the table ``cons``."""
+    cons = _as_cons(cons)
+    px = cons.px
+    py = cons.py
     for c in range(px.shape[0]):
         for k in range(k0, k1):
-            if active[c, k]:
+            if cons.active[c, k]:
                 dx = px[c, k] - x
                 dy = py[c, k] - y
-                if dx * dx + dy * dy < r2[c]:
+                if dx * dx + dy * dy < cons.r2[c]:
                     return False
     return True
 
 
+@_jit
+def _put(t, pose, kind, m, tm, x, y, th, km):  # pragma: no cover - compiled
+    """Sample ``m`` of :func:`build_path`: time ``tm``, pose ``(x, y, th)``, kind ``km``."""
+    t[m] = tm
+    pose[m, 0] = x
+    pose[m, 1] = y
+    pose[m, 2] = th
+    kind[m] = km
+
 
 @_jit
-def build_path(nx, ny, nth, nt, nk, cs, sn, local, sample_t, wait_prim, depart, add_wait, tail_t, tail_xy,
-               tail_h):  # pragma: no cover - compiled
-    """The samples of ``PrimitiveRRT._build``'s path through nodes ``(nx, ny, nth)`` at times ``nt``
-    reached by primitives ``nk`` (``wait_prim``: a wait; ``cs``/``sn``: cosine and sine of each
-    node's heading), then, if ``add_wait``, a wait until ``depart`` and the goal course's tail.
-
-    The reference's arithmetic in its order: a primitive's samples are ``t + sample_t[k]`` and
-    ``(x + c lx - s ly, y + s lx + c ly, th + lth)``; samples closer than 1e-9 s to the previous one
-    are dropped. Returns ``(ok, t, pose, kind, nodes)``: ``nodes`` indexes the samples before that
-    drop, as the reference's does; ``ok`` is False when the kept times are not strictly increasing
-    (the caller then runs the reference, which raises)."""
-    m_nodes = len(nx)
-    n_samp = local.shape[1]
-    size = 1
-    for i in range(1, m_nodes):
-        size += 1 if nk[i] == wait_prim else n_samp
-    size += (1 if add_wait else 0) + len(tail_t)
-    t = np.empty(size)
-    pose = np.empty((size, 3))
-    kind = np.empty(size, dtype=np.int8)
-    nodes = np.empty(m_nodes, dtype=np.int64)
-    t[0] = nt[0]
-    pose[0, 0] = nx[0]
-    pose[0, 1] = ny[0]
-    pose[0, 2] = nth[0]
-    kind[0] = 0  # START
-    nodes[0] = 0
-    m = 1
-    for i in range(1, m_nodes):
-        k = nk[i]
-        if k == wait_prim:
-            t[m] = nt[i]
-            pose[m, 0] = nx[i]
-            pose[m, 1] = ny[i]
-            pose[m, 2] = nth[i]
-            kind[m] = 2  # WAIT
-            m += 1
-        else:
-            x = nx[i - 1]
-            y = ny[i - 1]
-            th = nth[i - 1]
-            c = cs[i - 1]
-            s = sn[i - 1]
-            tp = nt[i - 1]
-            for j in range(n_samp):
-                lx = local[k, j, 0]
-                ly = local[k, j, 1]
-                t[m] = tp + sample_t[k, j]
-                pose[m, 0] = x + c * lx - s * ly
-                pose[m, 1] = y + s * lx + c * ly
-                pose[m, 2] = th + local[k, j, 2]
-                kind[m] = 1  # PRIM
-                m += 1
-        nodes[i] = m - 1
-    if add_wait:
-        t[m] = depart
-        pose[m, 0] = nx[m_nodes - 1]
-        pose[m, 1] = ny[m_nodes - 1]
-        pose[m, 2] = nth[m_nodes - 1]
-        kind[m] = 2  # WAIT
-        m += 1
-    for j in range(len(tail_t)):
-        t[m] = tail_t[j]
-        pose[m, 0] = tail_xy[j, 0]
-        pose[m, 1] = tail_xy[j, 1]
-        pose[m, 2] = tail_h[j]
-        kind[m] = 3  # TAIL
-        m += 1
+def _drop_repeats(t, pose, kind):  # pragma: no cover - compiled
+    """Keep the first sample and every one more than 1e-9 s after the one before it (in the
+    original order), compacted to the front; returns ``(ok, kept)``, ``ok`` False when the kept
+    times are not strictly increasing."""
+    size = len(t)
     keep = np.ones(size, dtype=np.bool_)
     for i in range(1, size):
         keep[i] = t[i] - t[i - 1] > 1e-9
@@ -190,6 +365,64 @@ def build_path(nx, ny, nth, nt, nk, cs, sn, local, sample_t, wait_prim, depart, 
             pose[w, 2] = pose[i, 2]
             kind[w] = kind[i]
             w += 1
+    return ok, w
+
+
+@_jit
+def build_path(branch, prims, tail, wait_prim):  # pragma: no cover - compiled
+    """The samples of ``PrimitiveRRT._build``'s path through the nodes of ``branch``
+    (:class:`Branch`; ``wait_prim``: the primitive id of a wait) with the primitives ``prims``,
+    then, if ``tail.add_wait``, a wait until ``tail.depart``, and the goal course's tail
+    (:class:`Tail`).
+
+    The reference's arithmetic in its order: a primitive's samples are ``t + sample_t[k]`` and
+    ``(x + c lx - s ly, y + s lx + c ly, th + lth)``; samples closer than 1e-9 s to the previous one
+    are dropped. Returns ``(ok, t, pose, kind, nodes)``: ``nodes`` indexes the samples before that
+    drop, as the reference's does; ``ok`` is False when the kept times are not strictly increasing
+    (the caller then runs the reference, which raises)."""
+    prims = _as_prims(prims)
+    nx, ny, nth, nt, nk = branch.x, branch.y, branch.th, branch.t, branch.prim
+    local = prims.local
+    m_nodes = len(nx)
+    n_samp = local.shape[1]
+    size = 1
+    for i in range(1, m_nodes):
+        size += 1 if nk[i] == wait_prim else n_samp
+    size += (1 if tail.add_wait else 0) + len(tail.t)
+    t = np.empty(size)
+    pose = np.empty((size, 3))
+    kind = np.empty(size, dtype=np.int8)
+    nodes = np.empty(m_nodes, dtype=np.int64)
+    _put(t, pose, kind, 0, nt[0], nx[0], ny[0], nth[0], 0)  # START
+    nodes[0] = 0
+    m = 1
+    for i in range(1, m_nodes):
+        k = nk[i]
+        if k == wait_prim:
+            _put(t, pose, kind, m, nt[i], nx[i], ny[i], nth[i], 2)  # WAIT
+            m += 1
+        else:
+            x = nx[i - 1]
+            y = ny[i - 1]
+            th = nth[i - 1]
+            c = branch.cos[i - 1]
+            s = branch.sin[i - 1]
+            tp = nt[i - 1]
+            for j in range(n_samp):
+                lx = local[k, j, 0]
+                ly = local[k, j, 1]
+                _put(t, pose, kind, m, tp + prims.sample_t[k, j], x + c * lx - s * ly, y + s * lx + c * ly,
+                     th + local[k, j, 2], 1)  # PRIM
+                m += 1
+        nodes[i] = m - 1
+    if tail.add_wait:
+        last = m_nodes - 1
+        _put(t, pose, kind, m, tail.depart, nx[last], ny[last], nth[last], 2)  # WAIT
+        m += 1
+    for j in range(len(tail.t)):
+        _put(t, pose, kind, m, tail.t[j], tail.xy[j, 0], tail.xy[j, 1], tail.heading[j], 3)  # TAIL
+        m += 1
+    ok, w = _drop_repeats(t, pose, kind)
     return ok, t[:w], pose[:w], kind[:w], nodes
 
 
@@ -208,18 +441,32 @@ def _search_left(a, v):  # pragma: no cover - compiled
 
 
 @_jit
-def _expand_node(px, py, c, s, pt, lx, ly, lt, n_prims, n_samp,
-                 f_inv, f_xmax, f_ymax, f_nx, f_values,
-                 buffer, relax, sx, sy, c0, slope, rdist, floor,
-                 has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active, any_active,
-                 sok, cok, ex, ey):  # pragma: no cover - compiled
-    """Every primitive from the pose at ``(px, py)`` with heading cosine/sine ``c``/``s`` at time
-    ``pt``: fills ``sok``/``cok`` (every sample keeps the buffer / the constraints; both start
-    True) and the end points ``ex``/``ey``. The sample ``q`` is at ``(px + c lx - s ly, py + s lx
-    + c ly)`` (``MotionPrimitives.expand``'s arithmetic) and time ``pt + lt[q]``; the buffer rule is
-    ``PrimitiveRRT._static_ok``'s. False for a NaN coordinate."""
+def _static_ok(x, y, field, rule):  # pragma: no cover - compiled
+    """``PrimitiveRRT._static_ok`` at one point: the clearance in ``field`` keeps the buffer rule
+    ``rule`` (:class:`Buffer`)."""
+    clear = _clear1(x, y, field)
+    if rule.relax:
+        d = math.hypot(x - rule.sx, y - rule.sy)
+        need = rule.c0 + rule.slope * max(d - rule.rdist, 0.0)
+        return clear >= max(min(rule.buffer, need), rule.floor)
+    return clear >= rule.buffer
+
+
+@_jit
+def _expand_node(px, py, c, s, pt, search, sok, cok, ex, ey):  # pragma: no cover - compiled
+    """Every primitive of ``search.prims`` from the pose at ``(px, py)`` with heading cosine/sine
+    ``c``/``s`` at time ``pt``: fills ``sok``/``cok`` (every sample keeps the buffer / the
+    constraints; both start True) and the end points ``ex``/``ey``. The sample ``q`` is at ``(px +
+    c lx - s ly, py + s lx + c ly)`` (``MotionPrimitives.expand``'s arithmetic) and time ``pt +
+    lt[q]``; the buffer rule is ``PrimitiveRRT._static_ok``'s. False for a NaN coordinate."""
+    prims = search.prims
+    cons = search.cons
+    field = search.field
+    rule = search.rule
+    lx, ly, lt = prims.lx, prims.ly, prims.lt
+    n_samp = prims.n_samples
     last = n_samp - 1
-    for k in range(n_prims):
+    for k in range(prims.n_prims):
         for m in range(n_samp):
             q = k * n_samp + m
             x = px + c * lx[q] - s * ly[q]
@@ -230,55 +477,60 @@ def _expand_node(px, py, c, s, pt, lx, ly, lt, n_prims, n_samp,
                 ex[k] = x
                 ey[k] = y
             if sok[k]:
-                clear = _clear1(x, y, f_inv, f_xmax, f_ymax, f_nx, f_values)
-                if relax:
-                    d = math.hypot(x - sx, y - sy)
-                    need = c0 + slope * max(d - rdist, 0.0)
-                    sok[k] = clear >= max(min(buffer, need), floor)
-                else:
-                    sok[k] = clear >= buffer
-            if has_cons and cok[k]:
-                cok[k] = _free1(x, y, pt + lt[q], t0, inv_dt, k_max, cpx, cpy, r2, active, any_active)
+                sok[k] = _static_ok(x, y, field, rule)
+            if cons.has and cok[k]:
+                cok[k] = _free1(x, y, pt + lt[q], cons)
     return True
 
 
 @_jit
-def candidates(x, y, c, s, t, lx, ly, lt, n_prims, n_samp,
-               f_inv, f_xmax, f_ymax, f_nx, f_values,
-               buffer, relax, sx, sy, c0, slope, rdist, floor,
-               has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active, any_active):  # pragma: no cover - compiled
-    """``PrimitiveRRT._candidates`` from one pose: ``(ok, sok, cok, ex, ey)`` (see :func:`_expand_node`)."""
+def candidates(x, y, c, s, t, search):  # pragma: no cover - compiled
+    """``PrimitiveRRT._candidates`` from one pose under ``search`` (:class:`Search`): ``(ok, sok,
+    cok, ex, ey)`` (see :func:`_expand_node`)."""
+    search = _as_search(search)
+    n_prims = search.prims.n_prims
     sok = np.ones(n_prims, dtype=np.bool_)
     cok = np.ones(n_prims, dtype=np.bool_)
     ex = np.empty(n_prims)
     ey = np.empty(n_prims)
-    ok = _expand_node(x, y, c, s, t, lx, ly, lt, n_prims, n_samp, f_inv, f_xmax, f_ymax, f_nx, f_values,
-                      buffer, relax, sx, sy, c0, slope, rdist, floor,
-                      has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active, any_active, sok, cok, ex, ey)
+    ok = _expand_node(x, y, c, s, t, search, sok, cok, ex, ey)
     return ok, sok, cok, ex, ey
 
 
 @_jit
-def _still_free(x, y, t_from, t_to, has_cons, t0, inv_dt, k_max, px, py, r2, active):  # pragma: no cover - compiled
+def _still_free(x, y, t_from, t_to, cons):  # pragma: no cover - compiled
     """``PrimitiveRRT._still_free`` (and ``ConstraintTable.still_free``'s grid columns)."""
-    if not has_cons or t_to <= t_from:
+    if not cons.has or t_to <= t_from:
         return True
-    k_last = np.int64(k_max)
-    k0 = min(max(np.int64((t_from - t0) * inv_dt + 0.5), 0), k_last)
-    k1 = min(max(np.int64((t_to - t0) * inv_dt + 0.5), 0), k_last) + 1
-    return constraint_still_free(x, y, k0, k1, px, py, r2, active)
+    k_last = np.int64(cons.k_max)
+    k0 = min(max(np.int64((t_from - cons.t0) * cons.inv_dt + 0.5), 0), k_last)
+    k1 = min(max(np.int64((t_to - cons.t0) * cons.inv_dt + 0.5), 0), k_last) + 1
+    return constraint_still_free(x, y, k0, k1, cons)
 
 
 @_jit
-def explore_add(X, T, parent, prim, n, uniq, inv, sok, cok, ex, ey, best, found, angles, durations, wait_prim,
-                wait_step, t_end, has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active):  # pragma: no cover - compiled
-    """``explore``'s additions to the tree (``X``, ``T``, ``parent``, ``prim``, ``n`` nodes) from
-    :func:`explore_batch`'s answer, in sample order: each sample's best primitive from its node,
-    or, where constraints block every primitive that the obstacles allow, a wait of ``wait_step``
-    (if the robot may stand there that long and it ends by ``t_end``); a (node, primitive) pair
-    once. Returns ``(n, added)``."""
+def _blocked(sok, cok, u):  # pragma: no cover - compiled
+    """Constraints block a primitive of distinct node ``u`` that the obstacles allow."""
+    for kk in range(sok.shape[1]):
+        if sok[u, kk] and not cok[u, kk]:
+            return True
+    return False
+
+
+@_jit
+def explore_add(tree, n, batch, search):  # pragma: no cover - compiled
+    """``explore``'s additions to ``tree`` (:class:`Tree`, ``n`` nodes in use) from
+    :func:`explore_batch`'s answer ``batch`` (:class:`Batch`), in sample order: each sample's best
+    primitive from its node, or, where constraints block every primitive that the obstacles allow,
+    a wait of ``search.wait_step`` (if the robot may stand there that long and it ends by
+    ``search.t_end``); a (node, primitive) pair once. Returns ``(n, added)``."""
+    tree = _as_tree(tree)
+    batch = _as_batch(batch)
+    search = _as_search(search)
+    X, T = tree.X, tree.T
+    inv = batch.inv
+    wait_prim = search.wait_prim
     b = len(inv)
-    n_prims = sok.shape[1]
     added = np.empty(b, dtype=np.int64)
     n_added = 0
     seen_u = np.empty(b, dtype=np.int64)
@@ -286,7 +538,7 @@ def explore_add(X, T, parent, prim, n, uniq, inv, sok, cok, ex, ey, best, found,
     n_seen = 0
     for j in range(b):
         u = inv[j]
-        k = best[j] if found[j] else wait_prim
+        k = batch.best[j] if batch.found[j] else wait_prim
         dup = False
         for q in range(n_seen):
             if seen_u[q] == u and seen_k[q] == k:
@@ -294,32 +546,27 @@ def explore_add(X, T, parent, prim, n, uniq, inv, sok, cok, ex, ey, best, found,
                 break
         if dup:
             continue
-        i = uniq[u]
+        i = batch.uniq[u]
         if k == wait_prim:
-            blocked = False
-            for kk in range(n_prims):
-                if sok[u, kk] and not cok[u, kk]:
-                    blocked = True
-                    break
-            t_to = T[i] + wait_step
-            if not blocked or t_to > t_end:
+            t_to = T[i] + search.wait_step
+            if not _blocked(batch.sok, batch.cok, u) or t_to > search.t_end:
                 continue
-            if not _still_free(X[i, 0], X[i, 1], T[i], t_to, has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active):
+            if not _still_free(X[i, 0], X[i, 1], T[i], t_to, search.cons):
                 continue
             X[n, 0] = X[i, 0]
             X[n, 1] = X[i, 1]
             X[n, 2] = X[i, 2]
             T[n] = t_to
         else:
-            X[n, 0] = ex[u, k]
-            X[n, 1] = ey[u, k]
-            X[n, 2] = X[i, 2] + angles[k]
-            T[n] = T[i] + durations[k]
+            X[n, 0] = batch.ex[u, k]
+            X[n, 1] = batch.ey[u, k]
+            X[n, 2] = X[i, 2] + search.prims.angles[k]
+            T[n] = T[i] + search.prims.durations[k]
         seen_u[n_seen] = u
         seen_k[n_seen] = k
         n_seen += 1
-        parent[n] = i
-        prim[n] = k
+        tree.parent[n] = i
+        tree.prim[n] = k
         added[n_added] = n
         n_added += 1
         n += 1
@@ -327,22 +574,9 @@ def explore_add(X, T, parent, prim, n, uniq, inv, sok, cok, ex, ey, best, found,
 
 
 @_jit
-def explore_batch(X, n, qx, qy, atan, hw, lx, ly, lt, n_prims, n_samp, T,
-                  f_inv, f_xmax, f_ymax, f_nx, f_values,
-                  buffer, relax, sx, sy, c0, slope, rdist, floor,
-                  has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active, any_active):  # pragma: no cover - compiled
-    """The vectorised part of ``PrimitiveRRT.plan``'s ``explore`` for samples ``(qx, qy)`` (``b``
-    of them) and the tree ``X[:n]``, ``T[:n]``; ``atan[j, i]``: the direction from node ``i`` to
-    sample ``j`` (numpy's arctan2, computed by the caller), wrapped against the node's heading here
-    as the reference does (``(atan - th + pi) % (2 pi) - pi``: Python's float ``%``, which is numpy's
-    ``remainder``: ``fmod`` and the sign fix-up).
-
-    Returns ``(ok, uniq, inv, sok, cok, ex, ey, best, found)``: the distinct nearest nodes ``uniq``
-    (sorted) and each sample's index into them (``np.unique``'s ``inverse``); per distinct node and
-    primitive, whether every sample point keeps the buffer (``sok``) and the constraints (``cok``)
-    and the end point (``ex``, ``ey``); per sample the primitive whose valid end is nearest to it
-    (``best``) and whether there is one (``found``). ``ok`` is False for a NaN coordinate (the
-    caller then runs the reference)."""
+def _nearest_nodes(X, n, qx, qy, atan, hw):  # pragma: no cover - compiled
+    """Each sample's nearest of the nodes ``X[:n]`` (squared distance plus ``(hw * wrapped heading
+    error)^2``, ``argmin``'s first minimum or first NaN)."""
     b = len(qx)
     parents = np.empty(b, dtype=np.int64)
     for j in range(b):
@@ -360,6 +594,13 @@ def explore_batch(X, n, qx, qy, atan, hw, lx, ly, lt, n_prims, n_samp, T,
                 bv = v
                 best = i
         parents[j] = best
+    return parents
+
+
+@_jit
+def _unique_inverse(parents):  # pragma: no cover - compiled
+    """``np.unique(parents, return_inverse=True)``: the sorted distinct values and each one's index."""
+    b = len(parents)
     srt = np.sort(parents)
     uniq = np.empty(b, dtype=np.int64)
     n_u = 0
@@ -374,15 +615,37 @@ def explore_batch(X, n, qx, qy, atan, hw, lx, ly, lt, n_prims, n_samp, T,
             if uniq[u] == parents[j]:
                 inv[j] = u
                 break
+    return uniq, inv
+
+
+@_jit
+def explore_batch(tree, n, qx, qy, atan, search):  # pragma: no cover - compiled
+    """The vectorised part of ``PrimitiveRRT.plan``'s ``explore`` for samples ``(qx, qy)`` (``b``
+    of them) and the nodes ``tree.X[:n]``, ``tree.T[:n]`` under ``search`` (:class:`Search`);
+    ``atan[j, i]``: the direction from node ``i`` to sample ``j`` (numpy's arctan2, computed by the
+    caller), wrapped against the node's heading here as the reference does (``(atan - th + pi) % (2
+    pi) - pi``: Python's float ``%``, which is numpy's ``remainder``: ``fmod`` and the sign fix-up).
+
+    Returns ``(ok, uniq, inv, sok, cok, ex, ey, best, found)``: :class:`Batch`'s fields (the distinct
+    nearest nodes sorted, each sample's index into them as ``np.unique``'s ``inverse``; per sample
+    the primitive whose valid end is nearest to it). ``ok`` is False for a NaN coordinate (the
+    caller then runs the reference)."""
+    tree = _as_tree(tree)
+    search = _as_search(search)
+    X, T = tree.X, tree.T
+    n_prims = search.prims.n_prims
+    b = len(qx)
+    parents = _nearest_nodes(X, n, qx, qy, atan, search.heading_weight)
+    uniq, inv = _unique_inverse(parents)
+    n_u = len(uniq)
     sok = np.ones((n_u, n_prims), dtype=np.bool_)
     cok = np.ones((n_u, n_prims), dtype=np.bool_)
     ex = np.empty((n_u, n_prims))
     ey = np.empty((n_u, n_prims))
     for u in range(n_u):
         i = uniq[u]
-        if not _expand_node(X[i, 0], X[i, 1], math.cos(X[i, 2]), math.sin(X[i, 2]), T[i], lx, ly, lt, n_prims, n_samp,
-                            f_inv, f_xmax, f_ymax, f_nx, f_values, buffer, relax, sx, sy, c0, slope, rdist, floor,
-                            has_cons, t0, inv_dt, k_max, cpx, cpy, r2, active, any_active, sok[u], cok[u], ex[u], ey[u]):
+        if not _expand_node(X[i, 0], X[i, 1], math.cos(X[i, 2]), math.sin(X[i, 2]), T[i], search,
+                            sok[u], cok[u], ex[u], ey[u]):
             return False, uniq, inv, sok, cok, ex, ey, parents, sok[0]
     best_k = np.zeros(b, dtype=np.int64)
     found = np.zeros(b, dtype=np.bool_)
@@ -402,37 +665,44 @@ def explore_batch(X, n, qx, qy, atan, hw, lx, ly, lt, n_prims, n_samp, T,
 
 
 @_jit
-def near_goal(X, T, new, gt, gxy, max_wait, tol2):  # pragma: no cover - compiled
-    """For each new node ``new[m]``: is some goal sample within ``sqrt(tol2)`` at a time in
-    ``(T, T + max_wait]`` (the reference's squared distances; finite inputs)?"""
+def near_goal(tree, new, goal):  # pragma: no cover - compiled
+    """For each new node ``new[m]`` of ``tree``: is some sample of ``goal`` (:class:`Goal`) within
+    ``goal.tol`` at a time in ``(T, T + max_wait]`` (the reference's squared distances, against
+    ``goal.tol2``; finite inputs)?"""
+    tree = _as_tree(tree)
+    goal = _as_goal(goal)
+    X, T = tree.X, tree.T
+    gt, gxy = goal.t, goal.xy
     out = np.zeros(len(new), dtype=np.bool_)
     for m in range(len(new)):
         i = new[m]
         t = T[i]
-        hi = t + max_wait
+        hi = t + goal.max_wait
         for k in range(len(gt)):
             if gt[k] > t and gt[k] <= hi:
                 dx = gxy[k, 0] - X[i, 0]
                 dy = gxy[k, 1] - X[i, 1]
-                if dx * dx + dy * dy <= tol2:
+                if dx * dx + dy * dy <= goal.tol2:
                     out[m] = True
                     break
     return out
 
 
 @_jit
-def join_candidates(x, y, t, th, gt, gxy, fast, gdir, tail_ok, use_tail, max_wait, tol, follow, cos_join,
-                    out_k, out_dep):  # pragma: no cover - compiled
-    """``PrimitiveRRT._join``'s candidate goal samples (at most ``len(out_k)``, earliest first) written
-    to ``out_k``/``out_dep`` (sample, departure time); returns how many."""
+def join_candidates(x, y, t, th, goal, out_k, out_dep):  # pragma: no cover - compiled
+    """``PrimitiveRRT._join``'s candidate samples of ``goal`` (:class:`Goal`; at most ``len(out_k)``,
+    earliest first) for a robot at ``(x, y)`` with heading ``th`` at ``t``, written to
+    ``out_k``/``out_dep`` (sample, departure time); returns how many."""
+    goal = _as_goal(goal)
+    gt, gxy = goal.t, goal.xy
     n_goal = len(gt)
     k_lo = _search_left(gt, t + 1e-9)
     if k_lo >= n_goal:
         return 0
-    k_hi = min(n_goal, _search_left(gt, (t + max_wait) + 1e-9) + 1)
+    k_hi = min(n_goal, _search_left(gt, (t + goal.max_wait) + 1e-9) + 1)
     any_fast = False
     for k in range(k_lo, k_hi):
-        if fast[k]:
+        if goal.fast[k]:
             any_fast = True
             break
     c = math.cos(th) if any_fast else 0.0
@@ -440,12 +710,12 @@ def join_candidates(x, y, t, th, gt, gxy, fast, gdir, tail_ok, use_tail, max_wai
     count = 0
     for k in range(k_lo, k_hi):
         d = math.hypot(gxy[k, 0] - x, gxy[k, 1] - y)
-        dep = gt[k] - d / follow
-        ok = d <= tol and dep >= t
-        if ok and fast[k]:
-            ok = c * gdir[k, 0] + s * gdir[k, 1] >= cos_join
-        if ok and use_tail:
-            ok = tail_ok[k]
+        dep = gt[k] - d / goal.follow
+        ok = d <= goal.tol and dep >= t
+        if ok and goal.fast[k]:
+            ok = c * goal.dir[k, 0] + s * goal.dir[k, 1] >= goal.cos_join
+        if ok and goal.use_tail:
+            ok = goal.tail_ok[k]
         if ok:
             out_k[count] = k
             out_dep[count] = dep
@@ -456,13 +726,16 @@ def join_candidates(x, y, t, th, gt, gxy, fast, gdir, tail_ok, use_tail, max_wai
 
 
 @_jit
-def intercept(x, y, t, gt, gxy, speed, tail_ok, use_tail):  # pragma: no cover - compiled
-    """``PrimitiveRRT._intercept``: the index of the first goal sample after ``t`` reachable at
-    ``0.8 * speed`` (and joinable for good where ``use_tail``), else the last."""
+def intercept(x, y, t, goal):  # pragma: no cover - compiled
+    """``PrimitiveRRT._intercept``: the index of the first sample of ``goal`` (:class:`Goal`) after
+    ``t`` reachable at ``0.8 * goal.speed`` (and joinable for good where ``goal.use_tail``), else the
+    last."""
+    goal = _as_goal(goal)
+    gt, gxy = goal.t, goal.xy
     n_goal = len(gt)
     for k in range(min(_search_left(gt, t + 1e-9), n_goal - 1), n_goal):
-        reach = (gt[k] - t) * speed * 0.8
-        if math.hypot(gxy[k, 0] - x, gxy[k, 1] - y) <= reach and (not use_tail or tail_ok[k]):
+        reach = (gt[k] - t) * goal.speed * 0.8
+        if math.hypot(gxy[k, 0] - x, gxy[k, 1] - y) <= reach and (not goal.use_tail or goal.tail_ok[k]):
             return k
     return n_goal - 1
 
@@ -513,57 +786,66 @@ def interp_xy(times, xp, fp):  # pragma: no cover - compiled
 
 
 @_jit
-def path_free(times, xp, fp, t0, inv_dt, k_max, px, py, r2, active, any_active):  # pragma: no cover - compiled
+def path_free(times, xp, fp, cons):  # pragma: no cover - compiled
     """``PrimitiveRRT._path_free``'s test: the path ``(xp, fp)`` at every time of ``times`` is
-    outside every constraint (``ConstraintTable.free``); ``-1`` for a NaN time (the caller then
-    runs the reference), else ``1``/``0``."""
+    outside every constraint of ``cons`` (``ConstraintTable.free``); ``-1`` for a NaN time (the
+    caller then runs the reference), else ``1``/``0``."""
+    cons = _as_cons(cons)
     for m in range(len(times)):
         t = times[m]
         if t != t:
             return -1
-        if not _free1(_interp1(t, xp, fp, 0), _interp1(t, xp, fp, 1), t, t0, inv_dt, k_max, px, py, r2, active,
-                      any_active):
+        if not _free1(_interp1(t, xp, fp, 0), _interp1(t, xp, fp, 1), t, cons):
             return 0
     return 1
 
 
 @_jit
-def join(x, y, t, th, gt, gxy, fast, gdir, tail_ok, max_wait, tol, follow, cos_join, junction,
-         has_cons, t0, inv_dt, k_max, px, py, r2, active, any_active, n_try):  # pragma: no cover - compiled
-    """``PrimitiveRRT._join``: of the first ``n_try`` goal samples the robot may join
-    (:func:`join_candidates`), the first whose wait at ``(x, y)`` from ``t`` until the departure and
-    straight junction (points at fractions ``junction``) respect the constraints. Returns
-    ``(k, depart)``, ``k = -1`` for none; ``k = -2`` when a junction time is NaN (the caller then
-    runs the reference)."""
-    out_k = np.empty(n_try, dtype=np.int64)
-    out_dep = np.empty(n_try)
-    count = join_candidates(x, y, t, th, gt, gxy, fast, gdir, tail_ok, has_cons, max_wait, tol, follow, cos_join,
-                            out_k, out_dep)
+def _junction_free(x, y, k, dep, goal, cons):  # pragma: no cover - compiled
+    """The straight junction from ``(x, y)`` at ``dep`` to sample ``k`` of ``goal`` respects ``cons``
+    at the fractions ``goal.junction``: ``1``/``0``, ``-1`` when a junction time is NaN."""
+    gx = goal.xy[k, 0] - x
+    gy = goal.xy[k, 1] - y
+    gtk = goal.t[k] - dep
+    for q in range(len(goal.junction)):
+        s = goal.junction[q]
+        jt = dep + s * gtk
+        if jt != jt:
+            return -1
+        if not _free1(x + s * gx, y + s * gy, jt, cons):
+            return 0
+    return 1
+
+
+@_jit
+def join(x, y, t, th, goal, cons):  # pragma: no cover - compiled
+    """``PrimitiveRRT._join``: of the first ``goal.n_try`` samples of ``goal`` (:class:`Goal`) the
+    robot may join (:func:`join_candidates`), the first whose wait at ``(x, y)`` from ``t`` until the
+    departure and straight junction (points at fractions ``goal.junction``) respect the constraints
+    ``cons``. Returns ``(k, depart)``, ``k = -1`` for none; ``k = -2`` when a junction time is NaN
+    (the caller then runs the reference)."""
+    goal = _as_goal(goal)
+    cons = _as_cons(cons)
+    out_k = np.empty(goal.n_try, dtype=np.int64)
+    out_dep = np.empty(goal.n_try)
+    count = join_candidates(x, y, t, th, goal, out_k, out_dep)
     for c in range(count):
         k = out_k[c]
         dep = out_dep[c]
-        if not has_cons:
+        if not cons.has:
             return k, dep
-        if not _still_free(x, y, t, dep, has_cons, t0, inv_dt, k_max, px, py, r2, active):
+        if not _still_free(x, y, t, dep, cons):
             continue
-        gx = gxy[k, 0] - x
-        gy = gxy[k, 1] - y
-        gtk = gt[k] - dep
-        free = True
-        for q in range(len(junction)):
-            s = junction[q]
-            jt = dep + s * gtk
-            if jt != jt:
-                return -2, dep
-            if not _free1(x + s * gx, y + s * gy, jt, t0, inv_dt, k_max, px, py, r2, active, any_active):
-                free = False
-                break
+        free = _junction_free(x, y, k, dep, goal, cons)
+        if free < 0:
+            return -2, dep
         if free:
             return k, dep
     return -1, 0.0
 
 
 __all__ = [
-    "build_path", "candidates", "clearance_xy", "constraint_free", "constraint_still_free", "explore_add",
-    "explore_batch", "intercept", "interp_xy", "join", "join_candidates", "near_goal", "path_free",
+    "Batch", "Branch", "Buffer", "Cons", "Field", "Goal", "Prims", "Search", "Tail", "Tree", "build_path",
+    "candidates", "clearance_xy", "constraint_free", "constraint_still_free", "explore_add", "explore_batch",
+    "intercept", "interp_xy", "join", "join_candidates", "near_goal", "path_free", "plain",
 ]

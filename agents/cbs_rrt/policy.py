@@ -83,18 +83,19 @@ from swarm_env_agents.cbs_rrt.cbs import CBS, CBSResult
 from swarm_env_agents.cbs_rrt.config import CBSRRTConfig
 from swarm_env_agents.cbs_rrt.constraints import Constraint
 from swarm_env_agents.cbs_rrt.distance_field import distance_field
-from swarm_env_agents.cbs_rrt.goals import FormationGoals, GoalWindow
+from swarm_env_agents.cbs_rrt.goals import FormationGoals, GoalWindow, JumpRule
 from swarm_env_agents.cbs_rrt.hold import SlotHolder
 from swarm_env_agents.cbs_rrt.hold_plan import (
     CHORD_ALLOWANCE,
     Lattice,
     PlanTracker,
+    PointModel,
     joint_paths,
     virtual_leader_done_step,
 )
 from swarm_env_agents.cbs_rrt.primitives import MotionPrimitives
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT, RRTConfig
-from swarm_env_agents.cbs_rrt.swarm import RRTLowLevel, TimedConflicts
+from swarm_env_agents.cbs_rrt.swarm import LowLevelOptions, RRTLowLevel, SplitRule, TimedConflicts
 from swarm_env_agents.cbs_rrt.timed_path import START, TAIL, TimedPath
 from swarm_env_agents.vo_expert import EXPERT_AVOIDANCE
 
@@ -254,11 +255,8 @@ class CBSRRTExpert:
             # it cannot solve.
             separation=self.separation + 0.05,
             dt=goal_dt,
-            jump_speed=0.8 * robots.max_speed,
-            jump_window=self.jump_window,
-            window_speed=robots.max_speed,
-            jump_lag=self.jump_lag,
-            chord_clearance=self._radius + self.shield_margin,
+            jumps=JumpRule(speed=0.8 * robots.max_speed, window=self.jump_window, lag=self.jump_lag,
+                           window_speed=robots.max_speed, chord_clearance=self._radius + self.shield_margin),
         )
         config = RRTConfig(
             max_iterations=self.rrt_iterations,
@@ -273,9 +271,7 @@ class CBSRRTExpert:
         floor = self._radius + self.shield_margin + 0.02
         self.rrt = PrimitiveRRT(self.primitives, self.field, self.buffer, config, floor=floor)
         self.holder = SlotHolder(
-            self.field, radius=self._radius, max_speed=robots.max_speed, max_turn_rate=robots.max_turn_rate,
-            dt=env_dt, sub_dt=env_dt / scn.world.substeps, shield_margin=self.shield_margin,
-            tolerance=scn.world.settle_tolerance, horizon=_HOLD_POINTS,
+            self.field, robots, scn.world, shield_margin=self.shield_margin, horizon=_HOLD_POINTS,
             every=max(1, round((self.hold_horizon - env_dt) / (env_dt * (_HOLD_POINTS - 1)))),
         )
         self._slot_course: np.ndarray | None = None
@@ -290,9 +286,7 @@ class CBSRRTExpert:
             # dt = 0.5 s with a contact, CBS none.
             if self.hold_plan and robots.max_speed * env_dt >= 4 * _PLAN_PITCH and not scn.humans:
                 self._tracker = PlanTracker(
-                    self.field, radius=self._radius, max_speed=robots.max_speed, max_turn_rate=robots.max_turn_rate,
-                    dt=env_dt, substeps=scn.world.substeps, tolerance=scn.world.settle_tolerance,
-                    separation=2.0 * self._radius + _PLAN_GAP, horizon=_TRACK_STEPS,
+                    self.field, robots, scn.world, separation=2.0 * self._radius + _PLAN_GAP, horizon=_TRACK_STEPS,
                 )
         self._scenario = scn
 
@@ -399,17 +393,16 @@ class CBSRRTExpert:
         # next replan); conflicts only matter until shortly after that replan (t1).
         specs = [GoalSpec(gw.t, gw.xy[i], gw.heading, int(gw.piece_end[i])) for i in range(n)]
         movers = self._movers(state, gw)
-        low = RRTLowLevel(
-            self.rrt, poses, t0, float(gw.t[-1]), specs, self._rng, constraint_slack=_CONSTRAINT_SLACK,
-            child_iterations=self.rrt_child_iterations, strong_iterations=self.rrt_strong_iterations,
-            extra_constraints=movers, park_until=t1 + self.check_margin,
-        )
+        options = LowLevelOptions(constraint_slack=_CONSTRAINT_SLACK, child_iterations=self.rrt_child_iterations,
+                                  strong_iterations=self.rrt_strong_iterations, park_until=t1 + self.check_margin)
+        low = RRTLowLevel(self.rrt, poses, t0, float(gw.t[-1]), specs, self._rng, options=options,
+                          extra_constraints=movers)
         # A robot whose goal course jumps is replanned then: its parked plan counts only a little
         # beyond (the check margin), not as an obstacle until the horizon.
         until = np.where(np.isfinite(jump_t), jump_t + self.check_margin, np.inf)
-        model = TimedConflicts(self._thresholds(poses), t0, t1, window_after=self.constraint_window,
-                               strong=self.strong_constraints, t_plan=float(gw.t[-1]), until=until,
-                               min_radius=2.0 * self._radius + 0.01, start_room=_CONSTRAINT_SLACK + 0.01)
+        rule = SplitRule(window_after=self.constraint_window, strong=self.strong_constraints,
+                         min_radius=2.0 * self._radius + 0.01, start_room=_CONSTRAINT_SLACK + 0.01)
+        model = TimedConflicts(self._thresholds(poses), t0, t1, t_plan=float(gw.t[-1]), until=until, rule=rule)
         reused = self._reusable(state, specs, t1, reasons)
         keep = self._keepers(state, gw, t1, reasons)
         if self.use_cbs:
@@ -723,12 +716,10 @@ class CBSRRTExpert:
                 k_end = k + (k_end - k) // 2
             k_end = max(k_end, k + 1)
             r = self._radius
-            paths = joint_paths(
-                state.static, self._slot_course, k, k_end, _PLAN_PITCH, scn.world.settle_tolerance,
-                scn.robots.max_speed * dt, floor=r + CHORD_ALLOWANCE + _PLAN_GAP / 2,
-                separation=2.0 * (r + CHORD_ALLOWANCE) + _PLAN_GAP,
-                starts=pose[:, :2], rounds=_PLAN_ROUNDS, reach=_PLAN_REACH,
-            )
+            model = PointModel(_PLAN_PITCH, scn.world.settle_tolerance, scn.robots.max_speed * dt,
+                               floor=r + CHORD_ALLOWANCE + _PLAN_GAP / 2, separation=2.0 * (r + CHORD_ALLOWANCE) + _PLAN_GAP)
+            paths = joint_paths(state.static, self._slot_course, k, k_end, model, starts=pose[:, :2],
+                                rounds=_PLAN_ROUNDS, reach=_PLAN_REACH)
             course = self._hold_course = (state.formation_index, k, paths)
             self._hold_course_time = state.time
             self._hold_plans += 1

@@ -32,6 +32,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from swarm_env_agents.cbs_rrt.kernels import Prims, plain
+
 __all__ = ["PAPER_ANGLES_DEG", "MotionPrimitives"]
 
 #: Paper 000's turn angles (degrees): straight, then +-12, +-24, +-36, +-48 (left first).
@@ -66,7 +68,8 @@ class MotionPrimitives:
         drives each; ``end``: ``(P, 3)`` local end pose; ``local``: ``(P, S, 3)`` local
         poses of the samples (the last one is ``end``); ``durations``: ``(P,)`` seconds;
         ``sample_t``: ``(P, S)`` time of each sample after the primitive's start;
-        ``is_spin``: ``(P,)``.
+        ``is_spin``: ``(P,)``; ``kernel``: the library as the compiled kernels take it (a
+        :class:`.kernels.Prims`, as the plain tuple of :func:`.kernels.plain`).
     """
 
     angles_deg: tuple[float, ...] = PAPER_ANGLES_DEG
@@ -86,6 +89,7 @@ class MotionPrimitives:
     # Flattened (P*S,) local sample coordinates, for one rotation of all samples at once.
     _lx: np.ndarray = field(init=False, repr=False)
     _ly: np.ndarray = field(init=False, repr=False)
+    kernel: tuple = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
         put = object.__setattr__
@@ -135,6 +139,8 @@ class MotionPrimitives:
         ):
             arr.flags.writeable = False
             put(self, name, arr)
+        put(self, "kernel", plain(Prims(self._lx, self._ly, self.sample_t.ravel(), self.local, self.sample_t,
+                                        self.angles, self.durations, len(self.angles), self.samples)))
 
     @property
     def duration(self) -> float:

@@ -184,7 +184,8 @@ class RRTResult:
 class _Tree:
     """The RRT's nodes, grown by :meth:`add`: poses ``X`` ``(cap, 3)``, times ``T``, each node's ``parent`` and the
     primitive that reached it (``prim``; ``-1`` at the root, ``_WAIT_PRIM`` for a wait), and the goal-directed
-    extensions that failed from it (``fails``). ``n`` nodes are in use."""
+    extensions that failed from it (``fails``). ``n`` nodes are in use. ``arrays``: the first four as the compiled
+    kernels take them (a :class:`.kernels.Tree` of the same arrays, as a :func:`.kernels.plain` tuple)."""
 
     def __init__(self, cap: int, root: tuple[float, float, float], t0: float) -> None:
         self.cap = cap
@@ -198,6 +199,7 @@ class _Tree:
         self.parent[0] = -1
         self.prim[0] = -1
         self.n = 1
+        self.arrays = kernels.plain(kernels.Tree(self.X, self.T, self.parent, self.prim))
 
     def add(self, i: int, pose: np.ndarray, t: float, k: int) -> int:
         """A node at ``pose`` and time ``t``, reached from node ``i`` by primitive ``k``; returns its index."""
@@ -272,7 +274,7 @@ class PrimitiveRRT:
         (``None, None`` from the compiled version, :func:`.kernels.candidates`: the same answers)."""
         if compiled_kernels():
             x, y, th = float(x), float(y), float(th)
-            ok, sok, cok, ex, ey = kernels.candidates(x, y, math.cos(th), math.sin(th), float(t), *self._cand_args)
+            ok, sok, cok, ex, ey = kernels.candidates(x, y, math.cos(th), math.sin(th), float(t), self._search)
             if ok:
                 ends = np.empty((self._P, 3))
                 ends[:, 0] = ex
@@ -303,7 +305,7 @@ class PrimitiveRRT:
         turns in place first, with a spin primitive)."""
         g = self._goal
         if compiled_kernels():  # the same join, see .kernels.join
-            k, dep = kernels.join(float(x), float(y), float(t), float(th), *self._join_args)
+            k, dep = kernels.join(float(x), float(y), float(t), float(th), self._goal_kernel, self._cons.kernel)
             if k >= 0:
                 return int(k), float(dep)
             if k == -1:
@@ -346,7 +348,7 @@ class PrimitiveRRT:
         time allows reaching it at the primitives' speed (first such sample)."""
         g = self._goal
         if compiled_kernels():  # the same sample, see .kernels.intercept
-            return g.xy_eff[kernels.intercept(float(x), float(y), float(t), *self._intercept_args)]
+            return g.xy_eff[kernels.intercept(float(x), float(y), float(t), self._goal_kernel)]
         k_lo = min(g.index_after(t), len(g.t) - 1)
         G = g.xy_eff[k_lo:]
         reach = (g.t[k_lo:] - t) * self.prims.speed * 0.8
@@ -364,12 +366,14 @@ class PrimitiveRRT:
             # _tail_ok[k]: following the goal course from sample k on respects every constraint.
             free = constraints.free(goal.xy_eff[:, 0], goal.xy_eff[:, 1], goal.t)
             self._tail_ok = np.ascontiguousarray(np.flip(np.logical_and.accumulate(np.flip(free))))
-        # The compiled _join's and _intercept's arguments after the robot's state (bound once per call).
+        # The goal as the compiled _join, _intercept and _joins take it (bound once per call; a plain tuple,
+        # which numba types faster on these frequent calls: see .kernels.plain).
         tail = self._tail_ok if constraints.count else goal.fast  # (a placeholder of the same type)
         cfg = self.config
-        self._join_args = (goal.t, goal.xy_eff, goal.fast, goal.dir, tail, cfg.max_wait, cfg.goal_tolerance,
-                           self._follow, self._cos_join, _JUNCTION_S, *constraints.kernel_args(), 4)
-        self._intercept_args = (goal.t, goal.xy_eff, self.prims.speed, tail, constraints.count > 0)
+        self._goal_kernel = kernels.plain(kernels.Goal(
+            goal.t, goal.xy_eff, goal.fast, goal.dir, tail, constraints.count > 0, cfg.max_wait, cfg.goal_tolerance,
+            cfg.goal_tolerance ** 2, self._follow, self._cos_join, self.prims.speed, _JUNCTION_S, 4,
+        ))
 
     # ------------------------------------------------------------------ plan
     def plan(
@@ -453,16 +457,13 @@ class PrimitiveRRT:
         # Below the floor already (pushed there): it may not get any worse.
         self._floor = min(self.floor, c0 - 0.005)
         self._t_end = float(goal.t[-1])
-        fld = self.field
-        field_args = (fld._inv, fld._xmax, fld._ymax, fld.nx, fld.values)
-        relax_args = (self.buffer, self._relax, sx, sy, self._c0, cfg.relax_slope, cfg.relax_distance, self._floor)
-        cons_args = self._cons.kernel_args()
-        # The compiled _candidates' arguments after the pose and time: primitives, field, buffer rule, constraints.
-        self._cand_args = (self.prims._lx, self.prims._ly, self._lt, self._P, self._S, *field_args, *relax_args,
-                           *cons_args)
+        # What the compiled _candidates and _explore read on every expansion (bound once per call; a plain tuple,
+        # which numba types faster: see .kernels.plain).
+        rule = kernels.Buffer(self.buffer, self._relax, sx, sy, self._c0, cfg.relax_slope, cfg.relax_distance,
+                              self._floor)
+        self._search = kernels.plain(kernels.Search(self.prims.kernel, self.field.kernel, rule, self._cons.kernel,
+                                                    cfg.heading_weight, _WAIT_PRIM, cfg.wait_step, self._t_end))
         self._compiled = compiled_kernels()
-        self._explore_args = (*field_args, *relax_args, *cons_args)
-        self._still_args = cons_args[:-1]  # what the wait test needs (no any_active)
 
     def _result(self, tree: _Tree, node: int, join: tuple[int, float] | None, it: int, keep_tree: bool) -> RRTResult:
         """The path from the root to ``node`` (then along the goal course from ``join``), smoothed when it joins."""
@@ -529,20 +530,18 @@ class PrimitiveRRT:
             prev = dist
         return None
 
-    def _expand_batch(
-        self, tree: _Tree, qx: np.ndarray, qy: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Nearest nodes of the samples and all primitives from them: ``uniq`` (distinct nodes),
-        ``inv`` (each sample's index into ``uniq``), ``sok``/``cok`` ``(U, P)`` (static /
-        constraint validity), ``ex``/``ey`` ``(U, P)`` end points, ``best`` (each sample's
-        nearest valid primitive end) and ``found`` (it has one)."""
+    def _expand_batch(self, tree: _Tree, qx: np.ndarray, qy: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Nearest nodes of the samples and all primitives from them (the items of a :class:`.kernels.Batch`,
+        a plain tuple from the compiled version): ``uniq`` (distinct nodes), ``inv`` (each sample's index into
+        ``uniq``), ``sok``/``cok`` ``(U, P)`` (static / constraint validity), ``ex``/``ey`` ``(U, P)`` end points,
+        ``best`` (each sample's nearest valid primitive end) and ``found`` (it has one)."""
         cfg, prims = self.config, self.prims
         X, T, n = tree.X, tree.T, tree.n
         lx, ly, lt, P, S = prims._lx, prims._ly, self._lt, self._P, self._S
         qx2, qy2 = qx[:, None], qy[:, None]
         atan = np.arctan2(qy2 - X[:n, 1], qx2 - X[:n, 0])  # numpy's (not the C library's) bits, see .kernels
         if self._compiled:  # the same answers, see .kernels.explore_batch
-            out = kernels.explore_batch(X, n, qx, qy, atan, cfg.heading_weight, lx, ly, lt, P, S, T, *self._explore_args)
+            out = kernels.explore_batch(tree.arrays, n, qx, qy, atan, self._search)
             if out[0]:
                 return out[1:]
         ang = np.abs((atan - X[:n, 2] + np.pi) % (2.0 * np.pi) - np.pi)
@@ -565,19 +564,18 @@ class PrimitiveRRT:
         dd[~valid[inv]] = np.inf
         best = np.argmin(dd, axis=1)
         found = np.isfinite(dd[np.arange(len(best)), best])
-        return uniq, inv, sok, cok, ex, ey, best, found
+        return kernels.Batch(uniq, inv, sok, cok, ex, ey, best, found)
 
     def _explore(self, tree: _Tree, samples: np.ndarray) -> tuple[int, tuple[int, tuple[int, float]] | None]:
         """One random expansion per row of ``samples`` ``(b, 2)`` in one vectorised pass (the same rule as
         :meth:`_extend` for each sample): returns the number of nodes added and the first join found."""
         cfg, prims = self.config, self.prims
         X, T = tree.X, tree.T
-        uniq, inv, sok, cok, ex, ey, best, found = self._expand_batch(tree, samples[:, 0].copy(), samples[:, 1].copy())
+        batch = self._expand_batch(tree, samples[:, 0].copy(), samples[:, 1].copy())
         if self._compiled:  # the same nodes in the same order, see .kernels.explore_add
-            tree.n, new = kernels.explore_add(X, T, tree.parent, tree.prim, tree.n, uniq, inv, sok, cok, ex, ey, best,
-                                              found, prims.angles, prims.durations, _WAIT_PRIM, cfg.wait_step,
-                                              self._t_end, *self._still_args)
+            tree.n, new = kernels.explore_add(tree.arrays, tree.n, batch, self._search)
             return self._joins(tree, new)
+        uniq, inv, sok, cok, ex, ey, best, found = batch
         uniq_l, inv_l, best_l, found_l = uniq.tolist(), inv.tolist(), best.tolist(), found.tolist()
         added = []
         seen: set[tuple[int, int]] = set()
@@ -610,14 +608,13 @@ class PrimitiveRRT:
             return 0, None
         cfg = self.config
         X, T = tree.X, tree.T
-        gt, gxy = self._goal.t, self._goal.xy_eff
-        tol2 = cfg.goal_tolerance ** 2
         if self._compiled:
-            near = np.flatnonzero(kernels.near_goal(X, T, new, gt, gxy, cfg.max_wait, tol2))
+            near = np.flatnonzero(kernels.near_goal(tree.arrays, new, self._goal_kernel))
         else:
+            gt, gxy = self._goal.t, self._goal.xy_eff
             gx = (gxy[:, 0][None, :] - X[new, 0:1]) ** 2 + (gxy[:, 1][None, :] - X[new, 1:2]) ** 2
             window = (gt[None, :] > T[new, None]) & (gt[None, :] <= T[new, None] + cfg.max_wait)
-            near = np.flatnonzero(np.where(window, gx, np.inf).min(axis=1) <= tol2)
+            near = np.flatnonzero(np.where(window, gx, np.inf).min(axis=1) <= cfg.goal_tolerance ** 2)
         for m in near.tolist():
             k_new = int(new[m])
             if T[k_new] <= self._t_end:
@@ -688,7 +685,7 @@ class PrimitiveRRT:
         grid = np.arange(path.t0, path.t_end, cons.dt)
         ts = np.concatenate([path.t, grid])
         if compiled_kernels():  # the same answer, see .kernels.path_free
-            free = kernels.path_free(ts, path.t, path.pose, *cons.kernel_args()[1:])
+            free = kernels.path_free(ts, path.t, path.pose, cons.kernel)
             if free >= 0:
                 return bool(free)
         xy = path.position_at(ts)
@@ -782,10 +779,9 @@ class PrimitiveRRT:
         else:
             depart, add_wait = 0.0, False
             tail_t, tail_xy, tail_h = _EMPTY, _EMPTY2, _EMPTY
-        ok, t_all, pose_all, kind_all, node_idx = kernels.build_path(
-            pose[:, 0].copy(), pose[:, 1].copy(), pose[:, 2].copy(), nt, nk, cs, sn, prims.local, prims.sample_t,
-            _WAIT_PRIM, float(depart), add_wait, tail_t, tail_xy, tail_h,
-        )
+        branch = kernels.Branch(pose[:, 0].copy(), pose[:, 1].copy(), pose[:, 2].copy(), nt, nk, cs, sn)
+        tail = kernels.Tail(add_wait, float(depart), tail_t, tail_xy, tail_h)
+        ok, t_all, pose_all, kind_all, node_idx = kernels.build_path(branch, prims.kernel, tail, _WAIT_PRIM)
         if not ok:
             return None
         return TimedPath._trusted(t_all, pose_all, kind_all, node_idx, nk,

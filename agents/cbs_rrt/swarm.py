@@ -34,7 +34,28 @@ from swarm_env_agents.cbs_rrt.constraints import Constraint, ConstraintTable
 from swarm_env_agents.cbs_rrt.rrt import GoalSpec, PrimitiveRRT
 from swarm_env_agents.cbs_rrt.timed_path import TimedPath
 
-__all__ = ["RRTLowLevel", "TimedConflicts", "PathConflict"]
+__all__ = ["LowLevelOptions", "RRTLowLevel", "SplitRule", "TimedConflicts", "PathConflict"]
+
+
+@dataclass(frozen=True)
+class LowLevelOptions:
+    """How :class:`RRTLowLevel` plans.
+
+    Attributes:
+        constraint_dt, constraint_slack: see :class:`ConstraintTable`.
+        child_iterations: RRT budget under constraints (CBS children; default: the RRT's own);
+            children get no partial paths (a partial path only costs CBS a detour).
+        strong_iterations: RRT budget for a constraint that has a weaker alternative (default:
+            ``child_iterations``).
+        park_until: a partial root path must let the robot stay at its end until then
+            (default: the horizon; the expert uses the end of the checked window).
+    """
+
+    constraint_dt: float = 0.1
+    constraint_slack: float = 0.05
+    child_iterations: int | None = None
+    strong_iterations: int | None = None
+    park_until: float | None = None
 
 
 class RRTLowLevel:
@@ -46,14 +67,10 @@ class RRTLowLevel:
         t0, t1: the planning window (s).
         goals: one :class:`GoalSpec` per robot on a common grid covering ``[t0, t1]``.
         rng: the generator every RRT call draws from (in call order: deterministic).
-        constraint_dt, constraint_slack: see :class:`ConstraintTable`.
-        child_iterations: RRT budget under constraints (CBS children; default: the RRT's own);
-            children get no partial paths (a partial path only costs CBS a detour).
-        strong_iterations: RRT budget for a constraint that has a weaker alternative.
+        options: budgets, the constraint table's grid and the partial paths' parking time
+            (:class:`LowLevelOptions`).
         extra_constraints: constraints every robot always has (the humans' and a robot
             leader's predicted motion), on top of CBS's.
-        park_until: a partial root path must let the robot stay at its end until then
-            (default: the horizon; the expert uses the end of the checked window).
     """
 
     def __init__(
@@ -65,25 +82,22 @@ class RRTLowLevel:
         goals: Sequence[GoalSpec],
         rng: np.random.Generator,
         *,
-        constraint_dt: float = 0.1,
-        constraint_slack: float = 0.05,
-        child_iterations: int | None = None,
-        strong_iterations: int | None = None,
+        options: LowLevelOptions = LowLevelOptions(),
         extra_constraints: Sequence[Constraint] = (),
-        park_until: float | None = None,
     ) -> None:
         self.rrt = rrt
-        self.park_until = park_until
+        self.park_until = options.park_until
         self.extra = tuple(extra_constraints)
         full = rrt.config.max_iterations
-        self.child_iterations = full if child_iterations is None else int(child_iterations)
-        self.strong_iterations = self.child_iterations if strong_iterations is None else int(strong_iterations)
+        child, strong = options.child_iterations, options.strong_iterations
+        self.child_iterations = full if child is None else int(child)
+        self.strong_iterations = self.child_iterations if strong is None else int(strong)
         self.poses = np.asarray(poses, dtype=np.float64)
         self.t0, self.t1 = float(t0), float(t1)
         self.goals = list(goals)
         self.rng = rng
-        self.constraint_dt = constraint_dt
-        self.constraint_slack = constraint_slack
+        self.constraint_dt = options.constraint_dt
+        self.constraint_slack = options.constraint_slack
         self.calls = 0
         self.iterations = 0
         self.partial = 0
@@ -161,6 +175,26 @@ class PathConflict:
         return self.conflict.time
 
 
+@dataclass(frozen=True)
+class SplitRule:
+    """The constraints :meth:`TimedConflicts.split` makes of a conflict.
+
+    Attributes:
+        window_before, window_after: the constraint covers ``[t_c - before, t_c + after]``
+            around the conflict time ``t_c`` (clipped to the window).
+        strong: offer the strong constraint (the other robot's whole path) first.
+        min_radius: the weak constraint's radius is never below this (two radii + a little).
+        start_room: the weak disc stops this short of the constrained robot's start (the
+            constraint table's slack + 1 cm).
+    """
+
+    window_before: float = 0.5
+    window_after: float = 2.0
+    strong: bool = True
+    min_radius: float = 0.0
+    start_room: float = 0.06
+
+
 class TimedConflicts:
     """CBS conflict model for timed paths (see the module docstring).
 
@@ -168,17 +202,12 @@ class TimedConflicts:
         thresholds: ``(N, N)`` conflict distances (m); usually ``2 r + margin``, lowered for
             pairs that already stand closer at ``t0`` so they may stay but not close in.
         t0, t1: the window checked (s).
-        window_before, window_after: the constraint covers ``[t_c - before, t_c + after]``
-            around the conflict time ``t_c`` (clipped to the window).
         grid_dt: broad-phase step of :func:`find_conflicts`.
-        strong: offer the strong constraint (the other robot's whole path) first.
         t_plan: end of the plans (the strong constraint lasts until then; default ``t1``).
         until: ``(N,)`` time after which each robot's path stops counting (``inf``: never): a
             robot whose goal course jumps will be replanned then, so where its plan parks it
             after that is no obstacle to anyone (it only counts for a short margin).
-        min_radius: the weak constraint's radius is never below this (two radii + a little).
-        start_room: the weak disc stops this short of the constrained robot's start (the
-            constraint table's slack + 1 cm).
+        rule: the constraints a conflict is split into (:class:`SplitRule`).
     """
 
     def __init__(
@@ -187,24 +216,20 @@ class TimedConflicts:
         t0: float,
         t1: float,
         *,
-        window_before: float = 0.5,
-        window_after: float = 2.0,
         grid_dt: float = 0.25,
-        strong: bool = True,
         t_plan: float | None = None,
         until: np.ndarray | None = None,
-        min_radius: float = 0.0,
-        start_room: float = 0.06,
+        rule: SplitRule = SplitRule(),
     ) -> None:
-        self.strong = strong
-        self.min_radius = float(min_radius)
-        self.start_room = float(start_room)
+        self.strong = rule.strong
+        self.min_radius = float(rule.min_radius)
+        self.start_room = float(rule.start_room)
         self.t_plan = float(t1 if t_plan is None else max(t_plan, t1))
         self.until = None if until is None else np.asarray(until, dtype=np.float64)
         self.D = np.asarray(thresholds, dtype=np.float64)
         self.t0, self.t1 = float(t0), float(t1)
-        self.before = float(window_before)
-        self.after = float(window_after)
+        self.before = float(rule.window_before)
+        self.after = float(rule.window_after)
         self.grid_dt = float(grid_dt)
         self.checks = 0
 
