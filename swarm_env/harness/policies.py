@@ -193,11 +193,12 @@ class PredictPolicy:
         return {a: actions[i] for i, a in enumerate(agents)}
 
 
-def expert_factory(name: str, cls: type) -> Callable[..., Any]:
+def expert_factory(name: str, cls: type, acts_on: str = STATE) -> Callable[..., Any]:
     """The entry-point factory of a scripted expert class ``cls`` registered as ``name``:
     ``factory(env, arg)`` builds ``cls(**parse_policy_kwargs(name, arg, cls))`` and, for a
     discrete-action env, calls its ``reset`` at once so that its refusal (a ``ValueError``) comes
-    now rather than at the first episode. It acts on the privileged state (``acts_on``)."""
+    now rather than at the first episode. ``acts_on``: what the expert reads (:data:`STATE`, the
+    privileged world state, or :data:`OBSERVATIONS`, the agents' own observations only)."""
 
     def factory(env: SwarmEnv, arg: str | None = None) -> Any:
         policy = cls(**parse_policy_kwargs(name, arg, cls))
@@ -205,7 +206,7 @@ def expert_factory(name: str, cls: type) -> Callable[..., Any]:
             policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
         return policy
 
-    factory.acts_on = STATE  # type: ignore[attr-defined]
+    factory.acts_on = acts_on  # type: ignore[attr-defined]
     factory.policy_class = cls  # type: ignore[attr-defined]  # policy_defaults() reads it
     factory.__name__ = factory.__qualname__ = f"make_{name}"
     factory.__doc__ = f"Entry point ``{name}[:KEY=VALUE,...]``: :class:`{cls.__module__}.{cls.__name__}`."
