@@ -55,6 +55,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
+from swarm_env.checks import finite_numbers, int_in_range
 from swarm_env.control.pursuit import pure_pursuit
 from swarm_env.harness.policies import OBSERVATIONS, PolicyError, expert_factory
 from swarm_env.sensing.layout import (
@@ -130,21 +131,14 @@ class ObsExpertConfig:
         positive = ["time_gap", "dt", "horizon", "static_horizon", "fill", "t_safe"]
         if self.robot_horizon is not None:
             positive.append("robot_horizon")
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"obs_expert: {name} must be a finite number > 0, got {value!r}")
-        for name in ("lead", "margin", "human_margin", "wc_step", "w_ttc", "w_speed", "w_rev", "static_hold",
-                     "side_fill", "fb_clear"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"obs_expert: {name} must be a finite number >= 0, got {value!r}")
+        finite_numbers("obs_expert", {name: getattr(self, name) for name in positive}, positive=True)
+        non_negative = ("lead", "margin", "human_margin", "wc_step", "w_ttc", "w_speed", "w_rev", "static_hold",
+                        "side_fill", "fb_clear")
+        finite_numbers("obs_expert", {name: getattr(self, name) for name in non_negative}, positive=False)
         if not 0.0 <= self.reverse <= 1.0:
             raise ValueError(f"obs_expert: reverse must be in [0, 1] (a share of max_speed), got {self.reverse!r}")
-        for name, low in (("n_v", 2), ("n_w", 2), ("n_rev", 0)):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= 64:
-                raise ValueError(f"obs_expert: {name} must be an int in [{low}, 64], got {value!r}")
+        int_in_range("obs_expert", {"n_v": self.n_v, "n_w": self.n_w}, 2, 64)
+        int_in_range("obs_expert", {"n_rev": self.n_rev}, 0, 64)
         if self.horizon / self.dt > 200:
             raise ValueError(f"obs_expert: horizon / dt must be <= 200 roll-out samples, got {self.horizon / self.dt:g}")
 

@@ -25,12 +25,12 @@ the parameters below.
 
 from __future__ import annotations
 
-import math
 import time
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm_env.checks import finite_numbers, int_in_range
 from swarm_env.control.pursuit import pure_pursuit, slot_velocities
 from swarm_env.extras import require
 from swarm_env.harness.policies import expert_factory
@@ -54,14 +54,10 @@ class ORCAPolicy:
 
     def __init__(self, *, time_gap: float = 0.5, horizon: float = 2.0, horizon_static: float = 1.0,
                  neighbor_dist: float = 5.0, max_neighbors: int = 10, margin: float = 0.05) -> None:
-        for key, value in (("time_gap", time_gap), ("horizon", horizon), ("horizon_static", horizon_static),
-                           ("neighbor_dist", neighbor_dist)):
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"orca: {key} must be a finite number > 0, got {value!r}")
-        if not (isinstance(margin, (int, float)) and math.isfinite(margin) and margin >= 0):
-            raise ValueError(f"orca: margin must be a finite number >= 0, got {margin!r}")
-        if isinstance(max_neighbors, bool) or not isinstance(max_neighbors, int) or max_neighbors < 1:
-            raise ValueError(f"orca: max_neighbors must be an int >= 1, got {max_neighbors!r}")
+        finite_numbers("orca", {"time_gap": time_gap, "horizon": horizon, "horizon_static": horizon_static,
+                                "neighbor_dist": neighbor_dist}, positive=True)
+        finite_numbers("orca", {"margin": margin}, positive=False)
+        int_in_range("orca", {"max_neighbors": max_neighbors}, 1)
         self.time_gap = float(time_gap)
         self.horizon = float(horizon)
         self.horizon_static = float(horizon_static)

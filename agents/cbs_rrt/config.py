@@ -7,6 +7,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, fields
 
+from swarm_env.checks import finite_numbers
 from swarm_env_agents.cbs_rrt.primitives import PAPER_ANGLES_DEG
 
 __all__ = ["CBSRRTConfig"]
@@ -176,15 +177,10 @@ class CBSRRTConfig:
         positive = ("horizon", "check_margin", "conflict_window", "deviation_tolerance", "goal_move_tolerance",
                     "goal_dt", "goal_tolerance", "lookahead_time", "field_resolution", "keep_tolerance",
                     "constraint_window")
-        for name in positive:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name in ("robot_margin", "obstacle_margin", "shield_margin", "evade_horizon", "min_replan_interval",
-                     "max_wait", "jump_window", "jump_lag", "hold_capture"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        finite_numbers("", {name: getattr(self, name) for name in positive}, positive=True)
+        non_negative = ("robot_margin", "obstacle_margin", "shield_margin", "evade_horizon", "min_replan_interval",
+                        "max_wait", "jump_window", "jump_lag", "hold_capture")
+        finite_numbers("", {name: getattr(self, name) for name in non_negative}, positive=False)
         if self.check_margin >= self.horizon:
             raise ValueError("check_margin must be smaller than horizon")
         sf = self.speed_fraction

@@ -60,6 +60,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from swarm_env.checks import finite_numbers
 from swarm_env.compiled import compiled_search
 from swarm_env.control.pursuit import wrap_angle
 from swarm_env.geometry.static_map import StaticMap
@@ -810,16 +811,11 @@ class VOParams:
     escape_commit: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("horizon", "tau"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name in ("margin", "w_pref", "w_heading", "side_bias", "w_current", "recip_gap", "escape_commit"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        if not (isinstance(self.w_speed, (int, float)) and math.isfinite(self.w_speed) and self.w_speed > 0):
-            raise ValueError(f"w_speed must be a finite number > 0, got {self.w_speed!r}")
+        finite_numbers("", {name: getattr(self, name) for name in ("horizon", "tau")}, positive=True)
+        finite_numbers("", {name: getattr(self, name) for name in ("margin", "w_pref", "w_heading", "side_bias",
+                                                                   "w_current", "recip_gap", "escape_commit")},
+                       positive=False)
+        finite_numbers("", {"w_speed": self.w_speed}, positive=True)
         if self.horizon_static is not None and not self.horizon_static > 0:
             raise ValueError(f"horizon_static must be > 0 or None, got {self.horizon_static!r}")
         if int(self.n_v) < 1 or int(self.n_w) < 1 or int(self.n_arc) < 1:
