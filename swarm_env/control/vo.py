@@ -1518,10 +1518,11 @@ class _VOBatch:
                   _kernel_velocities(float(self.v_max), float(self.omega_max), int(self.n_v), int(self.n_w),
                                      float(self.v_min), float(self.tau)), bool(self.move_first),
                   bool(self.static_reach), float(self.t_cut), float(self.w_speed), float(self.escape_commit) if commit else 0.0)
+        plan = (times, _f64(self.pref_pts), trajectories, grid)
+        robots = (_f64(self.pv), _f64(self.pw), _f64(self.theta))
+        flags = (bool(fast), bool(self.escape), _FIRST_STAGE, bool(self.allow_still_overlap))
         twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe = vo_kernel.select(
-            self._kernel_world(), times, _f64(self.pref_pts), trajectories, grid, _f64(self.pv), _f64(self.pw),
-            _f64(self.theta), search, bool(fast), bool(self.escape), _FIRST_STAGE, bool(self.allow_still_overlap),
-            (float(self.v_max), float(self.tau), float(self.h_probe)))
+            self._kernel_world(), plan, robots, search, flags, (float(self.v_max), float(self.tau), float(self.h_probe)))
         return VOBatchResult(twist, feasible, n_safe, ttc_out, escaped, accepted, pref_safe)
 
     def _kernel_world(self) -> tuple:

@@ -458,11 +458,11 @@ def _arc_points(i, pts, pref_pts, body, cos_t, sin_t):
 
 
 @_jit
-def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, pw, theta, search, fast, escape,
-            first_stage, still_ok, probe):
+def _search(discs, static, has_static, plan, robots, search, flags, probe):
     """The selection rule of ``_VOBatch.select`` on the robots' kept discs and static context.
 
-    ``pref_pts`` ``(N, K+1, 2)`` the preferred twists' trajectories; ``trajectories`` the grid's,
+    ``plan`` ``(times, pref_pts, trajectories, grid)``: the trajectories' sample times, ``pref_pts``
+    ``(N, K+1, 2)`` the preferred twists' trajectories, ``trajectories`` the grid's,
     ``(body, cos_t, sin_t, every)``: the arc model's body-frame trajectories ``(G, K+1, 2)`` and the
     cosine and sine of each robot's heading, or (``body`` empty) ``every`` candidate's world-frame
     trajectory ``(N, G+1, K+1, 2)`` (the chord model); ``grid`` the candidate twists; ``search`` the
@@ -471,8 +471,12 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
     ``static_reach``'s two terms, ``w_speed`` and ``escape_commit``, whose test reads the ``current`` twists).
 
     Returns ``twist`` ``(N, 2)``, ``feasible``, ``n_safe``, ``ttc_out``, ``escaped``, ``accepted``,
-    ``pref_safe`` (see :class:`~swarm_env.control.vo.VOBatchResult`).
+    ``pref_safe`` (see :class:`~swarm_env.control.vo.VOBatchResult`). ``robots`` ``(pv, pw, theta)``: the
+    clipped preferred twists and the headings; ``flags`` ``(fast, escape, first_stage, still_ok)``.
     """
+    times, pref_pts, trajectories, grid = plan
+    pv, pw, theta = robots
+    fast, escape, first_stage, still_ok = flags
     has_goal = search[9]
     move_first = search[13]
     reach = (search[14], search[15])
@@ -688,14 +692,12 @@ def _search(discs, static, has_static, times, pref_pts, trajectories, grid, pv, 
 
 
 @_jit
-def select(world, times, pref_pts, trajectories, grid, pv, pw, theta, search, fast, escape, first_stage, still_ok,
-           probe):
+def select(world, plan, robots, search, flags, probe):
     """``_VOBatch.select``: the whole search (pass 1 included) of the robots, discs and map of ``world``
     (as ``_VOBatch._kernel_world`` packs them). The other arguments are :func:`_search`'s."""
     discs = _keep_discs(world)
     static = _static_context(world)
-    return _search(discs, static, world[15], times, pref_pts, trajectories, grid, pv, pw, theta, search, fast, escape,
-                   first_stage, still_ok, probe)
+    return _search(discs, static, world[15], plan, robots, search, flags, probe)
 
 
 @_jit
@@ -816,8 +818,9 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     no_goal = n < 0  # (False, typed bool rather than a literal: select and this entry share one _search)
     search = (tau, v_max, omega_max, w_pref, w_heading, side_bias, w_current, has_current, current, no_goal,
               np.empty(0), cost_velocity, gvel, move_first, static_reach, t_cut, w_speed, commit)
-    return _search(discs, static, has_static, times, pref_pts, (body, cos_t, sin_t, np.empty((0, 1, 1, 2))), grid,
-                   pv, pw, theta, search, fast, escape, first_stage, still_ok, (v_max, tau, horizon))
+    trajectories = (body, cos_t, sin_t, np.empty((0, 1, 1, 2)))
+    return _search(discs, static, has_static, (times, pref_pts, trajectories, grid), (pv, pw, theta), search,
+                   (fast, escape, first_stage, still_ok), (v_max, tau, horizon))
 
 
 @_jit
