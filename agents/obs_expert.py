@@ -139,6 +139,8 @@ class ObsExpertConfig:
             raise ValueError(f"obs_expert: reverse must be in [0, 1] (a share of max_speed), got {self.reverse!r}")
         int_in_range("obs_expert", {"n_v": self.n_v, "n_w": self.n_w}, 2, 64)
         int_in_range("obs_expert", {"n_rev": self.n_rev}, 0, 64)
+        if self.horizon < self.dt:
+            raise ValueError(f"obs_expert: horizon ({self.horizon!r} s) must be at least one roll-out step dt ({self.dt!r} s)")
         if self.horizon / self.dt > 200:
             raise ValueError(f"obs_expert: horizon / dt must be <= 200 roll-out samples, got {self.horizon / self.dt:g}")
 

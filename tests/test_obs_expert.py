@@ -67,6 +67,8 @@ def test_bad_inputs_are_refused() -> None:
         ObservationExpert(horizon=0.0)
     with pytest.raises(ValueError, match="n_w must be an int"):
         ObservationExpert(n_w=1)
+    with pytest.raises(ValueError, match="at least one roll-out step"):
+        ObservationExpert(horizon=0.1, dt=0.25)
     with pytest.raises(ValueError, match="reverse must be in"):
         ObservationExpert(reverse=2.0)
     policy = ObservationExpert()
