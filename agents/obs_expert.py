@@ -45,6 +45,10 @@ pass: :meth:`ObservationExpert.act_rows`):
 
 Deterministic (no random numbers), stateless between steps, continuous actions
 ``(v / v_max, omega / omega_max)`` as float32. Measured in docs/obs_expert.md.
+
+The choice runs compiled (:func:`swarm_env_agents.obs_expert_kernel.choose`, all rows in one call) unless
+:func:`swarm_env.compiled.use_compiled_kernels` turned the kernels off; the numpy code here (``_choose`` and what it
+calls) is its reference, and the two give the same actions bit for bit (``tests/test_obs_expert.py``).
 """
 
 from __future__ import annotations
@@ -56,6 +60,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import numpy as np
 
 from swarm_env.checks import finite_numbers, int_in_range
+from swarm_env.compiled import compiled_kernels
 from swarm_env.control.pursuit import pure_pursuit
 from swarm_env.harness.policies import OBSERVATIONS, PolicyError, expert_factory
 from swarm_env.sensing.layout import (
@@ -202,6 +207,7 @@ class ObservationExpert:
         self.times = np.arange(1, int(round(self.horizon / self.dt)) + 1) * self.dt  # (T,)
         self.arcs = _arcs(v, w, self.times)  # (C, T, 2)
         self.step_end = _arcs(v, w, np.array([self.ctrl_dt]))[:, 0]  # (C, 2): where one control step ends
+        self._bundles = self._kernel_bundles()
         self._ready = True
 
     # ------------------------------------------------------------------ acting
@@ -224,18 +230,69 @@ class ObservationExpert:
         obs = np.asarray(obs, dtype=np.float64)
         if obs.ndim != 2 or obs.shape[1] != self.obs_size:
             raise ValueError(f"act_rows needs observations of shape (M, {self.obs_size}), got {obs.shape}")
+        if compiled_kernels():  # the same bits, see swarm_env_agents.obs_expert_kernel
+            return self._act_compiled(obs)
         out = np.empty((len(obs), 2), dtype=np.float32)
         for start in range(0, len(obs), _CHUNK):
             out[start:start + _CHUNK] = self._choose(obs[start:start + _CHUNK])
         return out
 
+    def _act_compiled(self, obs: np.ndarray) -> np.ndarray:
+        """:meth:`act_rows` by :func:`swarm_env_agents.obs_expert_kernel.choose`, all rows in one call; the pure
+        pursuit stays in numpy, in the reference's chunks of ``_CHUNK`` rows (the same calls on the same data)."""
+        from swarm_env_agents.obs_expert_kernel import choose
+
+        obs = np.ascontiguousarray(obs)
+        pursuit = np.empty((len(obs), 2))
+        for start in range(0, len(obs), _CHUNK):
+            pursuit[start:start + _CHUNK] = self._pursuit(obs[start:start + _CHUNK])
+        return self._twists(choose(obs, pursuit, *self._bundles))
+
+    def _pursuit(self, obs: np.ndarray) -> np.ndarray:
+        """The pure-pursuit twists ``(M, 2)`` of rows ``obs``: towards the slot led by the leader's velocity."""
+        target = obs[:, COL_SLOT:COL_SLOT + 2] + obs[:, COL_LEADER_VEL:COL_LEADER_VEL + 2] * self.lead
+        return pure_pursuit(np.zeros((len(obs), 3)), target, self.v_max, self.w_max, self.time_gap)
+
+    def _twists(self, pick: np.ndarray) -> np.ndarray:
+        """The candidates ``pick`` ``(M,)`` as actions: twists normalised, ``(M, 2)`` float32."""
+        twist = self.cand[pick]
+        return (twist / np.array([self.v_max, self.w_max])).astype(np.float32)
+
+    def _kernel_bundles(self) -> tuple[tuple, tuple, tuple, tuple]:
+        """The constants of :func:`swarm_env_agents.obs_expert_kernel.choose` as plain tuples of the items of its
+        ``Geometry``, ``Bodies``, ``Lidar`` and ``Choice`` (the reference's own values, computed as it does)."""
+        r, n_rays = self.radius, len(self.ray_dir)
+        others = (r, self.human_radius, self.leader_radius)
+        hard = [r + other for other in others]
+        margins = (self.margin, self.human_margin, self.margin)
+        box = np.concatenate([np.minimum.accumulate(self.arcs[..., :1], axis=1),
+                              np.maximum.accumulate(self.arcs[..., :1], axis=1),
+                              np.minimum.accumulate(self.arcs[..., 1:], axis=1),
+                              np.maximum.accumulate(self.arcs[..., 1:], axis=1)], axis=2)  # (C, T, 4)
+        geometry = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in
+                         (self.cand, self.arcs[..., 0], self.arcs[..., 1], box, self.times, self.step_end, self.ray_dir, self.ray_angle))
+        bodies = (float(self.v_max), self.neighbours.start, (self.neighbours.stop - self.neighbours.start) // ENTITY,
+                  self.humans.start, (self.humans.stop - self.humans.start) // ENTITY, bool(self.leader_robot),
+                  np.array(hard, dtype=np.float64), np.array([h + m for h, m in zip(hard, margins)], dtype=np.float64),
+                  np.array([other + _SEEN_PAD for other in others], dtype=np.float64),
+                  np.array([self.robot_horizon, self.horizon, self.robot_horizon], dtype=np.float64))
+        lidar = (self.lidar.start, float(self.lidar_range), float(self.lidar_range * 0.999), float(self.fill),
+                 int(self.fill_max), float(self.side_fill), float(2.0 * np.pi / max(n_rays, 1)), bool(self.drop_seen),
+                 float(r + max(self.margin, self.static_hold * self.v_max * self.ctrl_dt)), float(r),
+                 float(self.static_horizon))
+        n_clear = max(1, int(np.searchsorted(self.times, self.fb_clear + 1e-9, side="right")))
+        choice = (bool(self.band), float(self.top_speed), bool(self.wc_step > 0),
+                  float(2.0 * r + self.wc_step * self.v_max * self.ctrl_dt), float(self.v_max), float(self.w_max),
+                  float(self.w_speed), float(self.w_ttc), float(self.w_rev), float(self.horizon), float(self.t_safe),
+                  bool(self.move_first), bool(self.move_rev), bool(self.fb_clear > 0), n_clear)
+        return geometry, bodies, lidar, choice
+
     def _choose(self, obs: np.ndarray) -> np.ndarray:
-        """:meth:`act_rows` of at most ``_CHUNK`` rows."""
-        m = len(obs)
+        """:meth:`act_rows` of at most ``_CHUNK`` rows: the numpy reference of
+        :func:`swarm_env_agents.obs_expert_kernel.choose`."""
         own_v = obs[:, COL_TWIST] * self.v_max
         leader_vel = obs[:, COL_LEADER_VEL:COL_LEADER_VEL + 2]
-        target = obs[:, COL_SLOT:COL_SLOT + 2] + leader_vel * self.lead
-        pursuit = pure_pursuit(np.zeros((m, 3)), target, self.v_max, self.w_max, self.time_gap)
+        pursuit = self._pursuit(obs)
         movers, seen = self._movers(obs, own_v, leader_vel)
         lidar = self._lidar_points(obs, movers.pos, seen)
         ttc = np.minimum(self._contact(movers), self._contact(lidar))
@@ -350,8 +407,7 @@ class ObservationExpert:
         if self.fb_clear > 0:
             for i in np.flatnonzero(~any_safe):
                 pick[i] = self._clearest(i, latest[i], cost[i], movers, lidar, pick[i])
-        twist = self.cand[pick]
-        return (twist / np.array([self.v_max, self.w_max])).astype(np.float32)
+        return self._twists(pick)
 
     def _clearest(self, i: int, latest: np.ndarray, cost: np.ndarray, movers: _Points, lidar: _Points,
                   cheapest: int) -> int:

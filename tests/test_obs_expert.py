@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from swarm_env.compiled import compiled_mode
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import PolicyError, acts_on, load_policy
+from swarm_env.sensing.layout import ENTITY, ENTITY_MASK, ENTITY_POS
 from swarm_env_agents.obs_expert import ObservationExpert
 
 
@@ -80,3 +82,81 @@ def test_bad_inputs_are_refused() -> None:
         policy.act_rows(np.zeros((2, 7)))
     with pytest.raises(PolicyError, match="continuous"):
         load_policy("obs_expert", SwarmEnv("paper_vo_0", action_type="discrete"))
+
+
+def _identical(policy: ObservationExpert, rows: np.ndarray) -> np.ndarray:
+    """``act_rows`` compiled and as the numpy reference: the same actions, bit for bit."""
+    with compiled_mode(kernels=False):
+        reference = policy.act_rows(rows)
+    compiled = policy.act_rows(rows)
+    assert compiled.dtype == np.float32 and np.array_equal(compiled, reference), np.flatnonzero(
+        (compiled != reference).any(axis=1))
+    return reference
+
+
+def _blank(policy: ObservationExpert, rows: np.ndarray) -> np.ndarray:
+    """``rows`` with nothing seen: no neighbour, no human, no lidar hit."""
+    rows = rows.copy()
+    rows[:, policy.neighbours] = 0.0
+    rows[:, policy.humans] = 0.0
+    rows[:, policy.lidar] = 1.0
+    return rows
+
+
+def _crowded(policy: ObservationExpert, n: int, seed: int) -> np.ndarray:
+    """``n`` made-up rows: neighbours and humans close and moving, lidar walls and scattered hits; many leave no
+    candidate safe (the fallback and ``_clearest``)."""
+    rng = np.random.default_rng(seed)
+    rows = rng.uniform(-1.0, 1.0, (n, policy.obs_size))
+    for block in (policy.neighbours, policy.humans):
+        entities = rows[:, block].reshape(n, -1, ENTITY)
+        entities[..., ENTITY_MASK] = rng.random(entities.shape[:2]) < 0.6
+        entities[..., ENTITY_POS:ENTITY_POS + 2] = rng.uniform(-1.2, 1.2, (*entities.shape[:2], 2))
+        rows[:, block] = entities.reshape(n, -1)
+    lidar = rng.uniform(0.02, 1.0, (n, policy.lidar.stop - policy.lidar.start))
+    lidar[rng.random(lidar.shape) < 0.4] = 1.0
+    wall = rng.random(n) < 0.3  # one surface seen by consecutive rays: filled and extended
+    lidar[wall] = np.clip(0.1 + 0.02 * np.arange(lidar.shape[1]) + rng.normal(0.0, 0.005, lidar[wall].shape), 0, 1)
+    rows[:, policy.lidar] = lidar
+    return rows
+
+
+@pytest.mark.parametrize(("scenario", "seed", "steps"), [
+    ("random", 40, 80), ("crowd_reactive", 41, 100), ("paper_cbs_switch", 42, 60), ("corridor", 40, 60)])
+def test_compiled_choice_is_the_reference(scenario: str, seed: int, steps: int) -> None:
+    """swarm_env_agents.obs_expert_kernel gives the numpy reference's actions bit for bit: on every step of an
+    episode, on all its rows at once, on rows that see nothing, and on crowded made-up rows (nothing safe)."""
+    env = SwarmEnv(scenario, **({"n_followers": 4, "n_humans": (2, 3)} if scenario == "random" else {}))
+    policy = ObservationExpert()
+    obs, _ = env.reset(seed=seed)
+    policy.reset(env, seed)
+    seen = []
+    for _ in range(steps):
+        if not env.agents:
+            break
+        rows = np.stack([np.asarray(o, dtype=np.float64) for o in obs.values()])
+        seen.append(rows)
+        obs, *_ = env.step(dict(zip(obs, _identical(policy, rows))))
+    rows = np.concatenate(seen)
+    _identical(policy, rows)
+    _identical(policy, _blank(policy, rows[:20]))
+    calls = []
+    reference_clearest = policy._clearest
+    policy._clearest = lambda *a: calls.append(1) or reference_clearest(*a)
+    _identical(policy, _crowded(policy, 400, seed))
+    assert calls  # the fallback was compared too
+
+
+def test_compiled_choice_is_the_reference_with_other_options() -> None:
+    env = SwarmEnv("random", n_followers=4, n_humans=(2, 3))
+    for options in ({"band": False, "side_fill": 0.0, "fb_clear": 0.0, "wc_step": 0.0, "n_rev": 0, "n_w": 8},
+                    {"drop_seen": False, "move_first": False, "move_rev": False, "robot_horizon": 3.0, "fill": 0.7,
+                     "static_horizon": 4.0, "t_safe": 3.0, "fb_clear": 3.0, "horizon": 4}):
+        policy = ObservationExpert(**options)
+        obs, _ = env.reset(seed=42)
+        policy.reset(env, 42)
+        for _ in range(60):
+            rows = np.stack([np.asarray(o, dtype=np.float64) for o in obs.values()])
+            obs, *_ = env.step(dict(zip(obs, _identical(policy, rows))))
+        _identical(policy, _crowded(policy, 300, 7))
+        _identical(policy, _blank(policy, _crowded(policy, 10, 8)))
