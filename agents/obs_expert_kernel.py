@@ -16,15 +16,13 @@ choice (``_select``) and, where nothing is safe, ``_clearest``. Same actions bit
   squared distance ``dx * dx + dy * dy``, a moved point ``p + t * v``), and the comparisons are its own (``<``,
   ``>=``, ``<=``); numba does not fuse multiplies and adds (no ``fastmath``);
 * ``math.hypot``, ``math.cos`` and ``math.sin`` call the C library, as numpy's float64 ``np.hypot``, ``np.cos`` and
-  ``np.sin`` do (see :mod:`swarm_env_agents.cbs_rrt.kernels`, checked in ``tests/test_cbs_kernels.py``); where the
-  next step's worst case only compares a ``hypot`` with a limit, the squared distance decides where it is beyond
-  doubt (a relative 1e-9 from the limit's square) and ``hypot`` itself in between, so the answer is ``hypot``'s;
+  ``np.sin`` do (see :mod:`swarm_env_agents.cbs_rrt.kernels`, checked in ``tests/test_cbs_kernels.py``);
 * the reference's selections are kept: ``argmin`` is the first minimum (a strict ``<`` scan), a time to contact is a
   value of ``times`` (``inf`` for none), the points its padding or ``near`` filter leave out are left out here,
   and minima over points or times (the order of which the reference does not fix either) are exact.
 
 The inputs travel as four bundles built once per :meth:`~swarm_env_agents.obs_expert.ObservationExpert.reset` and
-kept as plain tuples (numba types those fastest, see :func:`swarm_env_agents.cbs_rrt.kernels.plain`):
+passed as plain tuples (the expert builds them without importing numba; :func:`choose` names their items again):
 :class:`Geometry` (the candidates' arrays), :class:`Bodies` (the entity blocks), :class:`Lidar` and :class:`Choice`.
 """
 
@@ -47,7 +45,6 @@ from swarm_env.sensing.layout import (
 )
 
 _jit = njit(nogil=True, error_model="numpy")
-_jit_inline = njit(nogil=True, error_model="numpy", inline="always")
 
 __all__ = ["Bodies", "Choice", "Geometry", "Lidar", "choose"]
 
@@ -122,30 +119,6 @@ class Choice(NamedTuple):
     move_rev: bool
     fb: bool
     n_clear: int
-
-
-@_jit_inline
-def _as_geometry(g):  # pragma: no cover - compiled
-    """``g`` (a :class:`Geometry` or its plain tuple) as a :class:`Geometry`."""
-    return Geometry(*g)
-
-
-@_jit_inline
-def _as_bodies(b):  # pragma: no cover - compiled
-    """``b`` (a :class:`Bodies` or its plain tuple) as a :class:`Bodies`."""
-    return Bodies(*b)
-
-
-@_jit_inline
-def _as_lidar(s):  # pragma: no cover - compiled
-    """``s`` (a :class:`Lidar` or its plain tuple) as a :class:`Lidar`."""
-    return Lidar(*s)
-
-
-@_jit_inline
-def _as_choice(c):  # pragma: no cover - compiled
-    """``c`` (a :class:`Choice` or its plain tuple) as a :class:`Choice`."""
-    return Choice(*c)
 
 
 @_jit
@@ -388,10 +361,10 @@ def choose(obs, pursuit, geometry, bodies, lidar, choice):  # pragma: no cover -
     """The candidate each row picks, ``(M,)`` int64 (the expert's ``cand`` row): the reference's ``_choose`` for the
     rows ``obs`` ``(M, obs_size)`` float64 given their pure-pursuit twists ``pursuit`` ``(M, 2)``; the bundles as
     plain tuples (or :class:`Geometry`, :class:`Bodies`, :class:`Lidar`, :class:`Choice`)."""
-    g = _as_geometry(geometry)
-    b = _as_bodies(bodies)
-    s = _as_lidar(lidar)
-    c = _as_choice(choice)
+    g = Geometry(*geometry)  # the items named again (free when compiled); a named bundle works as well
+    b = Bodies(*bodies)
+    s = Lidar(*lidar)
+    c = Choice(*choice)
     m = obs.shape[0]
     n_c = g.cand.shape[0]
     n_times = g.times.shape[0]
@@ -432,18 +405,8 @@ def choose(obs, pursuit, geometry, bodies, lidar, choice):  # pragma: no cover -
                 limit = min(math.hypot(px, py) - 1e-6, c.wc_limit)
                 if not limit > 0:  # a distance is never below it
                     continue
-                # hypot(dx, dy) < limit decided from the squared distance where that is beyond doubt (1e-9
-                # relative; both are within 1e-15 of the true values), by hypot itself in between.
-                sure = 1e-100 < limit < 1e100
-                below = limit * limit * (1.0 - 1e-9)
-                above = limit * limit * (1.0 + 1e-9)
                 for ci in range(n_c):
-                    dx = g.step_end[ci, 0] - px
-                    dy = g.step_end[ci, 1] - py
-                    d2 = dx * dx + dy * dy
-                    if sure and d2 >= above:
-                        continue
-                    if (sure and d2 < below) or math.hypot(dx, dy) < limit:
+                    if math.hypot(g.step_end[ci, 0] - px, g.step_end[ci, 1] - py) < limit:
                         ttc[ci] = 0.0
         # the choice (the reference's _select)
         pv = pursuit[i, 0]
