@@ -78,7 +78,7 @@ if TYPE_CHECKING:
     from swarm_env.env import SwarmEnv
     from swarm_env.state import WorldState
 
-__all__ = ["ObsExpertConfig", "ObservationExpert", "make_policy"]
+__all__ = ["Fan", "ObsExpertConfig", "ObservationExpert", "make_policy"]
 
 #: Extra radius (m) around a row's body within which lidar hits are taken for that body (``drop_seen``).
 _SEEN_PAD = 0.1
@@ -225,28 +225,36 @@ class ObservationExpert:
     def act_rows(self, obs: np.ndarray) -> np.ndarray:
         """The actions ``(M, 2)`` float32 of ``M`` observation rows ``(M, obs_size)`` of this scenario (any
         followers of any worlds built from it: the batched engine's ``(worlds * followers, obs_size)``)."""
+        return self._twists(self.fan(obs).pick)
+
+    def fan(self, obs: np.ndarray) -> Fan:
+        """Stages 1-5 of the module docstring for ``M`` observation rows ``(M, obs_size)``: every candidate's time to
+        contact (the avoidance sensor a learner can be given: :mod:`swarm_env_baselines.fan_dagger`), the pure-pursuit
+        twists and the candidate this expert picks. The candidates' twists are :attr:`candidates`."""
         if not self._ready:
-            raise PolicyError("ObservationExpert.act_rows before reset(env, seed)")
+            raise PolicyError("ObservationExpert.fan before reset(env, seed)")
         obs = np.asarray(obs, dtype=np.float64)
         if obs.ndim != 2 or obs.shape[1] != self.obs_size:
-            raise ValueError(f"act_rows needs observations of shape (M, {self.obs_size}), got {obs.shape}")
-        if compiled_kernels():  # the same bits, see swarm_env_agents.obs_expert_kernel
-            return self._act_compiled(obs)
-        out = np.empty((len(obs), 2), dtype=np.float32)
-        for start in range(0, len(obs), _CHUNK):
-            out[start:start + _CHUNK] = self._choose(obs[start:start + _CHUNK])
-        return out
-
-    def _act_compiled(self, obs: np.ndarray) -> np.ndarray:
-        """:meth:`act_rows` by :func:`swarm_env_agents.obs_expert_kernel.choose`, all rows in one call; the pure
-        pursuit stays in numpy, in the reference's chunks of ``_CHUNK`` rows (the same calls on the same data)."""
-        from swarm_env_agents.obs_expert_kernel import choose
-
-        obs = np.ascontiguousarray(obs)
+            raise ValueError(f"the observation rows must have shape (M, {self.obs_size}), got {obs.shape}")
         pursuit = np.empty((len(obs), 2))
-        for start in range(0, len(obs), _CHUNK):
+        for start in range(0, len(obs), _CHUNK):  # in the reference's chunks: the same calls on the same data
             pursuit[start:start + _CHUNK] = self._pursuit(obs[start:start + _CHUNK])
-        return self._twists(choose(obs, pursuit, *self._bundles))
+        ttc = np.empty((len(obs), len(self.cand)))
+        if compiled_kernels():  # the same bits, see swarm_env_agents.obs_expert_kernel
+            from swarm_env_agents.obs_expert_kernel import choose
+
+            pick = choose(np.ascontiguousarray(obs), pursuit, *self._bundles, ttc)
+            return Fan(ttc, pursuit, pick)
+        pick = np.empty(len(obs), dtype=np.int64)
+        for start in range(0, len(obs), _CHUNK):
+            rows = slice(start, start + _CHUNK)
+            pick[rows], ttc[rows] = self._choose(obs[rows], pursuit[rows])
+        return Fan(ttc, pursuit, pick)
+
+    @property
+    def candidates(self) -> np.ndarray:
+        """The candidate twists as actions ``(C, 2)`` (``v / v_max``, ``omega / omega_max``), in :meth:`fan`'s order."""
+        return self.cand / np.array([self.v_max, self.w_max])
 
     def _pursuit(self, obs: np.ndarray) -> np.ndarray:
         """The pure-pursuit twists ``(M, 2)`` of rows ``obs``: towards the slot led by the leader's velocity."""
@@ -287,18 +295,17 @@ class ObservationExpert:
                   bool(self.move_first), bool(self.move_rev), bool(self.fb_clear > 0), n_clear)
         return geometry, bodies, lidar, choice
 
-    def _choose(self, obs: np.ndarray) -> np.ndarray:
-        """:meth:`act_rows` of at most ``_CHUNK`` rows: the numpy reference of
-        :func:`swarm_env_agents.obs_expert_kernel.choose`."""
+    def _choose(self, obs: np.ndarray, pursuit: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`fan` of at most ``_CHUNK`` rows given their pursuit twists: ``(pick (M,), ttc (M, C))``, the numpy
+        reference of :func:`swarm_env_agents.obs_expert_kernel.choose`."""
         own_v = obs[:, COL_TWIST] * self.v_max
         leader_vel = obs[:, COL_LEADER_VEL:COL_LEADER_VEL + 2]
-        pursuit = self._pursuit(obs)
         movers, seen = self._movers(obs, own_v, leader_vel)
         lidar = self._lidar_points(obs, movers.pos, seen)
         ttc = np.minimum(self._contact(movers), self._contact(lidar))
         if self.wc_step > 0:
             ttc = np.where(self._next_step_unsafe(obs), 0.0, ttc)
-        return self._select(ttc, pursuit, movers, lidar)
+        return self._select(ttc, pursuit, movers, lidar), ttc
 
     def _contact(self, pts: _Points) -> np.ndarray:
         """Each candidate's time to contact ``(M, C)`` with ``pts``; with ``band``, a point already within its
@@ -391,7 +398,7 @@ class ObservationExpert:
         return ((then < limit[:, None, :]) & mask[:, None, :]).any(axis=2)
 
     def _select(self, ttc: np.ndarray, pursuit: np.ndarray, movers: _Points, lidar: _Points) -> np.ndarray:
-        """The chosen twists, normalised, ``(M, 2)`` float32, from each candidate's time to contact ``(M, C)``."""
+        """The chosen candidates ``(M,)`` from each candidate's time to contact ``(M, C)``."""
         v, w = self.cand[:, 0], self.cand[:, 1]
         cost = np.hypot(self.w_speed * (v[None] - pursuit[:, :1]) / self.v_max, (w[None] - pursuit[:, 1:]) / self.w_max)
         cost = cost + self.w_ttc * (self.horizon - np.minimum(ttc, self.horizon)) / self.horizon
@@ -407,7 +414,7 @@ class ObservationExpert:
         if self.fb_clear > 0:
             for i in np.flatnonzero(~any_safe):
                 pick[i] = self._clearest(i, latest[i], cost[i], movers, lidar, pick[i])
-        return self._twists(pick)
+        return pick
 
     def _clearest(self, i: int, latest: np.ndarray, cost: np.ndarray, movers: _Points, lidar: _Points,
                   cheapest: int) -> int:
@@ -428,6 +435,18 @@ class ObservationExpert:
         clear = (np.hypot(gap[..., 0], gap[..., 1]) - reach[real]).min(axis=(1, 2))
         top = ties[clear >= clear.max() - 1e-3]
         return int(top[np.argmin(cost[top])])
+
+
+class Fan(NamedTuple):
+    """:meth:`ObservationExpert.fan` of ``M`` rows over the ``C`` candidates."""
+
+    #: Each candidate's time to contact (s), ``(M, C)``; ``horizon`` or more: none within the horizon; ``0``: unsafe
+    #: at the next step (``wc_step``).
+    ttc: np.ndarray
+    #: The pure-pursuit twists ``(M, 2)`` (m/s, rad/s) the candidates are scored against.
+    pursuit: np.ndarray
+    #: The candidate this expert picks per row, ``(M,)`` int64.
+    pick: np.ndarray
 
 
 class _Points(NamedTuple):

@@ -357,10 +357,12 @@ def _clearest(g, c, mv, n_mv, lid, n_lid, s, latest, cost, cheapest, clear):  # 
 
 
 @_jit
-def choose(obs, pursuit, geometry, bodies, lidar, choice):  # pragma: no cover - compiled
+def choose(obs, pursuit, geometry, bodies, lidar, choice, ttc_rows):  # pragma: no cover - compiled
     """The candidate each row picks, ``(M,)`` int64 (the expert's ``cand`` row): the reference's ``_choose`` for the
     rows ``obs`` ``(M, obs_size)`` float64 given their pure-pursuit twists ``pursuit`` ``(M, 2)``; the bundles as
-    plain tuples (or :class:`Geometry`, :class:`Bodies`, :class:`Lidar`, :class:`Choice`)."""
+    plain tuples (or :class:`Geometry`, :class:`Bodies`, :class:`Lidar`, :class:`Choice`). Each row's time to
+    contact per candidate (after the next step's worst case: the reference's ``_times_to_contact``) is written to
+    ``ttc_rows`` ``(M, C)`` float64."""
     g = Geometry(*geometry)  # the items named again (free when compiled); a named bundle works as well
     b = Bodies(*bodies)
     s = Lidar(*lidar)
@@ -408,6 +410,7 @@ def choose(obs, pursuit, geometry, bodies, lidar, choice):  # pragma: no cover -
                 for ci in range(n_c):
                     if math.hypot(g.step_end[ci, 0] - px, g.step_end[ci, 1] - py) < limit:
                         ttc[ci] = 0.0
+        ttc_rows[i, :] = ttc
         # the choice (the reference's _select)
         pv = pursuit[i, 0]
         pw = pursuit[i, 1]

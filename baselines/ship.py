@@ -69,6 +69,14 @@ DESCRIPTIONS = {
         "reward penalty. The actor reads the follower's observation and `vo`'s action, so, like `vo`, it is "
         "**privileged at execution** (it needs the world state to run `vo`). Trained from scratch (no warm start: "
         "a zero correction is already `vo`)."),
+    "fan_dagger": (
+        "A network that acts on the follower's observation only, through a fixed avoidance sensor computed from "
+        "it (`obs_expert`'s fan: the time to contact of each of 165 candidate twists against the neighbour and "
+        "human rows and the lidar hits, and the pure-pursuit twist); it scores the candidates and plays the best "
+        "one. Trained by DAgger on the batched engine with `obs_expert` (which reads the same observation) as the "
+        "teacher: round 0 driven by the teacher, later rounds by the student, every visited state labelled with "
+        "the teacher's choice (`swarm_env_baselines.fan_dagger`). `fan_dagger` executes it unshielded; "
+        "`fan_dagger_shielded` loads the same files and executes them through the safety layer."),
 }
 
 __all__ = ["ShipError", "is_sb3_run", "selected", "ship_run", "time_breakdown", "write_method_readme"]
@@ -104,7 +112,7 @@ def ship_run(run_dir: str | os.PathLike[str], method: str, seed: str, *, dest: P
     else:
         names.update({run / r: r for r in RECORDS})
         names.update({run / r: r for r in OPTIONAL_RECORDS if (run / r).exists()})
-    kind = "swarm-env train sb3" if sb3 else "swarm_env_baselines.mappo"
+    kind = "swarm-env train sb3" if sb3 else "swarm_env_baselines.mappo (or fan_dagger)"
     for f in names:
         if not f.is_file():
             raise ShipError(f"{f}: missing (expected a finished {kind} run directory)")
@@ -136,14 +144,15 @@ def selected(seed_dir: Path) -> dict[str, Any]:
 
 
 def time_breakdown(seed_dir: Path) -> dict[str, float]:
-    """Seconds spent in the warm start, rollouts, updates and validation (the rest of the wall time)."""
+    """Seconds spent in the warm start, rollouts, updates (a fan_dagger run's fits) and validation (the rest of
+    the wall time)."""
     summary = _read_json(seed_dir / "summary.json")
     rollout = update = 0.0
     with open(seed_dir / "train.csv", newline="") as fh:
         for row in csv.DictReader(fh):
             rollout += float(row["rollout_s"])
-            update += float(row["update_s"])
-    wall, pretrain = float(summary["wall_s"]), float(summary["pretrain_s"])
+            update += float(row["update_s"] if "update_s" in row else row["fit_s"])  # fan_dagger: the fits
+    wall, pretrain = float(summary["wall_s"]), float(summary.get("pretrain_s", 0.0))
     return {"wall": wall, "pretrain": pretrain, "rollout": rollout, "update": update,
             "validation": max(0.0, wall - pretrain - rollout - update)}
 
@@ -220,8 +229,8 @@ def write_method_readme(method: str, *, dest: Path = CHECKPOINTS, description: s
     lines += [
         "",
         "Agent-steps/s count training steps over the wall time after the warm start (validation included);",
-        "rollouts = stepping the env copies and the actor, updates = the PPO epochs, validation = the",
-        "50-episode evaluations every `eval_every` agent-steps (the rest of the wall time; `-`: an SB3 run,",
+        "rollouts = stepping the env copies and the actor, updates = the PPO epochs (`fan_dagger`: the fits after",
+        "each round), validation = the 50-episode evaluations every `eval_every` agent-steps (`fan_dagger`: every round) (the rest of the wall time; `-`: an SB3 run,",
         "whose log does not split it, `progress.csv` is SB3's own). The",
         "last two columns are the selected model on the 50 validation worlds (mean ± 95 % CI); the test figures",
         "(seeds 1000-1049, never used for selection) are in [docs/baselines.md](../../../docs/baselines.md).",

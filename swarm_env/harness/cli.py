@@ -514,6 +514,7 @@ def _pickle_trust(on: bool) -> Iterator[None]:
 MODULE_COMMANDS: dict[tuple[str, ...], tuple[str, str]] = {
     ("train", "mappo"): ("swarm_env_baselines.mappo", "MAPPO / IPPO (--critic local), our PyTorch PPO: the shipped methods"),
     ("train", "sac"): ("swarm_env_baselines.sac", "shared-parameter SAC on the batched engine (policy isac:RUN)"),
+    ("train", "fan_dagger"): ("swarm_env_baselines.fan_dagger", "DAgger of obs_expert into a network scoring its avoidance fan (policy fan_dagger)"),
     ("train", "sb3"): ("swarm_env_baselines.train", "stable-baselines3 PPO / SAC / A2C / TD3 with parameter sharing"),
     ("train", "rllib"): ("swarm_env_baselines.rllib_train", "RLlib's PPO on Ray, one machine or a cluster (extras rl, ray)"),
     ("bc",): ("swarm_env_baselines.bc", "behaviour cloning (+ DAgger) of a scripted expert into PPO's policy network"),
