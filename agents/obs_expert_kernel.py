@@ -361,7 +361,7 @@ def choose(obs, pursuit, geometry, bodies, lidar, choice, ttc_rows):  # pragma: 
     """The candidate each row picks, ``(M,)`` int64 (the expert's ``cand`` row): the reference's ``_choose`` for the
     rows ``obs`` ``(M, obs_size)`` float64 given their pure-pursuit twists ``pursuit`` ``(M, 2)``; the bundles as
     plain tuples (or :class:`Geometry`, :class:`Bodies`, :class:`Lidar`, :class:`Choice`). Each row's time to
-    contact per candidate (after the next step's worst case: the reference's ``_times_to_contact``) is written to
+    contact per candidate (after the next step's worst case, as the reference's ``_choose`` returns it) is written to
     ``ttc_rows`` ``(M, C)`` float64."""
     g = Geometry(*geometry)  # the items named again (free when compiled); a named bundle works as well
     b = Bodies(*bodies)

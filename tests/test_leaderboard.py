@@ -355,6 +355,34 @@ def test_paired_differences_pair_by_seed(tmp_path, capsys) -> None:
     assert paired.main([str(path), "--baseline", "nobody"]) == 2
 
 
+def test_the_collision_profile_splits_contacts_by_kind(tmp_path, capsys) -> None:
+    import json as _json
+
+    from swarm_env.harness import paired
+
+    def ep(policy, seed, method, **kinds):
+        counts = {k: kinds.get(k, 0) for k in paired.CONTACT_KINDS}
+        return {"policy": policy, "method": method, "scenario": "random", "seed": seed,
+                "metrics": {"collisions": {"total": sum(counts.values()), **counts}, "formation_error": {"mean": 0.3},
+                            "success": True}}
+
+    doc = {"policies": ["pursuit", "m"], "episodes": [
+        ep("pursuit", 0, None, robot_human=2), ep("pursuit", 1, None),
+        ep("m:s0", 0, "m", robot_robot=1, robot_obstacle=1), ep("m:s0", 1, "m"),
+        ep("m:s1", 0, "m"), ep("m:s1", 1, "m", robot_wall=4)]}
+    c = paired.collision_profile(doc, "m")
+    assert c == {"n": 4, "any_contact": 0.5, "robot_robot": 0.25, "robot_human": 0.0, "robot_obstacle": 0.25,
+                 "robot_wall": 1.0}
+    assert paired.collision_profile(doc, "m:s1")["any_contact"] == 0.5
+    with pytest.raises(ValueError, match="no episodes of 'x'"):
+        paired.collision_profile(doc, "x")
+    path = tmp_path / "lb.json"
+    path.write_text(_json.dumps(doc))
+    assert paired.main([str(path), "--profile", "--per-seed"]) == 0
+    out = capsys.readouterr().out
+    assert "| `pursuit` | 2 | 0.50 | 0.00 | 1.00 | 0.00 | 0.00 |" in out and "| `m:s0` | 2 | 0.50 |" in out
+
+
 # --------------------------------------------------------------------------- methods with training seeds
 @pytest.fixture()
 def trio(monkeypatch: pytest.MonkeyPatch) -> str:

@@ -9,6 +9,7 @@ episodes of ``policy - baseline`` with its 95 % confidence half-width
 (:func:`swarm_env.harness.evaluation.mean_ci95`: ``1.96 * s / sqrt(n)`` of the paired differences) and
 whether that interval excludes zero. Pairing by seed removes the variance between worlds, which
 is most of it: "fewer collisions than pursuit" is claimed only when the paired interval says so.
+``--profile`` adds where each policy's collisions come from (:func:`collision_profile`).
 """
 
 from __future__ import annotations
@@ -60,6 +61,25 @@ def paired_differences(doc: dict[str, Any], policy: str, baseline: str, scenario
     return out
 
 
+#: The kinds of contact an episode's ``collisions`` block counts, in :func:`collision_profile`'s order.
+CONTACT_KINDS = ("robot_robot", "robot_human", "robot_obstacle", "robot_wall")
+
+
+def collision_profile(doc: dict[str, Any], policy: str, scenario: str | None = None) -> dict[str, Any]:
+    """Where ``policy``'s collisions come from: ``{"n", "any_contact", KIND...}``, the share of its episodes with
+    at least one collision (CrowdNav's collision rate) and the mean per episode of each of :data:`CONTACT_KINDS`.
+    ``policy`` is a name as played (``mappo:s1``) or a learned method (every seed's episodes)."""
+    episodes = [e["metrics"] for e in doc["episodes"] if (scenario is None or e["scenario"] == scenario)
+                and policy in (e["policy"], e.get("method"))]
+    if not episodes:
+        raise ValueError(f"no episodes of {policy!r} in the leaderboard" + (f" on {scenario!r}" if scenario else ""))
+    n = len(episodes)
+    out: dict[str, Any] = {"n": n, "any_contact": sum(m["collisions"]["total"] > 0 for m in episodes) / n}
+    for kind in CONTACT_KINDS:
+        out[kind] = sum(m["collisions"].get(kind, 0) for m in episodes) / n
+    return out
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``python -m swarm_env.harness.paired``."""
     parser = argparse.ArgumentParser(prog="python -m swarm_env.harness.paired", description=__doc__.splitlines()[0])
@@ -68,6 +88,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--scenario", help="only this scenario's episodes (default: all)")
     parser.add_argument("--per-seed", action="store_true",
                         help="also one row per training seed of each learned method (e.g. mappo:s0)")
+    parser.add_argument("--profile", action="store_true",
+                        help="then where each policy's collisions come from: the share of episodes with any contact "
+                             "and the collisions per episode by kind (robot, human, obstacle, wall)")
     return parser
 
 
@@ -87,6 +110,14 @@ def main(argv: list[str] | None = None) -> int:
             cells = [f"{d[m]['mean']:+.3f} ± {d[m]['ci95']:.3f}{' *' if d[m]['excludes_zero'] else ''}" for m in METRICS]
             print(f"| `{p}` | {d['collisions']['n']} | " + " | ".join(cells) + " |")
         print("(* the interval excludes zero)")
+        if args.profile:
+            print("\ncollision profile: share of episodes with any contact, collisions per episode by kind")
+            print("| policy | n | any contact | " + " | ".join(k.replace("_", "-") for k in CONTACT_KINDS) + " |")
+            print("|---|---:|---:|" + "---:|" * len(CONTACT_KINDS))
+            for p in [args.baseline, *policies]:
+                c = collision_profile(doc, p, args.scenario)
+                print(f"| `{p}` | {c['n']} | {c['any_contact']:.2f} | " + " | ".join(f"{c[k]:.2f}" for k in CONTACT_KINDS)
+                      + " |")
     except (OSError, ValueError, KeyError) as exc:
         print(f"error: {args.leaderboard}: {exc}", file=sys.stderr)
         return 2
