@@ -1,5 +1,5 @@
-"""The shipped checkpoints (baselines/checkpoints/<method>/s<k>: the methods of :mod:`swarm_env_baselines.mappo`
-and the SB3 baseline ``sb3_ppo``, three training seeds each) are clean, safe and documented, and their test episodes in
+"""The shipped checkpoints (baselines/checkpoints/<method>/s<k>: the methods of :mod:`swarm_env_baselines.mappo`,
+the SB3 baseline ``sb3_ppo`` and ``fan_dagger``, three training seeds each) are clean, safe and documented, and their test episodes in
 ``docs/leaderboard/leaderboard.json`` replay bit for bit. The v0 SB3 checkpoints are retired.
 
 A learned policy's actions come from torch's CPU kernels, whose last bits depend on the CPU
@@ -29,12 +29,14 @@ from swarm_env_baselines.mappo_policy import CHECKPOINTS, SHIPPED_SEEDS  # noqa:
 MAPPO_METHODS = ("ippo", "mappo", "mappo_shielded", "residual_vo")
 #: The methods trained by ``swarm-env train sb3`` (their training log is SB3's ``progress.csv``).
 SB3_METHODS = ("sb3_ppo",)
-METHODS = MAPPO_METHODS + SB3_METHODS
+#: The methods of swarm_env_baselines.fan_dagger.
+FAN_METHODS = ("fan_dagger",)
+METHODS = MAPPO_METHODS + SB3_METHODS + FAN_METHODS
 LEADERBOARD = CHECKPOINTS.parents[1] / "docs" / "leaderboard" / "leaderboard.json"
 #: The replayed episodes recorded on machines whose numerics differ from the leaderboard's: fingerprint -> spec -> metrics.
 REPLAYS = Path(__file__).resolve().parent / "data" / "learned_replays.json"
 #: The replayed episodes: seeds s0 and s2 of every method on test world 1000.
-REPLAYED = [f"{m}:s{k}" for m in (*METHODS, "mappo_shielded_bare") for k in (0, 2)]
+REPLAYED = [f"{m}:s{k}" for m in (*METHODS, "mappo_shielded_bare", "fan_dagger_shielded") for k in (0, 2)]
 
 
 def test_only_the_methods_are_shipped_and_no_pickles():
@@ -51,8 +53,9 @@ def test_a_retired_v0_name_says_what_to_use_instead(name):
 @pytest.mark.parametrize("method", METHODS)
 def test_a_shipped_method_has_three_clean_safe_seeds(method):
     readme = (CHECKPOINTS / method / "README.md").read_text()
-    # The MAPPO methods were trained before the rename (ship.training_command), the SB3 one with the command.
-    command = "swarm-env train sb3" if method in SB3_METHODS else "python -m baselines.mappo"
+    # The MAPPO methods were trained before the rename (ship.training_command), the others with the command.
+    command = ("swarm-env train sb3" if method in SB3_METHODS else "swarm-env train fan_dagger"
+               if method in FAN_METHODS else "python -m baselines.mappo")
     assert command in readme and "| s2 |" in readme
     log = "progress.csv" if method in SB3_METHODS else "train.csv"
     for seed in SHIPPED_SEEDS:
