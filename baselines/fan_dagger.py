@@ -2,7 +2,7 @@
 
 .. code-block:: console
 
-    swarm-env train fan_dagger --seed 0                    # ~15 min on 2 cores
+    swarm-env train fan_dagger --seed 0                    # 20-30 min on 2 cores
     swarm-env train fan_dagger --resume runs/<run>         # go on after Ctrl-C or a crash
     swarm-env run --policy fan_dagger:runs/<run>/best ...  # play the best validated network
 

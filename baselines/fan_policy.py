@@ -41,11 +41,11 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env.harness.policies import OBSERVATIONS, ModelFileError, PolicyError, ShieldedPolicy
+from swarm_env.harness.policies import OBSERVATIONS, ModelFileError, PolicyError
 from swarm_env.jsonio import write_json
 from swarm_env.state import WorldState
 from swarm_env_agents.obs_expert import ObservationExpert, ObsExpertConfig
-from swarm_env_baselines.mappo_policy import SHIPPED_SEEDS, shipped_run
+from swarm_env_baselines.mappo_policy import shipped_method_entry_point
 from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
 from swarm_env_baselines.safe_io import CONFIG_FILE, WEIGHTS_FILE, _atomic, one_line, read_description, read_tensors
 
@@ -203,26 +203,19 @@ def load_fan_policy(directory: str | Path, name: str | None = None) -> FanPolicy
     return FanPolicy(net.eval(), obs_rms, options, name=name or f"fan_dagger:{directory}")
 
 
+def _load_run(env: Any, run: Path, label: str) -> FanPolicy:
+    try:
+        policy = load_fan_policy(run, name=label)
+    except ValueError as exc:
+        raise ModelFileError(f"policy {label}: {exc}") from None
+    policy.reset(env, None)
+    return policy
+
+
 def _entry_point(method: str, shielded: bool, doc: str) -> Callable[..., Any]:
     """The entry point ``method[:s<k>|:PATH]`` of the shipped fan_dagger runs (``s0`` without an argument) or any
     run directory of the trainer (or its ``best/``), executed through the safety layer if ``shielded``."""
-
-    def factory(env: Any, arg: str | None = None) -> Any:
-        run = shipped_run("fan_dagger", arg or SHIPPED_SEEDS[0]) if arg in (None, *SHIPPED_SEEDS) else Path(str(arg))
-        label = method if arg is None else f"{method}:{arg}"
-        try:
-            policy = load_fan_policy(run, name=label)
-        except ValueError as exc:
-            raise ModelFileError(f"policy {label}: {exc}") from None
-        policy.reset(env, None)
-        return ShieldedPolicy.around(policy) if shielded else policy
-
-    factory.training_runs = SHIPPED_SEEDS  # type: ignore[attr-defined]
-    # The shield reads the privileged state: a shielded policy acts on more than its observations.
-    factory.acts_on = f"{OBSERVATIONS} + shield" if shielded else OBSERVATIONS  # type: ignore[attr-defined]
-    factory.__name__ = factory.__qualname__ = f"make_{method}"
-    factory.__doc__ = doc
-    return factory
+    return shipped_method_entry_point(method, "fan_dagger", _load_run, shielded, doc)
 
 
 make_fan_dagger = _entry_point(

@@ -60,7 +60,7 @@ CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
 SHIPPED_SEEDS = ("s0", "s1", "s2")
 
 __all__ = ["MAPPOPolicy", "ResidualPolicy", "SquashedMeanActor", "load_run_policy", "load_sac_policy", "save_run_policy",
-           "shipped_run"]
+           "shipped_run", "shipped_method_entry_point"]
 
 
 class MAPPOPolicy:
@@ -293,13 +293,21 @@ def shipped_run(method: str, seed: str) -> Path:
     return CHECKPOINTS / method / seed
 
 
-def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str, acts_on: str = OBSERVATIONS
-                    ) -> Callable[..., Any]:
+#: ``load(env, run_dir, label) -> policy``: a shipped method's loader (raises ModelFileError on a bad file).
+RunLoader = Callable[[Any, Path, str], Any]
+
+
+def shipped_method_entry_point(method: str, checkpoints: str, load: RunLoader, shielded: bool, doc: str,
+                               acts_on: str = OBSERVATIONS) -> Callable[..., Any]:
+    """The entry point ``method[:s<k>|:PATH]`` of a shipped learned method: no argument loads the first training
+    seed of ``baselines/checkpoints/<checkpoints>/``, ``s<k>`` that seed, anything else a run directory; the
+    policy is executed through the safety layer if ``shielded``. ``training_runs`` lets a leaderboard play every
+    seed; ``acts_on`` says what it reads."""
+
     def factory(env: Any, arg: str | None = None) -> Any:
-        # No argument: the first training seed; ``s<k>``: that shipped seed; anything else: a run directory.
-        run = shipped_run(checkpoints, arg or SHIPPED_SEEDS[0]) if arg in (None, *SHIPPED_SEEDS) else Path(arg)
+        run = shipped_run(checkpoints, arg or SHIPPED_SEEDS[0]) if arg in (None, *SHIPPED_SEEDS) else Path(str(arg))
         label = method if arg is None else f"{method}:{arg}"
-        policy = _load(env, run, label)
+        policy = load(env, run, label)
         return ShieldedPolicy.around(policy) if shielded else policy
 
     factory.training_runs = SHIPPED_SEEDS  # type: ignore[attr-defined]
@@ -308,6 +316,11 @@ def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str, act
     factory.__name__ = factory.__qualname__ = f"make_{method}"
     factory.__doc__ = doc
     return factory
+
+
+def _method_factory(method: str, checkpoints: str, shielded: bool, doc: str, acts_on: str = OBSERVATIONS
+                    ) -> Callable[..., Any]:
+    return shipped_method_entry_point(method, checkpoints, _load, shielded, doc, acts_on)
 
 
 make_ippo = _method_factory("ippo", "ippo", False, "Entry point ``ippo[:s<k>|:PATH]``: the shipped IPPO runs.")
