@@ -18,7 +18,8 @@ from pettingzoo import ParallelEnv
 from swarm_env.geometry.static_map import StaticMap
 from swarm_env.render import Renderer
 from swarm_env.scenario import RewardSpec, Scenario
-from swarm_env.scenarios.generator import RandomScenarioConfig, config_from_kwargs, random_scenario
+from swarm_env.scenarios.families import generator_config, is_generated
+from swarm_env.scenarios.generator import RandomScenarioConfig, random_scenario
 from swarm_env.scenarios.loader import _parse_reward, load_scenario
 from swarm_env.scoring.metrics import EpisodeMetrics
 from swarm_env.scoring.rewards import (
@@ -159,7 +160,9 @@ class SwarmEnv(ParallelEnv):
     ## Arguments
 
     * ``scenario``: a built-in name (``swarm_env.list_scenarios()``), a path to
-      a YAML file, a :class:`~swarm_env.scenario.Scenario`, or ``"random"``.
+      a YAML file, a :class:`~swarm_env.scenario.Scenario`, ``"random"``, or a
+      generator family ``"random:<family>"`` (:mod:`swarm_env.scenarios.families`:
+      ``random:cluttered``, ``random:switching``, ...).
     * ``render_mode``: ``None``, ``"human"`` (pygame window) or ``"rgb_array"``.
     * ``action_type``: ``"continuous"`` or ``"discrete"``.
     * ``max_cycles``: optional step limit on top of ``world.max_time``.
@@ -170,7 +173,7 @@ class SwarmEnv(ParallelEnv):
       of its fields.
     * ``team_seed``: for ``random`` with an ``n_followers`` range, the seed of
       the one team-size draw of this instance.
-    * ``**knobs``: for ``scenario="random"`` only, the fields of
+    * ``**knobs``: for ``"random"`` and its families only (on top of the family's), the fields of
       :class:`~swarm_env.scenarios.generator.RandomScenarioConfig`
       (``n_followers``, ``n_obstacles``, ``n_humans``, ...).
 
@@ -180,7 +183,8 @@ class SwarmEnv(ParallelEnv):
 
     ## Version history
 
-    * v1, later additions: humans that react, opt in (``behavior: social_force | orca`` per
+    * v1, later additions: generator families (``"random:<family>"``, named presets of the
+      generator's knobs; ``"random"`` draws the same worlds as before); humans that react, opt in (``behavior: social_force | orca`` per
       human, ``human_behavior`` for ``random``; :mod:`swarm_env.sim.humans`; scripted humans move
       as before); the lidar computed by a compiled kernel (its distances, so the observations,
       differ from the first v1 release's in the last bits).
@@ -224,8 +228,8 @@ class SwarmEnv(ParallelEnv):
             raise ValueError(f"team_seed must be an int >= 0, got {team_seed!r}")
         reward_spec = _reward_spec(reward)
         self._random: RandomScenarioConfig | None = None
-        if isinstance(scenario, str) and scenario == "random":
-            cfg = config_from_kwargs(**knobs)
+        if is_generated(scenario):
+            cfg = generator_config(str(scenario), knobs)
             lo, hi = cfg.n_followers  # type: ignore[misc]
             if lo != hi:  # one team size per env instance, so that agents == possible_agents always
                 cfg = dataclasses.replace(cfg, n_followers=int(np.random.default_rng(int(team_seed)).integers(lo, hi + 1)))
@@ -249,7 +253,7 @@ class SwarmEnv(ParallelEnv):
         self.max_steps: int = _step_limit(template.world.max_time, template.world.dt, max_cycles)
         self.capacity = self._capacity(template)
         self.sensors = template.sensors
-        self.scenario_name = "random" if self._random else template.name
+        self.scenario_name = str(scenario) if self._random else template.name
         self._obs = ObservationBuilder(self.sensors, self.capacity)
         self.obs_layout = self._obs.layout
         self.state_layout = self._obs.state_layout
@@ -596,10 +600,10 @@ def info_columns(dist: np.ndarray, terms: dict[str, np.ndarray] | np.ndarray, to
 def env_kwargs_for(scenario: Any, kwargs: Mapping[str, Any]) -> dict[str, Any]:
     """``kwargs`` as they apply to ``scenario``: generator knobs (the fields of
     :class:`~swarm_env.scenarios.generator.RandomScenarioConfig`) are kept for ``"random"``
-    only, everything else (``max_cycles``, ``reward``, ``terminate_on_collision``, ...)
+    and its families (``"random:<family>"``) only, everything else (``max_cycles``, ``reward``, ``terminate_on_collision``, ...)
     for every scenario. What ``swarm-env run/evaluate --env KEY=VALUE`` use, so one
     set of options can be applied to a list of scenarios."""
-    if isinstance(scenario, str) and scenario == "random":
+    if is_generated(scenario):
         return dict(kwargs)
     knobs = {f.name for f in dataclasses.fields(RandomScenarioConfig)}
     return {k: v for k, v in kwargs.items() if k not in knobs}

@@ -30,6 +30,7 @@ from swarm_env.extras import MissingExtraError, extra_for_module, missing_distri
 from swarm_env.harness import bench, recording
 from swarm_env.harness.evaluation import evaluate
 from swarm_env.harness.leaderboard import (
+    Leaderboard,
     SweepInterrupted,
     default_seeds,
     parse_seeds,
@@ -46,10 +47,12 @@ from swarm_env.harness.policies import (
     registered_policies,
 )
 from swarm_env.harness.recording import ensure_new_recording_dir
+from swarm_env.harness.suite import SUITES, Suite, get_suite, result_markdown, suite_result
 from swarm_env.harness.video import VideoWriter
 from swarm_env.jsonio import write_json
-from swarm_env.outputs import OutputError, check_target
+from swarm_env.outputs import OutputError, atomic_write_text, check_target
 from swarm_env.scenario import ScenarioError
+from swarm_env.scenarios.families import FAMILIES, generator_config, is_generated
 from swarm_env.scenarios.generator import random_scenario
 from swarm_env.scenarios.loader import list_scenarios, load_scenario
 
@@ -140,6 +143,10 @@ def cmd_list(args: argparse.Namespace) -> int:
         else:
             desc = (load_scenario(name).description.strip().splitlines() or [""])[0]
         print(f"  {name:<18} {desc}")
+    print("families (random:<family>, or fixed scenarios grouped; swarm_env.scenarios.families):")
+    for family in FAMILIES.values():
+        where = "random:" + family.name if family.generated else " ".join(family.scenarios)
+        print(f"  {family.name:<18} [{family.difficulty}] {family.description} ({where})")
     print("policies:")
     for name, target in registered_policies().items():
         declared = policy_extra(name)  # (distribution, extras): a third party's policy names its own package
@@ -155,12 +162,11 @@ def cmd_validate(args: argparse.Namespace) -> int:
     status = 0
     for spec in args.files:
         try:
-            if spec == "random":  # a generator, not a file: check that its default configuration builds a world
+            if is_generated(spec):  # a generator, not a file: check that its configuration builds a world
                 import numpy as np
 
-
-                scn = random_scenario(np.random.default_rng(0))
-                print(f"ok: random (the generator; seed 0 draws {scn.robots.count} followers, {len(scn.obstacles)} "
+                scn = random_scenario(np.random.default_rng(0), generator_config(spec, {}))
+                print(f"ok: {spec} (the generator; seed 0 draws {scn.robots.count} followers, {len(scn.obstacles)} "
                       f"obstacles, {len(scn.humans)} humans, {len(scn.formations)} formations, dt={scn.world.dt:g}s)")
                 continue
             scn = load_scenario(spec)
@@ -396,12 +402,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         stored = read_sweep(args.resume) if args.resume else None
         if stored is None and not args.policies:
             raise ValueError("--policies is required (unless --resume DIR, which takes the sweep from DIR/sweep.json)")
+        suite, split = _suite_of(args, stored)
         # With --resume, what is not given comes from the sweep being finished; what is given must match it.
         policies: list[str] = args.policies or (stored or {})["policies"]
         scenarios: list[str] = args.scenarios or (stored["scenarios"] if stored else list_scenarios())
         env_given = args.action_type is not None or args.max_cycles is not None or args.env
-        if stored is not None and not env_given:
-            env_kwargs: dict[str, Any] = dict(stored["env_kwargs"])
+        if suite is not None:
+            scenarios = suite.scenarios()
+            env_kwargs: dict[str, Any] = dict(suite.env_kwargs)
+        elif stored is not None and not env_given:
+            env_kwargs = dict(stored["env_kwargs"])
         else:
             env_kwargs = {"action_type": args.action_type or "continuous"}
             if args.max_cycles is not None:
@@ -433,6 +443,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     for scenario in scenarios:
+        if suite is not None:
+            seeds[scenario] = suite.seeds(split)[scenario]
         if stored is not None and common is None and not args.scenario_seeds and scenario in stored["seeds"]:
             seeds.setdefault(scenario, list(stored["seeds"][scenario]))
         seeds.setdefault(scenario, list(common) if common is not None else default_seeds(scenario))
@@ -442,6 +454,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             policies, scenarios, seeds, env_kwargs=env_kwargs, workers=args.workers, progress=not args.quiet,
             backend=args.backend, ray_address=args.ray_address, out_dir=out, resume=bool(args.resume),
             overwrite=args.overwrite, episode_timeout=args.episode_timeout,
+            suite=None if suite is None else suite.spec(split),
         )
     except SweepInterrupted as exc:
         board = exc.board
@@ -450,13 +463,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         where = "nothing written (no --out)"
         if out:
             board.write(out)  # the sweep's own files: replacing them is what the directory is for
+            if suite is not None:
+                _write_suite(board, suite, split, out)
             where = f"wrote {out}/leaderboard.md, .csv and .json; finish with: swarm-env evaluate --resume {out}"
         print(f"interrupted: {done} of {total} episodes done; {where}", file=sys.stderr)
         return 130
     except ValueError as exc:  # OutputError (results already there, a symlink), a --resume that does not match
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(board.to_markdown())
+    print(board.to_markdown() if suite is None else result_markdown(suite_result(board, suite, split)))
     print(f"{len(board.episodes)} episodes in {board.wall_time:.1f} s (wall, {args.workers} worker(s))", file=sys.stderr)
     for entry in board.failed:
         print(f"warning: episode failed after {entry['attempts']} attempts: policy {entry['policy']!r} on "
@@ -467,7 +482,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             print(f"warning: policy {policy!r} ran on no scenario: {'; '.join(sorted(str(r) for r in reasons))}", file=sys.stderr)
     if out:
         try:
-            for path in board.write(out):
+            for path in board.write(out) + ([] if suite is None else _write_suite(board, suite, split, out)):
                 print(f"wrote {path}")
             if args.videos:
                 for rec in record_worst_videos(board, Path(out) / "videos", fps=args.fps, progress=not args.quiet,
@@ -478,6 +493,39 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             print(f"error: {exc}", file=sys.stderr)
             return 2
     return 0
+
+
+def _suite_of(args: argparse.Namespace, stored: dict[str, Any] | None) -> tuple[Suite | None, str]:
+    """The benchmark suite and split of ``evaluate --suite`` (or of the sweep ``--resume`` finishes), with
+    the options a suite fixes refused; ``(None, "")`` for a plain leaderboard."""
+    name, split = args.suite, args.split
+    if stored is not None and "suite" in stored:
+        held = stored["suite"]
+        if name is not None and name != held.get("name"):
+            raise ValueError(f"--suite {name} differs from the suite {held.get('name')!r} of the sweep being resumed")
+        name, split = held.get("name"), split or held.get("split")
+        suite = get_suite(str(name))
+        if suite.version != held.get("version"):
+            raise ValueError(f"{args.resume}: holds suite {name}/{held.get('version')}, this swarm-env has "
+                             f"{suite.label}; finish it with the version that started it")
+    if name is None:
+        if args.split is not None:
+            raise ValueError("--split needs --suite")
+        return None, ""
+    fixed = [flag for flag, given in (("--scenarios", args.scenarios), ("--seeds", args.seeds),
+                                      ("--scenario-seeds", args.scenario_seeds), ("--env", args.env),
+                                      ("--action-type", args.action_type), ("--max-cycles", args.max_cycles))
+             if given]
+    if fixed:
+        raise ValueError(f"--suite fixes the scenarios, seeds and env options; drop {', '.join(fixed)}")
+    return get_suite(name), split or "test"
+
+
+def _write_suite(board: Leaderboard, suite: Suite, split: str, out: str) -> list[Path]:
+    """``out/suite.json`` and ``out/suite.md`` (atomic, like the board's files)."""
+    result = suite_result(board, suite, split)
+    return [write_json(Path(out) / "suite.json", result, indent=1, root=out),
+            atomic_write_text(Path(out) / "suite.md", result_markdown(result), root=out)]
 
 
 OVERWRITE_HELP = ("replace output files that exist (without it they are refused); outputs are always written to a "
@@ -633,6 +681,10 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--seeds", metavar="SEEDS", help="seeds of every scenario: '0-9', '3' or '0,5,7' (mixes like '0-4,9' too)")
     e.add_argument("--scenario-seeds", nargs="+", metavar="SCENARIO=SEEDS",
                    help="per-scenario seeds overriding --seeds, e.g. random=1000-1049 paper_vo_0=0-2")
+    e.add_argument("--suite", choices=sorted(SUITES), help="a benchmark suite (docs/benchmark.md): its families, "
+                   "seeds and env options instead of --scenarios/--seeds/--env; writes DIR/suite.json and suite.md "
+                   "beside the leaderboard")
+    e.add_argument("--split", choices=["validation", "test"], help="with --suite: which seeds (default: test)")
     e.add_argument("--workers", type=int, default=1, help="processes running (policy, scenario) jobs in parallel "
                    "(with --backend ray and no --ray-address: the local Ray instance's CPUs)")
     e.add_argument("--backend", choices=["local", "ray"], default="local",

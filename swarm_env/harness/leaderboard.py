@@ -90,7 +90,7 @@ from swarm_env.harness.recording import EpisodeRecord, load_episode, record_epis
 from swarm_env.harness.video import VideoWriter
 from swarm_env.jsonio import dumps, write_json
 from swarm_env.outputs import OutputError, append_line, atomic_write_bytes, atomic_write_text, ensure_dir
-from swarm_env.scenarios.loader import RANDOM_NAME
+from swarm_env.scenarios.families import is_generated
 
 #: Seeds of a fixed scenario when none are given (deterministic up to the policy's own randomness).
 DEFAULT_FIXED_SEEDS: tuple[int, ...] = tuple(range(0, 5))
@@ -166,8 +166,9 @@ def format_seeds(seeds: Iterable[int]) -> str:
 
 
 def default_seeds(scenario: str) -> list[int]:
-    """:data:`DEFAULT_RANDOM_SEEDS` for ``"random"``, :data:`DEFAULT_FIXED_SEEDS` for any fixed scenario."""
-    return list(DEFAULT_RANDOM_SEEDS if scenario == RANDOM_NAME else DEFAULT_FIXED_SEEDS)
+    """:data:`DEFAULT_RANDOM_SEEDS` for ``"random"`` and its families (``"random:<family>"``),
+    :data:`DEFAULT_FIXED_SEEDS` for any fixed scenario."""
+    return list(DEFAULT_RANDOM_SEEDS if is_generated(scenario) else DEFAULT_FIXED_SEEDS)
 
 
 def resolve_seeds(
@@ -306,7 +307,7 @@ SWEEP_FILE = "sweep.json"
 EPISODES_FILE = "episodes.jsonl"
 SWEEP_FORMAT = "swarm_env.sweep/1"
 #: Files of a leaderboard directory that mark it as holding results (``--overwrite`` or ``--resume`` needed).
-RESULT_FILES = (SWEEP_FILE, EPISODES_FILE, "leaderboard.json", "leaderboard.csv", "leaderboard.md")
+RESULT_FILES = (SWEEP_FILE, EPISODES_FILE, "leaderboard.json", "leaderboard.csv", "leaderboard.md", "suite.json", "suite.md")
 #: Attempts an episode gets when its worker dies or exceeds the episode timeout (the first try and one retry).
 MAX_ATTEMPTS = 2
 #: Seconds a new pool worker may take to start (import swarm-env) on top of the episode timeout.
@@ -410,10 +411,14 @@ class _Sweep:
 
 
 def _sweep_spec(policies: Sequence[str], scenarios: Sequence[str], seed_map: Mapping[str, list[int]],
-                env_kwargs: Mapping[str, Any]) -> dict[str, Any]:
-    # what defines the episodes of a sweep (workers, timeouts and the backend do not change them)
-    return json.loads(dumps({"format": SWEEP_FORMAT, "policies": list(policies), "scenarios": list(scenarios),
-                             "seeds": dict(seed_map), "env_kwargs": dict(env_kwargs)}, indent=None))
+                env_kwargs: Mapping[str, Any], suite: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    # what defines the episodes of a sweep (workers, timeouts and the backend do not change them), and the
+    # benchmark suite they make up, if any (swarm_env.harness.suite)
+    spec = {"format": SWEEP_FORMAT, "policies": list(policies), "scenarios": list(scenarios), "seeds": dict(seed_map),
+            "env_kwargs": dict(env_kwargs)}
+    if suite is not None:
+        spec["suite"] = dict(suite)
+    return json.loads(dumps(spec, indent=None))
 
 
 def read_sweep(directory: str | os.PathLike[str]) -> dict[str, Any]:
@@ -439,9 +444,9 @@ def _prepare_out(out: Path, spec: dict[str, Any], resume: bool, overwrite: bool)
     ``resume``, the same sweep as the one stored there."""
     if resume:
         stored = read_sweep(out)
-        for key in ("policies", "scenarios", "seeds", "env_kwargs"):
-            if stored[key] != spec[key]:
-                raise ValueError(f"{out / SWEEP_FILE}: {key} {stored[key]!r} differ from this command's {spec[key]!r}; "
+        for key in ("policies", "scenarios", "seeds", "env_kwargs", "suite"):
+            if stored.get(key) != spec.get(key):
+                raise ValueError(f"{out / SWEEP_FILE}: {key} {stored.get(key)!r} differ from this command's {spec.get(key)!r}; "
                                  "--resume finishes the same sweep (drop the differing options or use another --out)")
         return
     ensure_dir(out)
@@ -763,6 +768,7 @@ def run_leaderboard(
     resume: bool = False,
     overwrite: bool = False,
     episode_timeout: float | None = None,
+    suite: Mapping[str, Any] | None = None,
 ) -> Leaderboard:
     """Evaluate every policy spec on every scenario for its seeds.
 
@@ -788,6 +794,8 @@ def run_leaderboard(
       is refused (:class:`~swarm_env.outputs.OutputError`) unless ``overwrite`` (start again) or
       ``resume`` (play only the episodes with no result there, after checking that the spec is the
       same; a resumed sweep gives the same leaderboard as an uninterrupted one).
+    * ``suite``: the benchmark suite these scenarios and seeds make up (:func:`swarm_env.harness.suite.run_suite`
+      passes its spec), stored in ``out_dir/sweep.json`` so that ``--resume`` scores the suite again.
 
     All inputs are validated (:func:`validate_inputs`) before any episode runs. Ctrl-C raises
     :class:`SweepInterrupted` (a ``KeyboardInterrupt``) carrying the board of the finished episodes.
@@ -810,7 +818,7 @@ def run_leaderboard(
     method_of = {m: p for p in policies for m in members[p] if len(members[p]) > 1}
     out = None if out_dir is None else Path(out_dir)
     if out is not None:
-        _prepare_out(out, _sweep_spec(policies, scenarios, seed_map, kwargs), resume, overwrite)
+        _prepare_out(out, _sweep_spec(policies, scenarios, seed_map, kwargs, suite), resume, overwrite)
     if episode_timeout is None:
         longest = 0
         for s in scenarios:
@@ -895,13 +903,14 @@ def _board(policies: list[str], scenarios: list[str], seed_map: dict[str, list[i
                        records=records, failed=failed)
 
 
-def aggregate_training_seeds(summaries: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """One summary across training seeds: per metric (the keys of :data:`METRICS`), the mean of
+def aggregate_training_seeds(summaries: Sequence[Mapping[str, Any]], metrics: Sequence[Metric] = METRICS
+                             ) -> dict[str, Any]:
+    """One summary across training seeds: per metric (the keys of ``metrics``, :data:`METRICS`), the mean of
     the seeds' means and its Student-t 95 % half-width across seeds
     (:func:`~swarm_env.harness.evaluation.mean_ci95_t`; ``n`` counts seeds); ``episodes`` is the total
     and ``training_seeds`` the number of seeds."""
     out: dict[str, Any] = {"episodes": sum(int(s["episodes"]) for s in summaries), "training_seeds": len(summaries)}
-    for m in METRICS:
+    for m in metrics:
         out[m.key] = mean_ci95_t((s.get(m.key) or {}).get("mean") for s in summaries)
     return out
 

@@ -31,7 +31,8 @@ What a generated world looks like (units m, s):
   design and excluded);
 * a formation schedule of ``1 + n_switches`` entries drawn from ``shapes``
   (consecutive entries differ when there is a choice), switching at times spread
-  over the leader's travel;
+  over the leader's travel (with ``switch_reach``: timed so that every switch can be
+  reached, :func:`switch_reach_times`);
 * humans that walk straight lines crossing the leader's path, timed (``start_delay``)
   to reach the crossing point about when the leader does;
 * obstacles (circles, rectangles, convex polygons) placed by rejection sampling,
@@ -113,6 +114,7 @@ _OBSTACLE_TRIES = 40  # candidates per requested obstacle
 # rounded to mm (a polygon's vertices by up to 0.0007 m, a rectangle's half-diagonal by 0.0005 m).
 _BOUND_SLACK = 0.002
 _SAMPLE_STEP = 0.1  # m between the points that stand for a path in clearance tests
+_FIRST_HOLD = 0.15  # with switch_reach: the share of the leader's travel the starting formation is held at least
 _SLOT_SPEED_SHARE = 0.9  # slot targets move at most this share of max_speed while the leader turns
 _DEFAULT_WORLD = 20.0  # m, the side of an ``auto`` world for small formations
 _PATH_ROOM = 8.0  # m of path room an ``auto`` world keeps between the formation margins
@@ -212,6 +214,11 @@ class RandomScenarioConfig:
         spacing: range of the formation spacing (m); raised to ``2 * radius + 0.1``.
         angle: range of the ``v``/``wedge`` arm half-opening (degrees).
         n_switches: number of formation switches after the first formation.
+        switch_reach: ``None`` (the default): switches spread evenly over the leader's travel. A number
+            ``k``: each new formation lasts at least ``k`` times its reach time, the least time in which
+            every follower could be within the settle tolerance of its new slot at top speed
+            (:func:`switch_reach_times`), so that every switch can be reached and held; while they do not
+            fit in the leader's travel, the switch that needs the most time is dropped.
         world_size: ``(W, H)`` (m), or ``"auto"`` (the default): a square of
             ``max(20, 2 * (rho + radius + 0.3) + 8)`` m where ``rho`` is the largest slot radius any
             drawable formation of the largest team can have (see :meth:`resolved_world_size`).
@@ -236,6 +243,7 @@ class RandomScenarioConfig:
     spacing: tuple[float, float] = (0.9, 1.3)
     angle: tuple[float, float] = (30.0, 60.0)
     n_switches: IntRange = (0, 2)
+    switch_reach: float | None = None
     world_size: tuple[float, float] | str = "auto"
     leader_kind: str = "virtual"
     leader_speed: float = 0.4
@@ -296,6 +304,9 @@ class RandomScenarioConfig:
         if isinstance(self.substeps, bool) or not isinstance(self.substeps, int) or not 1 <= self.substeps <= max_sub:
             raise ScenarioError(SOURCE, "substeps", f"an integer in [1, {max_sub}] (swarm_env.limits.MAX_SUBSTEPS)",
                                 self.substeps)
+        if self.switch_reach is not None and (not _is_real(self.switch_reach) or not 1.0 <= self.switch_reach <= 100.0):
+            raise ScenarioError(SOURCE, "switch_reach", "null or a number in [1, 100] (times the reach time)",
+                                self.switch_reach)
         if self.leader_speed > self.max_speed:
             raise ScenarioError(SOURCE, "leader_speed", f"at most max_speed = {self.max_speed}", self.leader_speed)
         if not isinstance(self.sensors, SensorSpec):
@@ -375,13 +386,16 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
 
     path, start_xy = _draw_path(rng, cfg, (W, H), offsets[0], extent, min_radius)
     line = PolylinePath(path)
-    # Switches are spread over the leader's actual travel time, one per stratum, so they
-    # are strictly increasing and at least ~0.4 * travel / (n_sw + 1) apart.
     travel = line.length / cfg.leader_speed
-    for i in range(1, len(formations)):
-        at = round(travel * (i + float(rng.uniform(-0.3, 0.3))) / len(formations), 1)
-        at = max(at, round(formations[i - 1].at + cfg.dt, 6))  # very short travels: keep them increasing
-        formations[i] = dataclasses.replace(formations[i], at=at)
+    if cfg.switch_reach is None:
+        # Switches are spread over the leader's actual travel time, one per stratum, so they
+        # are strictly increasing and at least ~0.4 * travel / (n_sw + 1) apart.
+        for i in range(1, len(formations)):
+            at = round(travel * (i + float(rng.uniform(-0.3, 0.3))) / len(formations), 1)
+            at = max(at, round(formations[i - 1].at + cfg.dt, 6))  # very short travels: keep them increasing
+            formations[i] = dataclasses.replace(formations[i], at=at)
+    else:
+        formations = _reachable_switches(rng, formations, offsets, travel, cfg)
     leader_clear = (r + 0.5) if cfg.leader_kind == "robot" else 0.5
     # Discs present at t = 0 (followers, and the robot leader) with their radii.
     start_discs = [(p, r) for p in start_xy]
@@ -518,6 +532,67 @@ def _draw_formations(rng: np.random.Generator, cfg: RandomScenarioConfig, n_sw: 
             angle = 89.0
         out.append(FormationSpec(at=0.0, shape=shape, spacing=spacing, angle=angle))
     return out
+
+
+def reach_time(before: np.ndarray, after: np.ndarray, leader_speed: float, max_speed: float,
+               tolerance: float) -> float:
+    """A lower bound on the seconds until every follower can be within ``tolerance`` of its new slot.
+
+    ``before`` and ``after`` are the slot offsets ``(n, 2)`` in the leader's frame (x ahead) of follower ``k``
+    before and after a switch (slot ``k`` stays follower ``k``'s). A follower's velocity relative to a leader
+    going straight at ``leader_speed`` lies in the disc of radius ``max_speed`` around ``(-leader_speed, 0)``:
+    along the unit direction ``e`` to its new slot it closes at most at ``c = -v_L e_x + sqrt(v^2 - v_L^2 (1 -
+    e_x^2))`` m/s (slowest straight ahead: ``v - v_L``). Turning, acceleration and avoidance only add time."""
+    d = np.asarray(after, float) - np.asarray(before, float)
+    dist = np.hypot(d[:, 0], d[:, 1])
+    need = np.maximum(dist - tolerance, 0.0)
+    if not np.any(need > 0):
+        return 0.0
+    e_x = np.where(dist > 0, d[:, 0] / np.maximum(dist, 1e-12), 0.0)
+    closing = -leader_speed * e_x + np.sqrt(np.maximum(max_speed ** 2 - leader_speed ** 2 * (1.0 - e_x ** 2), 0.0))
+    with np.errstate(divide="ignore"):
+        times = np.where(need > 0, need / np.maximum(closing, 1e-9), 0.0)
+    return float(times.max())
+
+
+def switch_reach_times(scn: Scenario) -> list[float]:
+    """:func:`reach_time` of each formation switch of ``scn`` (schedule entries after the first), in order."""
+    n = scn.robots.count
+    offsets = [formation_offsets(f, n) for f in scn.formations]
+    return [reach_time(a, b, scn.leader.speed, scn.robots.max_speed, scn.world.settle_tolerance)
+            for a, b in zip(offsets, offsets[1:])]
+
+
+def _reachable_switches(rng: np.random.Generator, formations: list[FormationSpec], offsets: list[np.ndarray],
+                        travel: float, cfg: RandomScenarioConfig) -> list[FormationSpec]:
+    """Switch times such that formation ``i >= 1`` lasts at least ``cfg.switch_reach`` times its reach time and
+    everything happens within the leader's ``travel`` (s); the slack is shared at random between the formations.
+    While the switches do not fit, the one that needs the most time is dropped (and a formation that would
+    repeat the one before it)."""
+    tol = WorldSpec.settle_tolerance
+    keep = list(range(len(formations)))
+
+    def needs() -> list[float]:
+        return [cfg.switch_reach * reach_time(offsets[a], offsets[b], cfg.leader_speed, cfg.max_speed, tol)  # type: ignore[operator]
+                for a, b in zip(keep, keep[1:])]
+
+    first = _FIRST_HOLD * travel  # the starting formation is held for a while too
+    need = needs()
+    while need and sum(need) + first > travel:
+        del keep[1 + int(np.argmax(need))]
+        keep = [k for i, k in enumerate(keep)  # no "switch" to the formation already held
+                if i == 0 or dataclasses.replace(formations[k], at=0.0) != dataclasses.replace(formations[keep[i - 1]], at=0.0)]
+        need = needs()
+    kept = [formations[k] for k in keep]
+    # formation 0 needs no reach, only its hold; each of the others at least its own, and at least one control step
+    floor = np.array([first] + [max(m, cfg.dt) for m in need])
+    share = rng.uniform(0.7, 1.3, len(floor))
+    gaps = floor + (travel - floor.sum()) * share / share.sum()
+    at = 0.0
+    for i in range(1, len(kept)):
+        at = max(math.floor((at + gaps[i - 1]) * 10.0) / 10.0, round(kept[i - 1].at + cfg.dt, 6))
+        kept[i] = dataclasses.replace(kept[i], at=round(at, 6))
+    return kept
 
 
 def _draw_path(

@@ -268,12 +268,13 @@ def load_scenario(spec: str | os.PathLike[str] | Mapping[str, Any] | Scenario) -
     if not isinstance(spec, (str, os.PathLike)):
         raise ScenarioError("<argument>", "<file>", "a scenario name, a YAML path, a mapping or a Scenario", spec)
     text = os.fspath(spec)
-    if text == RANDOM_NAME:
+    if text == RANDOM_NAME or text.startswith(RANDOM_NAME + ":"):
         raise ScenarioError(
             text,
             "<file>",
-            "a scenario file; 'random' is generated per episode: use "
-            "swarm_env.scenarios.generator.random_scenario(rng, config) or parallel_env('random', **knobs)",
+            f"a scenario file; {text!r} is generated per episode: use "
+            "swarm_env.scenarios.generator.random_scenario(rng, config) or parallel_env('random', **knobs) "
+            "(a family: parallel_env('random:<family>'))",
         )
     path = Path(text)
     looks_like_name = isinstance(spec, str) and path.suffix == "" and len(path.parts) == 1
