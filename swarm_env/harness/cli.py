@@ -454,7 +454,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             policies, scenarios, seeds, env_kwargs=env_kwargs, workers=args.workers, progress=not args.quiet,
             backend=args.backend, ray_address=args.ray_address, out_dir=out, resume=bool(args.resume),
             overwrite=args.overwrite, episode_timeout=args.episode_timeout,
-            suite=None if suite is None else suite.spec(split),
+            suite=None if suite is None else suite.key(split),
         )
     except SweepInterrupted as exc:
         board = exc.board

@@ -795,7 +795,7 @@ def run_leaderboard(
       ``resume`` (play only the episodes with no result there, after checking that the spec is the
       same; a resumed sweep gives the same leaderboard as an uninterrupted one).
     * ``suite``: the benchmark suite these scenarios and seeds make up (:func:`swarm_env.harness.suite.run_suite`
-      passes its spec), stored in ``out_dir/sweep.json`` so that ``--resume`` scores the suite again.
+      passes its name, version and split), stored in ``out_dir/sweep.json`` so that ``--resume`` scores it again.
 
     All inputs are validated (:func:`validate_inputs`) before any episode runs. Ctrl-C raises
     :class:`SweepInterrupted` (a ``KeyboardInterrupt``) carrying the board of the finished episodes.

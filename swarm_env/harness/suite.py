@@ -114,9 +114,14 @@ class Suite:
                 out[scenario] = list(getattr(self, split) if family.generated else self.fixed_seeds)
         return out
 
+    def key(self, split: str) -> dict[str, Any]:
+        """What a sweep directory stores of the suite (``sweep.json``): the name, version and split, which with the
+        scenarios and seeds define its episodes (the descriptions and difficulties do not)."""
+        return {"name": self.name, "version": self.version, "split": split}
+
     def spec(self, split: str) -> dict[str, Any]:
-        """What ``suite.json`` and the sweep directory record of the suite: enough to cite and to rerun it."""
-        return {"name": self.name, "version": self.version, "split": split, "description": self.description,
+        """What ``suite.json`` records of the suite: enough to cite and to rerun it."""
+        return {**self.key(split), "description": self.description,
                 "train": TRAIN_RULE,
                 "families": {f: {"difficulty": FAMILIES[f].difficulty, "description": FAMILIES[f].description,
                                  "scenarios": list(FAMILIES[f].scenario_names), "knobs": dict(FAMILIES[f].knobs)}
@@ -146,7 +151,7 @@ def run_suite(policies: list[str], suite: Suite, split: str = "test", **leaderbo
     """Play ``policies`` on ``split`` of ``suite``: :func:`~swarm_env.harness.leaderboard.run_leaderboard` with the
     suite's scenarios, seeds and env options (``workers``, ``out_dir``, ``resume``, ... pass through)."""
     return run_leaderboard(policies, suite.scenarios(), suite.seeds(split), env_kwargs=dict(suite.env_kwargs),
-                           suite=suite.spec(split), **leaderboard_kwargs)
+                           suite=suite.key(split), **leaderboard_kwargs)
 
 
 # --------------------------------------------------------------------------- scoring
