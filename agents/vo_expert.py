@@ -50,7 +50,10 @@ reciprocally (``recip_gap``). See :data:`EXPERT_AVOIDANCE`.
 When no candidate is safe the robot takes the candidate that postpones the
 predicted contact longest (slower first); if that means standing still while
 something comes at it, it turns in place towards the most open direction.
-Each such step is counted as an *infeasible event* in :meth:`VOExpert.stats`.
+Each such step is counted as an *infeasible event* in :meth:`VOExpert.stats`. A follower in that state
+while a walker is coming (walkers do not give way) first searches again with reversing candidates, its
+robot neighbours looked for only ``reverse_horizon`` s ahead, and backs off if that postpones the contact
+(``reverse``; counted as ``reverse_steps``).
 A follower that has come to rest inside another robot's safety margin may
 still turn in place (``allow_still_overlap`` of :func:`vo_select_batch`), so
 two followers that met face to face turn away instead of standing for good.
@@ -107,10 +110,10 @@ __all__ = ["EXPERT_AVOIDANCE", "LEGACY_SPEC", "VOExpert", "make_policy"]
 EXPERT_AVOIDANCE: dict[str, Any] = {"move_first": True, "recip_gap": 0.2, "horizon": 2.5, "horizon_static": 1.0,
                                     "tau": 0.7, "w_speed": 3.0, "escape_commit": 1.0, "human_horizon": 3.5}
 
-#: The expert before issue 12 (AvoidanceParams' defaults, no preview, no look-ahead cap): the one the
-#: shipped ``residual_vo`` runs were trained with, which their files name as their residual's expert.
+#: The expert before issue 12 (AvoidanceParams' defaults, no preview, no look-ahead cap, no backing off): the one
+#: the shipped ``residual_vo`` runs were trained with, which their files name as their residual's expert.
 LEGACY_SPEC = ("vo:move_first=false,recip_gap=0,horizon=3,horizon_static=3,tau=1,w_speed=1,escape_commit=0,"
-               "preview=0,lookahead=0,human_horizon=0")
+               "preview=0,lookahead=0,human_horizon=0,reverse=0")
 
 
 class VOExpert:
@@ -152,16 +155,18 @@ class VOExpert:
         paper_cbs_switch (measurements: docs/vo_defaults.md; the comparison with
         the earlier expert and ORCA: docs/vo_expert.md, "Against ORCA").
 
-    Boxed in:
-        reverse: off by default (``0``). With ``reverse > 0`` (a fraction in ``[0, 1]``), a follower
-            for which no candidate is safe (every forward or standing twist meets something within
-            the horizon) while a human could reach it within the horizon searches again with
-            reversing candidates down to ``-reverse * max_speed`` and takes that search's twist if
-            it is safe: the other followers give way (reciprocal avoidance), a scripted human does
-            not (random world 31: a follower inside a neighbour's margin backs off instead of
-            turning in place into the human's path). Only those steps differ (worlds without humans
-            are unchanged). Off by default: the gain was within the noise (measurements:
-            docs/vo_defaults.md).
+    Boxed in (walkers do not give way; the other followers do):
+        reverse: a fraction in ``[0, 1]`` (default ``0.5``; ``0`` for none). A follower for which no
+            candidate is safe (every forward or standing twist meets something within the horizon)
+            while a human could reach it within the horizon searches again with reversing candidates
+            down to ``-reverse * max_speed``, and takes that search's twist if it is safe or, if nothing
+            is, if it postpones the contact longer than the forward answer. Without it such a follower
+            turns in place (the escape rule) and a walker who keeps coming walks into it (measured on
+            the ``crowd`` and ``crowd_reactive`` families: docs/vo_defaults.md, "``reverse``"). Worlds
+            without humans are unchanged bit for bit.
+        reverse_horizon: the other robots' horizon (s) in that second search (default ``1.0``; ``0``:
+            ``horizon``). The followers give way to each other, so while backing off from a walker
+            only a robot contact within this horizon counts; the humans keep their own horizon.
 
     Avoidance (velocity obstacles, Eq. 12): any field of
     :class:`swarm_env.control.safety.AvoidanceParams` (the search's
@@ -187,7 +192,8 @@ class VOExpert:
         full_turn: bool = True,
         preview: float = 0.5,
         lookahead: float = 0.875,
-        reverse: float = 0.0,
+        reverse: float = 0.5,
+        reverse_horizon: float = 1.0,
         **avoidance: Any,
     ) -> None:
         if not (isinstance(time_gap, (int, float)) and math.isfinite(time_gap) and time_gap > 0):
@@ -200,6 +206,8 @@ class VOExpert:
             raise ValueError(f"lookahead must be a finite number >= 0, got {lookahead!r}")
         if not (isinstance(reverse, (int, float)) and math.isfinite(reverse) and 0 <= reverse <= 1):
             raise ValueError(f"reverse must be a number in [0, 1] (a fraction of max_speed), got {reverse!r}")
+        if not (isinstance(reverse_horizon, (int, float)) and math.isfinite(reverse_horizon) and reverse_horizon >= 0):
+            raise ValueError(f"reverse_horizon must be a finite number >= 0 (s; 0: horizon), got {reverse_horizon!r}")
         unknown = sorted(set(avoidance) - set(AvoidanceParams.names()))
         if unknown:
             raise TypeError(f"VOExpert got unknown parameter(s) {unknown}; known: {', '.join(self.policy_parameters())}")
@@ -213,6 +221,7 @@ class VOExpert:
         self.preview = float(preview)
         self.lookahead = float(lookahead)
         self.reverse = float(reverse)
+        self.reverse_horizon = float(reverse_horizon)
         self._reversing: tuple[float, AvoidanceParams] | None = None  # (max_speed, the fallback's params)
         self._index: dict[str, int] = {}
         self._reset_stats()
@@ -278,7 +287,9 @@ class VOExpert:
         if not boxed.any():
             return res.twist, res.feasible, res.escaped, boxed
         back = safe_follower_twists(state, preferred, self._reverse_params(state.scenario.robots.max_speed))
-        take = boxed & back.feasible
+        # Safe, or (nothing is) postponing the contact longer than the forward answer: backing off from a
+        # human who keeps coming beats turning in place in his path.
+        take = boxed & (back.feasible | (back.min_time_to_collision > res.min_time_to_collision))
         return np.where(take[:, None], back.twist, res.twist), res.feasible, res.escaped & ~take, take
 
     def _human_coming(self, state: WorldState) -> np.ndarray:
@@ -291,9 +302,13 @@ class VOExpert:
         return np.any(gap <= self.avoidance.horizon * closing, axis=1)
 
     def _reverse_params(self, max_speed: float) -> AvoidanceParams:
-        """The fallback search's parameters: the avoidance with speeds down to ``-reverse * max_speed``."""
+        """The fallback search's parameters: the avoidance with speeds down to ``-reverse * max_speed`` and the other
+        robots' horizon ``reverse_horizon`` (the humans keep theirs)."""
         if self._reversing is None or self._reversing[0] != max_speed:
-            self._reversing = (max_speed, dataclasses.replace(self.avoidance, v_min=-self.reverse * max_speed))
+            a = self.avoidance
+            robots = self.reverse_horizon or a.horizon
+            self._reversing = (max_speed, dataclasses.replace(a, v_min=-self.reverse * max_speed, horizon=robots,
+                                                              human_horizon=a.human_horizon or a.horizon))
         return self._reversing[1]
 
     def preferred_twists(self, state: WorldState) -> np.ndarray:

@@ -90,6 +90,7 @@ from swarm_env_baselines.config import NET_ARCH, add_dataclass_options, parse_se
 from swarm_env_baselines.demos import Demos, _stack, append_step, episode_arrays, generate_demos, load_demos
 from swarm_env_baselines.model_io import SB3Policy, save_model
 from swarm_env_baselines.options import package_versions
+from swarm_env_baselines.run_log import can_plot
 
 if TYPE_CHECKING:
     import torch
@@ -562,7 +563,8 @@ def train_bc(cfg: BCConfig) -> Path:
     _write_csv(out / "bc_log.csv", LOG_COLUMNS, log_rows)
     if eval_rows:
         _write_csv(out / "eval.csv", EVAL_COLUMNS, eval_rows)
-    plot_bc_curve(log_rows, out / "learning_curve.png", title=f"BC of {cfg.expert} on {cfg.scenario} (seed {cfg.seed})")
+    if can_plot(out / "learning_curve.png", "bc_log.csv"):
+        plot_bc_curve(log_rows, out / "learning_curve.png", title=f"BC of {cfg.expert} on {cfg.scenario} (seed {cfg.seed})")
     try:
         versions: dict[str, Any] = package_versions()
     except ImportError:  # the training module is optional for BC

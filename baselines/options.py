@@ -13,13 +13,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import platform
-import subprocess
 import sys
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
 from swarm_env.harness.cli import parse_env_item
+from swarm_env.harness.provenance import git_state
 
 __all__ = ["PACKAGES", "add_dataclass_options", "field_help", "int_arg", "package_versions", "trainer_parser"]
 
@@ -34,14 +34,7 @@ def package_versions() -> dict[str, Any]:
             versions[pkg] = version(pkg)
         except PackageNotFoundError:
             versions[pkg] = None
-    try:
-        root = Path(__file__).resolve().parent.parent
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True, timeout=5)
-        dirty = subprocess.run(["git", "status", "--porcelain"], cwd=root, capture_output=True, text=True, timeout=5)
-        versions["git_commit"] = commit.stdout.strip() or None
-        versions["git_dirty"] = bool(dirty.stdout.strip()) if commit.returncode == 0 else None
-    except (OSError, subprocess.SubprocessError):
-        versions["git_commit"] = None
+    versions["git_commit"], versions["git_dirty"] = git_state(Path(__file__).resolve().parent.parent)
     versions["argv"] = sys.argv
     return versions
 

@@ -19,7 +19,7 @@ from typing import Any
 from swarm_env.jsonio import write_json
 from swarm_env_baselines.plots import plot_learning_curve
 
-__all__ = ["RunLog", "TB_GROUPS", "draw_learning_curve", "episode_stats", "finish_run"]
+__all__ = ["RunLog", "TB_GROUPS", "can_plot", "draw_learning_curve", "episode_stats", "finish_run"]
 
 #: The TensorBoard group of each column (columns not listed go to ``train/``).
 TB_GROUPS = {
@@ -102,14 +102,21 @@ def finish_run(run_dir: Path, summary: dict[str, Any], history: list[dict[str, A
 def draw_learning_curve(run_dir: Path) -> Path | None:
     """``run_dir/learning_curve.png`` from ``run_dir/eval.csv``; without matplotlib (the ``plots`` extra) one
     warning and None: a finished run must not end in an error for want of its picture."""
+    if not can_plot(run_dir / "learning_curve.png", "eval.csv"):
+        return None
+    return plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
+
+
+def can_plot(png: Path, source: str) -> bool:
+    """Whether matplotlib (the ``plots`` extra) is there to draw ``png``; if not, one warning naming ``source``, the
+    file that holds the same numbers."""
     try:
         import matplotlib  # noqa: F401 - the plots extra, optional here
     except ImportError:
-        warnings.warn(f"{run_dir / 'learning_curve.png'} not drawn: matplotlib is missing (pip install "
-                      "'swarm-env[plots]'); eval.csv holds the same numbers", stacklevel=2)
-        return None
-
-    return plot_learning_curve(run_dir / "eval.csv", run_dir / "learning_curve.png", title=run_dir.name)
+        warnings.warn(f"{png} not drawn: matplotlib is missing (pip install 'swarm-env[plots]'); {source} holds the "
+                      "same numbers", stacklevel=3)
+        return False
+    return True
 
 
 def _fmt(x: Any) -> Any:

@@ -16,10 +16,12 @@ below restores the old name (a no-op on TorchRL <= 0.12).
 from __future__ import annotations
 
 import argparse
+import itertools
 import tempfile
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
 import torchrl.collectors
 
 if not hasattr(torchrl.collectors, "SyncDataCollector"):  # TorchRL >= 0.13 renamed it
@@ -55,10 +57,18 @@ class SwarmEnvTask(TaskClass):
         kwargs = dict(self.config)
         scenario = kwargs.pop("scenario")
         kwargs["action_type"] = "continuous" if continuous_actions else "discrete"
+        # BenchMARL calls the factory once per SerialEnv copy with the same experiment seed: each copy takes
+        # its own seed stream (child i of the seed's SeedSequence), or all copies would play the same world
+        # at every reset of a random scenario.
+        streams = np.random.SeedSequence(seed) if seed is not None else None
+        copies = itertools.count()
 
         def make() -> EnvBase:
+            copy_seed = None
+            if streams is not None:
+                copy_seed = int(np.random.SeedSequence(streams.entropy, spawn_key=(next(copies),)).generate_state(1)[0])
             env = swarm_env.parallel_env(scenario, **kwargs)
-            return PettingZooWrapper(env, return_state=True, seed=seed, device=device, categorical_actions=True)
+            return PettingZooWrapper(env, return_state=True, seed=copy_seed, device=device, categorical_actions=True)
 
         return make  # not vectorised: BenchMARL runs num_envs of these in a SerialEnv
 

@@ -5,11 +5,12 @@ Each raises ``ValueError`` naming the option, what was expected and what was giv
 
 from __future__ import annotations
 
+import difflib
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
-__all__ = ["finite_numbers", "int_in_range"]
+__all__ = ["did_you_mean", "finite_numbers", "int_in_range"]
 
 
 def finite_numbers(owner: str, values: Mapping[str, Any], *, positive: bool) -> None:
@@ -30,3 +31,12 @@ def int_in_range(owner: str, values: Mapping[str, Any], low: int, high: int | No
 
 def _prefix(owner: str) -> str:
     return f"{owner}: " if owner else ""
+
+
+def did_you_mean(word: object, choices: Iterable[str]) -> str:
+    """``" (did you mean 'vo'?)"`` for the closest of ``choices`` to a mistyped ``word``, or ``""`` when none is
+    close (or ``word`` is not a short string: a typo is short)."""
+    if not isinstance(word, str) or len(word) > 100:
+        return ""
+    close = difflib.get_close_matches(word, list(choices), n=1)
+    return f" (did you mean {close[0]!r}?)" if close else ""

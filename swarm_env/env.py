@@ -336,6 +336,8 @@ class SwarmEnv(ParallelEnv):
         """Everything :meth:`reset` does but the observations and infos (the batched engine's reset).
         ``drawn``: this episode's random scenario, already drawn from this env's generator (which has
         been moved past the draw: :class:`swarm_env.vector.scenario_prefetch.ScenarioPrefetcher`)."""
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0):
+            raise ValueError(f"seed must be None or an integer >= 0, got {seed!r}")
         if seed is not None or self._rng is None:
             seq = np.random.SeedSequence(seed)
             env_seq, space_seq = seq.spawn(2)

@@ -98,6 +98,36 @@ def _import_pygame() -> Any:
     return pygame
 
 
+def window_driver_missing() -> str | None:
+    """Why a ``"human"`` window cannot be shown here, or ``None`` when it can.
+
+    With no display SDL falls back to a driver that draws nowhere (``offscreen`` or ``dummy``), and a
+    "window" would play the episode unseen. A driver chosen on purpose (``SDL_VIDEODRIVER``, e.g. ``dummy``
+    in headless tests) is respected."""
+    if os.environ.get("SDL_VIDEODRIVER"):
+        return None
+    pg = _import_pygame()
+    was_init = pg.display.get_init()
+    saved = os.dup(2)  # SDL prints its own complaints (XDG_RUNTIME_DIR, ...) to fd 2: keep them off the terminal
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 2)
+            try:
+                pg.display.init()
+                driver = pg.display.get_driver()
+            except pg.error as exc:
+                return f"no video driver could start ({exc})"
+            finally:
+                if not was_init:
+                    pg.display.quit()
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+    if driver in ("offscreen", "dummy"):
+        return f"no display (SDL chose its {driver!r} driver, which shows nothing)"
+    return None
+
+
 def _circle(pg: Any) -> Any:
     """pygame-ce >= 2.5's anti-aliased ``draw.aacircle``, else the plain ``draw.circle`` (same signature)."""
     return getattr(pg.draw, "aacircle", pg.draw.circle)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -143,8 +144,27 @@ def test_run_human_render_under_the_dummy_driver(capsys: pytest.CaptureFixture[s
 def test_run_discrete_actions_and_bad_numbers(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["run", "--scenario", "paper_vo_90", "--policy", "random", "--action-type", "discrete",
                  "--max-cycles", "20"]) == 0
-    assert main(["run", "--episodes", "0"]) == 2
-    assert "--episodes must be >= 1" in capsys.readouterr().err
+    capsys.readouterr()
+    for argv, says in ((["run", "--episodes", "0"], "argument --episodes: expected an integer >= 1, got 0"),
+                       (["run", "--seed", "-1"], "argument --seed: expected an integer >= 0, got -1"),
+                       (["run", "--seed", "x"], "argument --seed: expected an integer, got 'x'"),
+                       (["run", "--fps", "nan"], "argument --fps: expected a finite number > 0, got nan"),
+                       (["evaluate", "--policies", "vo", "--workers", "0"], "argument --workers: expected an integer >= 1"),
+                       (["bench", "--repeats", "-3"], "argument --repeats: expected an integer >= 1, got -3")):
+        assert main(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert says in err and "Traceback" not in err, err
+    assert main(["run", "--help"]) == 0
+
+
+def test_reset_refuses_a_negative_seed() -> None:
+    from swarm_env.env import SwarmEnv
+
+    env = SwarmEnv("paper_vo_0")
+    for bad in (-1, 1.5, "3", True):
+        with pytest.raises(ValueError, match="seed must be None or an integer >= 0"):
+            env.reset(seed=bad)
+    env.reset(seed=0)
 
 
 def test_run_rejects_a_bad_policy_argument(capsys: pytest.CaptureFixture[str]) -> None:
@@ -179,3 +199,39 @@ def test_evaluate_applies_generator_knobs_to_random_only(capsys: pytest.CaptureF
     assert '"random"' in text and '"paper_vo_0"' in text
     assert main(["evaluate", "--policies", "pursuit", "--scenarios", "random", "--seeds", "0",
                  "--env", "n_followers=0"]) == 2
+
+
+def test_names_get_a_did_you_mean(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["run", "--policy", "vvo", "--max-cycles", "2"]) == 2
+    assert "unknown policy 'vvo' (did you mean 'vo'?)" in capsys.readouterr().err
+    assert main(["run", "--scenario", "coridor", "--max-cycles", "2"]) == 2
+    assert "(did you mean 'corridor'?)" in capsys.readouterr().err
+    assert main(["evaluate", "--policies", "vo", "--scenarios", "randm", "--scenario-seeds", "random=1000"]) == 2
+    err = capsys.readouterr().err
+    assert "randm" in err and "(did you mean 'random'?)" in err and "--scenario-seeds" not in err  # the typo, not the seeds
+    assert main(["run", "--scenario", "random:crowdd", "--max-cycles", "2"]) == 2
+    assert "(did you mean 'crowd'?)" in capsys.readouterr().err
+
+
+def test_evaluate_fails_on_a_bad_model_before_any_output(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "lb"
+    assert main(["evaluate", "--policies", "vo", f"mappo:{tmp_path / 'nothing'}", "--scenarios", "paper_vo_0",
+                 "--seeds", "0", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "no such directory" in err and "leaderboard:" not in err  # no progress bar was drawn
+    assert not out.exists()  # nothing left behind to block the next run
+
+
+def test_evaluate_warns_about_knobs_a_fixed_scenario_ignores(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["evaluate", "--policies", "zero", "--scenarios", "random", "paper_vo_0", "--seeds", "0",
+                 "--env", "n_humans=1", "--max-cycles", "2", "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: --env n_humans: generator knobs apply to the generated scenarios only; ignored for paper_vo_0" in err
+
+
+def test_render_human_without_a_display_fails(tmp_path: Path) -> None:
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "WAYLAND_DISPLAY", "SDL_VIDEODRIVER")}
+    done = subprocess.run([sys.executable, "-m", "swarm_env.harness.cli", "run", "--render", "human", "--max-cycles", "2"],
+                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.count("\n") == 1 and done.stderr.startswith("error: --render human needs a display")

@@ -84,6 +84,30 @@ def test_benchmarl_mappo_one_iteration(name, kw, tmp_path):
     assert any(not torch.equal(a, b) for a, b in zip(before, after))  # MAPPO updated the shared policy
 
 
+def test_benchmarl_env_copies_play_their_own_worlds():
+    """BenchMARL builds each SerialEnv copy from one factory and one experiment seed: each copy must draw its own
+    random worlds (not the same world in every copy at every reset), and the same seed must give the same worlds."""
+    if importlib.util.find_spec("benchmarl") is None:
+        pytest.skip("benchmarl is not installed (pip install --no-deps benchmarl==1.5.2)")
+    from torchrl.envs import SerialEnv
+
+    example = load_example("benchmarl_mappo")
+    task = example.SwarmEnvTask(name="swarm_env", config={"scenario": "random", "max_cycles": 5})
+
+    def worlds(seed: int) -> list[list[bytes]]:
+        env = SerialEnv(3, task.get_env_fun(3, True, seed, "cpu"))
+        try:
+            return [[bytes(s.numpy()) for s in env.reset()["state"]] for _ in range(2)]
+        finally:
+            env.close()
+
+    first = worlds(0)
+    for states in first:
+        assert len(set(states)) == 3, "two copies reset to the same world"
+    assert first[0] != first[1]  # a new world at the next reset
+    assert worlds(0) == first and worlds(1) != first
+
+
 @pytest.mark.parametrize("name,kw", CASES)
 def test_agilerl_ippo_training_loop(name, kw):
     pytest.importorskip("agilerl")
@@ -108,17 +132,15 @@ def test_tianshou_shared_dqn(name, kw):
 
     agents = agents_of(name, kw)
     out = load_example("tianshou_dqn").main(
-        name, epochs=1, epoch_num_steps=40, collection_step_num_env_steps=20, num_train_envs=2,
+        name, epochs=1, epoch_num_steps=40, collection_step_num_env_steps=20, num_train_worlds=2,
         buffer_size=500, batch_size=16, warmup_steps=80, hidden=32, seed=0, max_cycles=20, **kw
     )
     stats, buf = out["stats"], out["buffer"]
     assert stats.train_step >= 40 and stats.update_step > 0
-    # the AEC view: every follower took turns, the reward row holds every follower's reward
-    stored = buf.sample_indices(0)  # every filled slot of the per-env sub-buffers
+    assert out["followers"] == len(agents) and buf.buffer_num == 2 * len(agents)  # one sub-buffer per follower
+    stored = buf.sample_indices(0)  # every filled slot of the per-follower sub-buffers
     assert len(stored) == len(buf) >= 80
-    assert set(buf.obs.agent_id[stored]) == set(agents)
-    assert buf.rew[stored].shape == (len(stored), len(agents))
-    assert np.isfinite(buf.rew[stored]).all()
+    assert buf.rew[stored].shape == (len(stored),) and np.isfinite(buf.rew[stored]).all()
     # the shared Q-network moved away from its initialisation (same seed, same first draws)
     torch.manual_seed(0)
     obs_dim = swarm_env.parallel_env(name, **kw).observation_space(agents[0]).shape
@@ -126,3 +148,44 @@ def test_tianshou_shared_dqn(name, kw):
     trained = out["network"]
     assert all(torch.isfinite(p).all() for p in trained.parameters())
     assert any(not torch.equal(a, b) for a, b in zip(fresh.parameters(), trained.parameters()))
+
+
+@pytest.mark.parametrize("name,kw", CASES)
+def test_tianshou_transitions_are_each_followers_own(name, kw):
+    """Every follower's transition holds its own reward and its own next observation: collected through the
+    example's FollowerVectorEnv, the buffer equals a parallel env stepped with the same actions, follower by
+    follower (through Tianshou's AEC ``PettingZooEnv`` followers 0..N-2 got reward 0 and the next follower's
+    observation)."""
+    pytest.importorskip("tianshou")
+    from tianshou.algorithm.modelfree.dqn import DiscreteQLearningPolicy
+    from tianshou.data import Collector, CollectStats, VectorReplayBuffer
+    from tianshou.utils.net.common import Net
+
+    example = load_example("tianshou_dqn")
+    envs = example.FollowerVectorEnv(lambda: example.make_env(name, max_cycles=12, **kw), 1)
+    envs.seed(5)
+    n = envs.n
+    space = envs.action_space[0]
+    policy = DiscreteQLearningPolicy(model=Net(state_shape=envs.observation_space[0].shape, action_shape=space.n),
+                                     action_space=space, eps_training=1.0)
+    buf = VectorReplayBuffer(200, n)
+    collector = Collector[CollectStats](policy, envs, buf, exploration_noise=True)
+    collector.reset()
+    collector.collect(n_step=10 * n)
+    ref = example.make_env(name, max_cycles=12, **kw)
+    obs, _ = ref.reset(seed=5)
+    agents = list(ref.possible_agents)
+    per = [buf.buffers[i] for i in range(n)]
+    steps = len(per[0])
+    assert steps == 10 and all(len(b) == steps for b in per)
+    rewards_seen = np.zeros(n)
+    for t in range(steps):
+        for i, a in enumerate(agents):
+            assert np.array_equal(per[i].obs[t], obs[a]), f"step {t}: follower {i}'s observation"
+        obs, rew, *_ = ref.step({a: int(per[i].act[t]) for i, a in enumerate(agents)})
+        for i, a in enumerate(agents):
+            assert per[i].rew[t] == rew[a], f"step {t}: follower {i}'s reward"
+            assert np.array_equal(per[i].obs_next[t], obs[a]), f"step {t}: follower {i}'s next observation"
+            rewards_seen[i] += abs(rew[a])
+    assert (rewards_seen > 0).all()  # every follower's transitions carry reward, not only the last one's
+    envs.close()

@@ -1,6 +1,6 @@
 """The shipped checkpoints (baselines/checkpoints/<method>/s<k>: the methods of :mod:`swarm_env_baselines.mappo`,
 the SB3 baseline ``sb3_ppo`` and ``fan_dagger``, three training seeds each) are clean, safe and documented, and their test episodes in
-``docs/leaderboard/leaderboard.json`` replay bit for bit. The v0 SB3 checkpoints are retired.
+``docs/leaderboard/random/leaderboard.json`` (the 50 held-out random worlds) replay bit for bit. The v0 SB3 checkpoints are retired.
 
 A learned policy's actions come from torch's CPU kernels, whose last bits depend on the CPU
 (``tests/_numerics.py``): on a machine whose numerics differ from the leaderboard's, the replays are compared
@@ -32,7 +32,7 @@ SB3_METHODS = ("sb3_ppo",)
 #: The methods of swarm_env_baselines.fan_dagger.
 FAN_METHODS = ("fan_dagger",)
 METHODS = MAPPO_METHODS + SB3_METHODS + FAN_METHODS
-LEADERBOARD = CHECKPOINTS.parents[1] / "docs" / "leaderboard" / "leaderboard.json"
+LEADERBOARD = CHECKPOINTS.parents[1] / "docs" / "leaderboard" / "random" / "leaderboard.json"
 #: The replayed episodes recorded on machines whose numerics differ from the leaderboard's: fingerprint -> spec -> metrics.
 REPLAYS = Path(__file__).resolve().parent / "data" / "learned_replays.json"
 #: The replayed episodes: seeds s0 and s2 of every method on test world 1000.

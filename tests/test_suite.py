@@ -256,3 +256,22 @@ def test_a_learned_method_is_scored_across_its_training_seeds() -> None:
                     for k in range(3)]
         assert s["formation_error"]["mean"] == pytest.approx(np.mean(per_seed))
         assert s["formation_error"]["n"] == 3
+
+
+def test_the_shipped_leaderboard_is_the_standard_suite_for_every_shipped_policy() -> None:
+    """docs/leaderboard: the standard suite's test split with every shipped method and the experts, and its
+    suite.json is what the stored episodes (leaderboard.json.gz) score."""
+    from pathlib import Path
+
+    from swarm_env.harness.leaderboard import Leaderboard
+
+    root = Path(__file__).resolve().parents[1] / "docs" / "leaderboard"
+    result = json.loads((root / "suite.json").read_text())
+    assert result["format"] == "swarm_env.suite_result/1"
+    assert (result["suite"]["name"], result["suite"]["version"], result["suite"]["split"]) == ("standard", 1, "test")
+    shipped = {p.name for p in (Path(__file__).resolve().parents[1] / "baselines" / "checkpoints").iterdir() if p.is_dir()}
+    assert shipped | {"vo", "cbs_rrt", "obs_expert", "orca", "pursuit"} <= set(result["policies"])
+    board = Leaderboard.from_json(root / "leaderboard.json.gz")
+    again = suite_result(board, SUITES["standard"], "test")
+    assert again["results"] == result["results"] and again["aggregate"] == result["aggregate"]
+    assert all(r["status"] == "ok" for r in result["results"])  # nothing pending, nothing refused

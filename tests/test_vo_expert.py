@@ -362,23 +362,39 @@ def test_registry_and_policy_stats():
 def test_a_boxed_in_follower_backs_off_from_a_human():
     """Random world 31 with the humans looked for no further than the robots (``human_horizon=0``):
     follower 1 stands inside follower 2's margin while the human walks at it, so no forward or
-    standing twist is safe. Turning in place, the human walks into it; with the ``reverse`` fallback
-    (off by default) it backs off, and the episode ends without a contact. The expert's default
+    standing twist is safe. Turning in place (``reverse=0``), the human walks into it; with the
+    ``reverse`` fallback (on by default) it backs off, and the episode ends without a contact. The expert's default
     ``human_horizon`` (3.5 s) sees the human coming early enough to keep out of that corner."""
     results = {}
-    for spec in ("vo:human_horizon=0", "vo:human_horizon=0,reverse=0.2", "vo"):
+    for spec in ("vo:human_horizon=0,reverse=0", "vo:human_horizon=0", "vo:human_horizon=0,reverse_horizon=0", "vo"):
         env = SwarmEnv("random")
         results[spec] = run_episode(env, load_policy(spec, env), seed=31)
-    short, backs_off, default = results.values()
+    short, backs_off, robots_far, default = results.values()
     assert short["collisions"]["robot_human"] == 1 and short["policy_stats"]["reverse_steps"] == 0
     assert backs_off["collisions"]["total"] == 0 and backs_off["success"]
     assert backs_off["policy_stats"]["reverse_steps"] > 0
-    assert default["collisions"]["total"] == 0 and default["success"] and default["policy_stats"]["reverse_steps"] == 0
+    # Backing off while every neighbour is looked for its full 2.5 s (reverse_horizon=0) finds no room.
+    assert robots_far["collisions"]["robot_human"] == 1
+    assert default["collisions"]["total"] == 0 and default["success"]
     # Worlds without humans never back off: the same episode as without the fallback.
     env = SwarmEnv("paper_vo_45", max_cycles=60)
-    plain = run_episode(env, load_policy("vo", env), seed=0)
-    on = run_episode(env, load_policy("vo:reverse=0.2", env), seed=0)
+    plain = run_episode(env, load_policy("vo:reverse=0", env), seed=0)
+    on = run_episode(env, load_policy("vo", env), seed=0)
     assert plain["formation_error"] == on["formation_error"] and on["policy_stats"]["reverse_steps"] == 0
+
+
+@pytest.mark.slow
+def test_a_follower_backs_off_from_a_walker_who_keeps_coming():
+    """``crowd_reactive`` training world 45 (social-force walkers): without the fallback (``reverse=0``) a
+    follower with no safe twist turns in place and a walker walks into it; by default it backs off (its
+    robot neighbours looked for only ``reverse_horizon`` ahead: they give way) and the episode has no contact."""
+    results = {}
+    for spec in ("vo:reverse=0", "vo"):
+        env = SwarmEnv("random:crowd_reactive")
+        results[spec] = run_episode(env, load_policy(spec, env), seed=45)
+    turning, default = results.values()
+    assert turning["collisions"]["robot_human"] >= 1 and turning["policy_stats"]["reverse_steps"] == 0
+    assert default["collisions"]["total"] == 0 and default["policy_stats"]["reverse_steps"] > 0
 
 
 def test_discrete_action_space_is_refused_clearly():
@@ -391,7 +407,8 @@ def test_discrete_action_space_is_refused_clearly():
 
 def test_invalid_parameters():
     for bad in ({"time_gap": 0.0}, {"horizon": -1.0}, {"margin": -0.1}, {"n_v": 0}, {"preview": -1.0},
-                {"preview": float("nan")}, {"reverse": -0.1}, {"reverse": 1.5}):
+                {"preview": float("nan")}, {"reverse": -0.1}, {"reverse": 1.5}, {"reverse_horizon": -1.0},
+                {"reverse_horizon": float("inf")}):
         with pytest.raises(ValueError):
             VOExpert(**bad)
 

@@ -17,15 +17,16 @@ from __future__ import annotations
 import argparse
 import contextlib
 import importlib
+import math
 import os
 import statistics
 import sys
-from collections.abc import Iterable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
 import swarm_env
-from swarm_env.env import SwarmEnv
+from swarm_env.env import SwarmEnv, env_kwargs_for
 from swarm_env.extras import MissingExtraError, extra_for_module, missing_distributions, missing_extra_error
 from swarm_env.harness import bench, recording
 from swarm_env.harness.evaluation import evaluate
@@ -51,6 +52,7 @@ from swarm_env.harness.suite import SUITES, Suite, get_suite, result_markdown, s
 from swarm_env.harness.video import VideoWriter
 from swarm_env.jsonio import write_json
 from swarm_env.outputs import OutputError, atomic_write_text, check_target
+from swarm_env.render import window_driver_missing
 from swarm_env.scenario import ScenarioError
 from swarm_env.scenarios.families import FAMILIES, generator_config, is_generated
 from swarm_env.scenarios.generator import random_scenario
@@ -213,6 +215,9 @@ def cmd_run(args: argparse.Namespace) -> int:
         if args.record:
             ensure_new_recording_dir(args.record)  # a RecordError (a ValueError) before any episode
         _check_outputs(args, args.json)  # an OutputError (a ValueError) before any episode
+        if args.render == "human" and (why := window_driver_missing()):
+            raise ValueError(f"--render human needs a display: {why}; write a video instead (--video FILE.mp4), "
+                             "or set SDL_VIDEODRIVER=dummy to play with an unseen window on purpose")
     except ScenarioError:
         raise  # main() reports it
     except (TypeError, ValueError) as exc:
@@ -390,6 +395,16 @@ def _write_json(path: str, doc: Any, overwrite: bool) -> None:
     print(f"wrote {path}")
 
 
+def _warn_ignored_knobs(scenarios: list[str], env_kwargs: dict[str, Any]) -> None:
+    """One warning line when generator knobs among the env options do not apply to some scenarios (a fixed
+    scenario keeps its own world: :func:`~swarm_env.env.env_kwargs_for` drops them there)."""
+    fixed = [s for s in scenarios if not is_generated(s)]
+    knobs = sorted(set(env_kwargs) - set(env_kwargs_for(fixed[0], env_kwargs))) if fixed else []
+    if knobs:
+        print(f"warning: --env {', '.join(knobs)}: generator knobs apply to the generated scenarios only; ignored "
+              f"for {', '.join(fixed)}", file=sys.stderr)
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """The leaderboard (:mod:`swarm_env.harness.leaderboard`); every input is checked before any episode runs.
 
@@ -417,14 +432,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             if args.max_cycles is not None:
                 env_kwargs["max_cycles"] = args.max_cycles
             env_kwargs.update(parse_env_items(args.env))
-        if args.workers < 1:
-            raise ValueError(f"--workers must be >= 1, got {args.workers}")
-        if args.fps <= 0:
-            raise ValueError(f"--fps must be > 0, got {args.fps:g}")
-        if args.episode_timeout is not None and not args.episode_timeout > 0:
-            raise ValueError(f"--episode-timeout must be > 0 seconds, got {args.episode_timeout:g}")
         if args.videos and not out:
             raise ValueError("--videos needs --out DIR (the videos go to DIR/videos/)")
+        validate_inputs(policies, scenarios, env_kwargs)  # names first: a typo is blamed, not the seeds naming it
+        _warn_ignored_knobs(scenarios, env_kwargs)
         common = parse_seeds(args.seeds) if args.seeds is not None else None
         seeds: dict[str, list[int]] = {}
         for item in args.scenario_seeds or []:
@@ -436,7 +447,6 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             if name in seeds:
                 raise ValueError(f"--scenario-seeds gives {name!r} twice")
             seeds[name] = parse_seeds(text)
-        validate_inputs(policies, scenarios, env_kwargs)
     except ScenarioError:
         raise  # main() reports it (as it does UnknownPolicyError)
     except ValueError as exc:
@@ -607,6 +617,35 @@ def run_module_command(argv: list[str]) -> int:
     return 0 if asked else 2
 
 
+def _counted(minimum: int) -> Callable[[str], int]:
+    """An argparse type: an integer ``>= minimum`` (a usage error, exit 2, otherwise)."""
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected an integer, got {text!r}") from None
+        if value < minimum:
+            raise argparse.ArgumentTypeError(f"expected an integer >= {minimum}, got {value}")
+        return value
+    parse.__name__ = "integer"
+    return parse
+
+
+def _positive_float(text: str) -> float:
+    """An argparse type: a finite number > 0."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"expected a finite number > 0, got {text}")
+    return value
+
+
+#: argparse types: a seed (numpy's seed sequences take integers >= 0), a count of at least one.
+_SEED, _COUNT = _counted(0), _counted(1)
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="swarm-env", description="Leader-follower swarm environment (PettingZoo + pymunk).")
     p.add_argument("--version", action="version", version=f"swarm-env {swarm_env.__version__}")
@@ -621,14 +660,14 @@ def build_parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="run a policy on a scenario and report metrics")
     r.add_argument("--scenario", default="paper_vo_0", help="built-in name, 'random', or a YAML path")
     r.add_argument("--policy", default="random", help="registered policy name, optionally name:ARG")
-    r.add_argument("--episodes", type=int, default=1)
-    r.add_argument("--seed", type=int, default=0, help="seed of the first episode; episode k uses seed+k")
+    r.add_argument("--episodes", type=_COUNT, default=1)
+    r.add_argument("--seed", type=_SEED, default=0, help="seed of the first episode (>= 0); episode k uses seed+k")
     r.add_argument("--action-type", choices=["continuous", "discrete"], default="continuous")
-    r.add_argument("--max-cycles", type=int, help="stop each episode after this many steps (default: max_time)")
+    r.add_argument("--max-cycles", type=_COUNT, help="stop each episode after this many steps (default: max_time)")
     r.add_argument("--env", action="append", default=[], metavar="KEY=VALUE", help=ENV_HELP)
     r.add_argument("--json", help="write {scenario, policy, episodes, summary} to this file")
     r.add_argument("--video", help="write an .mp4 (or .gif) of all episodes to this file")
-    r.add_argument("--fps", type=float, default=20.0, help="video frames per second")
+    r.add_argument("--fps", type=_positive_float, default=20.0, help="video frames per second")
     r.add_argument("--render", choices=["human"], help="show a pygame window")
     r.add_argument("--record", metavar="DIR", help="record every episode to DIR/episode_<k>/ (swarm-env replay DIR)")
     r.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
@@ -638,7 +677,7 @@ def build_parser() -> argparse.ArgumentParser:
     rp = sub.add_parser("replay", help="re-simulate recorded episodes without the policy (run --record DIR)")
     rp.add_argument("dir", help="a recording directory (or one episode_<k> folder of it)")
     rp.add_argument("--video", help="write an .mp4 (or .gif) of the replayed episodes to this file")
-    rp.add_argument("--fps", type=float, default=20.0, help="video frames per second")
+    rp.add_argument("--fps", type=_positive_float, default=20.0, help="video frames per second")
     rp.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     rp.add_argument("--check", action="store_true",
                     help="stop at the first step whose state digest differs from the record and exit 1")
@@ -646,16 +685,16 @@ def build_parser() -> argparse.ArgumentParser:
 
     b = sub.add_parser("bench", help="env throughput with random actions (median of repeats)")
     b.add_argument("--scenario", default="paper_cbs_switch")
-    b.add_argument("--steps", type=int, default=2000, help="env steps per repeat")
-    b.add_argument("--repeats", type=int, default=5)
-    b.add_argument("--seed", type=int, default=0)
+    b.add_argument("--steps", type=_COUNT, default=2000, help="env steps per repeat")
+    b.add_argument("--repeats", type=_COUNT, default=5)
+    b.add_argument("--seed", type=_SEED, default=0)
     b.add_argument("--vs", choices=["mpe2", "vmas"],
                    help="also run a peer in the same process, interleaved, and print the ratio (mpe2: one env; "
                         "vmas: the batched engine against VMAS navigation, for each --num-envs)")
-    b.add_argument("--num-envs", type=int, nargs="+", metavar="M",
+    b.add_argument("--num-envs", type=_COUNT, nargs="+", metavar="M",
                    help="batched engine (swarm_env.vector.engine) at these batch sizes (default with --vs vmas: 1 8 64 256 1024)")
-    b.add_argument("--followers", type=int, nargs="+", metavar="N", help="one env per team size N (cost per follower)")
-    b.add_argument("--n-procs", type=int, default=1, help="worker processes of the batched engine (default 1)")
+    b.add_argument("--followers", type=_COUNT, nargs="+", metavar="N", help="one env per team size N (cost per follower)")
+    b.add_argument("--n-procs", type=_COUNT, default=1, help="worker processes of the batched engine (default 1)")
     b.add_argument("--worker-kernels", action="store_true",
                    help="with --n-procs > 1: the workers run the compiled kernels (faster, more memory)")
     b.add_argument("--plot", help="with --num-envs/--vs vmas: write agent-steps/s against M to this PNG")
@@ -685,7 +724,7 @@ def build_parser() -> argparse.ArgumentParser:
                    "seeds and env options instead of --scenarios/--seeds/--env; writes DIR/suite.json and suite.md "
                    "beside the leaderboard")
     e.add_argument("--split", choices=["validation", "test"], help="with --suite: which seeds (default: test)")
-    e.add_argument("--workers", type=int, default=1, help="processes running (policy, scenario) jobs in parallel "
+    e.add_argument("--workers", type=_COUNT, default=1, help="processes running (policy, scenario) jobs in parallel "
                    "(with --backend ray and no --ray-address: the local Ray instance's CPUs)")
     e.add_argument("--backend", choices=["local", "ray"], default="local",
                    help="local: this machine's process pool; ray: Ray tasks (pip install 'swarm-env[ray]'), the same "
@@ -693,7 +732,7 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--ray-address", help="with --backend ray: join this cluster ('auto', 'HOST:6379', 'ray://HOST:10001') "
                    "instead of starting a local Ray instance")
     e.add_argument("--action-type", choices=["continuous", "discrete"], default=None, help="default: continuous")
-    e.add_argument("--max-cycles", type=int, help="stop each episode after this many steps (default: max_time)")
+    e.add_argument("--max-cycles", type=_COUNT, help="stop each episode after this many steps (default: max_time)")
     e.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                    help=ENV_HELP + "; generator knobs apply to the random scenario only")
     e.add_argument("--out", metavar="DIR", help="write DIR/leaderboard.md, .csv and .json; every finished episode is "
@@ -703,14 +742,14 @@ def build_parser() -> argparse.ArgumentParser:
                    "DIR/episodes.jsonl lacks (the policies, scenarios, seeds and env options come from DIR/sweep.json; "
                    "any given must match)")
     e.add_argument("--overwrite", action="store_true", help="replace the results already in --out DIR")
-    e.add_argument("--episode-timeout", type=float, metavar="SECONDS",
+    e.add_argument("--episode-timeout", type=_positive_float, metavar="SECONDS",
                    help="with --workers >= 2 or --backend ray: kill a worker whose episode runs longer (on Ray: "
                    "cancel its task), retry the episode once, then count it as failed (default: 60 + 0.1 s per step "
                    "of the longest episode)")
     e.add_argument("--videos", action="store_true", help="also write DIR/videos/<policy>__<scenario>__seed<k>.mp4 "
                    "of each policy's worst episode per scenario (most collisions, then failure, then formation error), "
                    "replayed from its record, saved as DIR/records/<policy>__<scenario>__seed<k>/")
-    e.add_argument("--fps", type=float, default=20.0, help="video frames per second")
+    e.add_argument("--fps", type=_positive_float, default=20.0, help="video frames per second")
     e.add_argument("--quiet", action="store_true", help="no progress bars")
     e.add_argument("--trust-pickle", action="store_true", help=TRUST_PICKLE_HELP)
     e.set_defaults(func=cmd_evaluate)
@@ -744,12 +783,10 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _main(argv: list[str]) -> int:
-    args = build_parser().parse_args(argv)
-    for flag in ("episodes", "max_cycles", "steps", "repeats"):
-        value = getattr(args, flag, None)
-        if value is not None and value < 1:
-            print(f"error: --{flag.replace('_', '-')} must be >= 1, got {value}", file=sys.stderr)
-            return 2
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as exc:  # a usage error (argparse printed it; exit 2) or --help (0): the code, not a raise
+        return exc.code if isinstance(exc.code, int) else 2
     try:
         with _pickle_trust(getattr(args, "trust_pickle", False)):
             return int(args.func(args))

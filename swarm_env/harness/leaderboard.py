@@ -72,6 +72,7 @@ from typing import Any, cast
 import numpy as np
 
 from swarm_env._compat import add_note
+from swarm_env.checks import did_you_mean
 from swarm_env.env import SwarmEnv, env_kwargs_for
 from swarm_env.extras import require
 from swarm_env.harness.evaluation import mean_ci95_t, summarize
@@ -86,9 +87,10 @@ from swarm_env.harness.policies import (
     registered_policies,
     training_runs,
 )
+from swarm_env.harness.provenance import provenance, provenance_line
 from swarm_env.harness.recording import EpisodeRecord, load_episode, record_episode, replay, save_episode
 from swarm_env.harness.video import VideoWriter
-from swarm_env.jsonio import dumps, write_json
+from swarm_env.jsonio import dumps, read_json, write_json
 from swarm_env.outputs import OutputError, append_line, atomic_write_bytes, atomic_write_text, ensure_dir
 from swarm_env.scenarios.families import is_generated
 
@@ -225,7 +227,8 @@ def validate_inputs(policies: Sequence[str], scenarios: Sequence[str], env_kwarg
             raise ValueError(f"policy specs must be strings like 'vo' or 'ppo:PATH', got {spec!r}")
         name = spec.partition(":")[0]
         if name not in known:
-            raise UnknownPolicyError(f"unknown policy {name!r}; registered policies: {', '.join(known)}")
+            raise UnknownPolicyError(f"unknown policy {name!r}{did_you_mean(name, known)}; registered policies: "
+                                     f"{', '.join(known)}")
     kwargs = dict(env_kwargs or {})
     if "render_mode" in kwargs:
         raise ValueError("env_kwargs must not set render_mode: episodes run headless; record_worst_videos renders")
@@ -316,7 +319,7 @@ STARTUP_GRACE = 120.0
 
 def default_episode_timeout(max_steps: int) -> float:
     """The per-episode timeout (seconds) when none is given: ``60 + 0.1 * max_steps``. The slowest
-    episodes of the shipped leaderboard take about 1 ms per step (``docs/leaderboard/leaderboard.json``),
+    episodes of the shipped leaderboard take about 1 ms per step (``docs/leaderboard/random/leaderboard.json``),
     so this leaves a hundredfold margin per step plus a minute for loading a policy."""
     return 60.0 + 0.1 * max_steps
 
@@ -816,6 +819,7 @@ def run_leaderboard(
     members = {p: training_runs(p) for p in policies}
     jobs = [_Job(m, s, tuple(seed_map[s]), kwargs) for p in policies for m in members[p] for s in scenarios]
     method_of = {m: p for p in policies for m in members[p] if len(members[p]) > 1}
+    _probe_policies([m for p in policies for m in members[p]], scenarios[0], kwargs)
     out = None if out_dir is None else Path(out_dir)
     if out is not None:
         _prepare_out(out, _sweep_spec(policies, scenarios, seed_map, kwargs, suite), resume, overwrite)
@@ -866,6 +870,24 @@ def run_leaderboard(
     return build()
 
 
+def _probe_policies(specs: Sequence[str], scenario: str, env_kwargs: Mapping[str, Any]) -> None:
+    """Load each policy once on ``scenario`` before anything is written or drawn, so that a bad model file
+    (:class:`ModelFileError`) or a missing optional extra (:class:`~swarm_env.extras.MissingExtraError`) fails
+    the sweep at once instead of after the progress bar, leaving an ``out_dir`` that blocks the next run. A policy
+    that only refuses the scenario (another :class:`PolicyError`) is left to its jobs, which make it an n/a row."""
+    env = SwarmEnv(scenario, **env_kwargs_for(scenario, env_kwargs))
+    try:
+        for spec in specs:
+            try:
+                load_policy(spec, env)
+            except ModelFileError:
+                raise
+            except PolicyError:
+                pass
+    finally:
+        env.close()
+
+
 def _board(policies: list[str], scenarios: list[str], seed_map: dict[str, list[int]], kwargs: dict[str, Any],
            jobs: list[_Job], members: Mapping[str, tuple[str, ...]], method_of: Mapping[str, str], sweep: _Sweep,
            wall: float, workers: int) -> Leaderboard:
@@ -900,7 +922,7 @@ def _board(policies: list[str], scenarios: list[str], seed_map: dict[str, list[i
                 rows.append(method_row(p, [by_job[(m, s)] for m in members[p]]))
             rows.extend(by_job[(m, s)] for m in members[p])
     return Leaderboard(list(policies), list(scenarios), seed_map, kwargs, rows, episodes, wall, workers,
-                       records=records, failed=failed)
+                       records=records, failed=failed, provenance=provenance())
 
 
 def aggregate_training_seeds(summaries: Sequence[Mapping[str, Any]], metrics: Sequence[Metric] = METRICS
@@ -1017,6 +1039,8 @@ class Leaderboard:
     records: dict[tuple[str, str, int], EpisodeRecord] = field(default_factory=dict, repr=False, compare=False)
     #: ``{"policy", "scenario", "seed", "status": "failed", "error", "attempts"}`` per failed episode
     failed: list[dict[str, Any]] = field(default_factory=list)
+    #: How the board was made (:func:`swarm_env.harness.provenance.provenance`: command, version, commit, date), or None.
+    provenance: dict[str, Any] | None = None
 
     def row(self, policy: str, scenario: str) -> Row:
         for r in self.rows:
@@ -1046,7 +1070,7 @@ class Leaderboard:
     def to_markdown(self) -> str:
         """One table per scenario (policies as rows); cells ``mean ± 95 % CI half-width``."""
         cols = [m for m in self.metrics if m.in_markdown]
-        lines = [
+        legend = [
             "Each cell: mean ± 95 % confidence half-width (1.96·s/√N, normal approximation) over the "
             "row's N episodes (no ± when N = 1); settle time averages the formation switches that settled (switches that "
             "never settled are left out), and \"held after settling\" the fraction of the time from settling to the "
@@ -1058,16 +1082,18 @@ class Leaderboard:
         ]
         trained = sorted({r.policy: len(r.members) for r in self.rows if r.members}.items())
         if trained:
-            lines[0] += (" Rows marked (k seeds) are learned methods trained with k seeds: each cell is the mean of the "
-                         "seeds' per-episode means ± a Student-t 95 % half-width across the seeds (the spread between "
-                         "training runs); the CSV and JSON also hold one row per seed.")
+            legend[0] += (" Rows marked (k seeds) are learned methods trained with k seeds: each cell is the mean of the "
+                          "seeds' per-episode means ± a Student-t 95 % half-width across the seeds (the spread between "
+                          "training runs); the CSV and JSON also hold one row per seed.")
         # Lost episodes get their own columns, only on a board that has some: a complete board reads as before.
         counts = [k for k in ("failed", "pending") if any(getattr(r, k) for r in self.rows)]
         if counts:
-            lines[0] += (" \"failed\": episodes whose worker crashed or exceeded the episode timeout twice (left out "
-                         "of the row's statistics, which cover the episodes that finished)" if "failed" in counts else "")
-            lines[0] += (" \"pending\": episodes not played yet (an interrupted sweep: swarm-env evaluate --resume DIR)"
-                         if "pending" in counts else "")
+            legend[0] += (" \"failed\": episodes whose worker crashed or exceeded the episode timeout twice (left out "
+                          "of the row's statistics, which cover the episodes that finished)" if "failed" in counts else "")
+            legend[0] += (" \"pending\": episodes not played yet (an interrupted sweep: swarm-env evaluate --resume DIR)"
+                          if "pending" in counts else "")
+        # The provenance first (how to make the table again), the tables, then the legend.
+        lines = [provenance_line(self.provenance)] if self.provenance else []
         for scenario in self.scenarios:
             seeds = self.seeds[scenario]
             lines += ["", f"### {scenario} — seeds {format_seeds(seeds)} (N = {len(seeds)})", ""]
@@ -1084,7 +1110,8 @@ class Leaderboard:
                 cells += [str(getattr(r, k)) for k in counts]
                 label = f"`{r.policy}`" + (f" ({len(r.members)} seeds)" if r.members else "")
                 lines.append("| " + " | ".join(_md_cell(c) for c in [label, acts_on(r.policy), *cells]) + " |")
-        return "\n".join(lines) + "\n"
+        lines += ["", *legend]
+        return "\n".join(lines).lstrip("\n") + "\n"
 
     def csv_rows(self) -> list[dict[str, Any]]:
         """The CSV table as dicts: policy, scenario, status, episodes, seeds, method (the method a
@@ -1133,6 +1160,7 @@ class Leaderboard:
             "rows": [r.to_dict() for r in self.rows],
             "episodes": self.episodes,
             **({"failed": self.failed} if self.failed else {}),
+            **({"provenance": self.provenance} if self.provenance else {}),
         }
 
     def to_json(self, path: str | os.PathLike[str], *, overwrite: bool = True,
@@ -1151,13 +1179,14 @@ class Leaderboard:
 
     @classmethod
     def from_json(cls, path: str | os.PathLike[str]) -> Leaderboard:
-        """Read a file written by :meth:`to_json` (e.g. to record videos later)."""
-        doc = json.loads(Path(path).read_text())
+        """Read a file written by :meth:`to_json` (e.g. to record videos later), or its gzip (``.json.gz``)."""
+        doc = read_json(path)
         rows = [Row(r["policy"], r["scenario"], r["seeds"], r["summary"], r["na_reason"], r.get("method"), r.get("members"),
                     r.get("failed", 0), r.get("pending", 0))
                 for r in doc["rows"]]
         return cls(doc["policies"], doc["scenarios"], doc["seeds"], doc["env_kwargs"], rows, doc["episodes"],
-                   doc.get("wall_time", 0.0), doc.get("workers", 1), failed=doc.get("failed", []))
+                   doc.get("wall_time", 0.0), doc.get("workers", 1), failed=doc.get("failed", []),
+                   provenance=doc.get("provenance"))
 
 
 # --------------------------------------------------------------------------- videos

@@ -2,7 +2,7 @@
 
 .. code-block:: console
 
-    python -m swarm_env.harness.paired docs/leaderboard/leaderboard.json --baseline pursuit --scenario random
+    python -m swarm_env.harness.paired docs/leaderboard/leaderboard.json.gz --baseline pursuit --scenario random:crowd
 
 For every other policy it prints, per metric, the mean over the shared ``(scenario, seed)``
 episodes of ``policy - baseline`` with its 95 % confidence half-width
@@ -15,12 +15,11 @@ is most of it: "fewer collisions than pursuit" is claimed only when the paired i
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-from pathlib import Path
 from typing import Any
 
 from swarm_env.harness.evaluation import mean_ci95
+from swarm_env.jsonio import read_json
 
 #: Metric name -> how to read it from one episode's metrics.
 METRICS = {
@@ -83,7 +82,7 @@ def collision_profile(doc: dict[str, Any], policy: str, scenario: str | None = N
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``python -m swarm_env.harness.paired``."""
     parser = argparse.ArgumentParser(prog="python -m swarm_env.harness.paired", description=__doc__.splitlines()[0])
-    parser.add_argument("leaderboard", help="a leaderboard.json written by swarm-env evaluate --out")
+    parser.add_argument("leaderboard", help="a leaderboard.json written by swarm-env evaluate --out (or its gzip, .json.gz)")
     parser.add_argument("--baseline", default="pursuit", help="the policy every other one is compared with")
     parser.add_argument("--scenario", help="only this scenario's episodes (default: all)")
     parser.add_argument("--per-seed", action="store_true",
@@ -97,7 +96,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        doc = json.loads(Path(args.leaderboard).read_text())
+        doc = read_json(args.leaderboard)
         policies = []
         for p in doc["policies"]:
             seeds = sorted({e["policy"] for e in doc["episodes"] if e.get("method") == p}) if args.per_seed else []

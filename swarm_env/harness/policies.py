@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from swarm_env.checks import did_you_mean
 from swarm_env.control.pursuit import pure_pursuit
 from swarm_env.control.safety import AvoidanceParams, shield_actions
 from swarm_env.extras import (
@@ -377,8 +378,9 @@ def _factory(name: str) -> Callable[..., Any]:
             raise error from None
     factory = _BUILTIN.get(name)
     if factory is None:
-        known = ", ".join(registered_policies())
-        raise UnknownPolicyError(f"unknown policy {name!r}; registered policies: {known}")
+        known = registered_policies()
+        raise UnknownPolicyError(f"unknown policy {name!r}{did_you_mean(name, known)}; registered policies: "
+                                 f"{', '.join(known)}")
     return factory
 
 

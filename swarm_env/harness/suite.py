@@ -36,6 +36,7 @@ from typing import Any
 
 from swarm_env.harness.evaluation import mean_ci95
 from swarm_env.harness.leaderboard import Leaderboard, Metric, aggregate_training_seeds, format_seeds, run_leaderboard
+from swarm_env.harness.provenance import provenance_line
 from swarm_env.jsonio import write_json
 from swarm_env.scenarios.families import FAMILIES
 
@@ -220,7 +221,7 @@ def suite_result(board: Leaderboard, suite: Suite, split: str) -> dict[str, Any]
     spec = suite.spec(split)
     return {"format": RESULT_FORMAT, "suite": spec, "seeds": {s: board.seeds[s] for s in board.scenarios},
             "env_kwargs": dict(board.env_kwargs), "policies": list(board.policies), "results": results,
-            "aggregate": aggregate}
+            "aggregate": aggregate, **({"provenance": board.provenance} if board.provenance else {})}
 
 
 def _cell(stat: Mapping[str, Any] | None, digits: int) -> str:
@@ -235,6 +236,7 @@ def result_markdown(result: Mapping[str, Any]) -> str:
     """The Markdown of a ``suite.json``: the aggregate table, then one table per family."""
     spec = result["suite"]
     lines = [f"# Suite `{spec['name']}/{spec['version']}`, {spec['split']} split", "",
+             *([provenance_line(result["provenance"]), ""] if result.get("provenance") else []),
              f"{spec['description']}. Each cell: mean ± 95 % half-width over the family's episodes (a learned method "
              "with k training seeds: across its seeds, Student-t). Collision rate = share of episodes with any "
              "contact.", "", "## Aggregate (unweighted mean over families)", "",

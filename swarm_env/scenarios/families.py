@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Any
 
+from swarm_env.checks import did_you_mean
 from swarm_env.scenario import ScenarioError
 from swarm_env.scenarios.generator import RandomScenarioConfig, config_from_kwargs
 
@@ -128,8 +129,9 @@ def generator_config(scenario: str, knobs: Mapping[str, Any]) -> RandomScenarioC
     name = scenario[len(_PREFIX):]
     family = FAMILIES.get(name)
     if family is None or not family.generated:
-        known = ", ".join(_PREFIX + f.name for f in FAMILIES.values() if f.generated)
-        raise ScenarioError(scenario, "<family>", f"a generator family ({known})", name)
+        generated = [f.name for f in FAMILIES.values() if f.generated]
+        known = ", ".join(_PREFIX + f for f in generated)
+        raise ScenarioError(scenario, "<family>", f"a generator family ({known}){did_you_mean(name, generated)}", name)
     return family.config(**knobs)
 
 

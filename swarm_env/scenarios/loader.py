@@ -99,7 +99,6 @@ The name ``random`` is not a file: random worlds come from
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
 import numbers
 import os
@@ -111,6 +110,7 @@ from typing import Any
 import numpy as np
 import yaml
 
+from swarm_env.checks import did_you_mean
 from swarm_env.geometry.formation import formation_offsets, formation_start
 from swarm_env.geometry.static_map import StaticMap, convex_ccw
 from swarm_env.limits import (
@@ -284,7 +284,8 @@ def load_scenario(spec: str | os.PathLike[str] | Mapping[str, Any] | Scenario) -
             path = builtin
         elif not path.is_file():
             raise ScenarioError(
-                text, "<file>", f"a built-in scenario name (one of {list_scenarios()}) or a path to a YAML file"
+                text, "<file>", f"a built-in scenario name (one of {list_scenarios()}) or a path to a YAML "
+                f"file{did_you_mean(text, list_scenarios())}"
             )
     return _load_file(path)
 
@@ -1355,8 +1356,7 @@ def _check_keys(
         if not isinstance(k, str):
             ok.add(ScenarioError(src, f"{prefix}{clip_repr(k)}", "string keys", _short(k)))
         elif k not in allowed:
-            close = difflib.get_close_matches(k, allowed, n=1) if len(k) <= 100 else []  # a typo is short
-            hint = f" (did you mean {close[0]!r}?)" if close else ""
+            hint = did_you_mean(k, allowed)
             where = f"the keys of {key}" if key else "the top-level sections"
             ok.add(ScenarioError(src, f"{prefix}{k}", f"one of {where}: {', '.join(allowed)}{hint}", k))
     for k in required:
