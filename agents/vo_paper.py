@@ -32,6 +32,7 @@ os.environ.setdefault("SDL_VIDEODRIVER", "dummy")
 
 import numpy as np  # noqa: E402
 
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.env import SwarmEnv  # noqa: E402
 from swarm_env.geometry.static_map import rotate_rectangle
 from swarm_env.harness.episode import run_episode  # noqa: E402
@@ -364,7 +365,7 @@ DEFAULT_KNOBS: dict[str, Any] = {"n_followers": (2, 8), "n_humans": (0, 3)}
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="swarm-env reproduce vo", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog="swarm-env reproduce vo", description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default="docs/vo", help="folder for the figures, videos and results.json")
     ap.add_argument("--doc", default="docs/vo_expert.md", help="markdown report to write ('' for none)")
     ap.add_argument("--seeds", type=int, default=100, help="random-generator episodes (seeds FIRST..FIRST+N-1)")

@@ -81,6 +81,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.episode import run_episode
 from swarm_env.harness.evaluation import summarize
@@ -593,7 +594,7 @@ def train_bc(cfg: BCConfig) -> Path:
 
 def build_parser() -> argparse.ArgumentParser:
     """One option per :class:`BCConfig` field, its help text from the field's ``#:`` comment."""
-    parser = argparse.ArgumentParser(prog="swarm-env bc", description="Behaviour cloning (+ DAgger) of a scripted expert into PPO's policy network.")
+    parser = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog="swarm-env bc", description="Behaviour cloning (+ DAgger) of a scripted expert into PPO's policy network.")
     add_dataclass_options(parser, BCConfig, required=("out",))
     return parser
 

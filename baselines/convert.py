@@ -7,6 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env_baselines.model_io import load_model
 from swarm_env_baselines.safe_io import CONFIG_FILE, WEIGHTS_FILE, save_policy
 
@@ -21,7 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     (``--trust-pickle`` or ``SWARM_ENV_TRUST_PICKLE=1``): run it only on files you trust (your own
     runs). Exit code 2, with one line naming the file, for a missing, corrupt or refused file.
     """
-    parser = argparse.ArgumentParser(prog="swarm-env convert", description=main.__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog="swarm-env convert", description=main.__doc__.split("\n\n")[0])
     parser.add_argument("dirs", nargs="+", help="run or checkpoint directories holding model.zip")
     parser.add_argument("--algo", default="ppo", help="the algorithm that saved them (ppo, sac, a2c, td3, ddpg; bc = ppo)")
     parser.add_argument("--trust-pickle", action="store_true",

@@ -65,6 +65,7 @@ from typing import Any
 
 import numpy as np
 
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.cli import parse_env_items
 from swarm_env.harness.evaluation import summarize
@@ -373,7 +374,7 @@ def load_demos(path: str | Path) -> Demos:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="swarm-env demos", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog="swarm-env demos", description=__doc__.split("\n\n")[0])
     parser.add_argument("--expert", default="vo", help="policy spec of the expert: vo, cbs_rrt, vo:KEY=VALUE, ... (default: vo)")
     parser.add_argument("--scenario", default="random", help="built-in scenario name, YAML path, or random (default: random)")
     parser.add_argument("--seeds", default="0-199", help="episode seeds, e.g. 0-199 or 0,5,7-8 (default: 0-199)")

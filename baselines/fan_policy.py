@@ -43,8 +43,10 @@ import numpy as np
 
 from swarm_env.harness.policies import OBSERVATIONS, ModelFileError, PolicyError
 from swarm_env.jsonio import write_json
+from swarm_env.limits import clip_repr
 from swarm_env.state import WorldState
 from swarm_env_agents.obs_expert import ObservationExpert, ObsExpertConfig
+from swarm_env_baselines import model_bounds as mb
 from swarm_env_baselines.mappo_policy import shipped_method_entry_point
 from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
 from swarm_env_baselines.safe_io import CONFIG_FILE, WEIGHTS_FILE, _atomic, one_line, read_description, read_tensors
@@ -53,8 +55,10 @@ from swarm_env_baselines.safe_io import CONFIG_FILE, WEIGHTS_FILE, _atomic, one_
 FAN_FORMAT = "swarm_env.fan_dagger/1"
 #: Columns of one candidate's features ``f_k``: v, omega, time to contact, v - v_pursuit, omega - omega_pursuit.
 CANDIDATE_FEATURES = 5
-#: Bounds a policy file must keep (a larger one is refused before anything is allocated).
-MAX_WIDTH, MAX_LAYERS, MAX_CANDIDATES = 4096, 8, 4096
+#: Bounds a policy file must keep (a larger one is refused before anything is allocated): the widest layer of every
+#: loader (:mod:`swarm_env_baselines.model_bounds`), the most layers the trainer builds (fewer than the
+#: loaders' :data:`~swarm_env_baselines.model_bounds.MAX_DEPTH`) and the most candidate twists.
+MAX_WIDTH, MAX_LAYERS, MAX_CANDIDATES = mb.MAX_WIDTH, 8, 4096
 
 __all__ = ["FAN_FORMAT", "FanPolicy", "fan_inputs", "load_fan_policy", "make_fan_dagger", "make_fan_dagger_shielded",
            "fan_net", "save_fan_policy"]
@@ -162,12 +166,21 @@ def save_fan_policy(directory: Path, net: Any, obs_rms: RunningMeanStd, config: 
     return directory
 
 
-def _widths(value: Any, what: str) -> tuple[int, ...]:
-    if not isinstance(value, list) or not 1 <= len(value) <= MAX_LAYERS:
-        raise ValueError(f"{what} must be a list of 1-{MAX_LAYERS} layer widths, got {value!r}")
-    if not all(isinstance(h, int) and not isinstance(h, bool) and 1 <= h <= MAX_WIDTH for h in value):
-        raise ValueError(f"{what} widths must be integers in 1-{MAX_WIDTH}, got {value!r}")
-    return tuple(value)
+def _sensor_options(value: Any) -> dict[str, Any]:
+    """``fan.options``: known :class:`ObsExpertConfig` fields, each a bool where the field is one and a finite number
+    (``null`` where the field may be ``None``) otherwise; the config's own checks then bound the numbers."""
+    options = dict(mb.json_object(value, "fan.options"))
+    for f in dataclasses.fields(ObsExpertConfig):
+        if f.name not in options:
+            continue
+        where, got = f"fan.options.{f.name}", options[f.name]
+        if isinstance(f.default, bool):
+            if not isinstance(got, bool):
+                raise ValueError(f"{where}: expected true or false, got {clip_repr(got)}")
+        elif not (got is None and f.default is None):
+            mb.number(got, where)
+    ObsExpertConfig(**options)  # unknown or out-of-range sensor options fail here, naming the option
+    return options
 
 
 def load_fan_policy(directory: str | Path, name: str | None = None) -> FanPolicy:
@@ -179,26 +192,29 @@ def load_fan_policy(directory: str | Path, name: str | None = None) -> FanPolicy
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FAN_FORMAT)
     try:
-        config = dict(meta["config"])
-        hidden = _widths(config["hidden"], "hidden")
-        candidate_hidden = _widths(config["candidate_hidden"], "candidate_hidden")
+        config = mb.json_object(mb.get(meta, "config", ""), "config")
+        hidden = mb.widths(mb.get(config, "hidden", "config"), "config.hidden", max_layers=MAX_LAYERS)
+        candidate_hidden = mb.widths(mb.get(config, "candidate_hidden", "config"), "config.candidate_hidden",
+                                     max_layers=MAX_LAYERS)
+        inputs = mb.statistics(mb.get(meta, "obs_rms", ""), "obs_rms", max_len=mb.MAX_OBSERVATION)
+        fan = mb.json_object(mb.get(meta, "fan", ""), "fan")
+        n = mb.integer(mb.get(fan, "candidates", "fan"), "fan.candidates", 1, MAX_CANDIDATES)
+        options = _sensor_options(mb.get(fan, "options", "fan"))
+        mb.check_parameters(mb.mlp_parameters([inputs + n + 2, *hidden, n])
+                            + mb.mlp_parameters([CANDIDATE_FEATURES, *candidate_hidden, 1]), "config.hidden")
         obs_rms = RunningMeanStd.from_json(meta["obs_rms"])
-        n = meta["fan"]["candidates"]
-        if not isinstance(n, int) or isinstance(n, bool) or not 1 <= n <= MAX_CANDIDATES:
-            raise ValueError(f"fan.candidates must be an integer in 1-{MAX_CANDIDATES}, got {n!r}")
-        options = dict(meta["fan"]["options"])
-        ObsExpertConfig(**options)  # unknown or bad sensor options fail here, naming the option
     except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise ValueError(f"{d / CONFIG_FILE}: not a fan_dagger policy description ({one_line(exc)})") from None
+        raise ValueError(f"{mb.shown(d / CONFIG_FILE)}: not a fan_dagger policy description "
+                         f"({one_line(exc)})") from None
     net = fan_net(obs_rms.mean.shape[0], np.zeros((n, 2)), hidden, candidate_hidden)
-    tensors = read_tensors(d / WEIGHTS_FILE)
+    tensors = read_tensors(d / WEIGHTS_FILE)  # finite, bounded values only (model_bounds.read_safetensors)
     try:
         net.load_state_dict(tensors, strict=True)
     except (RuntimeError, ValueError) as exc:
-        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the network of {CONFIG_FILE} "
+        raise ValueError(f"{mb.shown(d / WEIGHTS_FILE)}: the tensors do not fit the network of {CONFIG_FILE} "
                          f"({one_line(exc)})") from None
     if not all(torch.isfinite(p).all() for p in net.parameters()):
-        raise ValueError(f"{d / WEIGHTS_FILE}: the network's tensors are not all finite")
+        raise ValueError(f"{mb.shown(d / WEIGHTS_FILE)}: the network's tensors are not all finite")
     torch.set_num_threads(1)  # a small network on a few rows: threads only add overhead (and float noise)
     return FanPolicy(net.eval(), obs_rms, options, name=name or f"fan_dagger:{directory}")
 

@@ -7,7 +7,9 @@ A run directory of :mod:`swarm_env_baselines.mappo` (and each of its ``best/``) 
 
 Loading reads those two files and nothing else: no pickle, no code; a missing, truncated or
 corrupt file, or another kind of policy's, is a :class:`~swarm_env.harness.policies.ModelFileError`
-naming the file (``swarm-env run`` exits with code 2). The policy acts with the
+naming the file (``swarm-env run`` exits with code 2). Every file, size and number is checked against
+:mod:`swarm_env_baselines.model_bounds` before anything is built; a residual run's expert may not itself be a
+residual run (nor the run itself). The policy acts with the
 actor's mean (deterministic), on one torch thread, so an episode is the same bit for bit in
 any process (``tests/test_mappo.py`` checks it across processes).
 
@@ -24,6 +26,7 @@ Policy specs (entry points of the ``swarm_env.policies`` group):
 
 from __future__ import annotations
 
+import contextvars
 import dataclasses
 from collections.abc import Callable
 from pathlib import Path
@@ -41,7 +44,9 @@ from swarm_env.harness.policies import (
     load_policy,
 )
 from swarm_env.jsonio import write_json
+from swarm_env.limits import clip_repr, printable
 from swarm_env.state import WorldState
+from swarm_env_baselines import model_bounds as mb
 from swarm_env_baselines.ppo_core import RunningMeanStd, mlp
 from swarm_env_baselines.safe_io import (
     CONFIG_FILE,
@@ -179,13 +184,20 @@ def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FORMAT)
     try:
-        config = dict(meta["config"])
-        hidden = [int(h) for h in config["hidden"]]
+        config = dict(mb.json_object(mb.get(meta, "config", ""), "config"))
+        hidden = mb.widths(mb.get(config, "hidden", "config"), "config.hidden")
+        residual = config.get("residual")
+        if residual is not None and residual != "":
+            mb.spec(residual, "config.residual")
+            mb.number(mb.get(config, "residual_scale", "config"), "config.residual_scale", 0.0)  # as MAPPOConfig
+        # A residual actor reads the observation and its expert's action; a plain one the observation only.
+        inputs = mb.statistics(mb.get(meta, "obs_rms", ""), "obs_rms", max_len=mb.MAX_INPUTS if residual else
+                               mb.MAX_OBSERVATION)
+        mb.check_parameters(mb.mlp_parameters([inputs, *hidden, mb.ACTION_SIZE]), "config.hidden", "the actor")
         obs_rms = RunningMeanStd.from_json(meta["obs_rms"])
-        if config.get("residual"):
-            float(config["residual_scale"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{d / CONFIG_FILE}: not a run description of swarm_env_baselines.mappo ({one_line(exc)})") from None
+        raise ValueError(f"{mb.shown(d / CONFIG_FILE)}: not a run description of swarm_env_baselines.mappo "
+                         f"({one_line(exc)})") from None
     actor = _load_actor(d, mlp([obs_rms.mean.shape[0], *hidden, 2]))
     torch.set_num_threads(1)  # a small MLP on a few observations: threads only add overhead (and float noise)
     return config, actor, obs_rms
@@ -194,11 +206,12 @@ def read_run(directory: str | Path) -> tuple[dict[str, Any], Any, RunningMeanStd
 def _load_actor(d: Path, net: Any) -> Any:
     """``net`` with the ``actor.*`` tensors of ``d/policy.safetensors``, in eval mode; ``ValueError`` naming the
     file if they do not fit it (missing or unexpected keys, shapes)."""
-    tensors = read_tensors(d / WEIGHTS_FILE)
+    tensors = read_tensors(d / WEIGHTS_FILE)  # finite, bounded values only (model_bounds.read_safetensors)
     try:
         net.load_state_dict({k[len("actor."):]: v for k, v in tensors.items() if k.startswith("actor.")}, strict=True)
     except (RuntimeError, ValueError) as exc:  # missing/unexpected keys, shape mismatches
-        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({one_line(exc)})") from None
+        raise ValueError(f"{mb.shown(d / WEIGHTS_FILE)}: the tensors do not fit the actor of {CONFIG_FILE} "
+                         f"({one_line(exc)})") from None
     return net.eval()
 
 
@@ -211,15 +224,17 @@ def load_sac_policy(directory: str | Path, name: str | None = None) -> MAPPOPoli
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, SAC_FORMAT)
     try:
-        hidden = [int(h) for h in meta["config"]["hidden"]]
-        if not hidden or min(hidden) < 1 or max(hidden) > 4096 or len(hidden) > 8:
-            raise ValueError(f"hidden {hidden} outside 1-4096 units, 1-8 layers")
+        config = mb.json_object(mb.get(meta, "config", ""), "config")
+        hidden = mb.widths(mb.get(config, "hidden", "config"), "config.hidden")
+        inputs = mb.statistics(mb.get(meta, "obs_rms", ""), "obs_rms", max_len=mb.MAX_OBSERVATION)
+        mb.check_parameters(mb.mlp_parameters([inputs, *hidden, 2 * mb.ACTION_SIZE]), "config.hidden", "the actor")
         obs_rms = RunningMeanStd.from_json(meta["obs_rms"])
     except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{d / CONFIG_FILE}: not a run description of swarm_env_baselines.sac ({one_line(exc)})") from None
+        raise ValueError(f"{mb.shown(d / CONFIG_FILE)}: not a run description of swarm_env_baselines.sac "
+                         f"({one_line(exc)})") from None
     net = _load_actor(d, mlp([obs_rms.mean.shape[0], *hidden, 4]))
     if not all(torch.isfinite(p).all() for p in net.parameters()):
-        raise ValueError(f"{d / WEIGHTS_FILE}: the actor's tensors are not all finite")
+        raise ValueError(f"{mb.shown(d / WEIGHTS_FILE)}: the actor's tensors are not all finite")
     torch.set_num_threads(1)
     return MAPPOPolicy(SquashedMeanActor(net), obs_rms, name=name or f"isac:{directory}")
 
@@ -256,15 +271,44 @@ def load_run_policy(directory: str | Path, env: Any | None = None, name: str | N
     """The actor of a saved run as a policy (a :class:`ResidualPolicy` for a residual run, whose
     expert is built for ``env``). No pickle involved."""
     config, actor, obs_rms = read_run(directory)
-    return _policy_of_run(config, actor, obs_rms, env, name or f"mappo:{directory}")
+    return _policy_of_run(config, actor, obs_rms, env, name or f"mappo:{directory}",
+                          Path(directory).expanduser() / CONFIG_FILE)
 
 
-def _policy_of_run(config: dict[str, Any], actor: Any, obs_rms: RunningMeanStd, env: Any | None, label: str) -> MAPPOPolicy:
+#: The description of the residual run whose expert is being built, while it is (a residual chain is refused).
+_BUILDING_EXPERT_OF: contextvars.ContextVar[Path | None] = contextvars.ContextVar("_BUILDING_EXPERT_OF", default=None)
+
+
+class _ExpertIsResidual(ModelFileError):
+    """A residual run loaded while another one builds its expert; that one catches it and names its own file."""
+
+    def __init__(self, source: Path, message: str) -> None:
+        super().__init__(message)
+        self.source = source
+
+
+def _policy_of_run(config: dict[str, Any], actor: Any, obs_rms: RunningMeanStd, env: Any | None, label: str,
+                   source: Path) -> MAPPOPolicy:
     expert_spec = config.get("residual")
     if expert_spec:
+        outer = _BUILDING_EXPERT_OF.get()
+        if outer is not None:  # this residual run is the expert of another one (or of itself): the outer one reports it
+            raise _ExpertIsResidual(source, f"policy {printable(label, 200)}: {mb.shown(source)}: a residual run, "
+                                            f"loaded as the expert of the residual run {mb.shown(outer)}")
         if env is None:
-            raise ValueError(f"{label}: a residual run needs the env to build its expert {expert_spec!r}")
-        return ResidualPolicy(actor, obs_rms, load_policy(expert_spec, env), float(config["residual_scale"]), name=label)
+            raise ValueError(f"{label}: a residual run needs the env to build its expert {clip_repr(expert_spec)}")
+        token = _BUILDING_EXPERT_OF.set(source)
+        try:
+            expert = load_policy(expert_spec, env)
+        except _ExpertIsResidual as exc:
+            raise ModelFileError(
+                f"policy {printable(label, 200)}: {mb.shown(source)}: config.residual: expected the spec of an expert "
+                f"that is not itself a residual run, got {clip_repr(expert_spec)}, which loads the residual run "
+                f"{mb.shown(exc.source)} (a chain of residual runs, or one that is its own expert, is refused)"
+            ) from None
+        finally:
+            _BUILDING_EXPERT_OF.reset(token)
+        return ResidualPolicy(actor, obs_rms, expert, float(config["residual_scale"]), name=label)
     return MAPPOPolicy(actor, obs_rms, name=label)
 
 
@@ -277,9 +321,10 @@ def _load(env: Any, path: str | Path, name: str) -> MAPPOPolicy:
     except ValueError as exc:
         raise ModelFileError(f"policy {name}: {exc}") from None
     try:
-        policy = _policy_of_run(config, actor, obs_rms, env, name)
+        policy = _policy_of_run(config, actor, obs_rms, env, name, Path(path).expanduser() / CONFIG_FILE)
     except UnknownPolicyError as exc:
-        raise ModelFileError(f"policy {name}: {Path(path) / CONFIG_FILE}: its residual expert: {exc.args[0]}") from None
+        raise ModelFileError(f"policy {name}: {mb.shown(Path(path) / CONFIG_FILE)}: its residual expert: "
+                             f"{exc.args[0]}") from None
     except PolicyError:
         raise  # the residual's expert refuses the env: a misfit, not a bad file
     except ValueError as exc:

@@ -19,8 +19,9 @@ refused with a :class:`~swarm_env.harness.policies.ModelFileError` unless the ca
 or ``--trust-pickle`` on the command lines). ``swarm-env convert DIR --trust-pickle``
 converts such a directory once.
 
-Every file problem (missing, truncated or corrupt, another algorithm's model, a refused pickle) is a
-``ModelFileError`` with one line naming the file; the CLI exits with code 2 on it.
+Every file problem (missing, truncated or corrupt, another algorithm's model, a refused pickle, a size or
+number outside :mod:`swarm_env_baselines.model_bounds`) is a ``ModelFileError`` with one line naming the file;
+the CLI exits with code 2 on it.
 :class:`SB3Policy` feeds each follower's observation through the same normalisation, then
 ``model.predict`` on the stacked batch (parameter sharing), deterministic by default. ``bc``
 models are PPO-format checkpoints whose policy network was trained by behaviour cloning (see
@@ -44,10 +45,12 @@ import numpy as np
 from swarm_env.harness.policies import OBSERVATIONS, ModelFileError, PolicyError
 from swarm_env.state import WorldState
 from swarm_env_baselines.mappo_policy import SHIPPED_SEEDS, shipped_run
+from swarm_env_baselines.model_bounds import shown
 from swarm_env_baselines.safe_io import (
     CONFIG_FILE,
     WEIGHTS_FILE,
     algorithm_class,
+    check_description,
     has_safe_policy,
     load_policy_dir,
     one_line,
@@ -215,7 +218,13 @@ def load_warm_start(path: str | Path, algo: str, *, trust_pickle: bool | None = 
     d = p if p.is_dir() else p.parent
     if has_safe_policy(d) and (p.is_dir() or p.name == MODEL_FILE):
         try:
-            saved = str(read_description(d / CONFIG_FILE, SAFE_FORMAT).get("algo"))
+            description = read_description(d / CONFIG_FILE, SAFE_FORMAT)
+            try:
+                check_description(description)
+            except ValueError as exc:
+                raise ValueError(f"{shown(d / CONFIG_FILE)}: not a policy description this version can rebuild "
+                                 f"({one_line(exc)})") from None
+            saved = str(description["algo"])
             if not same_family(saved, algo):
                 raise ValueError(f"{d / CONFIG_FILE}: holds a {saved} policy, not a {algo} one")
             weights = read_tensors(d / WEIGHTS_FILE)

@@ -18,6 +18,7 @@ from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.harness.cli import parse_env_item
 from swarm_env.harness.provenance import git_state
 
@@ -114,7 +115,7 @@ def add_dataclass_options(parser: argparse.ArgumentParser, cls: type, *, require
 def trainer_parser(prog: str, doc: str | None, config: type, resume_overrides: tuple[str, ...]) -> argparse.ArgumentParser:
     """The command line of a trainer: one option per field of ``config`` and ``--resume RUN_DIR`` (with which only
     the fields ``resume_overrides`` may be given)."""
-    parser = argparse.ArgumentParser(prog=prog, description=(doc or "").split("\n\n")[0])
+    parser = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog=prog, description=(doc or "").split("\n\n")[0])
     allowed = ", ".join("--" + name.replace("_", "-") for name in resume_overrides)
     parser.add_argument("--resume", metavar="RUN_DIR", default=argparse.SUPPRESS,
                         help=f"go on with this run from its latest checkpoint (its config.json; only {allowed} may be "

@@ -6,6 +6,7 @@ import csv
 from collections.abc import Mapping
 from pathlib import Path
 
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.harness.leaderboard import parse_seeds, run_leaderboard
 from swarm_env_baselines.mappo_policy import CHECKPOINTS
 
@@ -141,7 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     import argparse
     import sys
 
-    parser = argparse.ArgumentParser(
+    parser = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, 
         prog="swarm-env curves",
         description="Validation learning curves (mean and min-max band over training seeds) of shipped methods, "
                     "with reference policies scored on the same validation worlds.")

@@ -39,9 +39,12 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env.env import SwarmEnv
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.harness.policies import ModelFileError
 from swarm_env.jsonio import write_json
+from swarm_env.limits import clip_repr
+from swarm_env.wrappers import rllib_env
+from swarm_env_baselines import model_bounds as mb
 from swarm_env_baselines.mappo_policy import MAPPOPolicy, directory_entry_point
 from swarm_env_baselines.options import package_versions
 from swarm_env_baselines.ppo_core import mlp
@@ -78,14 +81,6 @@ class RLlibConfig:
     seed: int = 0
     address: str | None = None  # a running cluster; None: a local Ray instance with num_cpus CPUs
     num_cpus: int = 2
-
-
-def _env_creator(config: dict[str, Any]) -> Any:
-    from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
-
-
-    kwargs = dict(config)
-    return ParallelPettingZooEnv(SwarmEnv(kwargs.pop("scenario"), **kwargs))
 
 
 def _map_to_shared(agent_id: Any, episode: Any = None, **kwargs: Any) -> str:
@@ -165,17 +160,26 @@ def load_rllib_policy(directory: str | Path, name: str | None = None) -> Any:
     d = Path(directory).expanduser()
     meta = read_description(d / CONFIG_FILE, FORMAT)
     try:
-        sizes = [int(s) for s in meta["sizes"]]
-        if meta["activation"] != "tanh" or len(sizes) < 2:
-            raise ValueError(f"unsupported actor {meta['activation']!r} {sizes}")
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{d / CONFIG_FILE}: not an exported RLlib actor ({one_line(exc)})") from None
+        activation = mb.get(meta, "activation", "")
+        if activation != "tanh":
+            raise ValueError(f"activation: expected 'tanh' (RLlib's default PPO module), got {clip_repr(activation)}")
+        sizes = mb.get(meta, "sizes", "")
+        if not isinstance(sizes, list) or not 3 <= len(sizes) <= mb.MAX_DEPTH + 2:
+            raise ValueError(f"sizes: expected [inputs, 1-{mb.MAX_DEPTH} hidden widths, {mb.ACTION_SIZE}], got "
+                             f"{clip_repr(sizes)}")
+        mb.integer(sizes[0], "sizes[0] (the observation size)", 1, mb.MAX_OBSERVATION)
+        mb.widths(sizes[1:-1], "sizes[1:-1] (the hidden widths)")
+        mb.integer(sizes[-1], "sizes[-1] (the action size)", mb.ACTION_SIZE, mb.ACTION_SIZE)
+        mb.check_parameters(mb.mlp_parameters(sizes), "sizes", "the actor")
+    except ValueError as exc:
+        raise ValueError(f"{mb.shown(d / CONFIG_FILE)}: not an exported RLlib actor ({one_line(exc)})") from None
     actor = mlp(sizes)
-    tensors = read_tensors(d / WEIGHTS_FILE)
+    tensors = read_tensors(d / WEIGHTS_FILE)  # finite, bounded values only (model_bounds.read_safetensors)
     try:
         actor.load_state_dict({k[len("actor."):]: v for k, v in tensors.items()}, strict=True)
     except (RuntimeError, ValueError) as exc:  # missing/unexpected keys, shape mismatches
-        raise ValueError(f"{d / WEIGHTS_FILE}: the tensors do not fit the actor of {CONFIG_FILE} ({one_line(exc)})") from None
+        raise ValueError(f"{mb.shown(d / WEIGHTS_FILE)}: the tensors do not fit the actor of {CONFIG_FILE} "
+                         f"({one_line(exc)})") from None
     actor.eval()
     torch.set_num_threads(1)
     return MAPPOPolicy(actor, _Unnormalised(sizes[0]), name=name or f"rllib:{directory}")  # type: ignore[arg-type]
@@ -205,10 +209,11 @@ def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = Tr
     started = not ray.is_initialized()
     if started:
         if cfg.address is None:
-            ray.init(num_cpus=cfg.num_cpus, include_dashboard=False, log_to_driver=False)
+            # "local": a new instance even where a `ray start` cluster is up (which ray.init would try to join)
+            ray.init(address="local", num_cpus=cfg.num_cpus, include_dashboard=False, log_to_driver=False)
         else:
             ray.init(address=cfg.address, log_to_driver=False)
-    register_env(ENV_NAME, _env_creator)
+    register_env(ENV_NAME, rllib_env)  # the package's creator: remote env runners on any node import it
     algo = build_config(cfg).build_algo()
     checkpoint = out / "rllib_checkpoint"
     rows: list[dict[str, Any]] = []
@@ -255,7 +260,7 @@ def train(cfg: RLlibConfig, out: Path, resume: bool = False, progress: bool = Tr
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(prog="swarm-env train rllib", description=__doc__.splitlines()[0])
+    p = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog="swarm-env train rllib", description=__doc__.splitlines()[0])
     p.add_argument("--scenario", default="random")
     p.add_argument("--env", action="append", default=[], metavar="KEY=VALUE",
                    help="SwarmEnv keyword (repeatable; values are YAML: n_followers=4, n_humans=[0,3])")

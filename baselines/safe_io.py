@@ -15,12 +15,13 @@ to a warm start. Training state (optimizer, replay buffer, schedules) is not par
 
 Every reader here raises ``ValueError`` with one line naming the file and what is wrong
 (:func:`read_tensors`, :func:`read_description`); the policy loaders turn it into a
-:class:`~swarm_env.harness.policies.ModelFileError`.
+:class:`~swarm_env.harness.policies.ModelFileError`. Both readers, and the checks of a description before
+anything is built from it, are :mod:`swarm_env_baselines.model_bounds`'s: regular files of bounded size only,
+bounded JSON, at most so many float tensors of finite values, every size and number in range.
 """
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -28,9 +29,12 @@ from typing import TYPE_CHECKING, Any
 import gymnasium
 import numpy as np
 
+from swarm_env.env import PRIMITIVE_ANGLES_DEG
 from swarm_env.harness.policies import ModelFileError, pickle_trusted
 from swarm_env.jsonio import write_json
+from swarm_env.limits import MAX_ABS_NUMBER, clip_repr, printable
 from swarm_env.outputs import open_atomic, replace_dir
+from swarm_env_baselines import model_bounds as mb
 
 if TYPE_CHECKING:
     from stable_baselines3.common.base_class import BaseAlgorithm
@@ -50,7 +54,7 @@ CONFIG_FILE = "policy.json"
 
 __all__ = ["FORMAT", "MAPPO_FORMAT", "SAC_FORMAT", "RLLIB_FORMAT", "LOADERS", "WEIGHTS_FILE", "CONFIG_FILE", "ObsNormalizer",
            "algorithm_class", "save_policy", "load_policy_dir", "has_safe_policy", "saved_statistics", "read_tensors",
-           "read_description", "refuse_pickle", "one_line"]
+           "read_description", "check_description", "refuse_pickle", "one_line"]
 
 
 class ObsNormalizer:
@@ -120,14 +124,16 @@ def load_policy_dir(directory: str | Path) -> tuple[Any, ObsNormalizer | None, s
     cfg_path = d / CONFIG_FILE
     config = read_description(cfg_path, FORMAT)
     try:
+        check_description(config)
         algo = str(config["algo"])
         obs_space = _space_from_json(config["observation_space"])
         act_space = _space_from_json(config["action_space"])
         kwargs = dict(config["policy_kwargs"])
         policy_class = algorithm_class(algo).policy_aliases["MlpPolicy"]
         policy = policy_class(obs_space, act_space, lambda _: 0.0, **kwargs)
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ValueError(f"{cfg_path}: not a policy description this version can rebuild ({one_line(exc)})") from None
+    except Exception as exc:  # noqa: BLE001 - the checks' ValueError, and whatever SB3 raises on what passed them
+        raise ValueError(f"{mb.shown(cfg_path)}: not a policy description this version can rebuild "
+                         f"({one_line(exc)})") from None
     state = read_tensors(d / WEIGHTS_FILE)
     try:
         policy.load_state_dict(state, strict=True)
@@ -150,6 +156,10 @@ def saved_statistics(directory: str | Path) -> tuple[Any, Any]:
     if d is None:
         return None, None
     try:
+        _check_normalization(d, None)
+    except ValueError as exc:
+        raise ValueError(f"{mb.shown(cfg_path)}: {one_line(exc)}") from None
+    try:
         obs = RunningMeanStd(shape=np.shape(d["mean"]))
         obs.mean, obs.var, obs.count = np.asarray(d["mean"], np.float64), np.asarray(d["var"], np.float64), float(d["count"])
         ret = None
@@ -165,34 +175,143 @@ def saved_statistics(directory: str | Path) -> tuple[Any, Any]:
 
 
 def read_tensors(path: Path) -> dict[str, Any]:
-    """Every tensor of the safetensors file ``path`` (on CPU), or a ``ValueError`` naming the file:
-    missing, or not a readable safetensors file (truncated, corrupt, something else)."""
-    from safetensors.torch import load_file
-
-    if not path.is_file():
-        raise ValueError(f"{path}: missing (a saved policy directory holds {WEIGHTS_FILE} and {CONFIG_FILE})")
+    """Every tensor of the safetensors file ``path`` (on CPU), or a ``ValueError`` naming the file: missing, not a
+    regular file, too large, not a readable safetensors file (truncated, corrupt, something else), too many tensors,
+    a dtype other than float32/float64, or values that are not finite
+    (:func:`swarm_env_baselines.model_bounds.read_safetensors`)."""
     try:
-        return load_file(str(path), device="cpu")
-    except Exception as exc:  # noqa: BLE001 - safetensors raises its own error types (and OSError); all mean "bad file"
-        raise ValueError(f"{path}: not a readable safetensors file, truncated or corrupt ({one_line(exc)})") from None
+        return mb.read_safetensors(path)
+    except FileNotFoundError:
+        raise ValueError(f"{mb.shown(path)}: missing (a saved policy directory holds {WEIGHTS_FILE} and "
+                         f"{CONFIG_FILE})") from None
 
 
 def read_description(path: Path, fmt: str) -> dict[str, Any]:
     """The JSON object in ``path`` whose ``format`` is ``fmt``, or a ``ValueError`` naming the file: missing,
-    not JSON (truncated, corrupt), or another format (then it says which spec loads that one)."""
+    not a regular file, too large (a ``policy.json`` at most
+    :data:`~swarm_env_baselines.model_bounds.MAX_DESCRIPTION_BYTES`, another run file such as a checkpoint's
+    ``state.json`` at most :data:`~swarm_env_baselines.model_bounds.MAX_STATE_BYTES`), nested too deep, not strict
+    JSON (truncated, corrupt), or another format (then it says which spec loads that one)."""
     if not path.parent.is_dir():
-        raise ValueError(f"{path.parent}: no such directory (a saved policy directory holds {path.name} and {WEIGHTS_FILE})")
-    if not path.is_file():
-        raise ValueError(f"{path}: missing (a saved policy directory holds {path.name} and {WEIGHTS_FILE})")
+        raise ValueError(f"{mb.shown(path.parent)}: no such directory (a saved policy directory holds {path.name} "
+                         f"and {WEIGHTS_FILE})")
+    limit = mb.MAX_DESCRIPTION_BYTES if path.name == CONFIG_FILE else mb.MAX_STATE_BYTES
     try:
-        config = json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise ValueError(f"{path}: not a readable JSON policy description ({one_line(exc)})") from None
+        config = mb.read_json(path, limit, "policy description" if path.name == CONFIG_FILE else "run file")
+    except FileNotFoundError:
+        raise ValueError(f"{mb.shown(path)}: missing (a saved policy directory holds {path.name} and "
+                         f"{WEIGHTS_FILE})") from None
     got = config.get("format") if isinstance(config, dict) else config
     if got != fmt:
         hint = LOADERS.get(got) if isinstance(got, str) else None
-        raise ValueError(f"{path}: format: expected {fmt!r}, got {got!r}" + (f" (load it with {hint})" if hint else ""))
+        raise ValueError(f"{mb.shown(path)}: format: expected {fmt!r}, got {clip_repr(got)}"
+                         + (f" (load it with {hint})" if hint else ""))
     return config
+
+
+#: The ``policy_kwargs`` a description may pass to SB3's policy class, and what each must be.
+_BOOL_KWARGS = ("ortho_init", "use_sde", "full_std", "use_expln", "squash_output", "share_features_extractor",
+                "normalize_images")
+_NUMBER_KWARGS = {"log_std_init": (-20.0, 20.0), "clip_mean": (0.0, MAX_ABS_NUMBER)}
+#: Most critics of an off-policy SB3 policy (``n_critics``).
+MAX_CRITICS = 8
+#: The discrete action space of the env (:meth:`swarm_env.env.SwarmEnv.action_space`): stop and the primitives.
+DISCRETE_ACTIONS = 1 + len(PRIMITIVE_ANGLES_DEG)
+
+
+def check_description(config: dict[str, Any]) -> None:
+    """Check an SB3 policy description (:data:`FORMAT`) before anything is built from it: the algorithm, an
+    observation space of at most :data:`~swarm_env_baselines.model_bounds.MAX_OBSERVATION` float values with finite
+    bounds, the env's action space (a twist, or its :data:`DISCRETE_ACTIONS` primitives), known ``policy_kwargs``
+    of the right types, layer widths and a parameter count in bounds, and the normalisation statistics. Raises
+    ``ValueError`` naming the key and what it must be."""
+    algo = mb.get(config, "algo", "")
+    if not isinstance(algo, str) or algo.lower() not in _ALGORITHMS:
+        raise ValueError(f"algo: expected one of {', '.join(_ALGORITHMS)}, got {clip_repr(algo)}")
+    n_obs = _check_box(mb.get(config, "observation_space", ""), "observation_space", None)
+    act = mb.json_object(mb.get(config, "action_space", ""), "action_space")
+    if act.get("type") == "Discrete":
+        mb.integer(mb.get(act, "n", "action_space"), "action_space.n", DISCRETE_ACTIONS, DISCRETE_ACTIONS)
+        mb.integer(act.get("start", 0), "action_space.start", 0, 0)
+        n_act = DISCRETE_ACTIONS
+    else:
+        n_act = _check_box(act, "action_space", mb.ACTION_SIZE)
+    kwargs = mb.json_object(mb.get(config, "policy_kwargs", ""), "policy_kwargs")
+    for key, value in kwargs.items():
+        where = f"policy_kwargs.{key}"
+        if key in _BOOL_KWARGS:
+            if not isinstance(value, bool):
+                raise ValueError(f"{where}: expected true or false, got {clip_repr(value)}")
+        elif key in _NUMBER_KWARGS:
+            mb.number(value, where, *_NUMBER_KWARGS[key])
+        elif key not in ("net_arch", "n_critics"):
+            raise ValueError(f"policy_kwargs.{printable(str(key), 80)}: not a key this version rebuilds; "
+                             f"expected some of net_arch, n_critics, {', '.join(_BOOL_KWARGS)}, "
+                             f"{', '.join(_NUMBER_KWARGS)}")
+    critics = mb.integer(kwargs.get("n_critics", 2), "policy_kwargs.n_critics", 1, MAX_CRITICS)
+    arch = kwargs.get("net_arch", [])
+    if isinstance(arch, dict):
+        unknown = sorted(set(arch) - {"pi", "vf", "qf"})
+        if unknown:
+            raise ValueError(f"policy_kwargs.net_arch: expected the keys pi, vf, qf, got {clip_repr(unknown)}")
+        nets = {k: mb.widths(arch.get(k, []), f"policy_kwargs.net_arch.{k}", 0) for k in ("pi", "vf", "qf")}
+    else:
+        shared = mb.widths(arch, "policy_kwargs.net_arch", 0)
+        nets = {"pi": shared, "vf": shared, "qf": shared}
+    # At least the parameters of the networks SB3 builds from it (outputs rounded up to two per action): on-policy,
+    # the actor and the value network; off-policy, the actor and the critics, each with its target copy.
+    actor = mb.mlp_parameters([n_obs, *nets["pi"], 2 * n_act])
+    if algo.lower() in _ON_POLICY:
+        count = actor + mb.mlp_parameters([n_obs, *nets["vf"], 1])
+    else:
+        count = 2 * actor + 2 * critics * mb.mlp_parameters([n_obs + n_act, *nets["qf"], 1])
+    mb.check_parameters(count, "policy_kwargs.net_arch", "the policy")
+    norm = config.get("normalization")
+    if norm is not None:
+        _check_normalization(norm, n_obs)
+
+
+_ALGORITHMS = ("ppo", "bc", "sac", "a2c", "td3", "ddpg")
+_ON_POLICY = ("ppo", "bc", "a2c")
+
+
+def _check_box(space: Any, where: str, size: int | None) -> int:
+    """Check a Box space's JSON (1-D, float32/float64, finite bounds with low <= high; ``size`` values when given,
+    else at most MAX_OBSERVATION); return its size."""
+    mb.json_object(space, where)
+    kind = mb.get(space, "type", where)
+    if kind != "Box":
+        expected = "'Box' or 'Discrete'" if size is not None else "'Box'"
+        raise ValueError(f"{where}.type: expected {expected}, got {clip_repr(kind)}")
+    dtype = mb.get(space, "dtype", where)
+    if dtype not in ("float32", "float64"):
+        raise ValueError(f"{where}.dtype: expected 'float32' or 'float64', got {clip_repr(dtype)}")
+    high_size = mb.MAX_OBSERVATION if size is None else size
+    shape = mb.get(space, "shape", where)
+    if not isinstance(shape, list) or len(shape) != 1:
+        raise ValueError(f"{where}.shape: expected [n], one size, got {clip_repr(shape)}")
+    n = mb.integer(shape[0], f"{where}.shape[0]", size or 1, high_size)
+    low = mb.vector(mb.get(space, "low", where), f"{where}.low", n, n)
+    high = mb.vector(mb.get(space, "high", where), f"{where}.high", n, n)
+    if not (low <= high).all():
+        raise ValueError(f"{where}: expected low <= high, got low {clip_repr(low.tolist())}, high "
+                         f"{clip_repr(high.tolist())}")
+    return n
+
+
+def _check_normalization(d: Any, n_obs: int | None) -> None:
+    """Check the ``normalization`` block (SB3's VecNormalize statistics as JSON) for observations of ``n_obs``."""
+    mb.json_object(d, "normalization")
+    norm_obs = d.get("norm_obs", True)
+    if not isinstance(norm_obs, bool):
+        raise ValueError(f"normalization.norm_obs: expected true or false, got {clip_repr(norm_obs)}")
+    mb.statistics(d, "normalization", n_obs, mb.MAX_OBSERVATION, clip_key="clip_obs")
+    ret = d.get("returns")
+    if ret is not None:
+        mb.json_object(ret, "normalization.returns")
+        mb.number(mb.get(ret, "mean", "normalization.returns"), "normalization.returns.mean")
+        mb.number(mb.get(ret, "var", "normalization.returns"), "normalization.returns.var", 0.0)
+        mb.number(mb.get(ret, "count", "normalization.returns"), "normalization.returns.count", 0.0)
 
 
 

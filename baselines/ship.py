@@ -32,6 +32,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env_baselines.mappo_policy import CHECKPOINTS
 from swarm_env_baselines.safe_io import CONFIG_FILE, WEIGHTS_FILE, swap_in_dir
 
@@ -245,7 +246,7 @@ def write_method_readme(method: str, *, dest: Path = CHECKPOINTS, description: s
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="swarm-env ship", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog="swarm-env ship", description=__doc__.split("\n\n")[0])
     parser.add_argument("run_dir", help="a finished run directory of swarm-env train mappo or train sb3")
     parser.add_argument("--method", required=True, help="checkpoint name, e.g. residual_vo")
     parser.add_argument("--seed", required=True, help="training-seed label, e.g. s0")

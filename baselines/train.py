@@ -39,6 +39,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.jsonio import dumps, write_json
 from swarm_env_baselines.checkpointing import (
     StopRequest,
@@ -266,7 +267,7 @@ def _learn(cfg: TrainConfig, run_dir: Path, source: Path | None, trust_pickle: b
 
 def build_parser() -> argparse.ArgumentParser:
     """One option per :class:`TrainConfig` field, its help text taken from the field's ``#:`` comment."""
-    parser = argparse.ArgumentParser(
+    parser = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, 
         prog="swarm-env train sb3",
         description="Train an SB3 policy (parameter sharing over all followers) on the swarm env.",
     )

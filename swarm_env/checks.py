@@ -1,16 +1,20 @@
 """Checks of option values shared by the experts' and the search's parameter objects: one wording for one rule.
 
-Each raises ``ValueError`` naming the option, what was expected and what was given, prefixed by ``owner``
+Also :class:`DefaultsHelpFormatter`, the ``--help`` layout of every ``swarm-env`` command (one rule: each option
+shows its default).
+
+Each check raises ``ValueError`` naming the option, what was expected and what was given, prefixed by ``owner``
 (``"obs_expert: horizon must be a finite number > 0, got 0"``; no prefix for ``owner=""``)."""
 
 from __future__ import annotations
 
+import argparse
 import difflib
 import math
 from collections.abc import Iterable, Mapping
 from typing import Any
 
-__all__ = ["did_you_mean", "finite_numbers", "int_in_range"]
+__all__ = ["DefaultsHelpFormatter", "did_you_mean", "finite_numbers", "int_in_range"]
 
 
 def finite_numbers(owner: str, values: Mapping[str, Any], *, positive: bool) -> None:
@@ -40,3 +44,19 @@ def did_you_mean(word: object, choices: Iterable[str]) -> str:
         return ""
     close = difflib.get_close_matches(word, list(choices), n=1)
     return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+class DefaultsHelpFormatter(argparse.RawDescriptionHelpFormatter):
+    """``--help`` that shows each option's default, ``(default: 4)``, after its help text, except where there is
+    nothing to show (no default, an empty list, a flag) or the help already speaks of it; descriptions and
+    epilogs keep their line breaks. Every ``swarm-env`` parser (the subcommands and the modules' commands) uses
+    it."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        default = action.default
+        # flags (a bool default) say what they do; "(default: True)" beside --no-progress would only confuse
+        if (not text or "default" in text.lower() or default is None or isinstance(default, bool)
+                or default == argparse.SUPPRESS or (isinstance(default, (list, tuple, dict)) and not default)):
+            return action.help
+        return f"{text} (default: %(default)s)"

@@ -19,6 +19,8 @@ import functools
 import hashlib
 import importlib.util
 import re
+import sys
+import warnings
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
@@ -36,7 +38,7 @@ _PACKAGES = ("swarm_env", "swarm_env_agents")
 _KERNEL = re.compile(r"^\s*(?:import numba\b|from numba\b|from swarm_env\.kernel_cache import)", re.M)
 _IMPORT = re.compile(r"^\s*(?:from|import)\s+((?:swarm_env|swarm_env_agents)(?:\.\w+)*)", re.M)
 
-__all__ = ["STAMP", "cfunc", "njit", "refresh", "sources_digest"]
+__all__ = ["COMPILING_NOTICE", "STAMP", "cfunc", "njit", "refresh", "sources_digest"]
 
 
 def _package_dirs() -> dict[str, Path]:
@@ -117,20 +119,69 @@ def _cache_dirs(kernel_files: Iterable[Path]) -> set[Path]:
     return dirs
 
 
+#: What a person at a terminal reads while the kernels compile (1-2.5 minutes on a 2-core machine; later
+#: processes load them from the cache in about a second).
+COMPILING_NOTICE = ("swarm-env: compiling the simulation kernels for this version (once, about a minute or two; "
+                    "later runs load them from numba's cache)")
+
+
 @functools.cache
 def _fresh() -> None:
-    """:func:`refresh` the package's cache directories, once per process."""
+    """:func:`refresh` the package's cache directories, once per process; when they were stale or new (the
+    first run after an install or an upgrade) say on a terminal that the kernels compile now, so that the
+    first command is not silent for a minute or two."""
     digest, kernel_files = sources_digest(_package_dirs())
-    refresh(_cache_dirs(kernel_files), digest)
+    if refresh(_cache_dirs(kernel_files), digest) and sys.stderr is not None and sys.stderr.isatty():
+        print(COMPILING_NOTICE, file=sys.stderr, flush=True)
+
+
+def _cache_not_saved(fn: Callable[..., Any], exc: OSError) -> None:
+    warnings.warn(f"swarm_env: the compiled kernel {fn.__qualname__} was not saved to numba's cache "
+                  f"({exc.strerror or exc}); it runs, and compiles again in the next process", RuntimeWarning, stacklevel=3)
+
+
+def _tolerant_saves(decorate: Callable[[Callable[..., Any]], Any]) -> Callable[[Callable[..., Any]], Any]:
+    """``decorate`` (numba's decorator), whose kernels survive a cache file that cannot be written.
+
+    The cache only saves the next process a compile: on a full disk (``ENOSPC``, ``EFBIG``) or a read-only
+    ``__pycache__`` numba raises from the kernel's first call on Linux, and the command would stop with the
+    kernel compiled and working. Here a failed save is a warning and the kernel runs (numba's ``_cache`` of the
+    dispatcher is private; where it is missing, numba's own behaviour stays)."""
+
+    def wrap(fn: Callable[..., Any]) -> Any:
+        kernel = decorate(fn)
+        cache = getattr(kernel, "_cache", None)
+        save = getattr(cache, "save_overload", None)
+        if save is not None:
+            def save_or_warn(sig: Any, data: Any) -> None:
+                try:
+                    save(sig, data)
+                except OSError as exc:
+                    _cache_not_saved(fn, exc)
+
+            cache.save_overload = save_or_warn  # type: ignore[union-attr]
+        return kernel
+
+    return wrap
 
 
 def njit(**options: Any) -> Callable[[Callable[..., Any]], Any]:
-    """``numba.njit(cache=True, **options)``, with the package's cache made fresh first (see the module)."""
+    """``numba.njit(cache=True, **options)``, with the package's cache made fresh first (see the module); a
+    cache file that cannot be written (a full disk) is a warning, not an error."""
     _fresh()
-    return numba.njit(cache=True, **options)
+    return _tolerant_saves(numba.njit(cache=True, **options))
 
 
 def cfunc(signature: Any, **options: Any) -> Callable[[Callable[..., Any]], Any]:
-    """``numba.cfunc(signature, cache=True, **options)``, with the package's cache made fresh first."""
+    """``numba.cfunc(signature, cache=True, **options)``, with the package's cache made fresh first; a cache
+    file that cannot be written is a warning (and the callback is compiled again without the cache)."""
     _fresh()
-    return numba.cfunc(signature, cache=True, **options)
+
+    def decorate(fn: Callable[..., Any]) -> Any:
+        try:  # numba compiles (and saves) a cfunc while decorating it
+            return numba.cfunc(signature, cache=True, **options)(fn)
+        except OSError as exc:
+            _cache_not_saved(fn, exc)
+            return numba.cfunc(signature, cache=False, **options)(fn)
+
+    return decorate

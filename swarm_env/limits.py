@@ -35,6 +35,7 @@ __all__ = [
     "MAX_FORMATIONS",
     "MAX_WAYPOINTS",
     "MAX_POLYGON_VERTICES",
+    "MAX_OBSTACLE_VERTICES",
     "MAX_LIDAR_RAYS",
     "MAX_NEIGHBORS",
     "MAX_SENSED_HUMANS",
@@ -85,6 +86,14 @@ MAX_FORMATIONS = 64
 MAX_WAYPOINTS = 10_000
 #: Most vertices of one polygon obstacle.
 MAX_POLYGON_VERTICES = 64
+#: Most obstacle vertices in one scenario, all obstacles together (a polygon counts its points, a rectangle
+#: 4, a circle 1): a derived bound on the work of a step. The free-space geometry pairs every boundary piece
+#: with every other (a matrix of (2 x vertices)^2 entries), and every lidar ray, clearance query and expert's
+#: shield scans the edges: 256 polygons of 64 points (16,384 vertices) cost 0.085 s of CPU per env step with
+#: 64 followers, 360 rays and 100 substeps, 32 polygons (this bound) 0.0097 s (``python benchmarks/scenario_cost.py
+#: --polygons 32 256``); ``cbs_rrt`` took 2.2 s per step on ``paper_vo_0`` given the 256 polygons. The ``random``
+#: generator draws at most 600 vertices, the built-in scenarios at most 22.
+MAX_OBSTACLE_VERTICES = 2048
 #: Most lidar rays per follower (``sensors.lidar_rays``).
 MAX_LIDAR_RAYS = 360
 #: Most neighbour rows in an observation (``sensors.neighbors``). Rows beyond ``robots.count - 1``
@@ -139,6 +148,8 @@ LIMITS: dict[str, tuple[float, str]] = {
     "MAX_FORMATIONS": (MAX_FORMATIONS, "formations entries"),
     "MAX_WAYPOINTS": (MAX_WAYPOINTS, "waypoints of one path"),
     "MAX_POLYGON_VERTICES": (MAX_POLYGON_VERTICES, "vertices of one polygon"),
+    "MAX_OBSTACLE_VERTICES": (MAX_OBSTACLE_VERTICES, "obstacle vertices of a scenario, all obstacles together "
+                              "(polygon: its points, rectangle: 4, circle: 1)"),
     "MAX_LIDAR_RAYS": (MAX_LIDAR_RAYS, "sensors.lidar_rays"),
     "MAX_NEIGHBORS": (MAX_NEIGHBORS, "sensors.neighbors (rows past robots.count - 1 are absent)"),
     "MAX_SENSED_HUMANS": (MAX_SENSED_HUMANS, "sensors.humans (rows past the humans present are absent)"),

@@ -44,8 +44,12 @@ class ScenarioError(ValueError):
     Validation reports every problem it finds, not only the first: ``errors`` holds
     them all (one :class:`ScenarioError` each, in file order; ``(self,)`` for a single
     one). An error made by :meth:`several` takes ``source``, ``key``, ``expected`` and
-    ``got`` from the first problem, and its message is one line per problem.
+    ``got`` from the first problem, and its message is one line per problem, the first
+    :data:`MAX_MESSAGE_LINES` of them and then a line counting the rest (``errors`` keeps all).
     """
+
+    #: Most problems written in the message of an error made by :meth:`several`.
+    MAX_MESSAGE_LINES = 10
 
     def __init__(self, source: str, key: str, expected: str, got: object = None) -> None:
         self.source = source
@@ -71,7 +75,10 @@ class ScenarioError(ValueError):
         first = flat[0]
         combined = cls(first.source, first.key, first.expected, first.got)
         combined.errors = flat
-        combined.args = ("\n".join(str(e) for e in flat),)
+        shown = [str(e) for e in flat[: cls.MAX_MESSAGE_LINES]]
+        if len(flat) > cls.MAX_MESSAGE_LINES:
+            shown.append(f"{printable(str(first.source), 200)}: ... and {len(flat) - cls.MAX_MESSAGE_LINES} more problems")
+        combined.args = ("\n".join(shown),)
         return combined
 
 

@@ -1,4 +1,8 @@
-"""PettingZoo wrappers of :class:`~swarm_env.env.SwarmEnv`.
+"""PettingZoo wrappers of :class:`~swarm_env.env.SwarmEnv`, and the env as other libraries build it.
+
+:func:`rllib_env` is RLlib's env creator (``register_env("swarm_env", rllib_env)``). It lives in the package,
+not in a script, so that RLlib's remote env runners on every node of a cluster import it by name (a creator
+defined in an example script is pickled by reference to a module the other nodes do not have).
 
 :class:`SafetyShield` is the safety layer any learner can use, in training and at execution:
 each follower's action is replaced by the nearest safe twist of the velocity-obstacle search
@@ -14,8 +18,9 @@ import numpy as np
 from pettingzoo.utils.wrappers import BaseParallelWrapper
 
 from swarm_env.control.safety import AvoidanceParams, ShieldResult, shield_actions
+from swarm_env.env import SwarmEnv
 
-__all__ = ["SafetyShield", "SHIELD_INFO_KEYS"]
+__all__ = ["SafetyShield", "SHIELD_INFO_KEYS", "RewardScale", "rllib_env"]
 
 #: The infos keys the shield adds for every agent (at reset too, where they are False / 0.0 / True).
 SHIELD_INFO_KEYS = ("shield_intervened", "shield_correction", "shield_feasible")
@@ -132,3 +137,41 @@ class SafetyShield(BaseParallelWrapper):
 
     def world_state(self) -> Any:
         return self.env.world_state()
+
+
+class RewardScale(BaseParallelWrapper):
+    """Every reward multiplied by ``scale`` (a finite number > 0), for learners whose value function assumes
+    returns of order 1-10.
+
+    A follower's per-step reward is about -1 to -20 and an episode's return thousands below zero (600-step
+    episodes), so a value head regressing discounted returns (``gamma = 0.99``: hundreds to thousands) starts
+    with errors in the hundreds: RLlib's value loss sits at its clip (``vf_clip_param = 10``) and SB3's
+    explained variance near 0. ``scale = 0.01`` brings them to units and tens. The scale changes no
+    optimum (it is a positive factor); episode metrics in ``infos`` and the env's own scoring are unchanged.
+    SB3 users can use ``VecNormalize(norm_reward=True)`` instead (docs/clients.md, "Reward scale").
+    """
+
+    def __init__(self, env: Any, scale: float) -> None:
+        if isinstance(scale, bool) or not isinstance(scale, (int, float)) or not (np.isfinite(scale) and scale > 0):
+            raise ValueError(f"reward scale: expected a finite number > 0, got {scale!r}")
+        super().__init__(env)
+        self.scale = float(scale)
+
+    def step(self, actions: dict[str, Any]) -> tuple[dict, dict, dict, dict, dict]:
+        observations, rewards, terminations, truncations, infos = super().step(actions)
+        return observations, {a: r * self.scale for a, r in rewards.items()}, terminations, truncations, infos
+
+
+def rllib_env(config: Any) -> Any:
+    """RLlib's env creator for swarm-env: ``ParallelPettingZooEnv(SwarmEnv(scenario, **kwargs))``, where
+    ``config`` (RLlib's ``env_config``, a dict) holds ``scenario`` (default ``"paper_vo_0"``), optionally
+    ``reward_scale`` (a :class:`RewardScale` around the env; default 1, none) and any other
+    :class:`~swarm_env.env.SwarmEnv` keyword arguments. Needs the ``ray`` extra (RLlib) where it is called."""
+    from ray.rllib.env.wrappers.pettingzoo_env import ParallelPettingZooEnv
+
+    kwargs = dict(config)
+    scale = kwargs.pop("reward_scale", 1.0)
+    env: Any = SwarmEnv(kwargs.pop("scenario", "paper_vo_0"), **kwargs)
+    if scale != 1.0:
+        env = RewardScale(env, scale)
+    return ParallelPettingZooEnv(env)

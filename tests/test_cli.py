@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import shutil
@@ -28,6 +29,10 @@ def test_list_shows_scenarios_and_policies(capsys: pytest.CaptureFixture[str]) -
     out = capsys.readouterr().out
     for name in ("paper_vo_0", "paper_cbs_switch", "corridor", "random", "zero"):
         assert name in out
+    lines = {line.split()[0]: line for line in out.splitlines() if line.startswith("  ")}
+    # one line each, what the policy does (not where its code lives), no Sphinx markup
+    assert "sampled velocity obstacles" in lines["vo"] and "CBS + motion-primitive RRT" in lines["cbs_rrt"]
+    assert all(len(line) <= 100 and ":class:" not in line and "swarm_env_agents" not in line for line in out.splitlines())
 
 
 def test_console_script_is_installed() -> None:
@@ -91,6 +96,7 @@ def test_run_writes_json_and_video(tmp_path: Path, capsys: pytest.CaptureFixture
     assert code == 0
     printed = capsys.readouterr().out
     assert "follower_1" in printed and "time to target" in printed  # the per-robot table
+    assert f"wrote {out_video} (20 fps, one frame per 0.1 s step: 2x real time)" in printed
     doc = json.loads(out_json.read_text())
     assert doc["scenario"] == "paper_vo_0" and doc["policy"] == "random"
     assert [e["seed"] for e in doc["episodes"]] == [0, 1]
@@ -235,3 +241,44 @@ def test_render_human_without_a_display_fails(tmp_path: Path) -> None:
                           capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300)
     assert done.returncode == 2, done.stderr
     assert done.stderr.count("\n") == 1 and done.stderr.startswith("error: --render human needs a display")
+
+
+def test_validate_echoes_no_content_of_a_file_that_is_not_a_scenario(tmp_path: Path,
+                                                                         capsys: pytest.CaptureFixture[str]) -> None:
+    # A password file parses as a YAML mapping ("user:hash:..." keys): one line, none of its keys shown.
+    secret = tmp_path / "shadow"
+    secret.write_text("".join(f"user{i}:$6$secret{i}:20228:0:99999:7:::\n" for i in range(24)))
+    link = tmp_path / "scenario.yaml"
+    link.symlink_to(secret)
+    assert main(["validate", str(link)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "none of this mapping's 24 keys is a scenario section" in err
+    assert "secret" not in err
+
+
+def test_validate_shows_at_most_ten_problems_and_counts_the_rest(tmp_path: Path,
+                                                                 capsys: pytest.CaptureFixture[str]) -> None:
+    bad = tmp_path / "many.yaml"
+    bad.write_text("world: {size: [10, 10]}\n" + "".join(f"k{i:02d}: {i}\n" for i in range(30)))
+    assert main(["validate", str(bad)]) == 2
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 11, lines  # 30 unknown keys + 3 missing sections: 10 shown, then the count
+    assert lines[0].endswith("got 'k00'") and lines[-1].endswith("... and 23 more problems")
+
+
+@pytest.mark.parametrize("command", [["run"], ["evaluate"], ["bench"], ["replay"], ["train", "mappo"], ["bc"]])
+def test_every_help_shows_the_defaults(command: list[str], capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) if command[0] in ("train", "bc") else contextlib.nullcontext():
+        assert main([*command, "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(default: " in text
+    if command == ["run"]:
+        assert "--fps FPS video frames per second; one frame per env step" in text and "(default: 20.0)" in text
+        assert "(default: False)" not in text and "(default: None)" not in text
+
+
+def test_evaluate_and_bench_take_the_one_no_progress_spelling(capsys: pytest.CaptureFixture[str]) -> None:
+    for flag in ("--no-progress", "--quiet"):  # --quiet: the older spelling, still accepted
+        assert main(["evaluate", "--policies", "zero", "--scenarios", "paper_vo_0", "--seeds", "0", "--max-cycles", "3",
+                     flag]) == 0
+        assert "leaderboard:" not in capsys.readouterr().err  # no bar

@@ -205,6 +205,7 @@ def test_supersuit_sb3_ppo_example(name, kw):
     assert model.num_timesteps == 2 * n_steps * slots
     assert model.rollout_buffer.rewards.shape == (n_steps, slots)
     assert np.isfinite(model.rollout_buffer.rewards).all() and (model.rollout_buffer.rewards != 0).any()
+    assert np.abs(model.rollout_buffer.rewards).max() < 1.0  # scaled by 0.01: unscaled, a step costs 2-20
     logged = model.logger.name_to_value
     assert np.isfinite(logged["train/value_loss"]) and np.isfinite(logged["train/policy_gradient_loss"])
     venv.close()
@@ -301,3 +302,25 @@ def test_torchrl_batched_engine_specs_and_bits():
             assert bool(td["next", "truncated"][m, t]) == trunc[agents[0]]
             if not ref.agents:
                 obs, _ = ref.reset()
+
+
+def test_reward_scale_multiplies_every_reward_and_nothing_else() -> None:
+    """swarm_env.wrappers.RewardScale (docs/clients.md, "Reward scale"): the same episode, rewards x scale;
+    observations, flags and infos untouched; PettingZoo's parallel API test passes through it."""
+    from pettingzoo.test import parallel_api_test
+
+    from swarm_env.wrappers import RewardScale
+
+    plain, scaled = swarm_env.parallel_env("paper_vo_0", max_cycles=15), RewardScale(
+        swarm_env.parallel_env("paper_vo_0", max_cycles=15), 0.01)
+    (o1, _), (o2, _) = plain.reset(seed=4), scaled.reset(seed=4)
+    assert all(np.array_equal(o1[a], o2[a]) for a in o1)
+    while plain.agents:
+        actions = {a: np.array([0.5, 0.1], dtype=np.float32) for a in plain.agents}
+        s1, s2 = plain.step(actions), scaled.step(actions)
+        assert all(np.array_equal(s1[0][a], s2[0][a]) for a in s1[0])
+        assert {a: r * 0.01 for a, r in s1[1].items()} == s2[1] and s1[2:4] == s2[2:4]
+    parallel_api_test(RewardScale(swarm_env.parallel_env("paper_vo_0", max_cycles=15), 0.1), num_cycles=20)
+    for bad in (0.0, -1.0, float("nan"), float("inf"), True, "0.1"):
+        with pytest.raises(ValueError, match="reward scale: expected a finite number > 0"):
+            RewardScale(swarm_env.parallel_env("paper_vo_0"), bad)  # type: ignore[arg-type]

@@ -48,3 +48,12 @@ def test_site_builds_strict(tmp_path: Path) -> None:
     assert "swarm_env.sim.world" in html and "doc-function" in html  # the API reference was generated
     env_page = (tmp_path / "site" / "environment" / "index.html").read_text(encoding="utf-8")
     assert "OBS_OWN_TWIST" in env_page  # the README section was included
+    site = tmp_path / "site"
+    for page in (site / "api").glob("*/index.html"):  # the docstrings' Sphinx markup was made Markdown
+        text = page.read_text(encoding="utf-8")
+        assert not re.search(r":(class|func|meth|mod|data|attr):`", text) and ".. code-block::" not in text, page
+    home = (site / "index.html").read_text(encoding="utf-8")
+    assert "Install and quick start" in home and "paper_vo_45" in home and "parallel_env" in home  # README blocks
+    baselines = (site / "baselines" / "index.html").read_text(encoding="utf-8")
+    for name in ("ippo", "mappo", "residual_vo", "sb3_ppo"):  # the checkpoints' READMEs are pages of the site
+        assert f'href="../checkpoints/{name}/"' in baselines and (site / "checkpoints" / name / "index.html").is_file()

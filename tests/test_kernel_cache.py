@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import io
+import sys
 from pathlib import Path
+
+import pytest
 
 from swarm_env import kernel_cache
 from swarm_env.kernel_cache import STAMP, refresh, sources_digest
@@ -64,3 +68,25 @@ def test_the_package_caches_carry_the_digest_of_todays_sources() -> None:
     assert Path(physics_kernel.__file__).resolve() in {k.resolve() for k in kernels}
     for directory in kernel_cache._cache_dirs(kernels):
         assert (directory / STAMP).read_text().strip() == digest, directory
+
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+@pytest.mark.parametrize(("stale", "terminal", "told"), [(True, True, True), (False, True, False), (True, False, False)])
+def test_a_person_is_told_when_the_kernels_compile_and_only_then(monkeypatch: pytest.MonkeyPatch, stale: bool,
+                                                                  terminal: bool, told: bool) -> None:
+    """A stale or new cache (the first run after an install or an upgrade: every kernel compiles, 1-2.5 minutes)
+    is announced on a terminal; a fresh cache, pipes and logs stay quiet."""
+    err = _Terminal() if terminal else io.StringIO()
+    monkeypatch.setattr(sys, "stderr", err)
+    monkeypatch.setattr(kernel_cache, "refresh", lambda dirs, digest: [Path("cache")] if stale else [])
+    kernel_cache._fresh.cache_clear()
+    try:
+        kernel_cache._fresh()
+    finally:
+        kernel_cache._fresh.cache_clear()  # the next kernel of this process refreshes for real (a no-op: stamped)
+    assert (kernel_cache.COMPILING_NOTICE in err.getvalue()) is told

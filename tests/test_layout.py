@@ -22,8 +22,8 @@ PACKAGES = {"swarm_env": PACKAGE, "swarm_env_agents": ROOT / "agents", "swarm_en
 
 #: Rooms and root modules, lowest first. A name is a room (a folder of swarm_env) or a module at the root.
 LEVELS: list[tuple[str, ...]] = [
-    ("_compat", "checks", "compiled", "extras", "jsonio", "limits", "outputs", "kernel_cache", "worker_process",
-     "scenario"),
+    ("_compat", "checks", "compiled", "extras", "jsonio", "limits", "reading", "outputs", "kernel_cache",
+     "worker_process", "scenario"),
     ("geometry",),
     ("state",),
     ("control",),

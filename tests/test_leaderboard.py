@@ -446,3 +446,18 @@ def test_a_method_is_played_per_training_seed_and_aggregated_across_seeds(
     assert paired.main([str(tmp_path / "lb.json"), "--per-seed"]) == 0
     out = capsys.readouterr().out
     assert all(f"| `{name}` | 2 |" in out for name in ("trio", "trio:s0", "trio:s1", "trio:s2"))
+
+
+def test_csv_n_counts_episodes_on_every_row_a_methods_included() -> None:
+    """``<metric>_n`` means one thing: episodes with a value (a method's row sums its training seeds'; its mean and
+    interval are across the ``training_seeds`` seeds)."""
+    board = Leaderboard.from_json(Path(__file__).resolve().parent.parent / "docs" / "leaderboard" / "random"
+                                  / "leaderboard.json")
+    rows = {(d["policy"], d["scenario"]): d for d in board.csv_rows()}
+    method = rows[("ippo", "random")]
+    members = [d for d in rows.values() if d["method"] == "ippo" and d["scenario"] == "random"]
+    assert method["training_seeds"] == len(members) == 3
+    for key in ("collisions", "settle_time"):
+        assert method[f"{key}_n"] == sum(d[f"{key}_n"] for d in members)
+    assert method["collisions_n"] == method["episodes"] == 150
+    assert rows[("vo", "random")]["collisions_n"] == 50

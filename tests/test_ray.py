@@ -69,9 +69,10 @@ def test_rllib_ppo_trains_and_its_exported_actor_is_the_modules_mean(tmp_path: P
     try:
         from ray.tune.registry import register_env
 
-        from swarm_env_baselines.rllib_train import ENV_NAME, SHARED, _env_creator
+        from swarm_env.wrappers import rllib_env
+        from swarm_env_baselines.rllib_train import ENV_NAME, SHARED
 
-        register_env(ENV_NAME, _env_creator)
+        register_env(ENV_NAME, rllib_env)
         algo = build_config(RLlibConfig("paper_vo_90", num_env_runners=0)).build_algo()
         try:
             algo.restore(str((tmp_path / "run" / "rllib_checkpoint").resolve()))
@@ -231,3 +232,64 @@ def test_ray_ctrl_c_cancels_the_tasks_on_an_instance_it_did_not_start(faults: Pa
         assert ray.available_resources().get("CPU", 0) == 2  # both sleeping tasks were cancelled
     finally:
         ray.shutdown()
+
+
+def test_ray_a_lost_node_costs_only_its_episodes(faults: Path, pursuit_board: Leaderboard,
+                                                 monkeypatch: pytest.MonkeyPatch) -> None:
+    """A local two-node cluster; the worker node is removed (its raylet killed) right after the first episode.
+    The sweep ends with every episode played: those lost with the node again on the head, the results path
+    (the queue actor, kept on the driver's node) untouched."""
+    from ray.cluster_utils import Cluster
+
+    import swarm_env.harness.leaderboard as lb
+
+    monkeypatch.setenv("SWARM_ENV_FAULT_SLEEP", "10")  # before the nodes start: their workers take this environment
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    worker = cluster.add_node(num_cpus=2)
+    cluster.wait_for_nodes()
+    real = lb._Sweep.episode
+    removed: list[bool] = []
+
+    def episode_then_lose_the_node(self: Any, *args: Any) -> None:
+        real(self, *args)
+        if not removed:
+            removed.append(True)
+            cluster.remove_node(worker, allow_graceful=False)
+
+    monkeypatch.setattr(lb._Sweep, "episode", episode_then_lose_the_node)
+    ray.init(address=cluster.address, log_to_driver=False)
+    try:
+        board = run_leaderboard(["slow:1", "slow:2", "pursuit"], ["paper_vo_0"], SEEDS, env_kwargs=SHORT,
+                                progress=False, backend="ray", episode_timeout=120.0)
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+    assert removed and len(board.rows) == 3  # a sweep that lost its results path raised instead
+    assert [r.pending for r in board.rows] == [0, 0, 0]
+    for policy in ("slow:1", "slow:2", "pursuit"):  # each episode played (twice at most), as pursuit plays it
+        seeds = [s for (p, _, s, _) in behaviour(board) if p == policy]
+        failed = [e["seed"] for e in board.failed if e["policy"] == policy]
+        assert sorted(seeds + failed) == SEEDS
+    same_as_pursuit(board, "pursuit", pursuit_board, [s for (p, _, s, _) in behaviour(board) if p == "pursuit"])
+
+
+def test_the_rllib_example_runs_on_a_cluster_with_remote_env_runners() -> None:
+    """examples/rllib_ppo.py joins a running two-node cluster (``address``), samples with a remote env runner
+    that imports the package's env creator (swarm_env.wrappers.rllib_env), and scales the rewards."""
+    from ray.cluster_utils import Cluster
+    from test_clients import load_example
+
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    cluster.add_node(num_cpus=1)
+    cluster.wait_for_nodes()
+    try:
+        (res,) = load_example("rllib_ppo").main(
+            "paper_vo_0", iterations=1, address=cluster.address, env_runners=1, train_batch_size=40,
+            minibatch_size=20, num_epochs=1, rollout_fragment_length=20, max_cycles=20, reward_scale=0.01)
+    finally:
+        ray.shutdown()
+        cluster.shutdown()
+    runners = res["env_runners"]
+    assert runners["num_env_steps_sampled"] >= 40
+    # the scaled rewards: a 20-step episode of two followers returns tenths, not tens, below zero
+    assert -20.0 < runners["episode_return_mean"] < 0.0

@@ -8,6 +8,7 @@ bound (``swarm_env.limits``) it broke, reached in bounded time. The fuzz tests
 from __future__ import annotations
 
 import copy
+import math
 import os
 import re
 import time
@@ -21,7 +22,7 @@ from swarm_env.geometry.static_map import convex_ccw
 from swarm_env.limits import LIMITS, clip_repr, printable
 from swarm_env.scenario import ScenarioError
 from swarm_env.scenarios.generator import RandomScenarioConfig
-from swarm_env.scenarios.loader import load_scenario, scenario_from_dict, scenario_to_dict
+from swarm_env.scenarios.loader import load_scenario, obstacle_vertices, scenario_from_dict, scenario_to_dict
 
 ROOT = Path(__file__).resolve().parent.parent
 BASE = scenario_to_dict(load_scenario("paper_vo_0"))
@@ -162,6 +163,28 @@ def test_every_builtin_and_the_generator_range_fit_the_bounds() -> None:
     env.step({a: env.action_space(a).sample() for a in env.agents})
     assert len(obs) == 64
     RandomScenarioConfig(n_followers=(1, 64), n_humans=(0, 32))  # the generator's whole documented range
+
+
+def _ring(cx: float, cy: float, n: int, r: float = 0.05) -> list[list[float]]:
+    return [[round(cx + r * math.cos(2 * math.pi * k / n), 4), round(cy + r * math.sin(2 * math.pi * k / n), 4)]
+            for k in range(n)]
+
+
+def test_obstacle_vertices_all_together_are_bounded() -> None:
+    """A derived bound (MAX_OBSTACLE_VERTICES): 33 polygons of 64 points are refused, each within its own bounds;
+    32 of them (the bound exactly, 2048 vertices) are accepted."""
+    grid = [(1.0 + 0.5 * (i % 16), 1.0 + 0.5 * (i // 16)) for i in range(33)]  # along the bottom, off the path
+    polygons = [{"type": "polygon", "points": _ring(x, y, 64)} for x, y in grid]
+    start = time.perf_counter()
+    with pytest.raises(ScenarioError, match=r"obstacles: expected at most 2048 \(swarm_env.limits.MAX_OBSTACLE_VERTICES\) "
+                       r"obstacle vertices, got '2112 obstacle vertices'"):
+        scenario_from_dict(_edit(("obstacles",), polygons))
+    assert time.perf_counter() - start < 5.0
+    scn = scenario_from_dict(_edit(("obstacles",), polygons[:32]))
+    assert obstacle_vertices(scn) == LIMITS["MAX_OBSTACLE_VERTICES"][0] == 2048
+    mixed = [{"type": "circle", "center": [1.0, 1.0], "radius": 0.1},
+             {"type": "rectangle", "center": [3.0, 1.0], "size": [0.2, 0.2]}, {"type": "polygon", "points": _ring(5, 1, 7)}]
+    assert obstacle_vertices(scenario_from_dict(_edit(("obstacles",), mixed))) == 1 + 4 + 7
 
 
 def test_human_starting_inside_an_obstacle_is_an_error() -> None:

@@ -28,6 +28,7 @@ from typing import Any
 import numpy as np
 
 import swarm_env
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import load_policy
@@ -500,7 +501,7 @@ def page(rows: list[dict[str, Any]], out: Path, fig3: tuple, md_path: Path,
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="swarm-env reproduce cbs_rrt",
+    parser = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog="swarm-env reproduce cbs_rrt",
                                      description="Reproduce paper 000 on paper_cbs_switch (figures + table).")
     parser.add_argument("--out", default="docs/cbs_rrt", help="folder of the figures; the page is <out>.md")
     parser.add_argument("--seeds", type=int, default=5, help="episodes in the table (seeds 0..n-1)")

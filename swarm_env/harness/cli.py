@@ -16,9 +16,11 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import errno
 import importlib
 import math
 import os
+import shutil
 import statistics
 import sys
 from collections.abc import Callable, Iterable, Iterator
@@ -26,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 import swarm_env
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.env import SwarmEnv, env_kwargs_for
 from swarm_env.extras import MissingExtraError, extra_for_module, missing_distributions, missing_extra_error
 from swarm_env.harness import bench, recording
@@ -45,13 +48,15 @@ from swarm_env.harness.policies import (
     PolicyError,
     UnknownPolicyError,
     policy_extra,
+    policy_summary,
     registered_policies,
 )
 from swarm_env.harness.recording import ensure_new_recording_dir
 from swarm_env.harness.suite import SUITES, Suite, get_suite, result_markdown, suite_result
 from swarm_env.harness.video import VideoWriter
 from swarm_env.jsonio import write_json
-from swarm_env.outputs import OutputError, atomic_write_text, check_target
+from swarm_env.limits import printable
+from swarm_env.outputs import OutputError, atomic_write_text, check_target, write_error
 from swarm_env.render import window_driver_missing
 from swarm_env.scenario import ScenarioError
 from swarm_env.scenarios.families import FAMILIES, generator_config, is_generated
@@ -133,30 +138,35 @@ def _interactive() -> bool:
 
 
 def _print_scenario_error(exc: ScenarioError) -> None:
-    for err in exc.errors:  # validation reports every problem it found, one line each
-        print(f"error: {err}", file=sys.stderr)
+    for line in str(exc).splitlines():  # every problem found, one line each, the first ScenarioError.MAX_MESSAGE_LINES
+        print(f"error: {line}", file=sys.stderr)
 
 
 def cmd_list(args: argparse.Namespace) -> int:
+    width = max(100, shutil.get_terminal_size((100, 24)).columns)  # one line per entry, cut to the terminal
+
+    def row(name: str, text: str) -> None:
+        print(printable(f"  {name:<19} {' '.join(text.split())}", width))
+
     print("scenarios:")
     for name in list_scenarios():
         if name == "random":
             desc = "procedural generator seeded by reset(seed); knobs as parallel_env keyword arguments"
         else:
-            desc = (load_scenario(name).description.strip().splitlines() or [""])[0]
-        print(f"  {name:<18} {desc}")
+            desc = load_scenario(name).description
+        row(name, desc)
     print("families (random:<family>, or fixed scenarios grouped; swarm_env.scenarios.families):")
     for family in FAMILIES.values():
         where = "random:" + family.name if family.generated else " ".join(family.scenarios)
-        print(f"  {family.name:<18} [{family.difficulty}] {family.description} ({where})")
-    print("policies:")
+        row(family.name, f"[{family.difficulty}] ({where}) {family.description}")
+    print("policies (swarm-env run --policy NAME[:ARG]; docs/baselines.md):")
     for name, target in registered_policies().items():
         declared = policy_extra(name)  # (distribution, extras): a third party's policy names its own package
         missing = missing_distributions(declared[1], declared[0]) if declared else []
-        note = ""
         if declared and missing:
-            note = f"  (not installed: pip install '{declared[0]}[{declared[1]}]' for {', '.join(missing)})"
-        print(f"  {name:<18} {target}{note}")
+            row(name, f"(not installed: pip install '{declared[0]}[{declared[1]}]' for {', '.join(missing)}) {target}")
+        else:
+            row(name, policy_summary(name) or target)
     return 0
 
 
@@ -211,6 +221,7 @@ def cmd_run(args: argparse.Namespace) -> int:
         env_kwargs.update(parse_env_items(args.env))
         probe = SwarmEnv(args.scenario, **env_kwargs)  # bad keyword arguments fail here, before any output
         max_frames = args.episodes * (probe.max_steps + 1)  # an episode renders at most its steps and the reset
+        dt = probe.scenario.world.dt
         probe.close()
         if args.record:
             ensure_new_recording_dir(args.record)  # a RecordError (a ValueError) before any episode
@@ -282,10 +293,19 @@ def cmd_run(args: argparse.Namespace) -> int:
     if args.json:
         _write_json(args.json, report, args.overwrite)
     if args.video:
-        print(f"wrote {args.video}")
+        print(f"wrote {args.video} ({video_speed(args.fps, dt)})")
     if args.record:
         print(f"wrote {args.record} (swarm-env replay {args.record} --check)")
     return 0
+
+
+def video_speed(fps: float, dt: float) -> str:
+    """How a video of one frame per env step plays: ``"20 fps, one frame per 0.1 s step: 2x real time"``."""
+    return f"{fps:g} fps, one frame per {dt:g} s step: {fps * dt:.3g}x real time"
+
+
+#: The ``--fps`` help of every command that writes a video.
+_FPS_HELP = "video frames per second; one frame per env step, so the video plays at fps x dt real time (20 at dt 0.1 s: 2x)"
 
 
 def cmd_replay(args: argparse.Namespace) -> int:
@@ -303,19 +323,25 @@ def cmd_replay(args: argparse.Namespace) -> int:
         for rec in records:
             result = recording.replay(rec, on_frame=writer.append if writer else None, stop_at_divergence=args.check)
             print(format_episode(result.metrics))
-            print(f"episode {rec.episode}: {rec.policy} on {rec.scenario_spec}, {result.steps} of {rec.steps} steps "
-                  f"replayed, {result.digests_checked} digests checked")
+            # the policy and scenario specs come from the record's meta.json: shown escaped, cut
+            print(f"episode {rec.episode}: {printable(rec.policy, 200)} on {printable(rec.scenario_spec, 200)}, "
+                  f"{result.steps} of {rec.steps} steps replayed, {result.digests_checked} digests checked")
             if result.divergence is not None:
                 print(("" if args.check else "warning: ") + result.divergence.message(), file=sys.stderr)
                 if args.check:
                     status = 1
                     break
+            if args.check and result.digests_checked == 0:  # a check that compared nothing is no pass
+                print(f"error: replay --check: episode {rec.episode}: no digests were checked (the record holds none "
+                      "at the steps replayed)", file=sys.stderr)
+                status = 2
+                break
         finished = True
     finally:
         if writer is not None:
             writer.close() if finished else writer.abort()  # no truncated video under the final name
     if args.video:
-        print(f"wrote {args.video}")
+        print(f"wrote {args.video} ({video_speed(args.fps, records[0].scenario.world.dt)})")
     return status
 
 
@@ -647,17 +673,17 @@ _SEED, _COUNT = _counted(0), _counted(1)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="swarm-env", description="Leader-follower swarm environment (PettingZoo + pymunk).")
+    p = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog="swarm-env", description="Leader-follower swarm environment (PettingZoo + pymunk).")
     p.add_argument("--version", action="version", version=f"swarm-env {swarm_env.__version__}")
     sub = p.add_subparsers(dest="command", required=True)
 
-    sub.add_parser("list", help="list built-in scenarios and registered policies").set_defaults(func=cmd_list)
+    sub.add_parser("list", formatter_class=DefaultsHelpFormatter, help="list built-in scenarios and registered policies").set_defaults(func=cmd_list)
 
-    v = sub.add_parser("validate", help="check scenario files; print every error found and exit 2 if there is one")
+    v = sub.add_parser("validate", formatter_class=DefaultsHelpFormatter, help="check scenario files; print every error found and exit 2 if there is one")
     v.add_argument("files", nargs="+", help="YAML files, built-in scenario names or 'random'")
     v.set_defaults(func=cmd_validate)
 
-    r = sub.add_parser("run", help="run a policy on a scenario and report metrics")
+    r = sub.add_parser("run", formatter_class=DefaultsHelpFormatter, help="run a policy on a scenario and report metrics")
     r.add_argument("--scenario", default="paper_vo_0", help="built-in name, 'random', or a YAML path")
     r.add_argument("--policy", default="random", help="registered policy name, optionally name:ARG")
     r.add_argument("--episodes", type=_COUNT, default=1)
@@ -667,23 +693,23 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--env", action="append", default=[], metavar="KEY=VALUE", help=ENV_HELP)
     r.add_argument("--json", help="write {scenario, policy, episodes, summary} to this file")
     r.add_argument("--video", help="write an .mp4 (or .gif) of all episodes to this file")
-    r.add_argument("--fps", type=_positive_float, default=20.0, help="video frames per second")
+    r.add_argument("--fps", type=_positive_float, default=20.0, help=_FPS_HELP)
     r.add_argument("--render", choices=["human"], help="show a pygame window")
     r.add_argument("--record", metavar="DIR", help="record every episode to DIR/episode_<k>/ (swarm-env replay DIR)")
     r.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     r.add_argument("--trust-pickle", action="store_true", help=TRUST_PICKLE_HELP)
     r.set_defaults(func=cmd_run)
 
-    rp = sub.add_parser("replay", help="re-simulate recorded episodes without the policy (run --record DIR)")
+    rp = sub.add_parser("replay", formatter_class=DefaultsHelpFormatter, help="re-simulate recorded episodes without the policy (run --record DIR)")
     rp.add_argument("dir", help="a recording directory (or one episode_<k> folder of it)")
     rp.add_argument("--video", help="write an .mp4 (or .gif) of the replayed episodes to this file")
-    rp.add_argument("--fps", type=_positive_float, default=20.0, help="video frames per second")
+    rp.add_argument("--fps", type=_positive_float, default=20.0, help=_FPS_HELP)
     rp.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     rp.add_argument("--check", action="store_true",
                     help="stop at the first step whose state digest differs from the record and exit 1")
     rp.set_defaults(func=cmd_replay)
 
-    b = sub.add_parser("bench", help="env throughput with random actions (median of repeats)")
+    b = sub.add_parser("bench", formatter_class=DefaultsHelpFormatter, help="env throughput with random actions (median of repeats)")
     b.add_argument("--scenario", default="paper_cbs_switch")
     b.add_argument("--steps", type=_COUNT, default=2000, help="env steps per repeat")
     b.add_argument("--repeats", type=_COUNT, default=5)
@@ -699,12 +725,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="with --n-procs > 1: the workers run the compiled kernels (faster, more memory)")
     b.add_argument("--plot", help="with --num-envs/--vs vmas: write agent-steps/s against M to this PNG")
     b.add_argument("--json", help="write the raw figures to this file")
-    b.add_argument("--quiet", action="store_true", help="no per-repeat progress on stderr")
+    b.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
+                   help="no per-repeat progress on stderr (--quiet: the older spelling)")
     b.add_argument("--overwrite", action="store_true", help=OVERWRITE_HELP)
     b.set_defaults(func=cmd_bench)
 
-    e = sub.add_parser(
-        "evaluate",
+    e = sub.add_parser("evaluate", formatter_class=DefaultsHelpFormatter,
         help="leaderboard: policies x scenarios x seeds -> Markdown/CSV/JSON tables (+ worst-episode videos)",
         description="Run every policy on every scenario for its seeds through one evaluation path and print a "
         "Markdown table of mean ± 95 % CI of success, collisions, formation error, settle time, episode time and "
@@ -749,15 +775,16 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--videos", action="store_true", help="also write DIR/videos/<policy>__<scenario>__seed<k>.mp4 "
                    "of each policy's worst episode per scenario (most collisions, then failure, then formation error), "
                    "replayed from its record, saved as DIR/records/<policy>__<scenario>__seed<k>/")
-    e.add_argument("--fps", type=_positive_float, default=20.0, help="video frames per second")
-    e.add_argument("--quiet", action="store_true", help="no progress bars")
+    e.add_argument("--fps", type=_positive_float, default=20.0, help=_FPS_HELP)
+    e.add_argument("--no-progress", "--quiet", dest="quiet", action="store_true",
+                   help="no progress bars (--quiet: the older spelling)")
     e.add_argument("--trust-pickle", action="store_true", help=TRUST_PICKLE_HELP)
     e.set_defaults(func=cmd_evaluate)
 
     # Listed for --help only: main() hands these command lines to their modules before parsing.
     for word in dict.fromkeys(words[0] for words in MODULE_COMMANDS):
         _, text = MODULE_COMMANDS.get((word,), ("", _GROUP_HELP.get(word, "")))
-        sub.add_parser(word, help=text, add_help=False)
+        sub.add_parser(word, formatter_class=DefaultsHelpFormatter, help=text, add_help=False)
     return p
 
 
@@ -799,6 +826,19 @@ def _main(argv: list[str]) -> int:
     except PolicyError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    except OutputError as exc:  # an unsafe or failed write (a full disk): every writer's one-line error
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        if exc.errno not in _DISK_ERRNOS:
+            raise
+        # a write outside swarm_env.outputs (a library's own file) on a full disk: one line, not a traceback
+        print(f"error: {write_error(exc.filename or '<output>', exc, 'the command stopped')}", file=sys.stderr)
+        return 2
+
+
+#: The errors of a full disk or a file-size limit: reported in one line wherever the write happened.
+_DISK_ERRNOS = {errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", errno.ENOSPC), errno.EIO}
 
 
 if __name__ == "__main__":

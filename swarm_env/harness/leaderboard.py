@@ -91,7 +91,15 @@ from swarm_env.harness.provenance import provenance, provenance_line
 from swarm_env.harness.recording import EpisodeRecord, load_episode, record_episode, replay, save_episode
 from swarm_env.harness.video import VideoWriter
 from swarm_env.jsonio import dumps, read_json, write_json
-from swarm_env.outputs import OutputError, append_line, atomic_write_bytes, atomic_write_text, ensure_dir
+from swarm_env.limits import clip_repr
+from swarm_env.outputs import (
+    OutputError,
+    append_line,
+    atomic_write_bytes,
+    atomic_write_text,
+    directory_lock,
+    ensure_dir,
+)
 from swarm_env.scenarios.families import is_generated
 
 #: Seeds of a fixed scenario when none are given (deterministic up to the policy's own randomness).
@@ -383,34 +391,56 @@ class _Sweep:
 
     def load(self, path: Path) -> None:
         """Read the results a previous run streamed to ``path``; a torn last line (a crash mid-write) is
-        dropped from the file, a bad line elsewhere is an error naming its line number."""
+        dropped from the file. A bad line elsewhere, or a second result for an episode (two runs wrote the
+        file at once, or it was edited), is a ``ValueError`` naming the file and the line numbers."""
         if not path.is_file():
             return
         data = path.read_bytes()
         lines = data.split(b"\n")
         good_until = 0
+        first_line: dict[tuple[Any, ...], int] = {}
         for i, raw in enumerate(lines):
             if not raw.strip():
                 good_until += len(raw) + (1 if i < len(lines) - 1 else 0)
                 continue
             try:
-                entry = json.loads(raw)
-                if not isinstance(entry, dict) or entry.get("status") not in ("ok", "failed", "n/a"):
-                    raise ValueError("not an episode entry")
+                entry = _result_entry(json.loads(raw))
             except ValueError as exc:
                 if i == len(lines) - 1:  # the torn last line of a killed run: drop it
                     break
                 raise ValueError(f"{path}: line {i + 1}: not a result line ({exc})") from None
             key = (entry["policy"], entry["scenario"])
+            episode = key if entry["status"] == "n/a" else key + (entry["seed"],)
+            if episode in first_line:
+                raise ValueError(f"{path}: line {i + 1}: a second result for {' '.join(map(str, episode))} (the first is "
+                                 f"on line {first_line[episode]}); two runs wrote this sweep at once, or the file was "
+                                 "edited: keep one of the two lines")
+            first_line[episode] = i + 1
             if entry["status"] == "n/a":
                 self.na[key] = entry["reason"]
             elif entry["status"] == "ok":
-                self.ok[key + (int(entry["seed"]),)] = entry["metrics"]
+                self.ok[key + (entry["seed"],)] = entry["metrics"]
             else:
-                self.failed[key + (int(entry["seed"]),)] = entry
+                self.failed[key + (entry["seed"],)] = entry
             good_until += len(raw) + (1 if i < len(lines) - 1 else 0)
         if good_until < len(data):
             atomic_write_bytes(path, data[:good_until], root=path.parent)
+
+
+def _result_entry(entry: Any) -> dict[str, Any]:
+    """``entry`` (one parsed line of ``episodes.jsonl``) once its fields have the types :class:`_Sweep` writes,
+    else a ``ValueError`` saying which field is wrong."""
+    if not isinstance(entry, dict) or entry.get("status") not in ("ok", "failed", "n/a"):
+        raise ValueError("not an episode entry: expected an object with status 'ok', 'failed' or 'n/a'")
+    by_status: dict[str, dict[str, type]] = {"ok": {"seed": int, "metrics": dict}, "failed": {"seed": int, "error": str},
+                                             "n/a": {"reason": str}}
+    fields = {"policy": str, "scenario": str, **by_status[entry["status"]]}
+    for name, kind in fields.items():
+        value = entry.get(name)
+        if not isinstance(value, kind) or isinstance(value, bool):
+            raise ValueError(f"{name}: expected {'an integer' if kind is int else 'a ' + kind.__name__}, "
+                             f"got {clip_repr(value)}")
+    return entry
 
 
 def _sweep_spec(policies: Sequence[str], scenarios: Sequence[str], seed_map: Mapping[str, list[int]],
@@ -670,7 +700,13 @@ def _run_ray(jobs: list[_Job], address: str | None, num_cpus: int, sweep: _Sweep
     queue: Any = None
     running: dict[int, _RayTask] = {}  # task id -> its task
     try:
-        queue = Queue(actor_options={"num_cpus": 0})  # holds no CPU: every CPU can run a job
+        from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+        # The queue holds no CPU (every CPU can run a job) and lives on the driver's node: a lost worker node
+        # must cost only its episodes, never the results path (placed by Ray's default on the killed node, the
+        # queue took the sweep down with it).
+        here = NodeAffinitySchedulingStrategy(node_id=ray.get_runtime_context().get_node_id(), soft=False)
+        queue = Queue(actor_options={"num_cpus": 0, "scheduling_strategy": here})
         task = ray.remote(num_cpus=1, max_retries=0)(_ray_job)
         capacity = max(1, int(ray.cluster_resources().get("CPU", 1)))
         waiting: list[_Job] = list(jobs)
@@ -796,7 +832,9 @@ def run_leaderboard(
       and store the sweep's spec in ``out_dir/sweep.json``. A directory that already holds results
       is refused (:class:`~swarm_env.outputs.OutputError`) unless ``overwrite`` (start again) or
       ``resume`` (play only the episodes with no result there, after checking that the spec is the
-      same; a resumed sweep gives the same leaderboard as an uninterrupted one).
+      same; a resumed sweep gives the same leaderboard as an uninterrupted one). The directory is held
+      (:func:`~swarm_env.outputs.directory_lock`) while the sweep runs: a second sweep on it, say two
+      ``evaluate --resume DIR`` at once, is refused with an ``OutputError`` before it plays anything.
     * ``suite``: the benchmark suite these scenarios and seeds make up (:func:`swarm_env.harness.suite.run_suite`
       passes its name, version and split), stored in ``out_dir/sweep.json`` so that ``--resume`` scores it again.
 
@@ -821,8 +859,24 @@ def run_leaderboard(
     method_of = {m: p for p in policies for m in members[p] if len(members[p]) > 1}
     _probe_policies([m for p in policies for m in members[p]], scenarios[0], kwargs)
     out = None if out_dir is None else Path(out_dir)
-    if out is not None:
-        _prepare_out(out, _sweep_spec(policies, scenarios, seed_map, kwargs, suite), resume, overwrite)
+    with contextlib.ExitStack() as held:
+        if out is not None:
+            if not resume:
+                ensure_dir(out)
+            elif not out.is_dir():
+                raise ValueError(f"{out}: missing; --resume needs a directory an earlier 'swarm-env evaluate --out' wrote")
+            # one sweep writes a directory at a time: a second evaluate --resume on it would play the same episodes
+            held.enter_context(directory_lock(out, "another swarm-env evaluate"))
+            _prepare_out(out, _sweep_spec(policies, scenarios, seed_map, kwargs, suite), resume, overwrite)
+        return _sweep_locked(policies, scenarios, seed_map, kwargs, jobs, members, method_of, out, resume, backend,
+                             ray_address, workers, episode_timeout, progress)
+
+
+def _sweep_locked(policies: list[str], scenarios: list[str], seed_map: dict[str, list[int]],
+                  kwargs: dict[str, Any], jobs: list[_Job], members: Mapping[str, tuple[str, ...]], method_of: dict[str, str],
+                  out: Path | None, resume: bool, backend: str, ray_address: str | None, workers: int,
+                  episode_timeout: float | None, progress: bool) -> Leaderboard:
+    """The episodes of :func:`run_leaderboard` once its inputs are checked and its output directory is held."""
     if episode_timeout is None:
         longest = 0
         for s in scenarios:
@@ -1116,9 +1170,10 @@ class Leaderboard:
     def csv_rows(self) -> list[dict[str, Any]]:
         """The CSV table as dicts: policy, scenario, status, episodes, seeds, method (the method a
         training seed's row belongs to), training_seeds (on a method's row: how many), then
-        ``<metric>_mean``, ``<metric>_ci95``, ``<metric>_n`` per metric (empty when n/a; on a
-        method's row the interval and ``n`` are across training seeds). ``failed`` and ``pending`` follow
-        ``episodes`` on a board that has failed or pending episodes."""
+        ``<metric>_mean``, ``<metric>_ci95``, ``<metric>_n`` per metric (empty when n/a). ``<metric>_n`` is
+        the number of episodes with a value of the metric on every row (a method's row: over all its training
+        seeds); on a method's row the mean and the interval are across its ``training_seeds`` seeds. ``failed``
+        and ``pending`` follow ``episodes`` on a board that has failed or pending episodes."""
         out = []
         counts = [k for k in ("failed", "pending") if any(getattr(r, k) for r in self.rows)]  # as in to_markdown
         for r in self.rows:
@@ -1127,11 +1182,15 @@ class Leaderboard:
                                  **{k: getattr(r, k) for k in counts},
                                  "seeds": format_seeds(r.seeds), "method": r.method,
                                  "training_seeds": len(r.members) if r.members else None}
+            seeds_rows = [x for x in self.rows if r.members and x.policy in r.members and x.scenario == r.scenario]
             for m in self.metrics:
                 stat = (r.summary or {}).get(m.key) or {}
                 d[f"{m.key}_mean"] = stat.get("mean")
                 d[f"{m.key}_ci95"] = stat.get("ci95")
-                d[f"{m.key}_n"] = stat.get("n", 0) if r.summary is not None else None
+                # episodes on every row (a method's summary counts seeds: its n is the sum of its seeds' episodes)
+                n = (sum(((x.summary or {}).get(m.key) or {}).get("n", 0) for x in seeds_rows) if r.members
+                     else stat.get("n", 0))
+                d[f"{m.key}_n"] = n if r.summary is not None else None
             out.append(d)
         return out
 

@@ -18,6 +18,7 @@ import argparse
 import sys
 from typing import Any
 
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.harness.evaluation import mean_ci95
 from swarm_env.jsonio import read_json
 
@@ -81,7 +82,7 @@ def collision_profile(doc: dict[str, Any], policy: str, scenario: str | None = N
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of ``python -m swarm_env.harness.paired``."""
-    parser = argparse.ArgumentParser(prog="python -m swarm_env.harness.paired", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog="python -m swarm_env.harness.paired", description=__doc__.splitlines()[0])
     parser.add_argument("leaderboard", help="a leaderboard.json written by swarm-env evaluate --out (or its gzip, .json.gz)")
     parser.add_argument("--baseline", default="pursuit", help="the policy every other one is compared with")
     parser.add_argument("--scenario", help="only this scenario's episodes (default: all)")

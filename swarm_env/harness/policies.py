@@ -33,6 +33,8 @@ from __future__ import annotations
 
 import inspect
 import os
+import re
+import sys
 from collections.abc import Callable
 from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
@@ -340,6 +342,37 @@ def registered_policies() -> dict[str, str]:
     for ep in entry_points(group=ENTRY_POINT_GROUP):
         found[ep.name] = f"{ep.module}:{ep.attr}"
     return dict(sorted(found.items()))
+
+
+_ROLE = re.compile(r":(?:class|func|meth|mod|data|attr|exc|obj):`~?(?:[\w.]*\.)?([^`.]+)`")
+_SENTENCE_END = re.compile(r"(?<=[a-z0-9)`])\.(?:\s|$)")
+
+
+def _first_sentence(doc: str | None) -> str:
+    """The first sentence of ``doc`` on one line, as written (Sphinx roles included)."""
+    text = " ".join((doc or "").strip().split("\n\n")[0].split())
+    end = _SENTENCE_END.search(text)
+    return text[: end.start() + 1] if end else text
+
+
+def policy_summary(name: str) -> str:
+    """One line about the registered policy ``name``: its factory's first sentence, less the ``Entry point
+    ``name[:ARG]``: `` prefix the factories share, or, where that only names a class, the class's own first
+    sentence; Sphinx roles shown by their last name. ``""`` where the factory cannot be loaded (a missing
+    extra: ``swarm-env list`` says so instead)."""
+    try:
+        factory = _factory(name)
+    except Exception:  # noqa: BLE001 - a missing extra or a broken third-party package: nothing to show
+        return ""
+    summary = _first_sentence(factory.__doc__)
+    usage, sep, rest = summary.partition(": ")
+    if sep and (usage.startswith("Entry point") or usage.startswith(f"``{name}")):
+        summary = rest
+    named = re.fullmatch(r":class:`~?([\w.]+)\.(\w+)`\.?", summary)
+    if named:  # the factory names its class: that class's first sentence says what the policy does
+        module = sys.modules.get(named.group(1))
+        summary = _first_sentence(getattr(getattr(module, named.group(2), None), "__doc__", None)) or summary
+    return _ROLE.sub(r"\1", summary).replace("``", "`")
 
 
 def policy_extra(name: str) -> tuple[str, str] | None:

@@ -44,18 +44,36 @@ state after ``reset``); ``actions[s - 1]`` led to it. Digests are taken at
 every step ``s`` with ``s % K == 0`` and at the last step ``T``.
 :func:`state_digest` says what they cover. An episode folder is written under a
 temporary name and renamed into place, so a reader never sees half of one.
+
+A record is input from anyone (it may come with a bug report), so :func:`load_episode`
+reads it within bounds and checks every field before anything runs: the episode folder
+and its files must be real folders and regular files (no symbolic link, FIFO or device);
+``meta.json`` at most :data:`~swarm_env.limits.MAX_FILE_BYTES` bytes, nested at most
+:data:`~swarm_env.limits.MAX_YAML_DEPTH` deep, every field of its type and range (``T`` and
+``max_steps`` at most :data:`~swarm_env.limits.MAX_EPISODE_STEPS`); ``scenario.yaml`` through
+the scenario loader (:func:`swarm_env.scenarios.loader.load_scenario`, with its bounds);
+each array of ``actions.npz`` of the dtype and the exact shape the episode implies, read
+from its ``.npy`` header before its data, actions finite (discrete ones valid primitives),
+and ``digest_steps`` exactly the steps above. Anything else is a one-line
+:class:`RecordError` naming the file, the key and what was expected, with any value it
+shows escaped (:func:`swarm_env.limits.clip_repr`).
 """
 
 from __future__ import annotations
 
 import dataclasses
 import hashlib
+import io
 import json
 import os
 import platform
 import shutil
+import stat
+import struct
 import uuid
 import warnings
+import zipfile
+import zlib
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -65,13 +83,15 @@ import pymunk
 import yaml
 
 from swarm_env import __version__
-from swarm_env.env import SwarmEnv
+from swarm_env.env import ACTION_TYPES, PRIMITIVE_ANGLES_DEG, SwarmEnv
 from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import Policy
 from swarm_env.jsonio import dumps
-from swarm_env.outputs import replace_dir
-from swarm_env.scenario import Scenario
-from swarm_env.scenarios.loader import scenario_from_dict, scenario_to_dict
+from swarm_env.limits import MAX_EPISODE_STEPS, MAX_FILE_BYTES, MAX_ROBOTS, MAX_YAML_DEPTH, clip_repr, printable
+from swarm_env.outputs import replace_dir, write_error
+from swarm_env.reading import FileRefused, file_kind, read_regular
+from swarm_env.scenario import Scenario, ScenarioError
+from swarm_env.scenarios.loader import load_scenario, scenario_to_dict
 from swarm_env.state import CONTACT_KINDS, WorldState
 
 FORMAT = "swarm_env.harness.recording"
@@ -199,7 +219,9 @@ def _platform() -> dict[str, str]:
 
 def _platform_note(recorded: Mapping[str, str]) -> str:
     now = _platform()
-    changed = [f"{k} {recorded.get(k)} -> {v}" for k, v in now.items() if recorded.get(k) != v]
+    # what the record says is shown escaped and cut: a message is one line that cannot rewrite a terminal
+    changed = [f"{k} {clip_repr(recorded.get(k), 60)} -> {v}" if not isinstance(recorded.get(k), str)
+               else f"{k} {printable(str(recorded.get(k)), 60)} -> {v}" for k, v in now.items() if recorded.get(k) != v]
     return f"; changed since recording: {', '.join(changed)}" if changed else ""
 
 
@@ -289,39 +311,308 @@ def save_episode(record: EpisodeRecord, directory: str | os.PathLike[str]) -> Pa
             "platform": record.platform, "metrics": record.metrics,
         }
         (tmp / _META).write_text(dumps(meta, indent=1) + "\n")
-        text = yaml.safe_dump(scenario_to_dict(record.scenario), sort_keys=False)
-        if _scenario_from_yaml(text, str(tmp / _SCENARIO)) != dataclasses.replace(record.scenario, source=str(tmp / _SCENARIO)):
-            # the replay would run another world: refuse to write a record that cannot replay
+        scn_path = tmp / _SCENARIO
+        scn_path.write_text(yaml.safe_dump(scenario_to_dict(record.scenario), sort_keys=False))
+        try:  # read back as load_episode reads it (the scenario loader, with its bounds)
+            back: Scenario | None = load_scenario(scn_path)
+        except ScenarioError:
+            back = None
+        if back != dataclasses.replace(record.scenario, source=str(scn_path)):
+            # the replay would run another world (or none): refuse to write a record that cannot replay
             raise RecordError(f"{final / _SCENARIO}: the scenario does not survive a YAML round trip")
-        (tmp / _SCENARIO).write_text(text)
         with (tmp / _ACTIONS).open("wb") as f:
             np.savez_compressed(f, actions=record.actions, digest_steps=record.digest_steps, digests=record.digests)
         replace_dir(tmp, final)  # the one rule (swarm_env.outputs): no symlink replaced, old folder swapped out whole
+    except OSError as exc:  # a full disk: one line, no half-written folder left
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise write_error(final, exc, "no recording was written there") from None
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return final
 
 
-def _scenario_from_yaml(text: str, source: str) -> Scenario:
-    return scenario_from_dict(yaml.safe_load(text), source)
+# --------------------------------------------------------------------------- reading a record
+# A record is read within the scenario files' bounds (swarm_env.limits), no new numbers: meta.json is a small JSON
+# file as a scenario file is a small YAML one (MAX_FILE_BYTES, MAX_YAML_DEPTH), and actions.npz holds at most the
+# arrays of a MAX_EPISODE_STEPS-step episode of MAX_ROBOTS followers.
+_DIGEST_BYTES = 32
+#: Room for an .npy header (version 1.0 headers are at most 64 KiB; longer ones are refused).
+_NPY_HEADER_BYTES = 1 << 16
+_MAX_ARRAY_BYTES = MAX_EPISODE_STEPS * MAX_ROBOTS * 2 * 8 + (MAX_EPISODE_STEPS + 1) * (8 + _DIGEST_BYTES)
+#: The largest actions.npz: the largest arrays, their headers and the zip's, and deflate's worst case on
+#: incompressible data (a few bytes per 16 KiB block; an eighth is ample).
+_MAX_ACTIONS_BYTES = _MAX_ARRAY_BYTES + _MAX_ARRAY_BYTES // 8 + 4 * _NPY_HEADER_BYTES
+#: What reading a zip member or an .npy header raises for a corrupt file (never a traceback).
+_CORRUPT = (zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, struct.error, OSError, EOFError, ValueError,
+            KeyError, TypeError, OverflowError, RuntimeError, NotImplementedError, SyntaxError, RecursionError)
+_ABSENT = object()
+
+
+def _error(path: str | os.PathLike[str], key: str, expected: str, got: Any = _ABSENT) -> RecordError:
+    """``RecordError("<path>: <key>: expected <expected>[, got <value>]")``: one line, the value escaped and cut."""
+    got_txt = "" if got is _ABSENT else f", got {clip_repr(got)}"
+    return RecordError(f"{printable(os.fspath(path), 300)}: {printable(key, 100)}: expected {expected}{got_txt}")
+
+
+def _lstat(path: Path, what: str) -> os.stat_result:
+    try:
+        return os.lstat(path)
+    except FileNotFoundError:
+        raise _error(path, "<file>", f"{what} (not found)") from None
+    except OSError as exc:
+        raise _error(path, "<file>", f"{what} ({printable(exc.strerror or str(exc), 200)})") from None
+
+
+def _check_regular(path: Path, what: str) -> None:
+    """Refuse ``path`` unless it is a regular file itself: no symbolic link (not even to a regular file: a
+    record is a self-contained folder), FIFO or device. Only ``lstat``: nothing is opened, nothing waits."""
+    mode = _lstat(path, what).st_mode
+    if not stat.S_ISREG(mode):
+        raise _error(path, "<file>", f"{what}, a regular file (this is a {file_kind(mode)})")
+
+
+def _check_folder(folder: Path) -> None:
+    mode = _lstat(folder, "an episode folder").st_mode
+    if not stat.S_ISDIR(mode):
+        raise _error(folder, "<folder>", f"an episode folder, a real directory (this is a {file_kind(mode)})")
+
+
+def _one_line(exc: ScenarioError) -> str:
+    """The first problem of a scenario error (it names the file, the key and what was expected), on one line."""
+    more = len(exc.errors) - 1
+    first = (str(exc.errors[0]).splitlines() or [""])[0]
+    return first + (f" (and {more} more problem{'s' if more > 1 else ''})" if more else "")
+
+
+def _reject_constant(name: str) -> None:
+    raise ValueError(f"{name} is not a number (JSON has no NaN or Infinity)")
+
+
+def _too_deep(value: Any, limit: int) -> bool:
+    """Whether ``value`` (parsed JSON) nests lists and dicts more than ``limit`` deep (iteratively: no recursion)."""
+    stack = [(value, 1)]
+    while stack:
+        item, depth = stack.pop()
+        children = item.values() if isinstance(item, dict) else item if isinstance(item, list) else None
+        if children is None:
+            continue
+        if depth > limit:
+            return True
+        stack.extend((c, depth + 1) for c in children if isinstance(c, (dict, list)))
+    return False
+
+
+def _read_meta(path: Path) -> dict[str, Any]:
+    raw = _read_bytes(path, MAX_FILE_BYTES, "(swarm_env.limits.MAX_FILE_BYTES)", "a recording's meta.json")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise _error(path, "<file>", f"a UTF-8 text file (byte {exc.start} is not UTF-8)") from None
+    depth_bound = f"JSON nested at most {MAX_YAML_DEPTH} deep (swarm_env.limits.MAX_YAML_DEPTH)"
+    try:
+        meta = json.loads(text, parse_constant=_reject_constant)
+    except RecursionError:
+        raise _error(path, "<file>", depth_bound) from None
+    except ValueError as exc:  # JSONDecodeError, NaN/Infinity, an integer of more than 4300 digits
+        raise _error(path, "<file>", f"a recording's meta.json in JSON ({printable(str(exc), 200)})") from None
+    if _too_deep(meta, MAX_YAML_DEPTH):
+        raise _error(path, "<file>", depth_bound)
+    if not isinstance(meta, dict):
+        raise _error(path, "<top level>", "a JSON object (a recording's meta.json)", f"a {type(meta).__name__}")
+    return meta
+
+
+def _value(path: Path, mapping: Mapping[str, Any], key: str, name: str | None = None) -> Any:
+    if key not in mapping:
+        raise _error(path, name or key, "a value (required key missing)")
+    return mapping[key]
+
+
+def _int(path: Path, value: Any, key: str, lo: int, hi: int | None = None, bound: str = "") -> int:
+    if isinstance(value, bool) or not isinstance(value, int) or value < lo or (hi is not None and value > hi):
+        span = f">= {lo}" if hi is None else f"in [{lo}, {hi}]"
+        raise _error(path, key, f"an integer {span}{bound}", value)
+    return value
+
+
+def _str(path: Path, value: Any, key: str) -> str:
+    if not isinstance(value, str):
+        raise _error(path, key, "a string", value)
+    return value
+
+
+def _meta_fields(path: Path, meta: Mapping[str, Any]) -> tuple[dict[str, Any], int]:
+    """The :class:`EpisodeRecord` fields held by ``meta.json``, each checked, and ``T`` (its ``steps``)."""
+    if meta.get("format") != FORMAT:
+        raise _error(path, "format", repr(FORMAT), meta.get("format"))
+    if not (type(meta.get("version")) is int and meta.get("version") == FORMAT_VERSION):
+        raise _error(path, "version", f"{FORMAT_VERSION} (this swarm-env reads only that)", meta.get("version"))
+    env = _value(path, meta, "env")
+    if not isinstance(env, dict):
+        raise _error(path, "env", "an object {action_type, max_steps, terminate_on_collision}", env)
+    seed = _value(path, meta, "seed")
+    if seed is not None:
+        _int(path, seed, "seed", 0, bound=" or null (the seed of reset)")
+    action_type = _value(path, env, "action_type", "env.action_type")
+    if action_type not in ACTION_TYPES:
+        raise _error(path, "env.action_type", f"one of {', '.join(ACTION_TYPES)}", action_type)
+    terminate = _value(path, env, "terminate_on_collision", "env.terminate_on_collision")
+    if not isinstance(terminate, bool):
+        raise _error(path, "env.terminate_on_collision", "true or false", terminate)
+    bound = " (swarm_env.limits.MAX_EPISODE_STEPS)"
+    platform_info = meta.get("platform") or {}
+    if not isinstance(platform_info, dict) or not all(isinstance(v, str) for v in platform_info.values()):
+        raise _error(path, "platform", "an object of strings (what the recording ran on)", platform_info)
+    metrics = meta.get("metrics") or {}
+    if not isinstance(metrics, dict):
+        raise _error(path, "metrics", "an object (the recorded episode's metrics)", metrics)
+    fields = dict(
+        episode=_int(path, _value(path, meta, "episode"), "episode", 0), seed=seed,
+        policy=_str(path, _value(path, meta, "policy"), "policy"),
+        scenario_spec=_str(path, _value(path, meta, "scenario"), "scenario"), action_type=action_type,
+        max_steps=_int(path, _value(path, env, "max_steps", "env.max_steps"), "env.max_steps", 1, MAX_EPISODE_STEPS,
+                       bound),
+        terminate_on_collision=terminate,
+        digest_every=_int(path, _value(path, meta, "digest_every"), "digest_every", 1),
+        metrics=metrics, platform=platform_info,
+    )
+    steps = _int(path, _value(path, meta, "steps"), "steps", 1, MAX_EPISODE_STEPS, bound)
+    return fields, steps
+
+
+def _read_scenario(path: Path) -> Scenario:
+    _check_regular(path, "the recorded scenario")
+    try:
+        return load_scenario(path)  # a Path is always a file: the loader's bounds on size, nesting, aliases, values
+    except ScenarioError as exc:
+        raise RecordError(_one_line(exc)) from None
+
+
+def _read_bytes(path: Path, limit: int, limit_text: str, what: str) -> bytes:
+    """The bytes of the regular file ``path`` (no symbolic link) if it holds at most ``limit``
+    (:func:`swarm_env.reading.read_regular`: checked with fstat before reading, a FIFO never waited on)."""
+    _check_regular(path, what)
+    try:
+        return read_regular(path, limit, limit_text=limit_text, follow_symlinks=False)
+    except FileNotFoundError:
+        raise _error(path, "<file>", f"{what} (not found)") from None
+    except FileRefused as exc:
+        raise _error(path, "<file>", exc.expected, *(() if exc.got is None else (exc.got,))) from None
+
+
+def _read_member(path: Path, zf: zipfile.ZipFile, name: str, shape: tuple[int, ...], kinds: str,
+                 itemsizes: tuple[int, ...], dtype_text: str, what: str, if_empty: str = "") -> np.ndarray:
+    """The array ``name`` of the npz ``zf``, read only once its ``.npy`` header says ``shape`` and a dtype of one of
+    ``kinds`` and ``itemsizes``: nothing larger than the episode is ever allocated or decompressed. ``if_empty``
+    is added to the message when the array is empty and should not be."""
+    member = f"{name}.npy"
+    if member not in zf.NameToInfo:
+        raise _error(path, name, f"an array {name} ({member} in the zip file)", "none")
+    # The size the zip says the member decompresses to bounds what reading it can decompress (a zip bomb, or an
+    # .npy 2.0 header that claims gigabytes): at most the array's largest data and a header.
+    largest = int(np.prod(shape, dtype=np.int64)) * max(itemsizes) + _NPY_HEADER_BYTES
+    declared = zf.NameToInfo[member].file_size
+    if declared > largest:
+        raise _error(path, name, f"an array of shape {shape} ({what}): at most {largest} bytes as .npy",
+                     f"{declared} bytes")
+    try:
+        with zf.open(member) as fp:
+            version = np.lib.format.read_magic(fp)
+            if version == (1, 0):
+                got_shape, fortran, dtype = np.lib.format.read_array_header_1_0(fp)
+            elif version == (2, 0):
+                got_shape, fortran, dtype = np.lib.format.read_array_header_2_0(fp)
+            else:
+                raise ValueError(f"an .npy file of version 1.0 or 2.0, not {version}")
+            if dtype.kind not in kinds or dtype.itemsize not in itemsizes:  # never an object or structured dtype
+                raise _error(path, name, f"{dtype_text} ({what})", str(dtype))
+            if tuple(got_shape) != shape:
+                note = f"; {if_empty}" if if_empty and 0 in got_shape else ""
+                raise _error(path, name, f"shape {shape} ({what}){note}", tuple(got_shape))
+            size = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+            data = fp.read(size)
+    except RecordError:
+        raise
+    except _CORRUPT as exc:
+        raise _error(path, name, f"an array stored as .npy ({printable(f'{type(exc).__name__}: {exc}', 200)})") from None
+    if len(data) != size:
+        raise _error(path, name, f"{size} bytes of data for shape {shape} (the member is cut short)", f"{len(data)} bytes")
+    flat = np.frombuffer(data, dtype=dtype)
+    return np.array(flat.reshape(shape, order="F" if fortran else "C"), dtype=dtype.newbyteorder("="))
+
+
+def _digest_schedule(steps: int, digest_every: int) -> list[int]:
+    """The steps whose digests a record of ``steps`` steps taken every ``digest_every`` holds: ``0, K, 2K, ...``
+    and the last step."""
+    return sorted(set(range(0, steps + 1, digest_every)) | {steps})
+
+
+def _read_arrays(path: Path, steps: int, n: int, action_type: str, digest_every: int
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    raw = _read_bytes(path, _MAX_ACTIONS_BYTES, "(the arrays of an episode of swarm_env.limits.MAX_EPISODE_STEPS "
+                      "steps and MAX_ROBOTS followers)", "a recording's actions.npz")
+    try:
+        zf = zipfile.ZipFile(io.BytesIO(raw))
+    except _CORRUPT as exc:
+        raise _error(path, "<file>", f"a zip file of arrays actions, digest_steps, digests (numpy .npz) "
+                     f"({printable(f'{type(exc).__name__}: {exc}', 200)})") from None
+    with zf:
+        if action_type == "discrete":
+            actions = _read_member(path, zf, "actions", (steps, n), "iu", (1, 2, 4, 8), "int64",
+                                   "steps, followers")
+            low, high = int(actions.min(initial=0)), int(actions.max(initial=0))
+            if low < 0 or high > len(PRIMITIVE_ANGLES_DEG):
+                bad = np.argwhere((actions < 0) | (actions > len(PRIMITIVE_ANGLES_DEG)))[0]
+                raise _error(path, "actions", f"discrete actions in [0, {len(PRIMITIVE_ANGLES_DEG)}] (step "
+                             f"{bad[0] + 1}, follower {bad[1]})", int(actions[tuple(bad)]))
+            actions = actions.astype(np.int64)
+        else:
+            actions = _read_member(path, zf, "actions", (steps, n, 2), "f", (8,), "float64",
+                                   "steps, followers, 2")
+            finite = np.isfinite(actions)
+            if not finite.all():
+                bad = np.argwhere(~finite)[0]
+                raise _error(path, "actions", f"finite numbers (step {bad[0] + 1}, follower {bad[1]})",
+                             float(actions[tuple(bad)]))
+        want = _digest_schedule(steps, digest_every)
+        steps_what = (f"one per digest: the steps s in [0, {steps}] with s % {clip_repr(digest_every)} == 0 "
+                      f"(digest_every), and the last step {steps}")
+        digest_steps = _read_member(path, zf, "digest_steps", (len(want),), "iu", (1, 2, 4, 8), "int64",
+                                    steps_what, "the record holds no digests: nothing could be checked")
+        if digest_steps.tolist() != want:
+            first = next(i for i, (a, b) in enumerate(zip(digest_steps.tolist(), want)) if a != b)
+            raise _error(path, f"digest_steps[{first}]", f"{want[first]} ({steps_what})", int(digest_steps[first]))
+        digests = _read_member(path, zf, "digests", (len(want), _DIGEST_BYTES), "u", (1,), "uint8",
+                               f"one {_DIGEST_BYTES}-byte digest per digest step",
+                               "the record holds no digests: nothing could be checked")
+    return actions, digest_steps.astype(np.int64), digests.astype(np.uint8)
 
 
 def episode_dirs(directory: str | os.PathLike[str]) -> list[Path]:
     """The episode folders of a recording directory in episode order; ``[directory]`` itself if it
-    is one episode's folder. Raises :class:`RecordError` if there is none."""
+    is one episode's folder. Raises :class:`RecordError` if there is none, or if one is a symbolic link."""
     root = Path(directory)
-    if (root / _META).is_file():
+    if os.path.lexists(root / _META):  # whatever it is: load_episode says what is wrong with it
         return [root]
     if not root.is_dir():
-        raise RecordError(f"{root}: no such recording directory")
+        raise _error(root, "<folder>", "a recording directory (no such recording directory)")
     found = []
-    for p in root.iterdir():
-        suffix = p.name[len(EPISODE_PREFIX):]
-        if p.is_dir() and p.name.startswith(EPISODE_PREFIX) and suffix.isdigit():
-            found.append((int(suffix), p))
+    try:
+        for p in root.iterdir():
+            suffix = p.name[len(EPISODE_PREFIX):]
+            if not (p.name.startswith(EPISODE_PREFIX) and suffix.isascii() and suffix.isdigit()):
+                continue
+            if p.is_symlink():
+                raise _error(p, "<folder>", "an episode folder, a real directory (this is a symbolic link)")
+            if p.is_dir():
+                found.append((int(suffix), p))
+    except OSError as exc:
+        raise _error(root, "<folder>", f"a readable recording directory ({printable(exc.strerror or str(exc), 200)})"
+                     ) from None
     if not found:
-        raise RecordError(f"{root}: expected {EPISODE_PREFIX}<k>/{_META} folders (swarm-env run --record DIR), found none")
+        raise RecordError(f"{printable(str(root), 300)}: expected {EPISODE_PREFIX}<k>/{_META} folders "
+                          "(swarm-env run --record DIR), found none")
     return [p for _, p in sorted(found)]
 
 
@@ -336,50 +627,16 @@ def ensure_new_recording_dir(directory: str | os.PathLike[str]) -> None:
 
 
 def load_episode(folder: str | os.PathLike[str]) -> EpisodeRecord:
-    """Read one episode folder written by :func:`save_episode`. Raises :class:`RecordError` naming
-    the file and what was expected."""
+    """Read one episode folder written by :func:`save_episode`, within bounds (the module docstring).
+    Raises :class:`RecordError` naming the file, the key and what was expected."""
     folder = Path(folder)
+    _check_folder(folder)
     meta_path = folder / _META
-    try:
-        meta = json.loads(meta_path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise RecordError(f"{meta_path}: expected a recording's meta.json ({exc})") from None
-    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-        raise RecordError(f"{meta_path}: format: expected {FORMAT!r}, got {meta.get('format') if isinstance(meta, dict) else meta!r}")
-    if meta.get("version") != FORMAT_VERSION:
-        raise RecordError(f"{meta_path}: version: expected {FORMAT_VERSION} (this swarm-env reads only that), "
-                          f"got {meta.get('version')!r}")
-    try:
-        env = meta["env"]
-        fields = dict(episode=int(meta["episode"]), seed=meta["seed"], policy=str(meta["policy"]),
-                      scenario_spec=str(meta["scenario"]), action_type=str(env["action_type"]),
-                      max_steps=int(env["max_steps"]), terminate_on_collision=bool(env["terminate_on_collision"]),
-                      digest_every=int(meta["digest_every"]), metrics=dict(meta.get("metrics") or {}),
-                      platform=dict(meta.get("platform") or {}))
-        steps = int(meta["steps"])
-    except (KeyError, TypeError, ValueError) as exc:
-        raise RecordError(f"{meta_path}: missing or bad key {exc}") from None
-    scn_path = folder / _SCENARIO
-    try:
-        scenario = _scenario_from_yaml(scn_path.read_text(), str(scn_path))
-    except (OSError, yaml.YAMLError) as exc:
-        raise RecordError(f"{scn_path}: expected the recorded scenario ({' '.join(str(exc).split())})") from None
-    act_path = folder / _ACTIONS
-    try:
-        with np.load(act_path, allow_pickle=False) as npz:
-            actions, digest_steps, digests = npz["actions"], npz["digest_steps"], npz["digests"]
-    except (OSError, KeyError, ValueError) as exc:
-        raise RecordError(f"{act_path}: expected arrays actions, digest_steps, digests ({exc})") from None
-    n = scenario.robots.count
-    want = (steps, n) if fields["action_type"] == "discrete" else (steps, n, 2)
-    if actions.shape != want:
-        raise RecordError(f"{act_path}: actions: expected shape {want} (steps, followers{'' if len(want) == 2 else ', 2'}), "
-                          f"got {actions.shape}")
-    if digests.ndim != 2 or digests.shape[1] != 32 or digest_steps.shape != (digests.shape[0],):
-        raise RecordError(f"{act_path}: digests: expected (D, 32) uint8 with D digest_steps, got {digests.shape} "
-                          f"and {digest_steps.shape}")
-    return EpisodeRecord(scenario=scenario, actions=actions, digest_steps=digest_steps.astype(np.int64),
-                         digests=digests.astype(np.uint8), **fields)
+    fields, steps = _meta_fields(meta_path, _read_meta(meta_path))
+    scenario = _read_scenario(folder / _SCENARIO)
+    actions, digest_steps, digests = _read_arrays(folder / _ACTIONS, steps, scenario.robots.count,
+                                                  fields["action_type"], fields["digest_every"])
+    return EpisodeRecord(scenario=scenario, actions=actions, digest_steps=digest_steps, digests=digests, **fields)
 
 
 def load_recording(directory: str | os.PathLike[str]) -> list[EpisodeRecord]:

@@ -34,6 +34,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
+from swarm_env.checks import DefaultsHelpFormatter
 from swarm_env.harness.evaluation import mean_ci95
 from swarm_env.harness.leaderboard import Leaderboard, Metric, aggregate_training_seeds, format_seeds, run_leaderboard
 from swarm_env.harness.provenance import provenance_line
@@ -297,7 +298,7 @@ def new_collisions(board_doc: Mapping[str, Any], reference: Mapping[str, Any]) -
 def main(argv: list[str] | None = None) -> int:
     """``python -m swarm_env.harness.suite check DIR --against FILE [--write]``: exit 1 listing every episode of the
     sweep in ``DIR`` with a collision ``FILE`` does not hold; ``--write`` stores ``DIR``'s collisions as ``FILE``."""
-    parser = argparse.ArgumentParser(prog="python -m swarm_env.harness.suite",
+    parser = argparse.ArgumentParser(formatter_class=DefaultsHelpFormatter, prog="python -m swarm_env.harness.suite",
                                      description="Fail on collisions a reference run of a suite did not have.")
     parser.add_argument("command", choices=["check"])
     parser.add_argument("directory", help="an 'evaluate --suite ... --out DIR' directory (its leaderboard.json)")

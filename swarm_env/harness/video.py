@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from swarm_env.outputs import check_target, open_atomic, temp_path
+from swarm_env.outputs import OutputError, check_target, open_atomic, temp_path, write_error
 
 VIDEO_SUFFIXES = (".mp4", ".gif")
 
@@ -37,6 +37,34 @@ def _pad_even(a: np.ndarray) -> np.ndarray:
     if ph or pw:
         a = np.pad(a, ((0, ph), (0, pw), (0, 0)), mode="edge")
     return a
+
+
+def _check_mp4(path: Path, target: Path) -> None:
+    """Raise :class:`~swarm_env.outputs.OutputError` unless ``path`` is a whole MP4 file: its top-level boxes
+    tile the file exactly and one of them is ``moov`` (the index ffmpeg writes last). imageio does not report
+    ffmpeg's exit status, so a full disk or a killed encoder would otherwise leave a truncated video; this reads
+    only the boxes' 8-16-byte headers."""
+    size = path.stat().st_size
+    seen, pos = set(), 0
+    with open(path, "rb") as f:
+        while pos < size:
+            f.seek(pos)
+            head = f.read(8)
+            if len(head) < 8:
+                break
+            length, kind = int.from_bytes(head[:4], "big"), head[4:]
+            if length == 1:  # a 64-bit size follows the type
+                wide = f.read(8)
+                length = int.from_bytes(wide, "big") if len(wide) == 8 else 0
+            elif length == 0:  # the last box runs to the end of the file
+                length = size - pos
+            if length < 8:
+                break
+            seen.add(kind)
+            pos += length
+    if pos != size or b"moov" not in seen:
+        raise OutputError(f"{target}: the video encoder did not finish the file (a full disk, a file-size limit, or "
+                          "ffmpeg stopped); nothing was written there")
 
 
 class VideoWriter:
@@ -104,7 +132,12 @@ class VideoWriter:
                     quality=self.quality,
                     macro_block_size=1,  # we pad to even sides ourselves; no rescaling to multiples of 16
                 )
-            self._writer.append_data(np.ascontiguousarray(_pad_even(a)))
+            try:
+                self._writer.append_data(np.ascontiguousarray(_pad_even(a)))
+            except OSError as exc:  # ffmpeg's pipe closed under it (a full disk killed it): one line
+                self.abort()
+                raise write_error(self.path, exc if exc.strerror else OSError(exc.errno, "the video encoder stopped"),
+                                  "nothing was written there") from None
         self.n_frames += 1
 
     def _temp_path(self) -> Path:
@@ -123,16 +156,24 @@ class VideoWriter:
             if self._writer is not None:
                 self._writer.close()
                 self._writer = None
+                _check_mp4(self._temp_path(), self.path)
             if self._format == "gif" and self._gif_frames:
                 import imageio.v3 as iio3  # noqa: PLC0415
 
                 # pillow's GIF duration is per frame in milliseconds; loop=0 repeats forever.
-                iio3.imwrite(self._temp_path(), np.stack(self._gif_frames), plugin="pillow",
-                             duration=1000.0 / self.fps, loop=0)
+                # encoded in memory (the frames are there already), then written by us: a failed write is ours to report
+                data = iio3.imwrite("<bytes>", np.stack(self._gif_frames), extension=".gif", plugin="pillow",
+                                    duration=1000.0 / self.fps, loop=0)
+                with open(self._temp_path(), "wb") as f:
+                    f.write(data)
+                    f.flush()
+                    os.fsync(f.fileno())
                 self._gif_frames = []
             if self._tmp is not None:
                 check_target(self.path, root=self._root, overwrite=self._overwrite)
                 os.replace(self._tmp, self.path)
+        except OSError as exc:  # pillow or the rename on a full disk
+            raise write_error(self.path, exc, "nothing was written there") from None
         finally:
             if self._tmp is not None:
                 self._tmp.unlink(missing_ok=True)

@@ -102,7 +102,6 @@ import dataclasses
 import math
 import numbers
 import os
-import stat
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -121,11 +120,13 @@ from swarm_env.limits import (
     MAX_WORLD_SIZE,
     MAX_YAML_DEPTH,
     MAX_YAML_NODES,
+    MESSAGE_VALUE_CHARS,
     MIN_OBSTACLE_SIZE,
     clip_repr,
     printable,
     unprintable_chars,
 )
+from swarm_env.reading import FileRefused, read_regular
 from swarm_env.scenario import (
     FORMATION_SHAPES,
     HUMAN_BEHAVIORS,
@@ -158,6 +159,7 @@ __all__ = [
     "validate_scenario",
     "check_scenario_object",
     "start_poses",
+    "obstacle_vertices",
 ]
 
 #: Folder of the built-in scenario files (``<name>.yaml``).
@@ -299,6 +301,11 @@ def scenario_from_dict(data: Mapping[str, Any], source: str = "<dict>") -> Scena
     src = str(source)
     if not isinstance(data, Mapping):
         raise ScenarioError(src, "<top level>", "a mapping of sections", _short(data))
+    if data and not any(isinstance(k, str) and k in _TOP_KEYS for k in data):
+        # Some other file that happens to parse as a mapping (/etc/shadow does): one line, and none of its
+        # keys echoed, instead of an "unknown section" error per line of it.
+        raise ScenarioError(src, "<top level>", "a YAML mapping of scenario sections (world, robots, leader, formations); "
+                            f"none of this mapping's {len(data)} keys is a scenario section")
     ok = _Errors()
     _check_keys(src, data, "", _TOP_KEYS, _TOP_REQUIRED, ok)
 
@@ -598,40 +605,14 @@ def _yaml_problem(exc: Exception) -> str:
 def _read_text(path: Path) -> str:
     """The text of the scenario file ``path``, read only when it is a regular file of at most
     ``MAX_FILE_BYTES`` bytes (a FIFO, a device such as /dev/zero, a directory or a symlink to
-    one of them is refused before reading)."""
+    one of them is refused before reading: :func:`swarm_env.reading.read_regular`)."""
     src = str(path)
     try:
-        # O_NONBLOCK: opening a FIFO must not wait for a writer (it is refused just below).
-        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0))
+        raw = read_regular(path, MAX_FILE_BYTES, limit_text="(swarm_env.limits.MAX_FILE_BYTES)")
     except FileNotFoundError:
         raise ScenarioError(src, "<file>", "an existing scenario file (not found)") from None
-    except OSError as exc:
-        raise ScenarioError(src, "<file>", f"a readable file ({exc.strerror or exc})") from None
-    try:
-        st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            kind = ("directory" if stat.S_ISDIR(st.st_mode) else "FIFO" if stat.S_ISFIFO(st.st_mode)
-                    else "device" if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode)
-                    else "socket" if stat.S_ISSOCK(st.st_mode) else "special file")
-            raise ScenarioError(src, "<file>", f"a regular file (this is a {kind})")
-        if st.st_size > MAX_FILE_BYTES:
-            raise ScenarioError(src, "<file>", f"a file of at most {MAX_FILE_BYTES} bytes "
-                                "(swarm_env.limits.MAX_FILE_BYTES)", f"{st.st_size} bytes")
-        chunks: list[bytes] = []
-        left = MAX_FILE_BYTES + 1  # a file that grows after fstat is still cut here
-        while left > 0:
-            chunk = os.read(fd, min(left, 1 << 16))
-            if not chunk:
-                break
-            chunks.append(chunk)
-            left -= len(chunk)
-        raw = b"".join(chunks)
-    except OSError as exc:
-        raise ScenarioError(src, "<file>", f"a readable file ({exc.strerror or exc})") from None
-    finally:
-        os.close(fd)
-    if len(raw) > MAX_FILE_BYTES:
-        raise ScenarioError(src, "<file>", f"a file of at most {MAX_FILE_BYTES} bytes (swarm_env.limits.MAX_FILE_BYTES)")
+    except FileRefused as exc:
+        raise ScenarioError(src, "<file>", exc.expected, exc.got) from None
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -883,6 +864,9 @@ def _check_bounds(src: str, scn: Scenario, ok: _Errors) -> None:
     )
     for n, key, limit, what in counts:
         ok(_count_limit, src, int(n), key, limit, what)
+    if len(scn.obstacles) <= _limit("MAX_OBSTACLES"):
+        ok(_count_limit, src, obstacle_vertices(scn), "obstacles", "MAX_OBSTACLE_VERTICES",
+           "obstacle vertices")
     for i, side in enumerate(w.size):
         if not 0.0 < side <= MAX_WORLD_SIZE:
             ok.add(ScenarioError(src, f"world.size[{i}]", f"a positive size (m) of at most {_bound_text('MAX_WORLD_SIZE')}",
@@ -899,6 +883,13 @@ def _check_bounds(src: str, scn: Scenario, ok: _Errors) -> None:
             f"{w.max_time:g} / {w.dt:g} = {steps} steps (shorten max_time or lengthen dt)",
             w.max_time,
         ))
+
+
+def obstacle_vertices(scn: Scenario) -> int:
+    """The vertices of ``scn``'s obstacles all together, as :data:`swarm_env.limits.MAX_OBSTACLE_VERTICES`
+    counts them: a polygon its points, a rectangle 4, a circle 1."""
+    return sum(len(o.points) if isinstance(o, PolygonObstacle) else 4 if isinstance(o, RectangleObstacle) else 1
+               for o in scn.obstacles)
 
 
 def _check_world(src: str, scn: Scenario) -> None:
@@ -1358,7 +1349,8 @@ def _check_keys(
         elif k not in allowed:
             hint = did_you_mean(k, allowed)
             where = f"the keys of {key}" if key else "the top-level sections"
-            ok.add(ScenarioError(src, f"{prefix}{k}", f"one of {where}: {', '.join(allowed)}{hint}", k))
+            ok.add(ScenarioError(src, f"{prefix}{printable(k, MESSAGE_VALUE_CHARS)}",
+                                 f"one of {where}: {', '.join(allowed)}{hint}", k))
     for k in required:
         if k not in m:
             ok.add(ScenarioError(src, f"{prefix}{k}", "a value (required key missing)"))

@@ -1,0 +1,88 @@
+"""Reading an input file within bounds: the one rule every reader of untrusted files follows.
+
+Scenario files (:mod:`swarm_env.scenarios.loader`), episode records (:mod:`swarm_env.harness.recording`) and
+saved models (``swarm_env_baselines.model_bounds``) are input from anyone. :func:`read_regular` reads one
+
+* only if it is a regular file: a FIFO, a device such as ``/dev/zero``, a socket or a directory is refused
+  (opened without blocking, so a FIFO with no writer never stalls the reader; with ``follow_symlinks=False`` a
+  symbolic link is refused too);
+* only up to ``limit`` bytes: the size is checked with ``fstat`` before reading, and a file that grows while it
+  is read is cut at ``limit + 1`` bytes and refused, so memory stays bounded whatever the file claims.
+
+Every refusal is a :class:`FileRefused` (a ``ValueError``) carrying what was expected and what was found, which
+each reader words as its own error type (a scenario's ``ScenarioError``, a record's ``RecordError``, a model's
+``ModelFileError``). :func:`file_kind` names a file type the same way everywhere ("a FIFO", "a device").
+"""
+
+from __future__ import annotations
+
+import os
+import stat
+
+__all__ = ["FileRefused", "file_kind", "read_regular"]
+
+
+class FileRefused(ValueError):
+    """A file :func:`read_regular` did not read: ``expected`` says what it must be (``"a regular file (this is a
+    FIFO)"``, ``"a file of at most 1048576 bytes"``, ``"a readable file (Permission denied)"``), ``got`` what was
+    found where that helps (``"5000000 bytes"``), else ``None``."""
+
+    def __init__(self, path: str | os.PathLike[str], expected: str, got: str | None = None, *,
+                 kind: str | None = None, size: int | None = None) -> None:
+        self.path = os.fspath(path)
+        self.expected = expected
+        self.got = got
+        #: the file's kind (:func:`file_kind`) when it is not a regular file, its size when it is too large
+        self.kind, self.size = kind, size
+        super().__init__(f"{self.path}: expected {expected}" + (f", got {got}" if got else ""))
+
+
+def file_kind(mode: int) -> str:
+    """The kind of a file that is not a regular one, from its ``st_mode``: ``"directory"``, ``"FIFO"``,
+    ``"device"``, ``"socket"``, ``"symbolic link"`` or ``"special file"``."""
+    return ("directory" if stat.S_ISDIR(mode) else "FIFO" if stat.S_ISFIFO(mode)
+            else "device" if stat.S_ISCHR(mode) or stat.S_ISBLK(mode) else "socket" if stat.S_ISSOCK(mode)
+            else "symbolic link" if stat.S_ISLNK(mode) else "special file")
+
+
+def read_regular(path: str | os.PathLike[str], limit: int, *, limit_text: str = "",
+                 follow_symlinks: bool = True) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` of them (see the module). ``limit_text`` follows
+    the number in the message of a file too large (``"(swarm_env.limits.MAX_FILE_BYTES)"``). Raises
+    ``FileNotFoundError`` for a missing file and :class:`FileRefused` for every other refusal."""
+    flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
+    if not follow_symlinks:
+        flags |= getattr(os, "O_NOFOLLOW", 0)
+    try:
+        fd = os.open(path, flags)
+    except FileNotFoundError:
+        raise
+    except ValueError:  # a NUL character in the name
+        raise FileRefused(path, "a path without NUL characters") from None
+    except OSError as exc:
+        if not follow_symlinks and os.path.islink(path):
+            raise FileRefused(path, "a regular file (this is a symbolic link)", kind="symbolic link") from None
+        raise FileRefused(path, f"a readable file ({exc.strerror or exc})") from None
+    too_big = f"a file of at most {limit} bytes" + (f" {limit_text}" if limit_text else "")
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            kind = file_kind(st.st_mode)
+            raise FileRefused(path, f"a regular file (this is a {kind})", kind=kind)
+        if st.st_size > limit:
+            raise FileRefused(path, too_big, f"{st.st_size} bytes", size=st.st_size)
+        chunks: list[bytes] = []
+        left = limit + 1  # a file that grows after fstat is still cut here
+        while left > 0:
+            chunk = os.read(fd, min(left, 1 << 20))
+            if not chunk:
+                break
+            chunks.append(chunk)
+            left -= len(chunk)
+    except OSError as exc:
+        raise FileRefused(path, f"a readable file ({exc.strerror or exc})") from None
+    finally:
+        os.close(fd)
+    if left <= 0:
+        raise FileRefused(path, too_big, "a file that grew while it was read")
+    return b"".join(chunks)
