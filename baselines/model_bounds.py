@@ -38,15 +38,14 @@ prints as one line with exit code 2.
 
 from __future__ import annotations
 
-import json
 import math
 import os
-import re
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
+from swarm_env import reading
 from swarm_env.limits import MAX_ABS_NUMBER, MAX_LIDAR_RAYS, MAX_NEIGHBORS, MAX_SENSED_HUMANS, clip_repr, printable
 from swarm_env.reading import FileRefused, read_regular
 from swarm_env.sensing.layout import ENTITY, FIXED
@@ -127,51 +126,10 @@ def read_bounded(path: str | os.PathLike[str], max_bytes: int, what: str = "file
         raise ValueError(f"{name}: cannot be read ({printable(str(exc), 200)})") from None
 
 
-_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"', re.DOTALL)
-_NOT_BRACKET = re.compile(rb"[^\[\]{}]")
-
-
-def _non_finite(value: Any) -> tuple[str, float] | None:
-    """``(key path, value)`` of the first non-finite float in the JSON value ``value`` (document order), or ``None``."""
-    stack: list[tuple[str, Any]] = [("", value)]
-    while stack:
-        path, v = stack.pop()
-        if isinstance(v, float) and not math.isfinite(v):
-            return path or "the document", v
-        if isinstance(v, dict):
-            stack.extend((f"{path}.{printable(k, 80)}" if path else printable(k, 80), x)
-                         for k, x in reversed(v.items()))
-        elif isinstance(v, list):
-            stack.extend((f"{path}[{i}]", x) for i, x in reversed(list(enumerate(v))))
-    return None
-
-
 def parse_json(data: bytes, max_depth: int = MAX_JSON_DEPTH) -> Any:
-    """The JSON value of ``data`` (UTF-8), nesting at most ``max_depth`` deep (checked before parsing, so a deep
-    document never reaches the parser's recursion) and strict: a ``NaN``, ``Infinity`` or ``-Infinity``, or a number
-    beyond the float range (``1e400``), is refused naming its key. Raises ``ValueError`` (one line) for anything
-    else."""
-    brackets = _NOT_BRACKET.sub(b"", _STRING.sub(b"", data))
-    if brackets:
-        steps = np.where(np.isin(np.frombuffer(brackets, np.uint8), (ord("["), ord("{"))), 1, -1)
-        depth = int(np.cumsum(steps).max())
-        if depth > max_depth:
-            raise ValueError(f"JSON nested {depth} deep, deeper than {max_depth}")
-    try:
-        value = json.loads(data.decode("utf-8"))
-    except RecursionError:  # unreachable after the depth check; kept so that no parser recursion escapes
-        raise ValueError(f"JSON nested deeper than {max_depth}") from None
-    except UnicodeDecodeError as exc:
-        raise ValueError(f"not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"not JSON ({exc.msg}: line {exc.lineno} column {exc.colno})") from None
-    except ValueError as exc:  # an integer of more digits than Python converts
-        raise ValueError(f"not JSON ({printable(str(exc), 120)})") from None
-    bad = _non_finite(value)
-    if bad is not None:
-        raise ValueError(f"{bad[0]}: expected a finite number, got {bad[1]!r} (NaN, Infinity and numbers beyond the "
-                         "float range are not JSON numbers)")
-    return value
+    """The JSON value of ``data``, nested at most ``max_depth`` deep and strict (the package's one JSON rule:
+    :func:`swarm_env.reading.parse_json`). Raises ``ValueError`` (one line)."""
+    return reading.parse_json(data, max_depth)
 
 
 def read_json(path: str | os.PathLike[str], max_bytes: int = MAX_DESCRIPTION_BYTES, what: str = "policy description"

@@ -12,14 +12,25 @@ saved models (``swarm_env_baselines.model_bounds``) are input from anyone. :func
 Every refusal is a :class:`FileRefused` (a ``ValueError``) carrying what was expected and what was found, which
 each reader words as its own error type (a scenario's ``ScenarioError``, a record's ``RecordError``, a model's
 ``ModelFileError``). :func:`file_kind` names a file type the same way everywhere ("a FIFO", "a device").
+
+:func:`parse_json` is the one rule for JSON from such files (a record's ``meta.json``, a model's ``policy.json``
+and safetensors header): nesting bounded before the parser sees it, and strict numbers (no ``NaN``/``Infinity``).
 """
 
 from __future__ import annotations
 
+import json
+import math
 import os
+import re
 import stat
+from typing import Any
 
-__all__ = ["FileRefused", "file_kind", "read_regular"]
+import numpy as np
+
+from swarm_env.limits import printable
+
+__all__ = ["FileRefused", "JSONTooDeep", "file_kind", "parse_json", "read_regular"]
 
 
 class FileRefused(ValueError):
@@ -86,3 +97,60 @@ def read_regular(path: str | os.PathLike[str], limit: int, *, limit_text: str = 
     if left <= 0:
         raise FileRefused(path, too_big, "a file that grew while it was read")
     return b"".join(chunks)
+
+
+class JSONTooDeep(ValueError):
+    """JSON nested deeper than allowed (:func:`parse_json`): ``depth`` (``None`` when the parser found it) and
+    ``limit``."""
+
+    def __init__(self, depth: int | None, limit: int) -> None:
+        self.depth, self.limit = depth, limit
+        super().__init__(f"JSON nested {depth} deep, deeper than {limit}" if depth is not None
+                         else f"JSON nested deeper than {limit}")
+
+
+_STRING = re.compile(rb'"(?:[^"\\]|\\.)*"', re.DOTALL)
+_NOT_BRACKET = re.compile(rb"[^\[\]{}]")
+
+
+def _non_finite(value: Any) -> tuple[str, float] | None:
+    """``(key path, value)`` of the first non-finite float in the JSON value ``value`` (document order), or ``None``."""
+    stack: list[tuple[str, Any]] = [("", value)]
+    while stack:
+        path, v = stack.pop()
+        if isinstance(v, float) and not math.isfinite(v):
+            return path or "the document", v
+        if isinstance(v, dict):
+            stack.extend((f"{path}.{printable(k, 80)}" if path else printable(k, 80), x)
+                         for k, x in reversed(v.items()))
+        elif isinstance(v, list):
+            stack.extend((f"{path}[{i}]", x) for i, x in reversed(list(enumerate(v))))
+    return None
+
+
+def parse_json(data: bytes, max_depth: int) -> Any:
+    """The JSON value of ``data`` (UTF-8), nesting at most ``max_depth`` deep (checked before parsing, so a deep
+    document never reaches the parser's recursion) and strict: a ``NaN``, ``Infinity`` or ``-Infinity``, or a number
+    beyond the float range (``1e400``), is refused naming its key. Raises ``ValueError`` (one line) for anything
+    else."""
+    brackets = _NOT_BRACKET.sub(b"", _STRING.sub(b"", data))
+    if brackets:
+        steps = np.where(np.isin(np.frombuffer(brackets, np.uint8), (ord("["), ord("{"))), 1, -1)
+        depth = int(np.cumsum(steps).max())
+        if depth > max_depth:
+            raise JSONTooDeep(depth, max_depth)
+    try:
+        value = json.loads(data.decode("utf-8"))
+    except RecursionError:  # unreachable after the depth check; kept so that no parser recursion escapes
+        raise JSONTooDeep(None, max_depth) from None
+    except UnicodeDecodeError as exc:
+        raise ValueError(f"not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"not JSON ({exc.msg}: line {exc.lineno} column {exc.colno})") from None
+    except ValueError as exc:  # an integer of more digits than Python converts
+        raise ValueError(f"not JSON ({printable(str(exc), 120)})") from None
+    bad = _non_finite(value)
+    if bad is not None:
+        raise ValueError(f"{bad[0]}: expected a finite number, got {bad[1]!r} (NaN, Infinity and numbers beyond the "
+                         "float range are not JSON numbers)")
+    return value

@@ -262,7 +262,7 @@ CASES: dict[str, tuple[Callable[[Path], None], str, str]] = {
     "max_steps 0": (lambda d: _set_meta(d, "env.max_steps", 0), "meta.json", "env.max_steps: expected an integer in [1, "),
     "max_steps -1": (lambda d: _set_meta(d, "env.max_steps", -1), "meta.json", "env.max_steps: expected an integer"),
     "string seed": (lambda d: _set_meta(d, "seed", "3"), "meta.json", "seed: expected an integer >= 0 or null"),
-    "NaN seed": (_meta_seed_nan, "meta.json", "NaN is not a number"),
+    "NaN seed": (_meta_seed_nan, "meta.json", "seed: expected a finite number, got nan"),
     "meta nested 100000 deep": (_nested_meta(100_000), "meta.json", "JSON nested at most 16 deep"),
     "scenario nested 100000 deep": (_nested_scenario, "scenario.yaml", "nested at most 16 deep"),
     "bad action_type": (lambda d: _set_meta(d, "env.action_type", "telepathic"), "meta.json",

@@ -64,7 +64,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import io
-import json
 import os
 import platform
 import shutil
@@ -89,7 +88,7 @@ from swarm_env.harness.policies import Policy
 from swarm_env.jsonio import dumps
 from swarm_env.limits import MAX_EPISODE_STEPS, MAX_FILE_BYTES, MAX_ROBOTS, MAX_YAML_DEPTH, clip_repr, printable
 from swarm_env.outputs import replace_dir, write_error
-from swarm_env.reading import FileRefused, file_kind, read_regular
+from swarm_env.reading import FileRefused, JSONTooDeep, file_kind, parse_json, read_regular
 from swarm_env.scenario import Scenario, ScenarioError
 from swarm_env.scenarios.loader import load_scenario, scenario_to_dict
 from swarm_env.state import CONTACT_KINDS, WorldState
@@ -385,39 +384,15 @@ def _one_line(exc: ScenarioError) -> str:
     return first + (f" (and {more} more problem{'s' if more > 1 else ''})" if more else "")
 
 
-def _reject_constant(name: str) -> None:
-    raise ValueError(f"{name} is not a number (JSON has no NaN or Infinity)")
-
-
-def _too_deep(value: Any, limit: int) -> bool:
-    """Whether ``value`` (parsed JSON) nests lists and dicts more than ``limit`` deep (iteratively: no recursion)."""
-    stack = [(value, 1)]
-    while stack:
-        item, depth = stack.pop()
-        children = item.values() if isinstance(item, dict) else item if isinstance(item, list) else None
-        if children is None:
-            continue
-        if depth > limit:
-            return True
-        stack.extend((c, depth + 1) for c in children if isinstance(c, (dict, list)))
-    return False
-
-
 def _read_meta(path: Path) -> dict[str, Any]:
     raw = _read_bytes(path, MAX_FILE_BYTES, "(swarm_env.limits.MAX_FILE_BYTES)", "a recording's meta.json")
     try:
-        text = raw.decode("utf-8")
-    except UnicodeDecodeError as exc:
-        raise _error(path, "<file>", f"a UTF-8 text file (byte {exc.start} is not UTF-8)") from None
-    depth_bound = f"JSON nested at most {MAX_YAML_DEPTH} deep (swarm_env.limits.MAX_YAML_DEPTH)"
-    try:
-        meta = json.loads(text, parse_constant=_reject_constant)
-    except RecursionError:
-        raise _error(path, "<file>", depth_bound) from None
-    except ValueError as exc:  # JSONDecodeError, NaN/Infinity, an integer of more than 4300 digits
+        meta = parse_json(raw, MAX_YAML_DEPTH)  # the one JSON rule: depth bounded before parsing, strict numbers
+    except JSONTooDeep:
+        raise _error(path, "<file>", f"JSON nested at most {MAX_YAML_DEPTH} deep (swarm_env.limits.MAX_YAML_DEPTH)"
+                     ) from None
+    except ValueError as exc:
         raise _error(path, "<file>", f"a recording's meta.json in JSON ({printable(str(exc), 200)})") from None
-    if _too_deep(meta, MAX_YAML_DEPTH):
-        raise _error(path, "<file>", depth_bound)
     if not isinstance(meta, dict):
         raise _error(path, "<top level>", "a JSON object (a recording's meta.json)", f"a {type(meta).__name__}")
     return meta
