@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarm_env.harness.policies import OBSERVATIONS, ModelFileError, PolicyError
+from swarm_env.limits import printable
 from swarm_env.state import WorldState
 from swarm_env_baselines.mappo_policy import SHIPPED_SEEDS, shipped_run
 from swarm_env_baselines.model_bounds import shown
@@ -111,6 +112,13 @@ def resolve_model_path(path: str | Path) -> Path:
     return p
 
 
+#: Bounds of a legacy SB3 ``model.zip`` (what SB3 writes: ``data``, a few ``.pth`` members and a version file),
+#: checked on the sizes the archive declares before any member is inflated.
+MAX_SB3_MEMBERS = 64
+MAX_SB3_DATA_BYTES = 16 << 20
+MAX_SB3_MEMBER_BYTES = 256 << 20
+
+
 def check_sb3_zip(path: Path, algo: str) -> dict[str, Any]:
     """The plain JSON fields of the SB3 archive ``path`` (its cloudpickled ``:serialized:`` fields
     left as they are, never decoded), after checking, without unpickling anything, that it is a whole
@@ -119,6 +127,17 @@ def check_sb3_zip(path: Path, algo: str) -> dict[str, Any]:
     """
     try:
         with zipfile.ZipFile(path) as archive:
+            # sizes as the archive declares them (zipfile never reads a member past its declared size): a zip bomb
+            # is refused before testzip() would inflate it
+            members = archive.infolist()
+            big = next((m for m in members if m.file_size > (MAX_SB3_DATA_BYTES if m.filename == "data"
+                                                             else MAX_SB3_MEMBER_BYTES)), None)
+            if big is not None or len(members) > MAX_SB3_MEMBERS:
+                what = (f"member {printable(big.filename, 80)} inflates to {big.file_size:,} bytes" if big is not None
+                        else f"{len(members):,} members")
+                raise ModelFileError(f"{path}: not a stable-baselines3 model archive within bounds ({what}; at most "
+                                     f"{MAX_SB3_MEMBERS} members, 'data' {MAX_SB3_DATA_BYTES:,} bytes, the others "
+                                     f"{MAX_SB3_MEMBER_BYTES:,})")
             broken = archive.testzip()
             if broken is not None:
                 raise zipfile.BadZipFile(f"member {broken} fails its CRC check")

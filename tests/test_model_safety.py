@@ -15,6 +15,7 @@ import json
 import os
 import pickle
 import shutil
+import time
 import zipfile
 from pathlib import Path
 
@@ -313,3 +314,20 @@ def test_the_ray_backend_reports_a_refused_file_in_one_line_and_passes_the_opt_i
     monkeypatch.setenv(TRUST_PICKLE_ENV, "1")
     board = run_leaderboard(*args, **kwargs)
     assert len(board.episodes) == 1 and board.rows[0].na_reason is None
+
+
+def test_a_zip_bomb_model_zip_is_refused_before_it_is_inflated(run, tmp_path) -> None:
+    """A legacy model.zip whose ``data`` inflates to 300 MB (a 0.3 MB file) is refused on the sizes it declares,
+    before ``testzip`` or ``read`` would inflate it."""
+    d = _legacy(run, tmp_path / "bomb")
+    with zipfile.ZipFile(d / model_io.MODEL_FILE) as archive:
+        members = {name: archive.read(name) for name in archive.namelist()}
+    with zipfile.ZipFile(d / model_io.MODEL_FILE, "w", compression=zipfile.ZIP_DEFLATED) as archive:
+        for name, content in members.items():
+            archive.writestr(name, b" " * (300 << 20) if name == "data" else content)
+    assert (d / model_io.MODEL_FILE).stat().st_size < 2 << 20
+    start = time.perf_counter()
+    with pytest.raises(ModelFileError, match=r"model\.zip: not a stable-baselines3 model archive within bounds "
+                                             r"\(member data inflates to 314,572,800 bytes"):
+        load_policy(f"ppo:{d}", _env())
+    assert time.perf_counter() - start < 2.0
