@@ -29,6 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from swarm_env.jsonio import dumps, write_json
+from swarm_env_baselines.model_bounds import MAX_DESCRIPTION_BYTES, read_checkpoint_tensors, read_json
 from swarm_env_baselines.options import package_versions
 from swarm_env_baselines.run_log import RunLog
 from swarm_env_baselines.safe_io import _atomic, read_description, swap_in_dir
@@ -182,13 +183,13 @@ def resume_run_dir(run_dir: str | Path, overrides: dict[str, Any], allowed: tupl
     """``(config, checkpoint)`` of the run ``--resume`` continues: its ``config.json`` with ``overrides`` (only the
     ``allowed`` fields; written back if any) and its latest checkpoint (``run_dir/checkpoint``, of
     ``checkpoint_format``). ``FileNotFoundError``/``ValueError`` naming the file for a missing or bad one."""
-    import json
-
-
     run_dir = Path(run_dir)
     cfg_path = resume_config(run_dir, overrides, allowed)
+    saved = read_json(cfg_path, MAX_DESCRIPTION_BYTES, "run config")  # bounded, strict JSON; errors name the file
     try:
-        cfg = config(**{**json.loads(cfg_path.read_text()), **overrides})
+        if not isinstance(saved, dict):
+            raise ValueError(f"expected a JSON object, got {type(saved).__name__}")
+        cfg = config(**{**saved, **overrides})
     except (ValueError, TypeError) as exc:
         raise ValueError(f"{cfg_path}: not a {config.__name__} ({exc})") from None
     checkpoint = run_dir / CHECKPOINT_DIR
@@ -218,19 +219,14 @@ def write_checkpoint(directory: Path, tensors: dict[str, Any], meta: dict[str, A
 
 def read_checkpoint(directory: Path, fmt: str) -> tuple[dict[str, Any], dict[str, Any]]:
     """``(tensors, meta)`` of a checkpoint written by :func:`write_checkpoint` whose ``meta["format"]``
-    is ``fmt``. Raises ``FileNotFoundError`` or ``ValueError`` naming the file."""
-    from safetensors.torch import load_file
-
-
+    is ``fmt``, both read within the bounds of :mod:`swarm_env_baselines.model_bounds` (``state.json`` as a JSON run
+    file, ``state.safetensors`` by :func:`~swarm_env_baselines.model_bounds.read_checkpoint_tensors`). Raises
+    ``FileNotFoundError`` or ``ValueError`` naming the file."""
     meta_path, tensor_path = directory / STATE_JSON, directory / STATE_TENSORS
     if not meta_path.is_file() or not tensor_path.is_file():
         raise FileNotFoundError(f"{directory}: no checkpoint ({STATE_JSON} and {STATE_TENSORS} expected)")
     meta = read_description(meta_path, fmt)
-    try:
-        tensors = load_file(str(tensor_path), device="cpu")
-    except Exception as exc:  # noqa: BLE001 - safetensors raises several types; all mean "bad file"
-        raise ValueError(f"{tensor_path}: not a readable safetensors file ({exc})") from None
-    return tensors, meta
+    return read_checkpoint_tensors(tensor_path), meta  # bounded: the file, its header, dtypes, sizes, finite values
 
 
 def optimizer_to_files(optim: Any, prefix: str = "optim") -> tuple[dict[str, Any], dict[str, Any]]:

@@ -38,6 +38,7 @@ from swarm_env.harness.policies import (
     OBSERVATIONS,
     STATE,
     ModelFileError,
+    PolicyArgumentError,
     PolicyError,
     ShieldedPolicy,
     UnknownPolicyError,
@@ -306,6 +307,9 @@ def _policy_of_run(config: dict[str, Any], actor: Any, obs_rms: RunningMeanStd, 
                 f"that is not itself a residual run, got {clip_repr(expert_spec)}, which loads the residual run "
                 f"{mb.shown(exc.source)} (a chain of residual runs, or one that is its own expert, is refused)"
             ) from None
+        except PolicyArgumentError as exc:  # the spec is wrong whatever the env: the file is bad, not a misfit
+            raise ModelFileError(f"policy {printable(label, 200)}: {mb.shown(source)}: config.residual: {exc}"
+                                 ) from None
         finally:
             _BUILDING_EXPERT_OF.reset(token)
         return ResidualPolicy(actor, obs_rms, expert, float(config["residual_scale"]), name=label)

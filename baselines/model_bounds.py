@@ -18,7 +18,11 @@ Files (:func:`read_bounded`, :func:`parse_json`, :func:`read_safetensors`):
   bytes) is read before the header, which is at most :data:`MAX_HEADER_BYTES` and lists at most
   :data:`MAX_TENSORS` tensors, each ``F32`` or ``F64`` of at most :data:`MAX_PARAMETERS` values; every value
   read is finite and at most :data:`MAX_ABS_WEIGHT` in magnitude (so a network of finite inputs cannot
-  overflow to ``inf - inf``).
+  overflow to ``inf - inf``);
+* a training checkpoint's ``state.safetensors`` (read on ``--resume``, :func:`read_checkpoint_tensors`) has wider
+  bounds, since it also holds the optimizer's state, the pending rollout and generator states: at most
+  :data:`MAX_CHECKPOINT_BYTES`, :data:`MAX_CHECKPOINT_TENSORS` tensors of the :data:`CHECKPOINT_DTYPES`, each at
+  most :data:`MAX_CHECKPOINT_VALUES` values, whose bytes fill the file exactly; its floating-point values finite.
 
 Descriptions (:func:`number`, :func:`integer`, :func:`widths`, :func:`vector`, :func:`statistics`,
 :func:`check_parameters`, :func:`spec`): every number is an ``int``/``float`` (never a bool, a string, a list
@@ -38,9 +42,10 @@ prints as one line with exit code 2.
 
 from __future__ import annotations
 
+import contextlib
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Collection, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -51,13 +56,22 @@ from swarm_env.reading import FileRefused, read_regular
 from swarm_env.sensing.layout import ENTITY, FIXED
 
 __all__ = [
-    "ACTION_SIZE", "MAX_ABS_WEIGHT", "MAX_CLIP", "MAX_DEPTH", "MAX_DESCRIPTION_BYTES", "MAX_HEADER_BYTES", "MAX_INPUTS",
+    "ACTION_SIZE", "CHECKPOINT_DTYPES", "MAX_ABS_WEIGHT", "MAX_CHECKPOINT_BYTES", "MAX_CHECKPOINT_TENSORS",
+    "MAX_CHECKPOINT_VALUES", "MAX_CLIP", "MAX_DEPTH", "MAX_DESCRIPTION_BYTES", "MAX_HEADER_BYTES", "MAX_INPUTS",
     "MAX_JSON_DEPTH", "MAX_OBSERVATION", "MAX_PARAMETERS", "MAX_SPEC_CHARS", "MAX_STATE_BYTES", "MAX_TENSORS",
     "MAX_WEIGHTS_BYTES", "MAX_WIDTH", "TENSOR_DTYPES", "check_parameters", "get", "integer", "json_object",
-    "mlp_parameters", "number", "parse_json", "read_bounded", "read_json", "read_safetensors", "shown", "spec",
-    "statistics", "vector", "widths",
+    "mlp_parameters", "number", "parse_json", "read_bounded", "read_checkpoint_tensors", "read_json",
+    "read_safetensors", "shown", "spec", "statistics", "vector", "widths",
 ]
 
+#: A training checkpoint's ``state.safetensors`` (read on ``--resume``): at most this many bytes, tensors and values
+#: per tensor, of these dtypes (bytes per value). A default MAPPO checkpoint is ~10 MB; the rollout it keeps grows
+#: with the worlds and steps per update.
+MAX_CHECKPOINT_BYTES = 8 << 30
+MAX_CHECKPOINT_TENSORS = 4096
+MAX_CHECKPOINT_VALUES = 1 << 31
+CHECKPOINT_DTYPES = {"F64": 8, "F32": 4, "F16": 2, "BF16": 2, "I64": 8, "I32": 4, "I16": 2, "I8": 1, "U8": 1,
+                     "BOOL": 1}
 #: The largest ``policy.json`` (bytes), checked before reading: the shipped ones are 3-18 kB.
 MAX_DESCRIPTION_BYTES = 1 << 20
 #: The largest other JSON run file read through :func:`read_json` (a checkpoint's ``state.json``, which keeps
@@ -107,9 +121,16 @@ def read_bounded(path: str | os.PathLike[str], max_bytes: int, what: str = "file
     waiting; the size checked before reading; a file that grows meanwhile refused, never read on). Raises
     ``FileNotFoundError`` for a missing file and ``ValueError`` naming it for anything else.
     """
+    with _refusals(path, max_bytes, what):
+        return read_regular(path, max_bytes)
+
+
+@contextlib.contextmanager
+def _refusals(path: str | os.PathLike[str], max_bytes: int, what: str) -> Iterator[None]:
+    """Word a :class:`~swarm_env.reading.FileRefused` raised in the block as this module's one-line ``ValueError``."""
     name = shown(path)
     try:
-        return read_regular(path, max_bytes)
+        yield
     except FileNotFoundError:
         raise
     except FileRefused as exc:
@@ -122,8 +143,6 @@ def read_bounded(path: str | os.PathLike[str], max_bytes: int, what: str = "file
             raise ValueError(f"{name}: more than the {max_bytes:,} bytes a {what} may have (it grew while being "
                              "read); refused") from None
         raise ValueError(f"{name}: cannot be read ({printable(exc.expected, 200)})") from None
-    except ValueError as exc:  # a NUL in the name
-        raise ValueError(f"{name}: cannot be read ({printable(str(exc), 200)})") from None
 
 
 def parse_json(data: bytes, max_depth: int = MAX_JSON_DEPTH) -> Any:
@@ -143,8 +162,12 @@ def read_json(path: str | os.PathLike[str], max_bytes: int = MAX_DESCRIPTION_BYT
         raise ValueError(f"{shown(path)}: not a readable JSON {what} ({exc})") from None
 
 
-def _safetensors_header(data: bytes, name: str) -> dict[str, Any]:
-    """The checked header of the safetensors bytes ``data`` (tensor name -> its entry)."""
+def _safetensors_header(data: bytes, name: str, dtypes: Collection[str] = tuple(TENSOR_DTYPES),
+                        max_tensors: int = MAX_TENSORS, max_values: int = MAX_PARAMETERS,
+                        kind: str = "a policy file") -> dict[str, Any]:
+    """The checked header of the safetensors bytes ``data`` (tensor name -> its entry): ``data`` holds at least
+    the 8-byte length and the header it announces. At most ``max_tensors`` tensors, each of one of ``dtypes`` and
+    at most ``max_values`` values."""
     bad = f"{name}: not a readable safetensors file, truncated or corrupt"
     if len(data) < 8:
         raise ValueError(f"{bad} ({len(data)} bytes, fewer than the 8 of the header length)")
@@ -161,23 +184,38 @@ def _safetensors_header(data: bytes, name: str) -> dict[str, Any]:
     if not isinstance(header, dict):
         raise ValueError(f"{bad} (header: expected a JSON object, got {clip_repr(header)})")
     entries = {k: v for k, v in header.items() if k != "__metadata__"}
-    if len(entries) > MAX_TENSORS:
-        raise ValueError(f"{name}: {len(entries):,} tensors, more than the {MAX_TENSORS:,} a policy file may hold")
+    if len(entries) > max_tensors:
+        raise ValueError(f"{name}: {len(entries):,} tensors, more than the {max_tensors:,} {kind} may hold")
     for key, entry in entries.items():
         where = f"{name}: tensor {clip_repr(key)}"
         if not isinstance(entry, dict):
             raise ValueError(f"{bad} (tensor {clip_repr(key)}: expected an object, got {clip_repr(entry)})")
         dtype = entry.get("dtype")
-        if dtype not in TENSOR_DTYPES:
-            raise ValueError(f"{where}: dtype {clip_repr(dtype)}, expected one of {', '.join(TENSOR_DTYPES)}")
+        if dtype not in dtypes:
+            raise ValueError(f"{where}: dtype {clip_repr(dtype)}, expected one of {', '.join(dtypes)}")
         shape = entry.get("shape")
-        if (not isinstance(shape, list) or len(shape) > 4 or not all(type(n) is int and 0 <= n <= MAX_PARAMETERS
+        if (not isinstance(shape, list) or len(shape) > 4 or not all(type(n) is int and 0 <= n <= max_values
                                                                      for n in shape)):
             raise ValueError(f"{where}: shape {clip_repr(shape)}, expected a list of at most 4 sizes in "
-                             f"0-{MAX_PARAMETERS:,}")
-        if math.prod(shape) > MAX_PARAMETERS:
-            raise ValueError(f"{where}: {math.prod(shape):,} values, more than {MAX_PARAMETERS:,}")
+                             f"0-{max_values:,}")
+        if math.prod(shape) > max_values:
+            raise ValueError(f"{where}: {math.prod(shape):,} values, more than {max_values:,}")
     return entries
+
+
+def _finite(name: str, tensors: dict[str, Any], max_abs: float) -> None:
+    """Refuse any floating-point tensor of ``tensors`` with a NaN, an infinity or a value beyond ``max_abs``."""
+    import torch
+
+    for key, tensor in tensors.items():
+        if not tensor.numel() or not tensor.is_floating_point():
+            continue
+        if not bool(torch.isfinite(tensor).all()):
+            raise ValueError(f"{name}: tensor {clip_repr(key)}: not all finite (NaN or infinity); expected finite "
+                             "values")
+        if float(tensor.abs().max()) > max_abs:
+            raise ValueError(f"{name}: tensor {clip_repr(key)}: a value of magnitude {float(tensor.abs().max()):.3g}; "
+                             f"expected values within +-{max_abs:g}")
 
 
 def read_safetensors(path: str | os.PathLike[str]) -> dict[str, Any]:
@@ -186,7 +224,6 @@ def read_safetensors(path: str | os.PathLike[str]) -> dict[str, Any]:
     tensors (:data:`MAX_TENSORS`), their dtypes (:data:`TENSOR_DTYPES`) and sizes, and checking that every value
     is finite and at most :data:`MAX_ABS_WEIGHT` in magnitude. Raises ``FileNotFoundError`` for a missing file and
     ``ValueError`` (one line naming the file) for a bad one."""
-    import torch
     from safetensors.torch import load
 
     name = shown(path)
@@ -197,13 +234,48 @@ def read_safetensors(path: str | os.PathLike[str]) -> dict[str, Any]:
     except Exception as exc:  # noqa: BLE001 - safetensors raises its own error types; all mean "bad file"
         text = printable(" ".join(str(exc).split()) or type(exc).__name__, 200)
         raise ValueError(f"{name}: not a readable safetensors file, truncated or corrupt ({text})") from None
-    for key, tensor in tensors.items():
-        if tensor.numel() and not bool(torch.isfinite(tensor).all()):
-            raise ValueError(f"{name}: tensor {clip_repr(key)}: not all finite (NaN or infinity); expected finite "
-                             "weights")
-        if tensor.numel() and float(tensor.abs().max()) > MAX_ABS_WEIGHT:
-            raise ValueError(f"{name}: tensor {clip_repr(key)}: a value of magnitude {float(tensor.abs().max()):.3g}; "
-                             f"expected weights within +-{MAX_ABS_WEIGHT:g}")
+    _finite(name, tensors, MAX_ABS_WEIGHT)
+    return tensors
+
+
+def read_checkpoint_tensors(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """Every tensor of a training checkpoint's ``state.safetensors`` (torch, on CPU), read within bounds: a regular
+    file of at most :data:`MAX_CHECKPOINT_BYTES`; its header read first (its length, then at most
+    :data:`MAX_HEADER_BYTES`), listing at most :data:`MAX_CHECKPOINT_TENSORS` tensors of the
+    :data:`CHECKPOINT_DTYPES`, each at most :data:`MAX_CHECKPOINT_VALUES` values; the tensors' bytes must fill the
+    file exactly; then the file is mapped (not copied twice) and every floating-point value must be finite.
+    A checkpoint is larger than a policy (optimizer state, the pending rollout, generators), so its bounds are
+    wider, but still bound the memory a resume takes to the file's size. Raises ``FileNotFoundError`` or
+    ``ValueError`` (one line naming the file)."""
+    from safetensors.torch import load_file
+
+    name = shown(path)
+    with _refusals(path, MAX_CHECKPOINT_BYTES, "checkpoint"), reading.open_regular(path, MAX_CHECKPOINT_BYTES) as (
+            handle, size):
+        head = handle.read(8)  # the header's length, then the header: never more than MAX_HEADER_BYTES
+        length = int.from_bytes(head, "little") if len(head) == 8 else 0
+        if length <= MAX_HEADER_BYTES:
+            head += handle.read(length)
+    entries = _safetensors_header(head, name, CHECKPOINT_DTYPES, MAX_CHECKPOINT_TENSORS, MAX_CHECKPOINT_VALUES,
+                                  "a checkpoint")
+    expected = 0
+    for key, entry in entries.items():
+        offsets = entry.get("data_offsets")
+        width = CHECKPOINT_DTYPES[entry["dtype"]]
+        if (not isinstance(offsets, list) or len(offsets) != 2 or not all(type(n) is int for n in offsets)
+                or offsets[1] - offsets[0] != width * math.prod(entry["shape"]) or offsets[0] < 0):
+            raise ValueError(f"{name}: tensor {clip_repr(key)}: data_offsets {clip_repr(offsets)} do not match its "
+                             "dtype and shape; truncated or corrupt")
+        expected += offsets[1] - offsets[0]
+    if 8 + length + expected != size:
+        raise ValueError(f"{name}: {size:,} bytes where its header describes {8 + length + expected:,}; truncated or "
+                         "corrupt")
+    try:
+        tensors = load_file(os.fspath(path), device="cpu")
+    except Exception as exc:  # noqa: BLE001 - safetensors raises its own error types; all mean "bad file"
+        text = printable(" ".join(str(exc).split()) or type(exc).__name__, 200)
+        raise ValueError(f"{name}: not a readable safetensors file, truncated or corrupt ({text})") from None
+    _finite(name, tensors, math.inf)
     return tensors
 
 

@@ -196,7 +196,10 @@ def _killed_writer_probes(tmp: Path) -> list[tuple[str, Callable[[], bool]]]:
                 raise RuntimeError("stop")
         except RuntimeError:
             pass
-        return not path.exists() and not [p for p in tmp.iterdir() if p.name.startswith(".e.mp4")]
+        left = [p.name for p in tmp.iterdir() if p.name == path.name or p.name.startswith(".e.mp4")]
+        if left:
+            raise AssertionError(f"left behind: {', '.join(left)}")
+        return True
 
     def signal_mid_run(sig: int) -> Callable[[], bool]:
         def probe() -> bool:
@@ -217,7 +220,11 @@ def _killed_writer_probes(tmp: Path) -> list[tuple[str, Callable[[], bool]]]:
             proc.send_signal(sig)
             _, err = proc.communicate(timeout=TIMEOUT)
             clean_exit = sig == signal.SIGKILL or (proc.returncode == 130 and err.strip() == "interrupted")
-            return clean_exit and not path.exists()
+            if not clean_exit or path.exists():  # say what was found: a flake must be diagnosable from the report
+                tail = " ".join(err.split())[-160:].replace("|", "/").replace("`", "'")
+                raise AssertionError(f"exit {proc.returncode}, final file {'left' if path.exists() else 'absent'}, "
+                                     f"stderr ...{tail}")
+            return True
         return probe
 
     return [

@@ -511,8 +511,17 @@ def outputs_table(rows: list[dict]) -> str:
     return head + body + f"| **all** | **{total['tried']}** | **{total['clear_error']}** | **{total['crash']}** | **{total['hang']}** |\n"
 
 
+def outputs_failures(details: list[dict]) -> str:
+    """The output probes that did not end as specified, each with what it found (empty if none)."""
+    bad = [d for d in details if d["outcome"] != "clear_error"]
+    if not bad:
+        return ""
+    rows = "".join(f"| {d['category']} | {d['probe']} | {d['outcome']} | `{d['error'] or '-'}` |\n" for d in bad)
+    return "\nProbes that did not end as specified:\n\n| category | probe | outcome | what it found |\n|---|---|---|---|\n" + rows
+
+
 def report(scenario: list[dict], models: list[dict], args: argparse.Namespace, seconds: float,
-           outputs: list[dict] | None = None) -> str:
+           outputs: list[dict] | None = None, output_details: list[dict] | None = None) -> str:
     from swarm_env import limits
 
     cmd = "python benchmarks/reliability_probes.py --out docs/reliability.md"
@@ -538,7 +547,7 @@ run took {seconds:.0f} s on a shared 2-core machine, so its times are rough):
 The bounds that make every probe end (file size, YAML aliases and nesting, counts, rays, steps
 per episode, world size, ...) are one table, `swarm_env.limits` (listed in
 [Scenario files](scenarios.md)). `tests/test_scenario_fuzz.py` checks the same contract with
-hypothesis on every test run (2,000 mutations; `python -m pytest -m fuzz` for ten times as many).
+hypothesis in CI (2,000 mutations among the slow tests, `python -m pytest -m slow`; `-m fuzz` for ten times as many).
 
 ## Scenarios
 
@@ -582,7 +591,7 @@ outcome: a one-line refusal that leaves every other file as it was, no file unde
 name, or a fault that costs only its episode, exit code 130 with the partial results, and a resumed sweep
 equal to an uninterrupted one.
 
-{outputs_table(outputs) if outputs else "Not run (`--no-outputs`)."}
+{outputs_table(outputs) if outputs else "Not run (`--no-outputs`)."}{outputs_failures(output_details or [])}
 Limits in force (`swarm_env.limits.LIMITS`): {", ".join(f"{k} = {v[0]:,}" if isinstance(v[0], int) else f"{k} = {v[0]:g}" for k, v in limits.LIMITS.items())}.
 """
     return text
@@ -617,8 +626,10 @@ def main(argv: list[str] | None = None) -> int:
     if not args.no_outputs:
         from reliability_outputs import probes as output_probes  # this directory's sibling script
 
-        outputs = output_probes()
-    text = report(scenario, model_results, args, time.perf_counter() - t0, outputs)
+        output_details: list[dict] = []
+        outputs = output_probes(details=output_details)
+    text = report(scenario, model_results, args, time.perf_counter() - t0, outputs,
+                  output_details if outputs else None)
     if args.out:
         from swarm_env.outputs import atomic_write_text
 

@@ -19,18 +19,20 @@ and safetensors header): nesting bounded before the parser sees it, and strict n
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
 import re
 import stat
-from typing import Any
+from collections.abc import Iterator
+from typing import Any, BinaryIO
 
 import numpy as np
 
 from swarm_env.limits import printable
 
-__all__ = ["FileRefused", "JSONTooDeep", "file_kind", "parse_json", "read_regular"]
+__all__ = ["FileRefused", "JSONTooDeep", "file_kind", "open_regular", "parse_json", "read_regular"]
 
 
 class FileRefused(ValueError):
@@ -56,11 +58,12 @@ def file_kind(mode: int) -> str:
             else "symbolic link" if stat.S_ISLNK(mode) else "special file")
 
 
-def read_regular(path: str | os.PathLike[str], limit: int, *, limit_text: str = "",
-                 follow_symlinks: bool = True) -> bytes:
-    """The bytes of the regular file ``path``, at most ``limit`` of them (see the module). ``limit_text`` follows
-    the number in the message of a file too large (``"(swarm_env.limits.MAX_FILE_BYTES)"``). Raises
-    ``FileNotFoundError`` for a missing file and :class:`FileRefused` for every other refusal."""
+@contextlib.contextmanager
+def open_regular(path: str | os.PathLike[str], limit: int, *, limit_text: str = "",
+                 follow_symlinks: bool = True) -> Iterator[tuple[BinaryIO, int]]:
+    """``(file, size)`` of the regular file ``path`` of at most ``limit`` bytes, opened for reading in binary (the
+    checks of :func:`read_regular`, without reading it: for a reader that needs only a part, such as a header).
+    Raises ``FileNotFoundError`` for a missing file and :class:`FileRefused` for every other refusal."""
     flags = os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_NOCTTY", 0) | getattr(os, "O_CLOEXEC", 0)
     if not follow_symlinks:
         flags |= getattr(os, "O_NOFOLLOW", 0)
@@ -74,28 +77,45 @@ def read_regular(path: str | os.PathLike[str], limit: int, *, limit_text: str = 
         if not follow_symlinks and os.path.islink(path):
             raise FileRefused(path, "a regular file (this is a symbolic link)", kind="symbolic link") from None
         raise FileRefused(path, f"a readable file ({exc.strerror or exc})") from None
-    too_big = f"a file of at most {limit} bytes" + (f" {limit_text}" if limit_text else "")
-    try:
+    try:  # checked on the descriptor before a file object is made (which would refuse a directory its own way)
         st = os.fstat(fd)
         if not stat.S_ISREG(st.st_mode):
             kind = file_kind(st.st_mode)
             raise FileRefused(path, f"a regular file (this is a {kind})", kind=kind)
         if st.st_size > limit:
-            raise FileRefused(path, too_big, f"{st.st_size} bytes", size=st.st_size)
+            raise FileRefused(path, _too_big(limit, limit_text), f"{st.st_size} bytes", size=st.st_size)
+    except BaseException as exc:
+        os.close(fd)
+        if isinstance(exc, OSError):
+            raise FileRefused(path, f"a readable file ({exc.strerror or exc})") from None
+        raise
+    with os.fdopen(fd, "rb", buffering=0) as handle:
+        try:
+            yield handle, st.st_size
+        except OSError as exc:
+            raise FileRefused(path, f"a readable file ({exc.strerror or exc})") from None
+
+
+def _too_big(limit: int, limit_text: str) -> str:
+    return f"a file of at most {limit} bytes" + (f" {limit_text}" if limit_text else "")
+
+
+def read_regular(path: str | os.PathLike[str], limit: int, *, limit_text: str = "",
+                 follow_symlinks: bool = True) -> bytes:
+    """The bytes of the regular file ``path``, at most ``limit`` of them (see the module). ``limit_text`` follows
+    the number in the message of a file too large (``"(swarm_env.limits.MAX_FILE_BYTES)"``). Raises
+    ``FileNotFoundError`` for a missing file and :class:`FileRefused` for every other refusal."""
+    with open_regular(path, limit, limit_text=limit_text, follow_symlinks=follow_symlinks) as (handle, _):
         chunks: list[bytes] = []
         left = limit + 1  # a file that grows after fstat is still cut here
         while left > 0:
-            chunk = os.read(fd, min(left, 1 << 20))
+            chunk = handle.read(min(left, 1 << 20))
             if not chunk:
                 break
             chunks.append(chunk)
             left -= len(chunk)
-    except OSError as exc:
-        raise FileRefused(path, f"a readable file ({exc.strerror or exc})") from None
-    finally:
-        os.close(fd)
     if left <= 0:
-        raise FileRefused(path, too_big, "a file that grew while it was read")
+        raise FileRefused(path, _too_big(limit, limit_text), "a file that grew while it was read")
     return b"".join(chunks)
 
 

@@ -21,6 +21,7 @@ def _actions(venv: SwarmVecEnv, rng: np.random.Generator) -> np.ndarray:
     return rng.uniform(-1, 1, (venv.num_envs, 2)).astype(np.float32)
 
 
+@pytest.mark.slow
 def test_seeded_reset_gives_distinct_copies_equal_to_their_own_seeds():
     venv = make_vec_env("random", 3, **SMALL)
     venv.seed(7)
@@ -37,6 +38,7 @@ def test_seeded_reset_gives_distinct_copies_equal_to_their_own_seeds():
     venv.close()
 
 
+@pytest.mark.slow
 def test_truncation_sets_terminal_observation_and_time_limit_flag_then_auto_resets():
     venv = make_vec_env("random", 2, max_cycles=5, **SMALL)
     venv.seed(3)

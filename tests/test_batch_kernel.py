@@ -91,6 +91,7 @@ def _lockstep_vs_numpy(factories: list[EnvFactory], steps: int, seed: int, noise
     return seen
 
 
+@pytest.mark.slow
 def test_batched_stages_match_numpy_references_with_every_term_and_mixed_worlds() -> None:
     base = dict(n_followers=5, max_time=6.0, n_switches=2, reward=ALL_TERMS, n_obstacles=(2, 8))
     factories = [
@@ -154,6 +155,7 @@ def test_padded_maps_keep_each_worlds_arrays_when_they_grow() -> None:
 
 
 @pytest.mark.parametrize("n_procs", [1, 2])
+@pytest.mark.slow
 def test_numpy_reference_path_of_the_block_gives_the_batched_bits(n_procs: int) -> None:
     """The block's per-world path (the kernels switched off, as in worker processes) and its batched
     path, switched between in the middle of episodes, give the same results as an engine that never

@@ -138,6 +138,7 @@ def test_holder_rejects_bad_settings() -> None:
     assert CBSRRTExpert().hold_slots is False  # experimental: off by default
 
 
+@pytest.mark.slow
 def test_expert_holds_a_reached_formation_and_plans_again_at_the_switch() -> None:
     """``paper_cbs_switch`` starts in formation: the holder drives (no replan) until the switch at
     t = 80, where CBS plans the change. The V is held nearly all the time (the leader's turns

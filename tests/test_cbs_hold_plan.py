@@ -102,6 +102,7 @@ def test_plan_tracker_follows_a_path_and_keeps_off_obstacles() -> None:
         tracker.twists(state, wall[:3], wall[:3])
 
 
+@pytest.mark.slow
 def test_expert_plans_the_hold_only_with_a_virtual_leader_and_long_steps() -> None:
     """By default the expert plans a reached formation where the slots are known ahead (a virtual
     leader), no human walks about (the plan has none in it) and a step moves a robot at least four

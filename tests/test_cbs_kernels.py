@@ -89,6 +89,7 @@ def _interp_cases(rng: np.random.Generator, trials: int) -> list[tuple[np.ndarra
     return out
 
 
+@pytest.mark.slow
 def test_scalar_and_compiled_interpolation_match_numpy_on_a_million_points() -> None:
     """``interp_scalar`` (plain Python) and ``kernels.interp_xy`` give ``np.interp``'s bits."""
     from swarm_env_agents.cbs_rrt import kernels
@@ -156,6 +157,7 @@ def _compare_paths(a, b) -> None:  # noqa: ANN001 - TimedPath | None
     assert a.vmax == b.vmax
 
 
+@pytest.mark.slow
 def test_rrt_plans_and_repairs_match_the_numpy_reference() -> None:
     """Many RRT calls on the paper's map (moving goals, moving constraints, starts inside the buffer
     zone) and repairs of their paths: the compiled planner returns the numpy planner's trees and

@@ -35,6 +35,7 @@ def test_list_shows_scenarios_and_policies(capsys: pytest.CaptureFixture[str]) -
     assert all(len(line) <= 100 and ":class:" not in line and "swarm_env_agents" not in line for line in out.splitlines())
 
 
+@pytest.mark.slow
 def test_console_script_is_installed() -> None:
     exe = shutil.which("swarm-env")
     assert exe, "the swarm-env console script is not on PATH (pip install -e .)"
@@ -89,6 +90,7 @@ def test_run_shows_policy_stats_as_a_table_and_video_progress(
     assert "video v.mp4" in err and "6/6" in err and "frame" in err  # the reset frame + 5 steps, bar at 100 %
 
 
+@pytest.mark.slow
 def test_run_writes_json_and_video(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     out_json, out_video = tmp_path / "out.json", tmp_path / "out.mp4"
     code = main(["run", "--scenario", "paper_vo_0", "--policy", "random", "--episodes", "2", "--seed", "0",

@@ -270,6 +270,7 @@ def test_pettingzoo_state_test(name, kw):
     assert not problems, problems  # NaN / inf / shape / all-zero state warnings
 
 
+@pytest.mark.slow
 def test_torchrl_batched_engine_specs_and_bits():
     """examples/torchrl_vector.py: TorchRL's check_env_specs passes, and a rollout across episode
     ends shows, world by world, exactly what a SwarmEnv shows for the same actions."""

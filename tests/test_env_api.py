@@ -37,6 +37,7 @@ def test_aec_seed(name: str) -> None:
 
 
 @pytest.mark.parametrize("name", SCENARIOS)
+@pytest.mark.slow
 def test_render(name: str) -> None:
     render_test(lambda render_mode=None: swarm_env.env(name, render_mode=render_mode))
 

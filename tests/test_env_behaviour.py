@@ -56,6 +56,7 @@ def _digest_in_subprocess(name: str, seed: int, hashseed: str, max_cycles: int |
 
 
 @pytest.mark.parametrize("name,max_cycles", [("paper_vo_45", None), ("random", 150), ("paper_cbs_switch", 120)])
+@pytest.mark.slow
 def test_whole_episode_is_bitwise_deterministic_across_processes(name: str, max_cycles: int | None) -> None:
     here = _digest_in_process(name, 7, max_cycles)
     assert here == _digest_in_process(name, 7, max_cycles)
@@ -75,6 +76,7 @@ def test_random_scenario_differs_by_seed_and_repeats_by_seed() -> None:
 
 
 @pytest.mark.parametrize("clone", ["deepcopy", "pickle"])
+@pytest.mark.slow
 def test_running_env_clones_continue_identically(clone: str) -> None:
     env = swarm_env.parallel_env("paper_vo_0")
     env.reset(seed=0)

@@ -43,6 +43,7 @@ def _episode_rows(env: SwarmEnv, expert: ObservationExpert, seed: int, steps: in
     return np.concatenate(rows)
 
 
+@pytest.mark.slow
 def test_the_fan_is_the_experts_own_and_the_same_compiled_or_not() -> None:
     """fan(): the compiled times to contact equal the numpy reference's bit for bit, the pick is act_rows' choice,
     and a candidate the expert picks is one it judged safe wherever any was (ttc >= t_safe)."""
@@ -85,6 +86,7 @@ def test_a_tiny_run_is_complete_and_plays_as_fan_dagger(tmp_path) -> None:
         load_policy(f"fan_dagger:{run}", SwarmEnv("random", **TINY_ENV, sensors={"lidar_rays": 8}))
 
 
+@pytest.mark.slow
 def test_the_same_seed_learns_the_same_network_and_a_resumed_run_ends_as_an_uninterrupted_one(tmp_path,
                                                                                              monkeypatch) -> None:
     from safetensors.numpy import load_file

@@ -99,6 +99,7 @@ def test_demo_cache_hit_and_miss(tmp_path, monkeypatch, capsys):
     assert len(load_demos(knob)) == 2 * 2 * 20
 
 
+@pytest.mark.slow
 def test_demos_with_two_workers_equal_one_worker(tmp_path, demo_file):
     two = load_demos(generate_demos("vo", "random", SEEDS, env_kwargs=TINY, cache_dir=tmp_path, workers=2, progress=False))
     one = load_demos(demo_file)

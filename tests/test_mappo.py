@@ -81,6 +81,7 @@ def test_dagger_warm_start_fits_the_expert_and_freezes_the_statistics() -> None:
     assert err < 0.25 * err0
 
 
+@pytest.mark.slow
 def test_a_tiny_run_is_complete_and_loads_as_a_policy(tmp_path) -> None:
     run = mappo.train(_cfg(tmp_path))
     for name in ("config.json", "versions.json", "policy.safetensors", "policy.json", "eval.csv", "train.csv",
@@ -117,6 +118,7 @@ def test_a_tiny_run_is_complete_and_loads_as_a_policy(tmp_path) -> None:
         load_policy(f"mappo:{tmp_path / 'nowhere'}", env)
 
 
+@pytest.mark.slow
 def test_the_same_seed_trains_the_same_network_and_another_seed_does_not(tmp_path) -> None:
     from safetensors.numpy import load_file
 
@@ -134,6 +136,7 @@ def test_the_same_seed_trains_the_same_network_and_another_seed_does_not(tmp_pat
     {"shield": "teach", "intervention_coef": 1.0, "imitation_coef": 1.0, "imitation_anneal": 0.5},
     {"residual": "vo", "pretrain": "none", "shield": "execute", "critic": "local"},
 ])
+@pytest.mark.slow
 def test_every_mode_trains_and_plays(tmp_path, overrides) -> None:
     run = mappo.train(_cfg(tmp_path, total_steps=512, eval_every=0, **overrides))
     config = json.loads((run / "config.json").read_text())
@@ -150,6 +153,7 @@ def test_every_mode_trains_and_plays(tmp_path, overrides) -> None:
     assert result["steps"] == 30
 
 
+@pytest.mark.slow
 def test_a_residual_policy_starts_at_its_expert(tmp_path) -> None:
     """The residual actor starts with a (near) zero correction: the first policy acts like vo."""
     run = mappo.train(_cfg(tmp_path, total_steps=128, n_steps=16, eval_every=0, residual="vo", pretrain="none",
@@ -191,6 +195,7 @@ def test_bad_input_is_refused(tmp_path, capsys) -> None:
         load_policy(f"mappo:{bad}", SwarmEnv("random", **TINY_ENV))
 
 
+@pytest.mark.slow
 def test_the_update_starts_on_the_policy_that_collected_the_data(tmp_path) -> None:
     """In the training process, every update; with a learner process (one update behind), the first only."""
     run = mappo.train(_cfg(tmp_path, eval_every=0, pretrain="none", learner_process=False))
@@ -201,6 +206,7 @@ def test_the_update_starts_on_the_policy_that_collected_the_data(tmp_path) -> No
     assert len(rows) > 2 and rows[0] < 1e-5 and all(r > 1e-4 for r in rows[1:])
 
 
+@pytest.mark.slow
 def test_a_learned_policy_plays_the_same_episode_bit_for_bit_in_other_processes(tmp_path) -> None:
     """Learned rows of a leaderboard reproduce: one torch thread, deterministic algorithms, a fixed
     batch; other processes (another hash seed, another BLAS thread setting, a 2-worker leaderboard)
@@ -238,6 +244,7 @@ def test_a_learned_policy_plays_the_same_episode_bit_for_bit_in_other_processes(
         assert behaviour(there) == behaviour(here)
 
 
+@pytest.mark.slow
 def test_a_finished_clean_run_ships_with_its_records_and_a_readme(tmp_path) -> None:
     from swarm_env_baselines import ship
 
@@ -276,6 +283,7 @@ def test_what_each_policy_acts_on_is_declared() -> None:
     assert acts_on("random") == "nothing" and acts_on("no_such_policy") == "?"
 
 
+@pytest.mark.slow
 def test_validation_in_a_background_process_gives_the_same_run(tmp_path) -> None:
     """eval_workers=1 scores saved snapshots in another process: the same eval.csv (but the clock), the same
     selected model and final networks, and no snapshot left behind."""

@@ -107,6 +107,7 @@ def _reference() -> dict[str, Any]:
 
 @pytest.mark.parametrize("name, env_procs", [(name, 1) for name in CASES] + [("shield_teach", 2),
                                                                            ("mappo_collision_ends", 3)])
+@pytest.mark.slow
 def test_training_is_bit_for_bit_the_reference_trainers(name: str, env_procs: int, tmp_path: Path) -> None:
     """In the training process and with the worlds' physics in worker processes (env_procs)."""
     expected = _reference()[name]
@@ -120,6 +121,7 @@ def test_training_is_bit_for_bit_the_reference_trainers(name: str, env_procs: in
 
 
 @pytest.mark.filterwarnings("error:.*rebuilt env copies differ")
+@pytest.mark.slow
 def test_a_run_resumed_with_its_worlds_in_worker_processes_ends_as_an_uninterrupted_one(tmp_path: Path,
                                                                                         monkeypatch) -> None:
     """The checkpoint's worlds are rebuilt by replay and handed to the engine's workers (set_world): the resumed

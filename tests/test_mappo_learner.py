@@ -36,6 +36,7 @@ def _same_files(a: Path, b: Path) -> None:
 
 
 @pytest.mark.parametrize("critic", ["central", "local"])
+@pytest.mark.slow
 def test_the_learner_process_computes_the_training_process_update(critic: str, tmp_path: Path) -> None:
     """The same rollout, networks, optimiser and generator give the same parameters, statistics and values."""
     cfg = mappo.MAPPOConfig(**BASE, critic=critic, runs_dir=str(tmp_path), run_name="x")
@@ -66,6 +67,7 @@ def test_the_learner_process_computes_the_training_process_update(critic: str, t
         trainer.close()
 
 
+@pytest.mark.slow
 def test_a_run_with_a_learner_process_is_deterministic_and_resumes_bit_for_bit(tmp_path: Path, monkeypatch) -> None:
     """Two runs of one seed end with the same files; a run that crashed after its third update and was resumed
     (the checkpoint holds the rollout collected but not learned from) ends as the uninterrupted one."""
@@ -95,6 +97,7 @@ def test_a_run_with_a_learner_process_is_deterministic_and_resumes_bit_for_bit(t
     assert len(rows[0]) == len(rows[1]) == 6
 
 
+@pytest.mark.slow
 def test_a_learner_process_that_fails_names_its_error(tmp_path: Path) -> None:
     cfg = mappo.MAPPOConfig(**BASE, runs_dir=str(tmp_path), run_name="x")
     trainer = mappo.Trainer(cfg, tmp_path / "x")

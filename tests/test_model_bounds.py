@@ -229,6 +229,10 @@ CASES: list[tuple[str, str, Callable[[Path], None], str]] = [
      r"config\.residual_scale: expected a finite number"),
     ("residual-expert-is-itself", "residual_vo", _self_expert, NOT_RESIDUAL),
     ("residual-expert-is-residual", "residual_vo", _edit(_set("config.residual", "residual_vo")), NOT_RESIDUAL),
+    ("residual-expert-unknown-argument", "residual_vo", _edit(_set("config.residual", "vo:bogus=1")),
+     r"config\.residual: policy 'vo': unknown parameter 'bogus'"),
+    ("residual-expert-argument-out-of-range", "residual_vo", _edit(_set("config.residual", "vo:reverse=-5")),
+     r"config\.residual: policy 'vo:reverse=-5': reverse must be a number in \[0, 1\]"),
     # the weights file
     ("weights-nan", "mappo", _tensor("actor.0.weight", _first(np.nan)), r"actor\.0\.weight'?: not all finite"),
     ("weights-huge", "mappo", _tensor("actor.2.weight", _first(1e30)), r"actor\.2\.weight'?: a value of magnitude"),

@@ -104,6 +104,7 @@ def _limited(limit: int, *argv: str, cwd: Path) -> subprocess.CompletedProcess[s
                           cwd=cwd, env=env, preexec_fn=cap, timeout=300)
 
 
+@pytest.mark.slow
 def test_cli_on_a_full_disk_says_so_in_one_line(tmp_path: Path) -> None:
     out = _limited(200, "run", "--scenario", "paper_vo_0", "--policy", "zero", "--max-cycles", "5",
                    "--json", str(tmp_path / "r.json"), cwd=tmp_path)

@@ -53,6 +53,7 @@ def test_uses_only_the_given_generator(monkeypatch: pytest.MonkeyPatch) -> None:
 
 
 @pytest.mark.parametrize("leader_kind", ["virtual", "robot"])
+@pytest.mark.slow
 def test_hundred_seeds_are_valid_and_sound(leader_kind: str) -> None:
     cfg = RandomScenarioConfig(leader_kind=leader_kind)
     full = 0

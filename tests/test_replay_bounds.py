@@ -289,7 +289,12 @@ CASES: dict[str, tuple[Callable[[Path], None], str, str]] = {
     "digest_steps NaN": (_digest_steps(lambda s: np.full(s.shape, np.nan)), "actions.npz",
                          "digest_steps: expected int64"),
     "digest_steps a subset": (_first_digest_only, "actions.npz", "digest_steps: expected shape (7,)"),
-    "digest_every 0": (lambda d: _set_meta(d, "digest_every", 0), "meta.json", "digest_every: expected an integer >= 1"),
+    "digest_every 0": (lambda d: _set_meta(d, "digest_every", 0), "meta.json", "digest_every: expected an integer in [1, "),
+    "digest_every 10**300": (lambda d: _set_meta(d, "digest_every", 10**300), "meta.json",
+                             "digest_every: expected an integer in [1, "),
+    # the record says it is another episode than its folder does
+    "episode 5 in episode_0": (lambda d: _set_meta(d, "episode", 5), "meta.json",
+                               "episode: expected 0 (the episode its folder episode_0 names), got 5"),
     # ran, with another value than the record's
     "terminate_on_collision a string": (lambda d: _set_meta(d, "env.terminate_on_collision", "no"), "meta.json",
                                         "env.terminate_on_collision: expected true or false"),
@@ -311,6 +316,12 @@ def test_a_tampered_record_is_one_error_line(case: str, check: bool, record: Pat
     line = _replay_error(capsys, str(record.parent), *(["--check"] if check else []))
     assert f"episode_0/{filename}" in line or (filename == "episode_0" and "rec/episode_0:" in line), line
     assert fragment in line, line
+
+
+def test_a_record_folder_renamed_by_hand_still_replays(record: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    renamed = record.parent / "bug_report"
+    record.rename(renamed)
+    assert main(["replay", str(renamed), "--check"]) == 0, capsys.readouterr()
 
 
 def test_the_episode_folder_given_as_a_symlink(record: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -371,10 +382,12 @@ def test_untampered_records_still_replay(records: dict[str, Path], tmp_path: Pat
     root = tmp_path / "rec"
     shutil.copytree(records["continuous"], root / "episode_0")
     shutil.copytree(records["discrete"], root / "episode_1")
+    _set_meta(root / "episode_1", "episode", 1)  # recorded alone as episode 0; its folder and meta.json must agree
     (root / "episode_\u00b2").mkdir()  # not an episode folder (a Unicode digit, which int() refuses): skipped
     (root / ".episode_2.tmp-1-abc").mkdir()  # a temporary folder of a writer: skipped
     capsys.readouterr()
     assert main(["replay", str(root), "--check"]) == 0
     out = capsys.readouterr().out
-    # both records say episode 0 (each was recorded alone), the folders give their order
-    assert out.count(f"episode 0: random on paper_vo_0, {STEPS} of {STEPS} steps replayed, {STEPS + 1} digests checked") == 2
+    for k in (0, 1):  # in the folders' order
+        assert out.count(f"episode {k}: random on paper_vo_0, {STEPS} of {STEPS} steps replayed, {STEPS + 1} digests "
+                         "checked") == 1

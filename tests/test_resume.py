@@ -92,6 +92,7 @@ def _stop_at(monkeypatch, update_index: int, how: str) -> None:
     # The update in a learner process: the checkpoint keeps the rollout collected while it updated.
     ({"learner_process": True}, "sigint"),
 ])
+@pytest.mark.slow
 def test_a_stopped_and_resumed_run_ends_bit_for_bit_like_an_uninterrupted_one(tmp_path, monkeypatch, overrides,
                                                                                how) -> None:
     whole = mappo.train(_cfg(tmp_path, run_name="whole", **overrides))

@@ -52,6 +52,7 @@ def test_a_tiny_run_is_complete_and_plays_as_isac(tmp_path) -> None:
         load_policy(f"isac:{tmp_path / 'other'}", env)
 
 
+@pytest.mark.slow
 def test_the_same_seed_learns_the_same_networks_and_a_resumed_run_ends_as_an_uninterrupted_one(tmp_path,
                                                                                               monkeypatch) -> None:
     from safetensors.numpy import load_file

@@ -88,6 +88,7 @@ def test_the_vo_expert_is_the_same_avoidance() -> None:
     assert expert.avoidance == AvoidanceParams(**EXPERT_AVOIDANCE) and expert.horizon == EXPERT_AVOIDANCE["horizon"]
 
 
+@pytest.mark.slow
 def test_shield_policy_makes_pursuit_collision_free_on_held_out_worlds() -> None:
     env = swarm_env.parallel_env("random")
     bare, shielded = load_policy("pursuit", env), load_policy("shield:pursuit", env)

@@ -6,9 +6,9 @@ are short printable lines; never another exception, never a hang. The same for e
 combination of ``parallel_env("random", **knobs)``. The bounds that make this hold are in
 :mod:`swarm_env.limits`.
 
-The default suite runs 2,000 scenario mutations and 300 knob draws, derandomised (the same
-examples every run, so CI never meets a new one by chance); ``python -m pytest -m fuzz`` runs
-ten times as many with fresh random examples.
+The test suite runs 2,000 scenario mutations (among the slow tests, ``-m slow``) and 300 knob draws,
+derandomised (the same examples every run, so CI never meets a new one by chance); ``python -m pytest
+-m fuzz`` runs ten times as many with fresh random examples.
 """
 
 from __future__ import annotations
@@ -168,6 +168,7 @@ _LONG = settings(_FAST, max_examples=20_000, derandomize=False)
 
 @_FAST
 @given(mutated_scenarios())
+@pytest.mark.slow
 def test_mutated_scenario_is_valid_or_a_scenario_error(data: dict) -> None:
     _validate_and_step(data)
 

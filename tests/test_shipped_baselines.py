@@ -81,6 +81,7 @@ def _stored_test_episodes() -> dict[tuple[str, int], dict]:
 
 
 @pytest.mark.parametrize("spec", REPLAYED)
+@pytest.mark.slow
 def test_a_shipped_method_replays_its_leaderboard_episode_bit_for_bit(spec):
     stored = _stored_test_episodes().get((spec, 1000))
     if stored is None:  # a method shipped after this machine's replays were recorded

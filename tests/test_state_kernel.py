@@ -81,6 +81,7 @@ def test_builtin_scenarios_state_matches_swarm_env_bitwise(scenario: str, kernel
     (6, 12, 2024, {"n_humans": (0, 3), "n_obstacles": 12}),  # 30 probes: the reference's compiled distance
     (8, 14, 2036, {"n_humans": (2, 5), "leader_kind": "robot"}),  # 40 probes: its numpy distance
 ])
+@pytest.mark.slow
 def test_fifty_random_worlds_state_matches_swarm_env_bitwise(n_followers: int, num_envs: int, seed: int,
                                                              knobs: dict, kernel_calls: list[int]) -> None:
     # 50 worlds in all (seeds 2000-2049), team sizes 1-8, with and without humans and a robot leader;

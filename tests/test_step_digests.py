@@ -104,6 +104,7 @@ def _recorded() -> dict[str, Any]:
 
 @pytest.mark.parametrize("compiled", [True, False], ids=["kernels", "numpy"])
 @pytest.mark.parametrize("name", sorted(EPISODES))
+@pytest.mark.slow
 def test_episode_matches_the_recorded_digests(name: str, compiled: bool) -> None:
     """The episode's digests equal the recorded ones, with the compiled kernels and with their numpy
     references (:func:`swarm_env.compiled.use_compiled_kernels`)."""

@@ -203,6 +203,7 @@ def test_cli_suite_writes_and_resumes(tmp_path, capsys, monkeypatch) -> None:
 QUICK_REFERENCE = "tests/data/quick_suite_collisions.json"
 
 
+@pytest.mark.slow
 def test_quick_suite_experts_collide_no_more_than_recorded() -> None:
     """The experts on the quick suite's test split: an episode with more collisions than the stored reference
     fails. After a deliberate change, rerun and store the reference with the commands in docs/benchmark.md

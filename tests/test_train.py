@@ -143,6 +143,7 @@ def test_frozen_observation_statistics_stay_at_the_warm_start(tmp_path):
     assert not np.array_equal(moved.obs_rms.mean, src_norm.obs_rms.mean)
 
 
+@pytest.mark.slow
 def test_a_command_line_run_with_frozen_statistics_loads_elsewhere(tmp_path):
     # python -m runs train.py as __main__; the saved statistics must not refer to classes defined there.
     import subprocess

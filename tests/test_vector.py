@@ -96,6 +96,7 @@ def test_each_builtin_scenario_matches_swarm_env_bitwise(scenario: str) -> None:
     assert _lockstep(scenario, 3, 45, seed=7, max_cycles=20) >= 3
 
 
+@pytest.mark.slow
 def test_fifty_random_worlds_match_swarm_env_bitwise() -> None:
     # 50 worlds, seeds 1000-1049, each ending once (max_cycles) and continuing after its auto-reset.
     assert _lockstep("random", 50, 30, seed=1000, max_cycles=25) == 50
@@ -158,11 +159,13 @@ def test_a_prefetched_scenario_is_the_local_draw_and_moves_the_generator_alike()
         SwarmVectorEnv("random", 2, prefetch_scenarios="yes")  # type: ignore[arg-type]
 
 
+@pytest.mark.slow
 def test_worker_processes_give_the_same_bits() -> None:
     assert _lockstep("random", 5, 30, seed=40, n_procs=2, max_cycles=25, n_humans=(1, 3)) == 5
 
 
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc/PID/maps")
+@pytest.mark.slow
 def test_workers_with_compiled_kernels_give_the_same_bits() -> None:
     """``worker_kernels=True``: the workers run the compiled kernels (numba is loaded in them) and the
     results are still a ``SwarmEnv``'s bits, shielded worlds (the compiled search) included."""
@@ -279,6 +282,7 @@ def test_per_world_calls_reach_the_right_world_in_any_process() -> None:
 
 
 @pytest.mark.parametrize("n_procs", [1, 2])
+@pytest.mark.slow
 def test_a_world_rebuilt_from_its_episode_start_and_actions_takes_its_place_bitwise(n_procs: int) -> None:
     """How a trainer resumes: a fresh world reset as episode_starts() says and given the same actions,
     put in with set_world, goes on exactly as the original (here against an engine that never stopped)."""

@@ -75,6 +75,7 @@ def _act_both(ref_policy: VOExpert, policy: VOExpert, obs: dict, state: WorldSta
     # the expert before issue 12 (no preview: the compiled pursuit; no speed weight, no escape commitment)
     ("paper_cbs_switch", 0, {"preview": 0.0, "lookahead": 0.0, "w_speed": 1.0, "escape_commit": 0.0}),
 ])
+@pytest.mark.slow
 def test_expert_act_gives_the_same_bits(scenario: str, seed: int, avoidance: dict) -> None:
     # Every step of a whole episode: the preferred twists, every field of the search, the actions
     # act() returns (dtype, keys and bits) and, at the end, the telemetry.

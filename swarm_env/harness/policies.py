@@ -67,6 +67,12 @@ class PolicyError(ValueError):
     """A registered policy rejected its argument or the env (e.g. ``vo`` with discrete actions)."""
 
 
+class PolicyArgumentError(PolicyError):
+    """A policy's argument is wrong whatever the env: an unknown ``KEY``, a value of the wrong type, or one its
+    class refuses (``vo:reverse=-5``). Unlike an env the policy does not fit, a saved file that names such a
+    spec (a residual run's expert) is a bad file."""
+
+
 class ModelFileError(PolicyError):
     """A policy's saved model is missing, unreadable (truncated, corrupt), of another algorithm or
     format, or refused because loading it would unpickle (see :func:`pickle_trusted`).
@@ -204,7 +210,13 @@ def expert_factory(name: str, cls: type, acts_on: str = STATE) -> Callable[..., 
     privileged world state, or :data:`OBSERVATIONS`, the agents' own observations only)."""
 
     def factory(env: SwarmEnv, arg: str | None = None) -> Any:
-        policy = cls(**parse_policy_kwargs(name, arg, cls))
+        kwargs = parse_policy_kwargs(name, arg, cls)
+        try:
+            policy = cls(**kwargs)
+        except ValueError as exc:  # a value in range for its type but refused by the class: still the argument
+            label = f"{name}:{arg}" if arg else name
+            raise PolicyArgumentError(str(exc) if str(exc).startswith("policy ") else f"policy {label!r}: {exc}"
+                                      ) from None
         if env.action_type != "continuous":
             policy.reset(env, None)  # raises the explanatory ValueError now, not at the first episode
         return policy
@@ -224,7 +236,7 @@ def parse_policy_kwargs(name: str, arg: str | None, cls: type) -> dict[str, Any]
     ``cls.__init__``. Each value is converted to the type of the parameter's default:
     ``bool`` (true/false/1/0), ``int``, ``float``, ``str``, a ``None`` default takes a number
     or ``none``, and a tuple default takes ``;``-separated numbers (``angles=0;12;-12``).
-    Raises ``ValueError`` naming the policy, the key and what was expected.
+    Raises :class:`PolicyArgumentError` (a ``ValueError``) naming the policy, the key and what was expected.
     """
     declared = getattr(cls, "policy_parameters", None)
     params = dict(declared()) if callable(declared) else {
@@ -236,9 +248,9 @@ def parse_policy_kwargs(name: str, arg: str | None, cls: type) -> dict[str, Any]
     for item in filter(None, (part.strip() for part in (arg or "").split(","))):
         key, sep, value = (x.strip() for x in item.partition("="))
         if not sep:
-            raise ValueError(f"policy {name!r}: expected KEY=VALUE, got {item!r}")
+            raise PolicyArgumentError(f"policy {name!r}: expected KEY=VALUE, got {item!r}")
         if key not in params:
-            raise ValueError(f"policy {name!r}: unknown parameter {key!r}; known: {', '.join(params)}")
+            raise PolicyArgumentError(f"policy {name!r}: unknown parameter {key!r}; known: {', '.join(params)}")
         default = params[key]
         try:
             if isinstance(default, bool):
@@ -257,7 +269,7 @@ def parse_policy_kwargs(name: str, arg: str | None, cls: type) -> dict[str, Any]
                 kwargs[key] = float(value)
         except ValueError as exc:
             kind = type(default).__name__ if default is not None else "a number or none"
-            raise ValueError(f"policy {name!r}: {key}={value!r}: expected {kind} ({exc})") from None
+            raise PolicyArgumentError(f"policy {name!r}: {key}={value!r}: expected {kind} ({exc})") from None
     return kwargs
 
 

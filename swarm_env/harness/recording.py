@@ -49,8 +49,11 @@ A record is input from anyone (it may come with a bug report), so :func:`load_ep
 reads it within bounds and checks every field before anything runs: the episode folder
 and its files must be real folders and regular files (no symbolic link, FIFO or device);
 ``meta.json`` at most :data:`~swarm_env.limits.MAX_FILE_BYTES` bytes, nested at most
-:data:`~swarm_env.limits.MAX_YAML_DEPTH` deep, every field of its type and range (``T`` and
-``max_steps`` at most :data:`~swarm_env.limits.MAX_EPISODE_STEPS`); ``scenario.yaml`` through
+:data:`~swarm_env.limits.MAX_YAML_DEPTH` deep, every field of its type and range (``T``,
+``max_steps`` and ``K`` at most :data:`~swarm_env.limits.MAX_EPISODE_STEPS`; ``episode`` the
+``k`` its folder's name gives, unless the folder was renamed to something else; ``seed`` any
+integer ``>= 0``, as ``reset`` takes it: JSON's integers stop at 4,300 digits, and
+``numpy.random.SeedSequence`` hashes even those in ~20 ms); ``scenario.yaml`` through
 the scenario loader (:func:`swarm_env.scenarios.loader.load_scenario`, with its bounds);
 each array of ``actions.npz`` of the dtype and the exact shape the episode implies, read
 from its ``.npy`` header before its data, actions finite (discrete ones valid primitives),
@@ -231,8 +234,10 @@ class Recorder:
     ``0, K, 2K, ...`` and at the last step (``K = digest_every``)."""
 
     def __init__(self, env: SwarmEnv, digest_every: int = DIGEST_EVERY) -> None:
-        if isinstance(digest_every, bool) or not isinstance(digest_every, int) or digest_every < 1:
-            raise ValueError(f"digest_every must be an int >= 1, got {digest_every!r}")
+        if (isinstance(digest_every, bool) or not isinstance(digest_every, int)
+                or not 1 <= digest_every <= MAX_EPISODE_STEPS):
+            raise ValueError(f"digest_every must be an int in [1, {MAX_EPISODE_STEPS}] "
+                             f"(swarm_env.limits.MAX_EPISODE_STEPS), got {digest_every!r}")
         self.env = env
         self.digest_every = digest_every
         self._actions: list[np.ndarray] = []
@@ -449,7 +454,7 @@ def _meta_fields(path: Path, meta: Mapping[str, Any]) -> tuple[dict[str, Any], i
         max_steps=_int(path, _value(path, env, "max_steps", "env.max_steps"), "env.max_steps", 1, MAX_EPISODE_STEPS,
                        bound),
         terminate_on_collision=terminate,
-        digest_every=_int(path, _value(path, meta, "digest_every"), "digest_every", 1),
+        digest_every=_int(path, _value(path, meta, "digest_every"), "digest_every", 1, MAX_EPISODE_STEPS, bound),
         metrics=metrics, platform=platform_info,
     )
     steps = _int(path, _value(path, meta, "steps"), "steps", 1, MAX_EPISODE_STEPS, bound)
@@ -608,6 +613,11 @@ def load_episode(folder: str | os.PathLike[str]) -> EpisodeRecord:
     _check_folder(folder)
     meta_path = folder / _META
     fields, steps = _meta_fields(meta_path, _read_meta(meta_path))
+    suffix = folder.name[len(EPISODE_PREFIX):]
+    if folder.name.startswith(EPISODE_PREFIX) and suffix.isascii() and suffix.isdigit() and int(suffix) != fields[
+            "episode"]:  # a folder renamed by hand (any other name) is fine; one that names another episode is not
+        raise _error(meta_path, "episode", f"{int(suffix)} (the episode its folder {folder.name} names)",
+                     fields["episode"])
     scenario = _read_scenario(folder / _SCENARIO)
     actions, digest_steps, digests = _read_arrays(folder / _ACTIONS, steps, scenario.robots.count,
                                                   fields["action_type"], fields["digest_every"])
