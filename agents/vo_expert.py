@@ -70,7 +70,6 @@ parameters from the command line (e.g. ``vo:horizon=4,margin=0.1``).
 
 from __future__ import annotations
 
-import dataclasses
 import inspect
 import math
 import time
@@ -80,7 +79,7 @@ import numpy as np
 
 from swarm_env.compiled import compiled_search
 from swarm_env.control.pursuit import pure_pursuit, slot_velocities
-from swarm_env.control.safety import AvoidanceParams, safe_follower_twists
+from swarm_env.control.safety import AvoidanceParams, back_off, reversing_params, safe_follower_twists
 from swarm_env.geometry.formation import SLOT_MARGIN
 from swarm_env.harness.policies import expert_factory
 from swarm_env.state import WorldState
@@ -286,11 +285,8 @@ class VOExpert:
         boxed = ~res.feasible & self._human_coming(state)
         if not boxed.any():
             return res.twist, res.feasible, res.escaped, boxed
-        back = safe_follower_twists(state, preferred, self._reverse_params(state.scenario.robots.max_speed))
-        # Safe, or (nothing is) postponing the contact longer than the forward answer: backing off from a
-        # human who keeps coming beats turning in place in his path.
-        take = boxed & (back.feasible | (back.min_time_to_collision > res.min_time_to_collision))
-        return np.where(take[:, None], back.twist, res.twist), res.feasible, res.escaped & ~take, take
+        twist, take = back_off(state, preferred, res, boxed, self._reverse_params(state.scenario.robots.max_speed))
+        return twist, res.feasible, res.escaped & ~take, take
 
     def _human_coming(self, state: WorldState) -> np.ndarray:
         """``(N,)``: a human could reach the follower within the search's horizon (the gap between
@@ -305,10 +301,8 @@ class VOExpert:
         """The fallback search's parameters: the avoidance with speeds down to ``-reverse * max_speed`` and the other
         robots' horizon ``reverse_horizon`` (the humans keep theirs)."""
         if self._reversing is None or self._reversing[0] != max_speed:
-            a = self.avoidance
-            robots = self.reverse_horizon or a.horizon
-            self._reversing = (max_speed, dataclasses.replace(a, v_min=-self.reverse * max_speed, horizon=robots,
-                                                              human_horizon=a.human_horizon or a.horizon))
+            self._reversing = (max_speed, reversing_params(self.avoidance, self.reverse, max_speed,
+                                                           self.reverse_horizon))
         return self._reversing[1]
 
     def preferred_twists(self, state: WorldState) -> np.ndarray:

@@ -280,6 +280,7 @@ RECORDED: dict[str, dict] = {
             "fallbacks": {"stationary": 0, "dropped": 11, "partial": 2, "unsolved": 1},
             "shield_stops": 6,
             "evade_steps": 0,
+            "reverse_steps": 0,
             "hold_steps": 0,
             "hold_releases": 0,
             "hold_plans": 0,
@@ -305,6 +306,7 @@ RECORDED: dict[str, dict] = {
             "fallbacks": {"stationary": 0, "dropped": 11, "partial": 17, "unsolved": 0},
             "shield_stops": 0,
             "evade_steps": 26,
+            "reverse_steps": 0,  # humans near, never boxed in: the same plans and actions as before the back-off
             "hold_steps": 0,
             "hold_releases": 0,
             "hold_plans": 0,

@@ -412,3 +412,25 @@ def test_a_robot_a_human_walks_at_steps_aside():
     assert on["collisions"]["total"] == 0 and on["success"] and on["policy_stats"]["evade_steps"] > 0
     with pytest.raises(ValueError, match="evade_horizon"):
         CBSRRTExpert(evade_horizon=-1.0)
+
+
+@pytest.mark.slow
+def test_a_robot_stepping_aside_backs_off_from_a_walker_who_keeps_coming() -> None:
+    """``crowd_reactive`` training worlds 27 and 46 (social-force walkers): without the back-off
+    (``evade_reverse=0``) a robot whose evasion search finds no safe twist is walked into; by default it backs off
+    (the ``vo`` expert's rule, :func:`swarm_env.control.safety.back_off`) and the episode has no contact."""
+    for seed in (27, 46):
+        results = {}
+        for spec in ("cbs_rrt:evade_reverse=0", "cbs_rrt"):
+            env = SwarmEnv("random:crowd_reactive")
+            results[spec] = run_episode(env, load_policy(spec, env), seed=seed)
+        walked_into, default = results.values()
+        assert walked_into["collisions"]["robot_human"] >= 1 and walked_into["policy_stats"]["reverse_steps"] == 0
+        assert default["collisions"]["total"] == 0 and default["policy_stats"]["reverse_steps"] > 0
+
+
+def test_evade_reverse_is_checked() -> None:
+    with pytest.raises(ValueError, match=r"evade_reverse must be a number in \[0, 1\]"):
+        CBSRRTExpert(evade_reverse=1.5)
+    with pytest.raises(ValueError, match="evade_reverse_horizon"):
+        CBSRRTExpert(evade_reverse_horizon=-1.0)

@@ -124,6 +124,14 @@ class CBSRRTConfig:
             followers as plain discs: they follow their plans); ``0`` disables it. The shield
             alone stops such a robot and the human walks into it (``stats()["evade_steps"]`` counts the
             robot-steps).
+        evade_reverse: a fraction in ``[0, 1]`` (default ``0.5``; ``0`` for none). A robot stepping aside whose
+            search finds no safe twist searches again with speeds down to ``-evade_reverse * max_speed``, the
+            other robots looked for only ``evade_reverse_horizon`` s ahead, and backs off if that is safe or
+            postpones the contact (:func:`swarm_env.control.safety.back_off`, the ``vo`` expert's ``reverse``
+            rule; counted in ``stats()["reverse_steps"]``). Chosen on the training worlds of the ``crowd_reactive``
+            family, where a walker that turns into a robot within a second otherwise reached it: docs/benchmark.md.
+        evade_reverse_horizon: the other robots' horizon (s) in that search (default ``1.0``; ``0``: the
+            avoidance's horizon).
 
     Other:
         field_resolution: distance-field grid step (m).
@@ -170,6 +178,8 @@ class CBSRRTConfig:
     hold_plan: bool = True
     shield_margin: float = 0.05
     evade_horizon: float = 3.0
+    evade_reverse: float = 0.5
+    evade_reverse_horizon: float = 1.0
     field_resolution: float = 0.05
     record: bool = False
 
@@ -178,9 +188,12 @@ class CBSRRTConfig:
                     "goal_dt", "goal_tolerance", "lookahead_time", "field_resolution", "keep_tolerance",
                     "constraint_window")
         finite_numbers("", {name: getattr(self, name) for name in positive}, positive=True)
-        non_negative = ("robot_margin", "obstacle_margin", "shield_margin", "evade_horizon", "min_replan_interval",
-                        "max_wait", "jump_window", "jump_lag", "hold_capture")
+        non_negative = ("robot_margin", "obstacle_margin", "shield_margin", "evade_horizon", "evade_reverse_horizon",
+                        "min_replan_interval", "max_wait", "jump_window", "jump_lag", "hold_capture")
         finite_numbers("", {name: getattr(self, name) for name in non_negative}, positive=False)
+        if not (isinstance(self.evade_reverse, (int, float)) and 0 <= self.evade_reverse <= 1):
+            raise ValueError(f"evade_reverse must be a number in [0, 1] (a fraction of max_speed), got "
+                             f"{self.evade_reverse!r}")
         if self.check_margin >= self.horizon:
             raise ValueError("check_margin must be smaller than horizon")
         sf = self.speed_fraction

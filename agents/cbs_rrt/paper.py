@@ -451,7 +451,7 @@ def _notes() -> list[str]:
         "`repairs` (CBS children made by inserting waits instead),",
         "`rrt_iterations`, `planning_time_ms` (median, p95, max, mean, `total_s`), `fallbacks` (`stationary`,",
         "`dropped`, `partial`, `unsolved`), `shield_stops`, `evade_steps` (robot-steps that stepped aside",
-        "from a human), `hold_steps`, `hold_plans` (with `hold_plan_s` and `hold_plan_cpu_s`), `hold_releases` and `tracking_gap_m` (distance between each robot and",
+        "from a human), `reverse_steps` (of those, robot-steps that backed off), `hold_steps`, `hold_plans` (with `hold_plan_s` and `hold_plan_cpu_s`), `hold_releases` and `tracking_gap_m` (distance between each robot and",
         "its plan at the same time: mean, p95, max).",
         "",
         "## Deviations from the paper",

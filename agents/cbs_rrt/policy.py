@@ -42,7 +42,9 @@ human only turns in place for that step; counted in ``shield_stops``). A robot
 that a human walking on at its current velocity would reach within
 ``evade_horizon`` even if it stood still steps aside instead: for that step its
 twist is the ``vo`` expert's velocity-obstacle search's (the humans do not give
-way, and a plan that waits for them is no plan; counted in ``evade_steps``).
+way, and a plan that waits for them is no plan; counted in ``evade_steps``), and one that the search leaves
+boxed in backs off (``evade_reverse``: the ``vo`` expert's rule, :func:`swarm_env.control.safety.back_off`;
+counted in ``reverse_steps``).
 
 A reached formation is held, not replanned (issue 12 item 1): with a virtual leader the
 slots are known for the rest of the episode, so once every follower is near its slot the
@@ -73,7 +75,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from swarm_env.control.pursuit import pure_pursuit
-from swarm_env.control.safety import AvoidanceParams, safe_follower_twists
+from swarm_env.control.safety import AvoidanceParams, back_off, reversing_params, safe_follower_twists
 from swarm_env.control.vo import disc_time_to_collision
 from swarm_env.geometry.formation import virtual_slot_trajectory
 from swarm_env.geometry.paths import human_states
@@ -198,6 +200,7 @@ class CBSRRTExpert:
         self._gaps: list[np.ndarray] = []
         self._shield_stops = 0
         self._evade_steps = 0
+        self._reverse_steps = 0
         self._shield_others: tuple[np.ndarray, ...] | None = None
         self._held = -1  # the formation index the holder drives (-1: none reached yet)
         self._hold_steps = 0
@@ -746,8 +749,14 @@ class CBSRRTExpert:
         if not threat.any():
             return twist
         res = safe_follower_twists(state, twist, self._evade_params)
+        answer = res.twist
+        if self.evade_reverse > 0:  # boxed in with the human coming: back off (the vo expert's rule)
+            params = reversing_params(self._evade_params, self.evade_reverse, state.scenario.robots.max_speed,
+                                      self.evade_reverse_horizon)
+            answer, taken = back_off(state, twist, res, threat & ~res.feasible, params)
+            self._reverse_steps += int(taken.sum())
         twist = twist.copy()
-        twist[threat] = res.twist[threat]
+        twist[threat] = answer[threat]
         self._evade_steps += int(threat.sum())
         return twist
 
@@ -855,6 +864,7 @@ class CBSRRTExpert:
             },
             "shield_stops": self._shield_stops,
             "evade_steps": self._evade_steps,
+            "reverse_steps": self._reverse_steps,
             "hold_steps": self._hold_steps,
             "hold_plans": self._hold_plans,
             "hold_plan_s": round(float(sum(self._hold_plan_wall)), 3),

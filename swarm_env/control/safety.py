@@ -13,7 +13,7 @@ learner's action).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -22,7 +22,7 @@ from swarm_env.control import vo
 from swarm_env.control.vo import VOBatchResult, VODiscs, VOParams, VORobots, vo_select_batch
 from swarm_env.state import WorldState
 
-__all__ = ["AvoidanceParams", "ShieldResult", "safe_follower_twists", "shield_actions"]
+__all__ = ["AvoidanceParams", "ShieldResult", "back_off", "reversing_params", "safe_follower_twists", "shield_actions"]
 
 # A correction smaller than this (in normalised action units) is float noise, not an intervention.
 _INTERVENTION_EPS = 1e-9
@@ -169,6 +169,32 @@ class ShieldResult:
     correction: np.ndarray
     intervened: np.ndarray
     feasible: np.ndarray
+
+
+def reversing_params(params: AvoidanceParams, reverse: float, max_speed: float,
+                     robot_horizon: float) -> AvoidanceParams:
+    """The back-off search's parameters (:func:`back_off`): ``params`` with speeds down to ``-reverse * max_speed``
+    and the other robots looked for only ``robot_horizon`` s ahead (``0``: ``params.horizon``), since they give way
+    (reciprocal avoidance); the humans, who do not, keep their horizon."""
+    return replace(params, v_min=-reverse * max_speed, horizon=robot_horizon or params.horizon,
+                   human_horizon=params.human_horizon or params.horizon)
+
+
+def back_off(state: WorldState, preferred: np.ndarray, forward: VOBatchResult, boxed: np.ndarray,
+             reversing: AvoidanceParams) -> tuple[np.ndarray, np.ndarray]:
+    """The rule for a follower boxed in with a human coming: ``(twists, taken)``.
+
+    ``forward`` is :func:`safe_follower_twists`'s answer for ``preferred`` (``(N, 2)``); ``boxed`` ``(N,)`` marks the
+    followers it left without a safe twist while a human is coming. They search again with reversing candidates
+    (``reversing``, from :func:`reversing_params`) and take that twist if it is safe or, when nothing is, if it
+    postpones the contact longer than the forward answer: backing off from a human who keeps coming beats turning
+    in place in his path. ``twists`` is ``forward.twist`` with those answers; ``taken`` marks them. One rule for the
+    ``vo`` expert and ``cbs_rrt``'s evasion."""
+    if not boxed.any():
+        return forward.twist, np.zeros(len(forward.twist), dtype=bool)
+    back = safe_follower_twists(state, preferred, reversing)
+    taken = boxed & (back.feasible | (back.min_time_to_collision > forward.min_time_to_collision))
+    return np.where(taken[:, None], back.twist, forward.twist), taken
 
 
 def shield_actions(state: WorldState, wanted: np.ndarray, params: AvoidanceParams) -> ShieldResult:
