@@ -42,7 +42,8 @@ def test_generator_family_draws_worlds_with_its_knobs(name: str) -> None:
         lo, hi = cfg.n_followers  # type: ignore[misc]
         assert lo <= scn.robots.count <= hi
         assert scn.leader.kind == cfg.leader_kind and scn.world.max_time == cfg.max_time
-        assert len(scn.humans) <= cfg.n_humans[1] and len(scn.obstacles) <= cfg.n_obstacles[1]  # type: ignore[index]
+        walls = 2 * cfg.n_gates[1]  # type: ignore[index]  # a gate is two wall rectangles
+        assert len(scn.humans) <= cfg.n_humans[1] and len(scn.obstacles) <= cfg.n_obstacles[1] + walls  # type: ignore[index]
         assert all(h.behavior == cfg.human_behavior for h in scn.humans)
     env.close()
 
@@ -147,7 +148,7 @@ def test_suites_keep_their_splits_apart() -> None:
         Suite("x", 1, "d", ("opn",), validation=(500,), test=(1000,))
 
 
-TINY = Suite("tiny", 1, "two families, one world each", ("open", "narrow"), validation=(500,), test=(1000,),
+TINY = Suite("tiny", 1, "two families, one world each", ("open", "corridor"), validation=(500,), test=(1000,),
              fixed_seeds=(0,), env_kwargs={"action_type": "continuous", "max_cycles": 30})
 
 
@@ -157,7 +158,7 @@ def test_suite_result_scores_each_family_and_the_aggregate(tmp_path) -> None:
     result = suite_result(board, TINY, "test")
     assert result["format"] == RESULT_FORMAT and result["suite"]["name"] == "tiny" and result["suite"]["split"] == "test"
     rows = {(r["policy"], r["family"]): r for r in result["results"]}
-    assert set(rows) == {(p, f) for p in ("pursuit", "zero") for f in ("open", "narrow")}
+    assert set(rows) == {(p, f) for p in ("pursuit", "zero") for f in ("open", "corridor")}
     for (policy, family), row in rows.items():
         episodes = [e["metrics"] for e in board.episodes
                     if e["policy"] == policy and e["scenario"] in FAMILIES[family].scenario_names]
@@ -167,11 +168,11 @@ def test_suite_result_scores_each_family_and_the_aggregate(tmp_path) -> None:
         assert s["collision_rate"]["mean"] == float(episodes[0]["collisions"]["total"] > 0)
         assert s["formation_error"]["mean"] == pytest.approx(episodes[0]["formation_error"]["mean"])
     agg = {a["policy"]: a for a in result["aggregate"]}
-    zero = [rows[("zero", f)]["summary"]["formation_error"]["mean"] for f in ("open", "narrow")]
+    zero = [rows[("zero", f)]["summary"]["formation_error"]["mean"] for f in ("open", "corridor")]
     assert agg["zero"]["formation_error"] == pytest.approx(sum(zero) / 2)
     assert agg["zero"]["families"] == 2
     md = result_markdown(result)
-    assert "## open (easy)" in md and "## narrow (medium)" in md and "| `zero` | 2/2 |" in md
+    assert "## open (easy)" in md and "## corridor (medium)" in md and "| `zero` | 2/2 |" in md
     spec = json.loads((tmp_path / "s" / "sweep.json").read_text())
     assert spec["suite"]["name"] == "tiny"
 
@@ -187,7 +188,7 @@ def test_cli_suite_writes_and_resumes(tmp_path, capsys, monkeypatch) -> None:
     assert main(["evaluate", "--suite", "tiny", "--policies", "pursuit", "--out", str(out), "--quiet"]) == 0
     first = json.loads((out / "suite.json").read_text())
     assert "# Suite `tiny/1`, test split" in (out / "suite.md").read_text()
-    assert [r["family"] for r in first["results"]] == ["open", "narrow"]
+    assert [r["family"] for r in first["results"]] == ["open", "corridor"]
     # a resumed suite sweep scores the suite again, from the stored episodes
     assert main(["evaluate", "--resume", str(out), "--quiet"]) == 0
     again = json.loads((out / "suite.json").read_text())
@@ -269,7 +270,7 @@ def test_the_shipped_leaderboard_is_the_standard_suite_for_every_shipped_policy(
     root = Path(__file__).resolve().parents[1] / "docs" / "leaderboard"
     result = json.loads((root / "suite.json").read_text())
     assert result["format"] == "swarm_env.suite_result/1"
-    assert (result["suite"]["name"], result["suite"]["version"], result["suite"]["split"]) == ("standard", 1, "test")
+    assert (result["suite"]["name"], result["suite"]["version"], result["suite"]["split"]) == ("standard", 2, "test")
     shipped = {p.name for p in (Path(__file__).resolve().parents[1] / "baselines" / "checkpoints").iterdir() if p.is_dir()}
     assert shipped | {"vo", "cbs_rrt", "obs_expert", "orca", "pursuit"} <= set(result["policies"])
     board = Leaderboard.from_json(root / "leaderboard.json.gz")

@@ -31,6 +31,7 @@ __all__ = [
     "next_switch_time",
     "slot_targets",
     "arm_unit",
+    "reach_time",
     "SHAPES",
 ]
 
@@ -247,6 +248,27 @@ def formation_offsets(spec: FormationSpec, n: int) -> np.ndarray:
         return np.array(_offsets_cached(spec, int(n)))
     except TypeError:  # unhashable spec (e.g. offsets given as lists): compute uncached
         return np.array(_offsets_cached.__wrapped__(spec, int(n)))
+
+
+def reach_time(before: np.ndarray, after: np.ndarray, leader_speed: float, max_speed: float,
+               tolerance: float) -> float:
+    """A lower bound on the seconds until every follower can be within ``tolerance`` of its new slot.
+
+    ``before`` and ``after`` are the slot offsets ``(n, 2)`` in the leader's frame (x ahead) of follower ``k``
+    before and after a switch (slot ``k`` stays follower ``k``'s). A follower's velocity relative to a leader
+    going straight at ``leader_speed`` lies in the disc of radius ``max_speed`` around ``(-leader_speed, 0)``:
+    along the unit direction ``e`` to its new slot it closes at most at ``c = -v_L e_x + sqrt(v^2 - v_L^2 (1 -
+    e_x^2))`` m/s (slowest straight ahead: ``v - v_L``). Turning, acceleration and avoidance only add time."""
+    d = np.asarray(after, float) - np.asarray(before, float)
+    dist = np.hypot(d[:, 0], d[:, 1])
+    need = np.maximum(dist - tolerance, 0.0)
+    if not np.any(need > 0):
+        return 0.0
+    e_x = np.where(dist > 0, d[:, 0] / np.maximum(dist, 1e-12), 0.0)
+    closing = -leader_speed * e_x + np.sqrt(np.maximum(max_speed ** 2 - leader_speed ** 2 * (1.0 - e_x ** 2), 0.0))
+    with np.errstate(divide="ignore"):
+        times = np.where(need > 0, need / np.maximum(closing, 1e-9), 0.0)
+    return float(times.max())
 
 
 def active_formation(formations: Sequence[FormationSpec], t: float) -> int:

@@ -14,7 +14,7 @@ What a generated world looks like (units m, s):
 * a world of ``world_size`` (by default ``auto``: 20 m x 20 m, grown for big
   formations so that the formation fits beside the path; 64 followers in a
   line take about 95 m);
-* a leader (``leader_kind``) on a path of 2-4 waypoints with turns of at most
+* a leader (``leader_kind``) on a path of ``n_waypoints`` (2-4) waypoints with turns of at most
   60 degrees, long enough to take about 70 % of ``max_time`` at ``leader_speed``
   (shorter when the world is too small), kept away from the walls by about the
   formation's radius so the formation fits beside it;
@@ -48,6 +48,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, Literal, cast
 
@@ -57,6 +58,7 @@ from swarm_env.geometry.formation import (
     SLOT_MARGIN,
     formation_offsets,
     formation_start,
+    reach_time,
     unprojected_slot_trajectory,
     virtual_slot_trajectory,
 )
@@ -81,6 +83,7 @@ from swarm_env.scenario import (
     SensorSpec,
     WorldSpec,
 )
+from swarm_env.scenarios.gates import Gate, GateLayout, gate_schedule, place_gates
 from swarm_env.scenarios.loader import _parse_reward, _parse_sensors, required_substeps, validate_scenario
 
 __all__ = [
@@ -121,7 +124,10 @@ _PATH_ROOM = 8.0  # m of path room an ``auto`` world keeps between the formation
 
 #: Upper bounds of the count knobs (inclusive): bounded work per reset whatever the input. Teams and
 #: crowds are bounded as in files (swarm_env.limits); the other two bound the generator's own work.
-KNOB_LIMITS = {"n_followers": MAX_ROBOTS, "n_obstacles": 100, "n_humans": MAX_HUMANS, "n_switches": 8}
+KNOB_LIMITS = {"n_followers": MAX_ROBOTS, "n_obstacles": 100, "n_humans": MAX_HUMANS, "n_switches": 8, "n_gates": 8,
+               "n_waypoints": 8}
+#: How many times its reach time a gate's column switch gets when ``switch_reach`` is not set.
+GATE_REACH = 3.0
 
 
 # --------------------------------------------------------------------------- knob validation
@@ -214,11 +220,19 @@ class RandomScenarioConfig:
         spacing: range of the formation spacing (m); raised to ``2 * radius + 0.1``.
         angle: range of the ``v``/``wedge`` arm half-opening (degrees).
         n_switches: number of formation switches after the first formation.
+        n_waypoints: number of the leader path's drawn waypoints (2: a straight path; each more is a turn).
         switch_reach: ``None`` (the default): switches spread evenly over the leader's travel. A number
             ``k``: each new formation lasts at least ``k`` times its reach time, the least time in which
             every follower could be within the settle tolerance of its new slot at top speed
             (:func:`switch_reach_times`), so that every switch can be reached and held; while they do not
             fit in the leader's travel, the switch that needs the most time is dropped.
+        n_gates: number of gates (:mod:`swarm_env.scenarios.gates`): walls across straight stretches of the
+            leader's path, each with a door the formation files through as a column (ordered before the door,
+            released after it, each given ``switch_reach`` (else :data:`GATE_REACH`) times its reach time).
+            Fewer where they do not fit. The gates make the schedule: with gates, ``n_switches`` must be 0.
+        gate_width: range of a door's width (m), at least ``2 * (radius + 0.05) + 0.1`` so a column's slot
+            target fits through.
+        gate_depth: range of a gate's depth along the path (m): a door in a wall, or a corridor when deep.
         world_size: ``(W, H)`` (m), or ``"auto"`` (the default): a square of
             ``max(20, 2 * (rho + radius + 0.3) + 8)`` m where ``rho`` is the largest slot radius any
             drawable formation of the largest team can have (see :meth:`resolved_world_size`).
@@ -243,7 +257,11 @@ class RandomScenarioConfig:
     spacing: tuple[float, float] = (0.9, 1.3)
     angle: tuple[float, float] = (30.0, 60.0)
     n_switches: IntRange = (0, 2)
+    n_waypoints: IntRange = (2, 4)
     switch_reach: float | None = None
+    n_gates: IntRange = 0
+    gate_width: tuple[float, float] = (1.0, 1.6)
+    gate_depth: tuple[float, float] = (0.3, 0.6)
     world_size: tuple[float, float] | str = "auto"
     leader_kind: str = "virtual"
     leader_speed: float = 0.4
@@ -262,10 +280,14 @@ class RandomScenarioConfig:
         put(self, "n_obstacles", _int_range(self.n_obstacles, "n_obstacles", 0))
         put(self, "n_humans", _int_range(self.n_humans, "n_humans", 0))
         put(self, "n_switches", _int_range(self.n_switches, "n_switches", 0))
+        put(self, "n_gates", _int_range(self.n_gates, "n_gates", 0))
+        put(self, "n_waypoints", _int_range(self.n_waypoints, "n_waypoints", 2))
         put(self, "obstacle_size", _float_range(self.obstacle_size, "obstacle_size", positive=True, at_most="MAX_WORLD_SIZE"))
         put(self, "human_speed", _float_range(self.human_speed, "human_speed", positive=True, at_most="MAX_SPEED",
                                               at_least="MIN_SPEED"))
         put(self, "spacing", _float_range(self.spacing, "spacing", positive=True, at_most="MAX_WORLD_SIZE"))
+        put(self, "gate_width", _float_range(self.gate_width, "gate_width", positive=True, at_most="MAX_WORLD_SIZE"))
+        put(self, "gate_depth", _float_range(self.gate_depth, "gate_depth", positive=True, at_most="MAX_WORLD_SIZE"))
         put(self, "angle", _float_range(self.angle, "angle", positive=True, at_most="MAX_ABS_NUMBER"))
         lo = LIMITS["MIN_FORMATION_ANGLE"][0]
         if not (lo <= self.angle[0] and self.angle[1] <= 180.0 - lo):
@@ -307,6 +329,16 @@ class RandomScenarioConfig:
         if self.switch_reach is not None and (not _is_real(self.switch_reach) or not 1.0 <= self.switch_reach <= 100.0):
             raise ScenarioError(SOURCE, "switch_reach", "null or a number in [1, 100] (times the reach time)",
                                 self.switch_reach)
+        if self.n_gates[1] > 0:  # type: ignore[index]
+            if self.n_switches[1] > 0:  # type: ignore[index]
+                raise ScenarioError(SOURCE, "n_switches", "0 with n_gates (the gates make the formation schedule: "
+                                    "pass n_switches=0)",
+                                    self.n_switches)
+            door = 2.0 * (self.radius + SLOT_MARGIN) + 0.1
+            if self.gate_width[0] < door:
+                raise ScenarioError(SOURCE, "gate_width", f"doors at least {door:g} m wide (a column's slot target, "
+                                    f"radius {self.radius:g} m + 0.05 m, with 0.05 m to spare on each side)",
+                                    self.gate_width)
         if self.leader_speed > self.max_speed:
             raise ScenarioError(SOURCE, "leader_speed", f"at most max_speed = {self.max_speed}", self.leader_speed)
         if not isinstance(self.sensors, SensorSpec):
@@ -401,8 +433,19 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
     start_discs = [(p, r) for p in start_xy]
     if cfg.leader_kind == "robot":
         start_discs.append((np.asarray(path[0]), r))
+    gates: list[Gate] = []
+    n_gates = _draw_int(rng, cfg.n_gates)
+    if n_gates:
+        layout = GateLayout(
+            size=(W, H), radius=r, leader_speed=cfg.leader_speed, max_speed=cfg.max_speed, leader_clear=leader_clear,
+            reach=cfg.switch_reach if cfg.switch_reach is not None else GATE_REACH, width=cfg.gate_width,
+            depth=cfg.gate_depth, keep=(np.array([p for p, _ in start_discs]), np.array([rad + 0.3 for _, rad in start_discs])),
+            end=cfg.max_time)
+        gates = place_gates(rng, line, n_gates, formations[0], n, layout)
+        formations = gate_schedule(formations[0], gates, n, layout, cfg.dt)
+    footprints = StaticMap.from_obstacles((W, H), [g.footprint for g in gates]) if gates else None
 
-    humans = _draw_humans(rng, cfg, (W, H), line, n_hum, start_discs)
+    humans = _draw_humans(rng, cfg, (W, H), line, n_hum, start_discs, footprints)
 
     # Clearance constraints for obstacles: sample points with the clearance each needs.
     pts = [_samples(line), np.array([p for p, _ in start_discs])]
@@ -432,6 +475,21 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
     )
     steps = int(math.floor(cfg.max_time / cfg.dt + 1e-9))
     raw = unprojected_slot_trajectory(scn, steps)
+    while gates:  # a gate whose column turns too fast or whose walls make a slot jump goes (one fewer each time)
+        turning = _violations(scn, *raw)
+        if len(turning):  # a column turning with the path: the gate whose column was ordered last before it
+            leader_at = float(turning[0, 0]) * cfg.dt * cfg.leader_speed
+            ordered = [i for i, g in enumerate(gates) if g.order <= leader_at]
+            kept_gates = [g for i, g in enumerate(gates) if i != (ordered[-1] if ordered else len(gates) - 1)]
+        else:
+            kept_gates = [gates[k] for k in _without_jumps(scn, [g.walls for g in gates], raw)]
+            if len(kept_gates) == len(gates):
+                break
+        gates = kept_gates
+        scn = dataclasses.replace(scn, formations=tuple(gate_schedule(formations[0], gates, n, layout, cfg.dt)))
+        raw = unprojected_slot_trajectory(scn, steps)
+    gate_walls = [w for g in gates for w in g.walls]
+    walls = StaticMap.from_obstacles((W, H), gate_walls) if gates else None
 
     # A candidate whose bounding disc stays the projection's clearance away from every unprojected slot moves
     # none of them (project_free leaves free points untouched), so it passes exactly when the unprojected slots
@@ -444,7 +502,7 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
     raw_follows = not len(_violations(scn, *raw))
 
     def slots_can_follow(obstacle: Any, centre: np.ndarray, rho: float) -> bool:
-        """Whether this obstacle alone makes no slot jump (see _feasible_obstacles)."""
+        """Whether this obstacle alone makes no slot jump (see _without_jumps)."""
         if off_walls:
             d2 = (raw_xy[:, 0] - centre[0]) ** 2 + (raw_xy[:, 1] - centre[1]) ** 2
             if float(d2.min()) >= (rho + clear + _BOUND_SLACK) ** 2:
@@ -453,15 +511,16 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
         return not len(_violations(scn, *virtual_slot_trajectory(scn, static, steps, raw)))
 
     obstacles = _draw_obstacles(
-        rng, cfg, (W, H), n_obs, line, extent, np.vstack(pts), np.concatenate(need), slots_can_follow
+        rng, cfg, (W, H), n_obs, line, extent, np.vstack(pts), np.concatenate(need), slots_can_follow, walls
     )
-    kept = _feasible_obstacles(scn, obstacles, raw)
-    shapes = " -> ".join(f"{f.shape}@{f.at:g}s" for f in formations)
+    kept = [obstacles[k] for k in _without_jumps(scn, [(o,) for o in obstacles], raw, gate_walls)]
+    shapes = " -> ".join(f"{f.shape}@{f.at:g}s" for f in scn.formations)
+    doors = f", {len(gates)} gates" if cfg.n_gates[1] else ""  # type: ignore[index]
     description = (
         f"random: {n} followers behind a {cfg.leader_kind} leader ({line.length:.1f} m at "
-        f"{cfg.leader_speed:g} m/s), {len(kept)} obstacles, {len(humans)} humans; formations {shapes}"
+        f"{cfg.leader_speed:g} m/s), {len(kept)} obstacles{doors}, {len(humans)} humans; formations {shapes}"
     )
-    return validate_scenario(dataclasses.replace(scn, obstacles=tuple(kept), description=description))
+    return validate_scenario(dataclasses.replace(scn, obstacles=(*gate_walls, *kept), description=description))
 
 
 def slot_speed_violations(scn: Scenario, static: StaticMap | None = None) -> np.ndarray:
@@ -487,30 +546,33 @@ def _violations(scn: Scenario, slots: np.ndarray, index: np.ndarray) -> np.ndarr
     return np.column_stack([k + 1, i])
 
 
-def _feasible_obstacles(scn: Scenario, obstacles: list, raw: tuple[np.ndarray, np.ndarray]) -> list:
-    """``obstacles`` less those whose projection makes a slot jump faster than ``max_speed``.
+def _without_jumps(scn: Scenario, groups: Sequence[Sequence[Any]], raw: tuple[np.ndarray, np.ndarray],
+                   fixed: Sequence[Any] = ()) -> list[int]:
+    """The indices of the obstacle ``groups`` kept: those whose projection makes a slot jump faster than
+    ``max_speed`` are dropped (a whole group with any of its obstacles; ``fixed`` obstacles stay).
 
     A slot target that enters an obstacle is moved to the nearest free point; across
     the obstacle's middle that point jumps to the other side. Candidates that do so
-    alone are refused while sampling; here the obstacles that the offending targets
+    alone are refused while sampling; here the groups that the offending targets
     of the whole map were pushed onto are dropped, until no such jump is left.
     ``raw`` is the scenario's :func:`unprojected_slot_trajectory`.
     """
     steps = raw[0].shape[0] - 1
     clearance = scn.robots.radius + SLOT_MARGIN
-    kept = list(obstacles)
+    kept = list(range(len(groups)))
     while kept:
-        static = StaticMap.from_obstacles(scn.world.size, kept)
+        owner = [-1] * len(fixed) + [k for k in kept for _ in groups[k]]
+        static = StaticMap.from_obstacles(scn.world.size, [*fixed, *(o for k in kept for o in groups[k])])
         slots, index = virtual_slot_trajectory(scn, static, steps, raw)
         bad = _violations(scn, slots, index)
         if not len(bad):
             break
         ends = np.concatenate([slots[bad[:, 0], bad[:, 1]], slots[bad[:, 0] - 1, bad[:, 1]]])
         near = static.obstacle_distances(ends) < clearance + 1e-6
-        culprits = set(np.flatnonzero(near.any(axis=0)).tolist())
-        if not culprits:  # not an obstacle's doing (cannot happen with convex walls): keep the rest
+        culprits = {owner[j] for j in np.flatnonzero(near.any(axis=0)).tolist()} - {-1}
+        if not culprits:  # not a droppable obstacle's doing (cannot happen with convex walls): keep the rest
             break
-        kept = [o for k, o in enumerate(kept) if k not in culprits]
+        kept = [k for k in kept if k not in culprits]
     return kept
 
 
@@ -532,27 +594,6 @@ def _draw_formations(rng: np.random.Generator, cfg: RandomScenarioConfig, n_sw: 
             angle = 89.0
         out.append(FormationSpec(at=0.0, shape=shape, spacing=spacing, angle=angle))
     return out
-
-
-def reach_time(before: np.ndarray, after: np.ndarray, leader_speed: float, max_speed: float,
-               tolerance: float) -> float:
-    """A lower bound on the seconds until every follower can be within ``tolerance`` of its new slot.
-
-    ``before`` and ``after`` are the slot offsets ``(n, 2)`` in the leader's frame (x ahead) of follower ``k``
-    before and after a switch (slot ``k`` stays follower ``k``'s). A follower's velocity relative to a leader
-    going straight at ``leader_speed`` lies in the disc of radius ``max_speed`` around ``(-leader_speed, 0)``:
-    along the unit direction ``e`` to its new slot it closes at most at ``c = -v_L e_x + sqrt(v^2 - v_L^2 (1 -
-    e_x^2))`` m/s (slowest straight ahead: ``v - v_L``). Turning, acceleration and avoidance only add time."""
-    d = np.asarray(after, float) - np.asarray(before, float)
-    dist = np.hypot(d[:, 0], d[:, 1])
-    need = np.maximum(dist - tolerance, 0.0)
-    if not np.any(need > 0):
-        return 0.0
-    e_x = np.where(dist > 0, d[:, 0] / np.maximum(dist, 1e-12), 0.0)
-    closing = -leader_speed * e_x + np.sqrt(np.maximum(max_speed ** 2 - leader_speed ** 2 * (1.0 - e_x ** 2), 0.0))
-    with np.errstate(divide="ignore"):
-        times = np.where(need > 0, need / np.maximum(closing, 1e-9), 0.0)
-    return float(times.max())
 
 
 def switch_reach_times(scn: Scenario) -> list[float]:
@@ -605,7 +646,7 @@ def _draw_path(
 ) -> tuple[tuple[tuple[float, float], ...], np.ndarray]:
     """The leader's path and the followers' starting slot positions.
 
-    2-4 waypoints (rounded to mm) are drawn first: the first heading, then the turns
+    ``cfg.n_waypoints`` waypoints (rounded to mm) are drawn first: the first heading, then the turns
     (at most 60 degrees, and at most what a corner arc of ``min_radius`` fits in
     half a segment), then the start point where every starting slot fits in the
     world and every later waypoint stays ``margin`` (about the formation's radius)
@@ -620,7 +661,7 @@ def _draw_path(
     lo = np.array([margin, margin])
     hi = np.array([W - margin, H - margin])
     length = cfg.leader_speed * _TRAVEL_FRACTION * cfg.max_time
-    k = int(rng.integers(2, 5))
+    k = int(rng.integers(cfg.n_waypoints[0], cfg.n_waypoints[1] + 1))  # type: ignore[index]
     for attempt in range(_PATH_ATTEMPTS):
         if attempt and attempt % 75 == 0:
             length *= 0.8  # the world is too small for this path: shorten it
@@ -721,8 +762,10 @@ def _draw_humans(
     line: PolylinePath,
     n_hum: int,
     start_discs: list[tuple[np.ndarray, float]],
+    footprints: StaticMap | None = None,
 ) -> list[HumanSpec]:
-    """Humans walking straight lines that cross the leader's path, timed to meet the leader there."""
+    """Humans walking straight lines that cross the leader's path, timed to meet the leader there (and keeping
+    1 m from the gates' ``footprints``: nobody walks through a door, or stops in one)."""
     W, H = size
     hr = cfg.human_radius
     out: list[HumanSpec] = []
@@ -746,6 +789,8 @@ def _draw_humans(
                 continue
             if any(np.linalg.norm(a - q) < 2 * hr + 0.1 for q in starts):
                 continue
+            if footprints is not None and float(footprints.obstacle_distances(_samples(PolylinePath(np.array([a, b])))).min()) < hr + 1.0:
+                continue
             t_meet = s_c / cfg.leader_speed
             delay = round(max(0.0, t_meet - before / speed), 1)
             starts.append(a)
@@ -766,13 +811,15 @@ def _draw_obstacles(
     keep_pts: np.ndarray,
     keep_clear: np.ndarray,
     slots_can_follow: Any,
+    walls: StaticMap | None = None,
 ) -> list[Any]:
     """Rejection-sample up to ``n_obs`` obstacles, at most ``_OBSTACLE_TRIES * n_obs`` candidates.
 
     A candidate must keep ``keep_clear[i]`` from each ``keep_pts[i]``: accepted at
     once when its bounding circle does, refused when its centre does not, and
     otherwise measured exactly with :class:`StaticMap` (thin rectangles and
-    polygons may come closer than their bounding circle).
+    polygons may come closer than their bounding circle). A candidate's bounding circle keeps a robot's
+    passage from the gates' ``walls``.
     """
     W, H = size
     gap = 2.0 * cfg.radius + 0.2  # a robot fits between two obstacles and between an obstacle and a wall
@@ -784,6 +831,8 @@ def _draw_obstacles(
         if not (rho + gap <= centre[0] <= W - rho - gap and rho + gap <= centre[1] <= H - rho - gap):
             continue
         if any(math.dist(centre, c2) < rho + rho2 + gap for _, c2, rho2 in accepted):
+            continue
+        if walls is not None and float(walls.obstacle_distances(centre[None]).min()) < rho + gap:
             continue
         slack = float(np.min(np.hypot(keep_pts[:, 0] - centre[0], keep_pts[:, 1] - centre[1]) - keep_clear))
         if slack < rho:
