@@ -111,7 +111,7 @@ FAMILIES: Mapping[str, Family] = MappingProxyType({f.name: f for f in (
            "follower can prevent", "medium", {"leader_kind": "robot", "human_behavior": "social_force"}),
     Family("paper", "the papers' scenarios: paper 003's three crossings and paper 000's switch (dt 0.5 s)", "medium",
            scenarios=("paper_vo_0", "paper_vo_45", "paper_vo_90", "paper_cbs_switch")),
-    Family("narrow", "4 followers file through 1-2 gates across the path (where they fit: about 9 worlds in 10 get one), "
+    Family("narrow", "4 followers file through 1-2 gates across the path (where they fit: 99 of training worlds 0-99 get one), "
            "each a door of 1.0-1.6 m in a wall 0.3-3 m deep (a corridor when deep), as a column ordered before the "
            "door and released after it; a path with at most one turn, 30 m x 30 m, 100 s, 0-4 obstacles, 0-2 walkers",
            "medium",
