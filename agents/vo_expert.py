@@ -70,6 +70,7 @@ parameters from the command line (e.g. ``vo:horizon=4,margin=0.1``).
 
 from __future__ import annotations
 
+import dataclasses
 import inspect
 import math
 import time
@@ -79,7 +80,7 @@ import numpy as np
 
 from swarm_env.compiled import compiled_search
 from swarm_env.control.pursuit import pure_pursuit, slot_velocities
-from swarm_env.control.safety import AvoidanceParams, back_off, reversing_params, safe_follower_twists
+from swarm_env.control.safety import AvoidanceParams, back_off, period_margin, reversing_params, safe_follower_twists
 from swarm_env.geometry.formation import SLOT_MARGIN
 from swarm_env.harness.policies import expert_factory
 from swarm_env.state import WorldState
@@ -112,7 +113,7 @@ EXPERT_AVOIDANCE: dict[str, Any] = {"move_first": True, "recip_gap": 0.2, "horiz
 #: The expert before issue 12 (AvoidanceParams' defaults, no preview, no look-ahead cap, no backing off): the one
 #: the shipped ``residual_vo`` runs were trained with, which their files name as their residual's expert.
 LEGACY_SPEC = ("vo:move_first=false,recip_gap=0,horizon=3,horizon_static=3,tau=1,w_speed=1,escape_commit=0,"
-               "preview=0,lookahead=0,human_horizon=0,reverse=0")
+               "preview=0,lookahead=0,human_horizon=0,reverse=0,period_margin=0")
 
 
 class VOExpert:
@@ -167,6 +168,15 @@ class VOExpert:
             ``horizon``). The followers give way to each other, so while backing off from a walker
             only a robot contact within this horizon counts; the humans keep their own horizon.
 
+    Long control periods:
+        period_margin: the most (m, default ``0.1``; ``0`` for none) the other followers' discs grow by in
+            the search when the scenario's control period ``dt`` is longer than 0.1 s: by ``max_speed *
+            (dt - 0.1)`` (:func:`swarm_env.control.safety.period_margin`). The search trusts a neighbour's
+            velocity for the whole period, and a neighbour with no safe twist stops and turns in place; with
+            ``dt = 0.2`` s, followers crossing to new slots after formation switches touched (9 of 24 maps with
+            switches every 12-15 s) where the fixed ``margin`` had covered it at 0.1 s. Scenarios with
+            ``dt <= 0.1`` s (every generated family, the corridor, paper 003's) are unchanged bit for bit.
+
     Avoidance (velocity obstacles, Eq. 12): any field of
     :class:`swarm_env.control.safety.AvoidanceParams` (the search's
     :class:`~swarm_env.control.vo.VOParams` plus ``human_margin``, ``human_horizon`` and ``reciprocal``), e.g.
@@ -193,6 +203,7 @@ class VOExpert:
         lookahead: float = 0.875,
         reverse: float = 0.5,
         reverse_horizon: float = 1.0,
+        period_margin: float = 0.1,
         **avoidance: Any,
     ) -> None:
         if not (isinstance(time_gap, (int, float)) and math.isfinite(time_gap) and time_gap > 0):
@@ -207,6 +218,8 @@ class VOExpert:
             raise ValueError(f"reverse must be a number in [0, 1] (a fraction of max_speed), got {reverse!r}")
         if not (isinstance(reverse_horizon, (int, float)) and math.isfinite(reverse_horizon) and reverse_horizon >= 0):
             raise ValueError(f"reverse_horizon must be a finite number >= 0 (s; 0: horizon), got {reverse_horizon!r}")
+        if not (isinstance(period_margin, (int, float)) and math.isfinite(period_margin) and period_margin >= 0):
+            raise ValueError(f"period_margin must be a finite number >= 0 (m), got {period_margin!r}")
         unknown = sorted(set(avoidance) - set(AvoidanceParams.names()))
         if unknown:
             raise TypeError(f"VOExpert got unknown parameter(s) {unknown}; known: {', '.join(self.policy_parameters())}")
@@ -221,6 +234,8 @@ class VOExpert:
         self.lookahead = float(lookahead)
         self.reverse = float(reverse)
         self.reverse_horizon = float(reverse_horizon)
+        self.period_margin = float(period_margin)
+        self._period: tuple[float, float, AvoidanceParams] = (-1.0, -1.0, self.avoidance)  # (max_speed, dt, params)
         self._reversing: tuple[float, AvoidanceParams] | None = None  # (max_speed, the fallback's params)
         self._index: dict[str, int] = {}
         self._reset_stats()
@@ -276,7 +291,8 @@ class VOExpert:
     def _decide(self, state: WorldState) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """:meth:`twists` and the flags of the followers that back off (``reverse``)."""
         preferred = self.preferred_twists(state)
-        res = safe_follower_twists(state, preferred, self.avoidance)
+        params = self._params(state)
+        res = safe_follower_twists(state, preferred, params)
         if self.reverse <= 0 or res.feasible.all() or not len(state.human_pos):
             return res.twist, res.feasible, res.escaped, np.zeros(len(res.twist), dtype=bool)
         # Boxed in (no forward or standing candidate is safe) with a human coming: the other robots
@@ -285,6 +301,8 @@ class VOExpert:
         boxed = ~res.feasible & self._human_coming(state)
         if not boxed.any():
             return res.twist, res.feasible, res.escaped, boxed
+        # (Without period_margin's grown discs: backing off, only a robot contact within reverse_horizon counts, the
+        # robots give way, and on the measured maps the grown discs there left followers pinned by walkers.)
         twist, take = back_off(state, preferred, res, boxed, self._reverse_params(state.scenario.robots.max_speed))
         return twist, res.feasible, res.escaped & ~take, take
 
@@ -296,6 +314,16 @@ class VOExpert:
                - state.follower_radius[:, None] - state.human_radius[None, :])
         closing = np.hypot(*state.human_vel.T)[None, :] + state.scenario.robots.max_speed
         return np.any(gap <= self.avoidance.horizon * closing, axis=1)
+
+    def _params(self, state: WorldState) -> AvoidanceParams:
+        """The avoidance for this scenario's control period: :attr:`avoidance` with the other followers' discs grown
+        by ``period_margin`` (the same object when they do not grow), cached per speed limit and period."""
+        v_max, dt = float(state.scenario.robots.max_speed), float(state.scenario.world.dt)
+        if self._period[:2] != (v_max, dt):
+            grow = period_margin(v_max, dt, self.period_margin)
+            params = dataclasses.replace(self.avoidance, robot_margin=self.avoidance.robot_margin + grow) if grow else self.avoidance
+            self._period = (v_max, dt, params)
+        return self._period[2]
 
     def _reverse_params(self, max_speed: float) -> AvoidanceParams:
         """The fallback search's parameters: the avoidance with speeds down to ``-reverse * max_speed`` and the other

@@ -12,11 +12,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
 
 from swarm_env.control.pursuit import pure_pursuit
+from swarm_env.control.safety import period_margin
 from swarm_env.control.vo import (
     VODiscs,
     VORobots,
@@ -31,8 +33,10 @@ from swarm_env.geometry.static_map import StaticMap
 from swarm_env.harness.episode import run_episode
 from swarm_env.harness.policies import load_policy
 from swarm_env.scenario import CircleObstacle, PolygonObstacle, RectangleObstacle
-from swarm_env.scenarios.loader import scenario_from_dict
+from swarm_env.scenarios.loader import load_scenario, scenario_from_dict
 from swarm_env_agents.vo_expert import EXPERT_AVOIDANCE, LEGACY_SPEC, VOExpert, make_policy
+
+DATA = Path(__file__).resolve().parent / "data"
 
 
 # ------------------------------------------------------------------ the VO cone
@@ -395,6 +399,32 @@ def test_a_follower_backs_off_from_a_walker_who_keeps_coming():
     turning, default = results.values()
     assert turning["collisions"]["robot_human"] >= 1 and turning["policy_stats"]["reverse_steps"] == 0
     assert default["collisions"]["total"] == 0 and default["policy_stats"]["reverse_steps"] > 0
+
+
+def test_followers_keep_room_for_a_neighbour_that_stops_within_a_long_control_period() -> None:
+    """A map with a formation switch every 12-14 s and a control period of 0.2 s (``benchmarks/switch_maps.py --dt
+    0.2 --prefix b``, map 6): 2 s after a v -> line switch two followers crossing to their new slots travel a few cm
+    apart, one finds no safe twist and stops, and the other, which trusted its velocity for the whole period,
+    runs into it (``period_margin=0``, the expert before). By default the other followers' discs grow by
+    ``max_speed * (dt - 0.1)`` = 0.065 m in the search, and nobody touches. At dt <= 0.1 s nothing grows."""
+    results = {}
+    for spec in ("vo:period_margin=0", "vo"):
+        env = SwarmEnv(load_scenario(DATA / "switch_map_dt02.yaml"), max_cycles=125)
+        results[spec] = run_episode(env, load_policy(spec, env), seed=0)
+    before, default = results.values()
+    assert before["collisions"]["robot_robot"] == 1
+    assert default["collisions"]["total"] == 0
+    assert period_margin(0.65, 0.2, 0.1) == pytest.approx(0.065)
+    assert period_margin(0.65, 0.1, 0.1) == 0.0 and period_margin(0.65, 0.05, 0.1) == 0.0
+    assert period_margin(0.65, 0.5, 0.1) == 0.1  # paper_cbs_switch: capped
+    expert = VOExpert()
+    env = SwarmEnv("paper_vo_45", max_cycles=2)
+    env.reset(seed=0)
+    assert expert._params(env.world_state()) is expert.avoidance  # dt = 0.1 s: the same search, bit for bit
+    with pytest.raises(ValueError, match="period_margin"):
+        VOExpert(period_margin=-0.1)
+    with pytest.raises(ValueError, match="robot_margin"):
+        VOExpert(robot_margin=float("nan"))
 
 
 def test_discrete_action_space_is_refused_clearly():

@@ -141,7 +141,8 @@ def test_the_safety_layer_gives_the_same_bits(switch_states: list[WorldState]) -
                 AvoidanceParams(cost="velocity", w_current=0.3, tau=0.5, v_min=-0.2, recip_gap=0.5, move_first=True),
                 AvoidanceParams(move_first=True, recip_gap=0.2, static_reach=6.0),
                 AvoidanceParams(static_reach=2.0, horizon_static=2.0, v_min=-0.2, tau=0.5),
-                AvoidanceParams(w_speed=3.0, escape_commit=1.0, move_first=True, recip_gap=0.2, tau=0.7)]
+                AvoidanceParams(w_speed=3.0, escape_commit=1.0, move_first=True, recip_gap=0.2, tau=0.7),
+                AvoidanceParams(move_first=True, recip_gap=0.2, robot_margin=0.065)]
     sizes = set()
     for k, full in enumerate(switch_states):
         n_all = full.n_followers

@@ -1645,7 +1645,7 @@ def _follower_plan(params: VOParams, v_max: float, omega_max: float, trace: floa
     scalars = (float(p.margin), float(horizon), h_static, float(ext), float(p.tau), int(p.n_arc),
                float(p.v_min), float(v_max), float(omega_max), float(p.w_pref), float(p.w_heading),
                float(p.side_bias), float(p.w_current), float(p.recip_gap), _reach_cut(p), float(p.w_speed),
-               float(p.escape_commit), trace)
+               float(p.escape_commit), trace, float(getattr(p, "robot_margin", 0.0)))
     reciprocal = bool(getattr(p, "reciprocal", False))  # (safety.AvoidanceParams': the followers avoid each other so)
     flags = (bool(p.fast), bool(p.escape), bool(p.allow_still_overlap), reciprocal, bool(p.w_current), _FIRST_STAGE,
              p.cost == "velocity", bool(p.move_first), bool(p.static_reach))

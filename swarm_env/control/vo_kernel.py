@@ -759,15 +759,16 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     body, gvel)`` the candidate grid, its body-frame trajectories and (``cost="velocity"``) mean
     body-frame velocities (``vo._grid_velocities``); ``scalars`` ``(margin, horizon,
     h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias, w_current, recip_gap,
-    t_cut, w_speed, escape_commit, trace)`` (``t_cut``: ``static_reach``'s latest static cut, ``vo._reach_cut``;
-    ``trace``: the longest disc horizon, ``vo._trace_horizon``; ``horizon`` is the escape probes');
+    t_cut, w_speed, escape_commit, trace, robot_margin)`` (``t_cut``: ``static_reach``'s latest static cut,
+    ``vo._reach_cut``; ``trace``: the longest disc horizon, ``vo._trace_horizon``; ``horizon`` is the escape
+    probes'; ``robot_margin``: added to the followers' radii as the others see them, ``safety.AvoidanceParams``);
     ``flags`` ``(fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first,
     static_reach)``.
     Returns what :func:`_search` returns.
     """
     grid, times, body, gvel = plan
     (margin, horizon, h_static, ext, tau, n_arc, v_min, v_max, omega_max, w_pref, w_heading, side_bias,
-     w_current, recip_gap, t_cut, w_speed, commit, trace) = scalars
+     w_current, recip_gap, t_cut, w_speed, commit, trace, robot_margin) = scalars
     fast, escape, still_ok, reciprocal, has_current, first_stage, cost_velocity, move_first, static_reach = flags
     n_moving = moving.shape[0]
     P = np.empty((n, 2))
@@ -793,7 +794,7 @@ def follower_select(moving, own, n, static_map, has_static, plan, scalars, flags
     spd_h = np.empty(n_moving)
     hd = np.empty(n_moving)
     for j in range(n_moving):
-        d[j, 0], d[j, 1], d[j, 2] = moving[j, 0], moving[j, 1], moving[j, 2]
+        d[j, 0], d[j, 1], d[j, 2] = moving[j, 0], moving[j, 1], moving[j, 2] + (robot_margin if j < n else 0.0)
         dv[j, 0], dv[j, 1] = moving[j, 3], moving[j, 4]
         hd[j] = moving[j, 5]
         spd_h[j] = math.hypot(dv[j, 0], dv[j, 1]) * hd[j]

@@ -148,8 +148,9 @@ def place_gates(rng: np.random.Generator, line: PolylinePath, count: int, format
             if not np.any(room > 0.0):
                 continue
             u = float(rng.uniform(0.0, float(room.sum())))
-            seg = min(int(np.searchsorted(np.cumsum(room), u, side="right")), len(room) - 1)
-            s = float(lo[seg] + min(u - (float(np.cumsum(room)[seg]) - room[seg]), room[seg]))
+            upto = np.cumsum(room)  # the room of segments 0..k
+            seg = min(int(np.searchsorted(upto, u, side="right")), len(room) - 1)
+            s = float(lo[seg] + min(u - (float(upto[seg]) - room[seg]), room[seg]))
             order, release = s - depth / 2.0 - lead_in, s + depth / 2.0 + lead_out
             if order < _FIRST_ORDER:
                 continue
