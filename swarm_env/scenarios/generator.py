@@ -475,19 +475,8 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
     )
     steps = int(math.floor(cfg.max_time / cfg.dt + 1e-9))
     raw = unprojected_slot_trajectory(scn, steps)
-    while gates:  # a gate whose column turns too fast or whose walls make a slot jump goes (one fewer each time)
-        turning = _violations(scn, *raw)
-        if len(turning):  # a column turning with the path: the gate whose column was ordered last before it
-            leader_at = float(turning[0, 0]) * cfg.dt * cfg.leader_speed
-            ordered = [i for i, g in enumerate(gates) if g.order <= leader_at]
-            kept_gates = [g for i, g in enumerate(gates) if i != (ordered[-1] if ordered else len(gates) - 1)]
-        else:
-            kept_gates = [gates[k] for k in _without_jumps(scn, [g.walls for g in gates], raw)]
-            if len(kept_gates) == len(gates):
-                break
-        gates = kept_gates
-        scn = dataclasses.replace(scn, formations=tuple(gate_schedule(formations[0], gates, n, layout, cfg.dt)))
-        raw = unprojected_slot_trajectory(scn, steps)
+    if gates:
+        scn, raw, gates = _gates_slots_follow(scn, raw, gates, formations[0], layout)
     gate_walls = [w for g in gates for w in g.walls]
     walls = StaticMap.from_obstacles((W, H), gate_walls) if gates else None
 
@@ -521,6 +510,30 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
         f"{cfg.leader_speed:g} m/s), {len(kept)} obstacles{doors}, {len(humans)} humans; formations {shapes}"
     )
     return validate_scenario(dataclasses.replace(scn, obstacles=(*gate_walls, *kept), description=description))
+
+
+def _gates_slots_follow(scn: Scenario, raw: tuple[np.ndarray, np.ndarray], gates: list[Gate], formation: FormationSpec,
+                        layout: GateLayout) -> tuple[Scenario, tuple[np.ndarray, np.ndarray], list[Gate]]:
+    """``(scn, raw, gates)`` less the gates that make a slot target move faster than ``max_speed``, with the
+    schedule and the :func:`unprojected_slot_trajectory` ``raw`` of the gates kept: a column that turns with the
+    path (the gate whose column was ordered last before it goes), or walls that make a slot jump
+    (:func:`_without_jumps`). One gate or more fewer each round: bounded by the number of gates."""
+    steps = raw[0].shape[0] - 1
+    dt, speed = scn.world.dt, scn.leader.speed
+    while gates:
+        turning = _violations(scn, *raw)
+        if len(turning):
+            leader_at = float(turning[0, 0]) * dt * speed  # (a virtual leader: arc length = speed * time)
+            ordered = [i for i, g in enumerate(gates) if g.order <= leader_at]
+            kept = [g for i, g in enumerate(gates) if i != (ordered[-1] if ordered else len(gates) - 1)]
+        else:
+            kept = [gates[k] for k in _without_jumps(scn, [g.walls for g in gates], raw)]
+            if len(kept) == len(gates):
+                break
+        gates = kept
+        scn = dataclasses.replace(scn, formations=tuple(gate_schedule(formation, gates, scn.robots.count, layout, dt)))
+        raw = unprojected_slot_trajectory(scn, steps)
+    return scn, raw, gates
 
 
 def slot_speed_violations(scn: Scenario, static: StaticMap | None = None) -> np.ndarray:
