@@ -174,7 +174,7 @@ class VOExpert:
             (dt - 0.1)`` (:func:`swarm_env.control.safety.period_margin`). The search trusts a neighbour's
             velocity for the whole period, and a neighbour with no safe twist stops and turns in place; with
             ``dt = 0.2`` s, followers crossing to new slots after formation switches touched (9 of 24 maps with
-            switches every 12-15 s) where the fixed ``margin`` had covered it at 0.1 s. Scenarios with
+            switches every 12-14 s) where the fixed ``margin`` had covered it at 0.1 s. Scenarios with
             ``dt <= 0.1`` s (every generated family, the corridor, paper 003's) are unchanged bit for bit.
 
     Avoidance (velocity obstacles, Eq. 12): any field of

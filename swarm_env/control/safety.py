@@ -82,7 +82,7 @@ def period_margin(max_speed: float, dt: float, cap: float) -> float:
 
     The velocity obstacle trusts a neighbour's velocity for the whole period; a neighbour that stops or turns in
     place meanwhile (a follower with no safe twist does) is met that much sooner. Measured (issue 34): with
-    switches every 12-15 s and dt = 0.2-0.25 s, followers crossing to their new slots touched on 9 of 24 maps
+    switches every 12-14 s and dt = 0.2-0.25 s, followers crossing to their new slots touched on 9 of 24 maps
     without it and none with it."""
     return min(max(float(dt) - MARGIN_PERIOD, 0.0) * float(max_speed), float(cap))
 

@@ -1,0 +1,56 @@
+"""What a generator family's worlds hold, and a digest of them to compare two versions of the generator.
+
+For each family and seed range: how many worlds got how many gates (the ``narrow`` family), how many give the
+formation back after their last gate, and a SHA-256 digest of the worlds (``scenario_to_dict`` as sorted JSON).
+Run it at two commits: the same digest means the same worlds, bit for bit::
+
+    python benchmarks/family_worlds.py --families narrow --seeds 0-99                          # gates per world
+    python benchmarks/family_worlds.py --seeds 0-14 500-504 1000-1019                          # every family's digest
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import hashlib
+import json
+
+from swarm_env.env import SwarmEnv
+from swarm_env.harness.leaderboard import parse_seeds
+from swarm_env.scenarios.families import FAMILIES
+from swarm_env.scenarios.loader import scenario_to_dict
+
+
+def family_worlds(family: str, seeds: list[int]) -> dict[str, object]:
+    """The digest of ``random:<family>``'s worlds at ``seeds`` (as ``SwarmEnv.reset(seed=s)`` draws them), the
+    count of worlds by number of gates, and how many end in the formation they started with."""
+    env = SwarmEnv(f"random:{family}")
+    digest = hashlib.sha256()
+    gates: collections.Counter[int] = collections.Counter()
+    released = 0
+    for seed in seeds:
+        env.reset(seed=seed)
+        scn = env.scenario
+        digest.update(json.dumps(scenario_to_dict(scn), sort_keys=True).encode())
+        if FAMILIES[family].knobs.get("n_gates"):
+            columns = [f.shape == "column" for f in scn.formations]
+            gates[int(scn.description.split(" gates")[0].rsplit(", ", 1)[-1])] += 1  # the description counts them
+            released += int(any(columns) and not columns[-1])
+    env.close()
+    return {"family": family, "worlds": len(seeds), "digest": digest.hexdigest()[:16],
+            **({"gates": dict(sorted(gates.items())), "formation_back": released} if gates else {})}
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--families", nargs="+", default=[f.name for f in FAMILIES.values() if f.generated],
+                    help="generator families (default: every one)")
+    ap.add_argument("--seeds", nargs="+", default=["0-99"], help="seeds or ranges, e.g. 0-14 500-504")
+    args = ap.parse_args(argv)
+    seeds = [s for spec in args.seeds for s in parse_seeds(spec)]
+    for family in args.families:
+        print(json.dumps(family_worlds(family, seeds)))
+
+
+if __name__ == "__main__":
+    main()
