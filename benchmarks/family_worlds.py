@@ -1,7 +1,7 @@
 """What a generator family's worlds hold, and a digest of them to compare two versions of the generator.
 
 For each family and seed range: how many worlds got how many gates (the ``narrow`` family), how many give the
-formation back after their last gate, and a SHA-256 digest of the worlds (``scenario_to_dict`` as sorted JSON).
+formation back after their last gate, and a SHA-256 digest of the worlds (``scenario_to_dict`` as sorted JSON, ``swarm_env.jsonio.dumps``).
 Run it at two commits: the same digest means the same worlds, bit for bit::
 
     python benchmarks/family_worlds.py --families narrow --seeds 0-99                          # gates per world
@@ -13,10 +13,10 @@ from __future__ import annotations
 import argparse
 import collections
 import hashlib
-import json
 
 from swarm_env.env import SwarmEnv
 from swarm_env.harness.leaderboard import parse_seeds
+from swarm_env.jsonio import dumps
 from swarm_env.scenarios.families import FAMILIES
 from swarm_env.scenarios.loader import scenario_to_dict
 
@@ -31,7 +31,7 @@ def family_worlds(family: str, seeds: list[int]) -> dict[str, object]:
     for seed in seeds:
         env.reset(seed=seed)
         scn = env.scenario
-        digest.update(json.dumps(scenario_to_dict(scn), sort_keys=True).encode())
+        digest.update(dumps(scenario_to_dict(scn), indent=None, sort_keys=True).encode())
         if FAMILIES[family].knobs.get("n_gates"):
             columns = [f.shape == "column" for f in scn.formations]
             gates[int(scn.description.split(" gates")[0].rsplit(", ", 1)[-1])] += 1  # the description counts them
@@ -49,7 +49,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     seeds = [s for spec in args.seeds for s in parse_seeds(spec)]
     for family in args.families:
-        print(json.dumps(family_worlds(family, seeds)))
+        print(dumps(family_worlds(family, seeds), indent=None))
 
 
 if __name__ == "__main__":
