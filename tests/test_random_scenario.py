@@ -214,3 +214,47 @@ def test_far_obstacle_shortcut_changes_no_scenario(monkeypatch: pytest.MonkeyPat
     slow = [_scn(seed, **k) for seed in range(12) for k in knobs]
     assert fast == slow
     assert fast_maps < 0.6 * len(built)
+
+
+def _final_slots(scn) -> np.ndarray:
+    """Where the last formation's slots are once the leader has stopped (as it faces at the path's end)."""
+    path = np.asarray(scn.leader.path, dtype=float)
+    heading = np.arctan2(path[-1, 1] - path[-2, 1], path[-1, 0] - path[-2, 0])
+    c, s = np.cos(heading), np.sin(heading)
+    return path[-1] + formation_offsets(scn.formations[-1], scn.robots.count) @ np.array([[c, s], [-s, c]])
+
+
+# large_16 worlds where, before the rule, a walker stopped 0.15-0.45 m from a final slot (543 and 573 were
+# validation worlds that no policy could finish: the follower of that slot stood beside the walker until the end).
+@pytest.mark.parametrize("seed", [56, 97, 113, 543, 573])
+def test_walkers_do_not_stop_on_a_final_slot(seed: int) -> None:
+    from swarm_env.env import SwarmEnv
+
+    env = SwarmEnv("random:large_16")
+    env.reset(seed=seed)
+    scn = env.world_state().scenario
+    assert scn.humans
+    slots = _final_slots(scn)
+    for h in scn.humans:
+        gap = float(np.min(np.linalg.norm(slots - np.asarray(h.path[-1]), axis=1)))
+        assert gap >= h.radius + scn.robots.radius + 0.3 - 1e-9, (seed, h.path, gap)
+
+
+def test_final_slot_stays_free_once_the_walker_has_stopped() -> None:
+    """Played: in large_16's validation world 543 the walker ends its line and stops; every slot target of the
+    stopped leader's last formation keeps touching distance plus the settle tolerance from it."""
+    from swarm_env.env import SwarmEnv
+
+    env = SwarmEnv("random:large_16")
+    env.reset(seed=543)
+    zero = {a: np.zeros(2, dtype=np.float32) for a in env.agents}
+    state = env.world_state()
+    while not state.leader_done:
+        env.step(zero)
+        state = env.world_state()
+    for _ in range(100):  # 10 s more: every walker has reached the end of its line
+        env.step(zero)
+    state = env.world_state()
+    assert np.allclose(state.human_vel, 0.0)
+    gaps = np.linalg.norm(state.slot_targets[:, None, :] - state.human_pos[None, :, :], axis=2)
+    assert gaps.min() >= state.human_radius.max() + state.follower_radius.max() + 0.3 - 1e-6

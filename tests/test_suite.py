@@ -270,7 +270,7 @@ def test_the_shipped_leaderboard_is_the_standard_suite_for_every_shipped_policy(
     root = Path(__file__).resolve().parents[1] / "docs" / "leaderboard"
     result = json.loads((root / "suite.json").read_text())
     assert result["format"] == "swarm_env.suite_result/1"
-    assert (result["suite"]["name"], result["suite"]["version"], result["suite"]["split"]) == ("standard", 2, "test")
+    assert (result["suite"]["name"], result["suite"]["version"], result["suite"]["split"]) == ("standard", 3, "test")
     shipped = {p.name for p in (Path(__file__).resolve().parents[1] / "baselines" / "checkpoints").iterdir() if p.is_dir()}
     assert shipped | {"vo", "cbs_rrt", "obs_expert", "orca", "pursuit"} <= set(result["policies"])
     board = Leaderboard.from_json(root / "leaderboard.json.gz")

@@ -2,7 +2,7 @@
 
 A :class:`Suite` names families (:mod:`swarm_env.scenarios.families`) and the seeds of each split; it has a
 version, bumped whenever a family's knobs, the generator or the seeds change, so that a score can cite
-``standard/2``. :func:`run_suite` plays policies on one split through the leaderboard
+``standard/3``. :func:`run_suite` plays policies on one split through the leaderboard
 (:func:`~swarm_env.harness.leaderboard.run_leaderboard`: the same episodes, workers, faults and
 ``--resume``) and :func:`suite_result` turns the board into one table per family and an aggregate.
 
@@ -68,7 +68,7 @@ class Suite:
     """Families and the seeds of each split.
 
     Attributes:
-        name, version: what a score cites (``standard/2``).
+        name, version: what a score cites (``standard/3``).
         description: one sentence.
         families: names in :data:`~swarm_env.scenarios.families.FAMILIES`, in table order.
         validation, test: the seeds of a generator family's worlds in each split.
@@ -134,7 +134,7 @@ _ALL = tuple(FAMILIES)
 
 #: The suites, by name.
 SUITES: Mapping[str, Suite] = MappingProxyType({s.name: s for s in (
-    Suite("standard", 2, "every family, 20 test worlds each (the paper scenarios and the corridor at seeds 0-2)",
+    Suite("standard", 3, "every family, 20 test worlds each (the paper scenarios and the corridor at seeds 0-2)",
           _ALL, validation=tuple(range(500, 520)), test=tuple(range(1000, 1020))),
     Suite("quick", 1, "a smoke test for CI: six families, two test worlds each, the fixed ones at seed 0",
           ("open", "cluttered", "crowd", "switching", "robot_leader", "paper"),

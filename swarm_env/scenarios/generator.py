@@ -59,6 +59,7 @@ from swarm_env.geometry.formation import (
     formation_offsets,
     formation_start,
     reach_time,
+    slot_targets,
     unprojected_slot_trajectory,
     virtual_slot_trajectory,
 )
@@ -112,6 +113,9 @@ _TRAVEL_FRACTION = 0.7  # the leader's path takes this share of max_time
 _MAX_TURN = math.radians(60.0)  # largest heading change at a waypoint
 _PATH_ATTEMPTS = 300
 _HUMAN_ATTEMPTS = 30
+#: m of room a stopped walker leaves beyond touching a robot at a final slot (or the robot leader at its goal):
+#: the settle tolerance (0.3 m), so that the last formation stays reachable.
+_WALKER_END_CLEAR = 0.3
 _OBSTACLE_TRIES = 40  # candidates per requested obstacle
 # How far (m) a drawn obstacle may reach beyond its nominal bounding radius: coordinates and sizes are
 # rounded to mm (a polygon's vertices by up to 0.0007 m, a rectangle's half-diagonal by 0.0005 m).
@@ -445,7 +449,8 @@ def random_scenario(rng: np.random.Generator, config: RandomScenarioConfig = Ran
         formations = gate_schedule(formations[0], gates, n, layout, cfg.dt)
     footprints = StaticMap.from_obstacles((W, H), [g.footprint for g in gates]) if gates else None
 
-    humans = _draw_humans(rng, cfg, (W, H), line, n_hum, start_discs, footprints)
+    humans = _draw_humans(rng, cfg, (W, H), line, n_hum, start_discs, footprints,
+                          _final_discs(line, formations[-1], n, cfg.leader_kind == "robot"))
 
     # Clearance constraints for obstacles: sample points with the clearance each needs.
     pts = [_samples(line), np.array([p for p, _ in start_discs])]
@@ -768,6 +773,14 @@ def _start_box(heading: float, offsets0: np.ndarray, rad: float, W: float, H: fl
     return lo, hi
 
 
+def _final_discs(line: PolylinePath, last: FormationSpec, n: int, robot_leader: bool) -> np.ndarray:
+    """``(K, 2)`` centres of where the robots stand once the leader has stopped: the last formation's slots at the
+    end of the path (as the leader faces there), and the robot leader's goal."""
+    end = np.asarray(line.point_at(line.length), dtype=float)
+    centres = slot_targets(np.array([end[0], end[1], line.heading_at(line.length)]), formation_offsets(last, n), None, 0.0)
+    return np.vstack([centres, end[None]]) if robot_leader else centres
+
+
 def _draw_humans(
     rng: np.random.Generator,
     cfg: RandomScenarioConfig,
@@ -776,9 +789,12 @@ def _draw_humans(
     n_hum: int,
     start_discs: list[tuple[np.ndarray, float]],
     footprints: StaticMap | None = None,
+    final: np.ndarray | None = None,
 ) -> list[HumanSpec]:
     """Humans walking straight lines that cross the leader's path, timed to meet the leader there (and keeping
-    1 m from the gates' ``footprints``: nobody walks through a door, or stops in one)."""
+    1 m from the gates' ``footprints``: nobody walks through a door, or stops in one). A walker stops at the end
+    of its line; it does not stop within touching distance plus ``_WALKER_END_CLEAR`` of a ``final`` disc (robot
+    radius; :func:`_final_discs`), where it would keep the last formation from settling (issue 34)."""
     W, H = size
     hr = cfg.human_radius
     out: list[HumanSpec] = []
@@ -803,6 +819,8 @@ def _draw_humans(
             if any(np.linalg.norm(a - q) < 2 * hr + 0.1 for q in starts):
                 continue
             if footprints is not None and float(footprints.obstacle_distances(_samples(PolylinePath(np.array([a, b])))).min()) < hr + 1.0:
+                continue
+            if final is not None and len(final) and float(np.min(np.linalg.norm(final - b, axis=1))) < hr + cfg.radius + _WALKER_END_CLEAR:
                 continue
             t_meet = s_c / cfg.leader_speed
             delay = round(max(0.0, t_meet - before / speed), 1)
