@@ -113,7 +113,7 @@ EXPERT_AVOIDANCE: dict[str, Any] = {"move_first": True, "recip_gap": 0.2, "horiz
 #: The expert before issue 12 (AvoidanceParams' defaults, no preview, no look-ahead cap, no backing off): the one
 #: the shipped ``residual_vo`` runs were trained with, which their files name as their residual's expert.
 LEGACY_SPEC = ("vo:move_first=false,recip_gap=0,horizon=3,horizon_static=3,tau=1,w_speed=1,escape_commit=0,"
-               "preview=0,lookahead=0,human_horizon=0,reverse=0,period_margin=0")
+               "preview=0,lookahead=0,human_horizon=0,reverse=0,period_margin=0,escape_drive=false")
 
 
 class VOExpert:
@@ -177,6 +177,14 @@ class VOExpert:
             switches every 12-14 s) where the fixed ``margin`` had covered it at 0.1 s. Scenarios with
             ``dt <= 0.1`` s (every generated family, the corridor, paper 003's) are unchanged bit for bit.
 
+    Escapes:
+        escape_drive: (default ``True``) a follower turning in place one way (the search's escape turn towards
+            open space) whose target is behind it drives on straight, at the pursuit's speed, instead of the
+            full turn back the other way (``full_turn``); the search tests that like any preferred twist. Without
+            it the full turn back was always "safe" (it stands), the next escape turned the robot away again, and
+            it stood turning left and right for the rest of the episode (training worlds ``large_16`` 14,
+            ``crowd_reactive`` 33; docs/vo_defaults.md, "``escape_drive``").
+
     Avoidance (velocity obstacles, Eq. 12): any field of
     :class:`swarm_env.control.safety.AvoidanceParams` (the search's
     :class:`~swarm_env.control.vo.VOParams` plus ``human_margin``, ``human_horizon`` and ``reciprocal``), e.g.
@@ -204,6 +212,7 @@ class VOExpert:
         reverse: float = 0.5,
         reverse_horizon: float = 1.0,
         period_margin: float = 0.1,
+        escape_drive: bool = True,
         **avoidance: Any,
     ) -> None:
         if not (isinstance(time_gap, (int, float)) and math.isfinite(time_gap) and time_gap > 0):
@@ -235,6 +244,7 @@ class VOExpert:
         self.reverse = float(reverse)
         self.reverse_horizon = float(reverse_horizon)
         self.period_margin = float(period_margin)
+        self.escape_drive = bool(escape_drive)
         self._period: tuple[float, float, AvoidanceParams] = (-1.0, -1.0, self.avoidance)  # (max_speed, dt, params)
         self._reversing: tuple[float, AvoidanceParams] | None = None  # (max_speed, the fallback's params)
         self._index: dict[str, int] = {}
@@ -348,7 +358,8 @@ class VOExpert:
             v_slot = slot_velocities(state.leader_pose, state.leader_vel, float(state.leader_twist[1]), slots)
             target = self._capped(state.follower_pose, slots + v_slot * T, v_max)
             if not preview and compiled_search():
-                return self._pursuit_compiled(state.follower_pose, target, v_max, omega_max)
+                return self._drive_on(state, target, self._pursuit_compiled(state.follower_pose, target, v_max,
+                                                                            omega_max), v_max, omega_max)
             if preview:
                 # The env's rule for slots (world.World: radius + SLOT_MARGIN): a led point inside
                 # an obstacle would steer the robot into it.
@@ -357,7 +368,8 @@ class VOExpert:
         else:
             target = slots
             if compiled_search():
-                return self._pursuit_compiled(state.follower_pose, target, v_max, omega_max)
+                return self._drive_on(state, target, self._pursuit_compiled(state.follower_pose, target, v_max,
+                                                                            omega_max), v_max, omega_max)
         twist = pure_pursuit(state.follower_pose, target, v_max, omega_max, T)
         if preview:
             ahead = self._capped(state.follower_pose, state.static.project_free(slots + v_slot * self.preview, clearance),
@@ -380,7 +392,37 @@ class VOExpert:
             twist[behind, 1] = np.where(alpha[behind] >= 0.0, 1.0, -1.0) * float(robots.max_turn_rate)
         arrived = d[:, 0] ** 2 + d[:, 1] ** 2 < self.arrive_radius**2
         twist[arrived] = 0.0
-        return twist
+        return self._drive_on(state, target, twist, v_max, omega_max)
+
+    def _drive_on(self, state: WorldState, target: np.ndarray, twist: np.ndarray, v_max: float,
+                  omega_max: float) -> np.ndarray:
+        """``escape_drive``: ``twist`` with each follower whose full turn (``full_turn``) would turn it back against
+        the way it is turning in place (an escape turn towards open space, the step before) driving on straight
+        at the pursuit's speed ``min(|target - p| / time_gap, max_speed)`` instead.
+
+        The full turn in place was always "safe" (it stands), so the VO search took it, the next step's escape
+        turned the robot back towards open space, and the two took turns for the rest of the episode (measured:
+        ``cluttered`` world 544, ``large_16`` world 14, ``crowd_reactive`` world 33; docs/vo_defaults.md). Driving
+        on is tested by the search like any preferred twist."""
+        turning = (twist[:, 0] == 0.0) & (twist[:, 1] != 0.0)  # full turns (and pure pursuit's turns in place)
+        if not (self.escape_drive and self.full_turn and turning.any()):
+            return twist
+        cur = state.follower_twist
+        pose = state.follower_pose
+        spinning = (np.abs(cur[:, 0]) < 0.1 * v_max) & (np.abs(cur[:, 1]) > 0.1 * omega_max)
+        turn_back = turning & spinning & (twist[:, 1] * cur[:, 1] < 0.0)
+        if not turn_back.any():
+            return twist
+        d = target - pose[:, :2]
+        alpha = np.arctan2(d[:, 1], d[:, 0]) - pose[:, 2]
+        alpha = (alpha + math.pi) % (2.0 * math.pi) - math.pi
+        on = turn_back & (np.abs(alpha) > 0.5 * math.pi) & (d[:, 0] ** 2 + d[:, 1] ** 2 >= self.arrive_radius**2)
+        if not on.any():
+            return twist
+        out = twist.copy()
+        out[on, 0] = np.minimum(np.hypot(d[on, 0], d[on, 1]) / self.time_gap, v_max)
+        out[on, 1] = 0.0
+        return out
 
     def _capped(self, pose: np.ndarray, target: np.ndarray, v_max: float) -> np.ndarray:
         """``lookahead``: each point of ``target`` ``(N, 2)`` moved towards its robot to at most

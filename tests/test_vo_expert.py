@@ -502,3 +502,46 @@ def test_one_parameter_object_for_the_search():
     a = vo_select(pose, 0.25, np.array([0.5, 0.2]), *empty, VOParams(n_v=5, fast=False))
     b = vo_select(pose, 0.25, np.array([0.5, 0.2]), *empty, n_v=5, fast=False)
     assert np.array_equal(a.twist, b.twist) and a.n_safe == b.n_safe
+
+
+def test_escape_drive_drives_on_instead_of_turning_back() -> None:
+    """``escape_drive``: a follower turning in place one way whose target is behind it gets a straight drive at
+    the pursuit's speed as its preferred twist, not the full turn back; turning the same way, or standing, it
+    keeps the full turn."""
+    env = SwarmEnv("random:crowd_reactive")
+    env.reset(seed=33)
+    state = env.world_state()
+    expert = VOExpert()
+    pose = state.follower_pose.copy()
+    target = state.slot_targets.copy()
+    target[0] = pose[0, :2] + (2.0, 1.0)  # 2.2 m away (at reset every follower stands on its slot)
+    # follower 0 faces away from its target (behind it) while turning in place to the left
+    d = target[0] - pose[0, :2]
+    pose[0, 2] = math.atan2(d[1], d[0]) + math.pi - 0.3  # the target 0.3 rad short of dead astern, on the right
+    omega_max = state.scenario.robots.max_turn_rate
+    for turning, expect_drive in ((+0.5 * omega_max, True), (-0.5 * omega_max, False), (0.0, False)):
+        twist = np.zeros((state.n_followers, 2))
+        twist[0] = 0.0, -omega_max  # the full turn (towards the target, to the right)
+        current = state.follower_twist.copy()
+        current[0] = 0.0, turning
+        s = replace(state, follower_pose=pose, follower_twist=current)
+        out = expert._drive_on(s, target, twist, 0.65, omega_max)
+        if expect_drive:
+            dist = float(np.hypot(*(target[0] - pose[0, :2])))
+            assert out[0, 1] == 0.0 and out[0, 0] == pytest.approx(min(dist / expert.time_gap, 0.65))
+        else:
+            assert np.array_equal(out[0], twist[0])
+        assert np.array_equal(out[1:], twist[1:])
+    assert np.array_equal(VOExpert(escape_drive=False)._drive_on(s, target, twist, 0.65, omega_max), twist)
+
+
+@pytest.mark.slow
+def test_escape_drive_ends_the_turn_left_turn_right_standstill() -> None:
+    """``crowd_reactive`` training world 33: without ``escape_drive`` a follower stands for the rest of the episode,
+    the full turn towards its slot and the escape turn towards open space taking turns; with it, it settles."""
+    results = {}
+    for spec in ("vo", "vo:escape_drive=false"):
+        env = SwarmEnv("random:crowd_reactive")
+        results[spec] = run_episode(env, load_policy(spec, env), 33)
+    assert results["vo"]["success"] and results["vo"]["collisions"]["total"] == 0
+    assert not results["vo:escape_drive=false"]["success"]
