@@ -126,6 +126,7 @@ def _walkers(rng: np.random.Generator, path: list[list[float]], length: float, s
         humans.append(walker)
     return humans
 
+
 def _broad_path(rng: np.random.Generator) -> list[list[float]]:
     """A leader path from x = 5 to x = 28 m with 0-2 turns, its corners at y = 6-15 m."""
     xs = np.linspace(5, 28, int(rng.integers(0, 3)) + 2)
