@@ -81,6 +81,7 @@ import numpy as np
 from swarm_env.compiled import compiled_search
 from swarm_env.control.pursuit import pure_pursuit, slot_velocities
 from swarm_env.control.safety import AvoidanceParams, back_off, period_margin, reversing_params, safe_follower_twists
+from swarm_env.control.vo import turning_in_place
 from swarm_env.geometry.formation import SLOT_MARGIN
 from swarm_env.harness.policies import expert_factory
 from swarm_env.state import WorldState
@@ -114,6 +115,13 @@ EXPERT_AVOIDANCE: dict[str, Any] = {"move_first": True, "recip_gap": 0.2, "horiz
 #: the shipped ``residual_vo`` runs were trained with, which their files name as their residual's expert.
 LEGACY_SPEC = ("vo:move_first=false,recip_gap=0,horizon=3,horizon_static=3,tau=1,w_speed=1,escape_commit=0,"
                "preview=0,lookahead=0,human_horizon=0,reverse=0,period_margin=0,escape_drive=false")
+
+
+def _bearing_error(pose: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``(N,)`` angle (rad, in ``[-pi, pi)``) from each robot's heading ``pose[:, 2]`` to the direction ``d``
+    ``(N, 2)`` of its target: positive to the left."""
+    alpha = np.arctan2(d[:, 1], d[:, 0]) - pose[:, 2]
+    return (alpha + math.pi) % (2.0 * math.pi) - math.pi
 
 
 class VOExpert:
@@ -385,8 +393,7 @@ class VOExpert:
         if self.full_turn:
             # Target behind (|alpha| > 90 deg): pure pursuit turns in place at 2 v / l, slow
             # for a far target; turn at the full rate instead.
-            alpha = np.arctan2(d[:, 1], d[:, 0]) - state.follower_pose[:, 2]
-            alpha = (alpha + math.pi) % (2.0 * math.pi) - math.pi
+            alpha = _bearing_error(state.follower_pose, d)
             behind = np.abs(alpha) > 0.5 * math.pi
             twist[behind, 0] = 0.0
             twist[behind, 1] = np.where(alpha[behind] >= 0.0, 1.0, -1.0) * float(robots.max_turn_rate)
@@ -408,14 +415,11 @@ class VOExpert:
         if not (self.escape_drive and self.full_turn and turning.any()):
             return twist
         cur = state.follower_twist
-        pose = state.follower_pose
-        spinning = (np.abs(cur[:, 0]) < 0.1 * v_max) & (np.abs(cur[:, 1]) > 0.1 * omega_max)
-        turn_back = turning & spinning & (twist[:, 1] * cur[:, 1] < 0.0)
+        turn_back = turning & turning_in_place(cur[:, 0], cur[:, 1], v_max, omega_max) & (twist[:, 1] * cur[:, 1] < 0.0)
         if not turn_back.any():
             return twist
-        d = target - pose[:, :2]
-        alpha = np.arctan2(d[:, 1], d[:, 0]) - pose[:, 2]
-        alpha = (alpha + math.pi) % (2.0 * math.pi) - math.pi
+        d = target - state.follower_pose[:, :2]
+        alpha = _bearing_error(state.follower_pose, d)
         on = turn_back & (np.abs(alpha) > 0.5 * math.pi) & (d[:, 0] ** 2 + d[:, 1] ** 2 >= self.arrive_radius**2)
         if not on.any():
             return twist

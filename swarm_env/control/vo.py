@@ -87,10 +87,11 @@ __all__ = [
 _FIRST_STAGE = 24
 
 
-def _turning_in_place(v: float, omega: float, v_max: float, omega_max: float) -> bool:
-    """Whether a robot driving the twist ``(v, omega)`` is turning in place (``escape_commit``): speed
-    under 10 % of ``v_max``, turn rate over 10 % of ``omega_max``. (The kernel has the same test.)"""
-    return abs(v) < 0.1 * v_max and abs(omega) > 0.1 * omega_max
+def turning_in_place(v: Any, omega: Any, v_max: float, omega_max: float) -> Any:
+    """Whether a robot driving the twist ``(v, omega)`` is turning in place (``escape_commit``; the ``vo`` expert's
+    ``escape_drive``): speed under 10 % of ``v_max``, turn rate over 10 % of ``omega_max``. Scalars give a bool,
+    arrays an array of them. (The kernel has the same test.)"""
+    return (abs(v) < 0.1 * v_max) & (abs(omega) > 0.1 * omega_max)
 
 
 # ---------------------------------------------------------------------------- sampling
@@ -1279,7 +1280,7 @@ class _VOBatch:
                 # escape_commit: a robot already turning in place keeps turning that way unless the other way
                 # is open for longer by more than escape_commit s (no left-right dithering in front of a block).
                 k = requests[r][0]
-                if _turning_in_place(float(cur[k, 0]), float(cur[k, 1]), self.v_max, self.omega_max):
+                if turning_in_place(float(cur[k, 0]), float(cur[k, 1]), self.v_max, self.omega_max):
                     same = rows_r[twists[k, cand[rows_r], 1] * cur[k, 1] > 0.0]
                     if len(same) and ttc_p[same].max() >= ttc_p[rows_r].max() - self.escape_commit:
                         rows_r = same
